@@ -1,0 +1,26 @@
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test bench bench-fit clean
+
+$(STAMP): pyproject.toml
+	$(PY) -m venv $(VENV)
+	$(BIN)/pip install --upgrade pip >/dev/null
+	$(BIN)/pip install -e '.[dev]'
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/vsfleet run scenarios/paper-triangle.toml
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+bench-fit: $(STAMP)
+	$(BIN)/python bench/fit.py
+
+bench: bench-fit
+
+clean:
+	rm -rf $(VENV) runs .pytest_cache .hypothesis
