@@ -1,0 +1,1 @@
+"""The agent: one identical process per robot, no leader (see agent.main)."""

@@ -1,0 +1,255 @@
+"""vsfleet agent: one identical process per robot; fits, advances, commands its own wheels.
+
+Startup: declare the liveliness token, subscribe to mission updates and poses,
+answer mission queries (so late joiners get the mission from any agent), and
+ask for the mission with a get. Then, at every frame (see agent.frames), run
+``vsfleet.step.control_step`` and publish ``cmd/<robot>`` and ``state/<robot>``.
+On any exit it publishes a zero command.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import queue
+import threading
+from typing import Callable
+
+import zenoh
+
+from fleetctl.lifecycle import Rejections, StopFlag, wall_clock
+from fleetctl.zconf import RELIABLE_QOS, STREAM_QOS, TELEMETRY_QOS, add_zenoh_args, init_logging, zenoh_config
+from vsfleet.advance import Twist2
+from vsfleet.control import DEFAULT_CONTROLLER, make_controller
+from vsfleet.errors import VsfleetValueError
+from vsfleet.step import control_step
+from vsfleet.wire import (
+    CmdMsg,
+    Keys,
+    Mission,
+    StateMsg,
+    WireError,
+    check_name,
+    decode_mission,
+    decode_pose,
+    encode,
+    encode_mission,
+)
+
+from .frames import Frame, FrameAssembler, MissionBook
+
+log = logging.getLogger("vsfleet.agent")
+
+DEFAULT_TTL_S = 0.3
+DEFAULT_DT_S = 1.0 / 30.0
+QUEUE_MAX = 4096
+
+
+class Agent:
+    """The agent's state and its reaction to messages; transport is injected (put functions)."""
+
+    def __init__(self, robot: str, keys: Keys, put_cmd: Callable[[bytes], None],
+                 put_state: Callable[[bytes], None], dt_s: float = DEFAULT_DT_S,
+                 ttl_s: float = DEFAULT_TTL_S, deadline_s: float = 0.02, max_age_s: float = 0.25,
+                 clock: Callable[[], float] = wall_clock) -> None:
+        self.robot = check_name(robot, "robot")
+        self.keys = keys
+        self.put_cmd = put_cmd
+        self.put_state = put_state
+        self.dt_s = dt_s
+        self.ttl_s = ttl_s
+        self.clock = clock
+        self.missions = MissionBook()
+        self.frames = FrameAssembler((), deadline_s, max_age_s)
+        self.rejections = Rejections(log)
+        self.twist_prev = Twist2()
+        self.wheels_prev = (0.0, 0.0)
+        self.mission_version = -1
+        self.last_seq = 0
+        self.ticks = 0
+        self._controllers: dict[str, object] = {}
+
+    # ------------------------------------------------------------ inputs
+    def on_mission(self, key: str, payload: bytes) -> None:
+        try:
+            mission = decode_mission(payload)
+        except WireError as exc:
+            self.rejections.reject(key, str(exc))
+            return
+        if self.missions.add(mission):
+            log.info("mission v%d (%s, %d robots, effective_t %.3f)", mission.version,
+                     mission.metric, len(mission.robots), mission.effective_t)
+            latest = self.missions.latest()
+            ids = set(latest.robot_ids)
+            for m in self.missions.by_version.values():
+                ids |= set(m.robot_ids)
+            self.frames.set_robots(tuple(sorted(ids)))
+
+    def on_pose(self, key: str, payload: bytes) -> None:
+        try:
+            robot = self.keys.robot_of(key, "pose")
+            msg = decode_pose(payload)
+        except WireError as exc:
+            self.rejections.reject(key, str(exc))
+            return
+        if robot not in self.frames.robots:
+            self.rejections.reject(key, f"robot {robot!r} is not in the mission")
+            return
+        self.frames.offer(robot, msg, self.clock())
+
+    # ------------------------------------------------------------ control
+    def controller_for(self, mission: Mission):
+        name = mission.controller or DEFAULT_CONTROLLER
+        if name not in self._controllers:
+            try:
+                self._controllers[name] = make_controller(name)
+            except VsfleetValueError as exc:
+                log.error("mission v%d names %s; using %s", mission.version, exc, DEFAULT_CONTROLLER)
+                self._controllers[name] = make_controller(DEFAULT_CONTROLLER)
+        return self._controllers[name]
+
+    def poll(self) -> Frame | None:
+        """Process the frame that is due now, if any; returns it."""
+        frame = self.frames.ready(self.clock())
+        if frame is not None:
+            self.tick(frame)
+        return frame
+
+    def tick(self, frame: Frame) -> None:
+        mission = self.missions.active(frame.t)
+        if mission is None or self.robot not in mission.robot_ids:
+            return  # no command: the robot halts after ttl
+        if mission.version != self.mission_version:
+            self.mission_version = mission.version
+        poses = {r: p for r, p in frame.poses.items() if r in mission.robot_ids}
+        try:
+            result = control_step(mission, poses, self.robot, self.dt_s, self.twist_prev,
+                                  self.wheels_prev, self.controller_for(mission))
+        except VsfleetValueError as exc:
+            self.rejections.reject(self.keys.pose(), f"frame {frame.seq} unusable: {exc}")
+            return
+        if result is None:
+            return
+        self.twist_prev = result.twist
+        self.wheels_prev = (result.vl_m_s, result.vr_m_s)
+        self.last_seq = frame.seq
+        self.ticks += 1
+        self.put_cmd(encode(CmdMsg(t=frame.t, seq=frame.seq, vl=result.vl_m_s, vr=result.vr_m_s,
+                                   ttl=self.ttl_s)))
+        if not math.isnan(result.err_m):
+            f, g = result.fit_pose, result.goal_pose
+            self.put_state(encode(StateMsg(
+                t=frame.t, seq=frame.seq, x=f.x, y=f.y, th=f.th, gx=g.x, gy=g.y, gth=g.th,
+                cost=result.cost, err=result.err_m, used=result.used,
+                rejected=self.rejections.count)))
+
+    def stop_command(self) -> bytes:
+        self.wheels_prev = (0.0, 0.0)
+        return encode(CmdMsg(t=self.clock(), seq=self.last_seq, vl=0.0, vr=0.0, ttl=self.ttl_s))
+
+
+def fetch_mission(session: zenoh.Session, keys: Keys, agent: Agent, timeout_s: float) -> None:
+    """Ask the key space for the mission; every reply (any version) is offered to the agent."""
+    for reply in session.get(keys.mission, timeout=timeout_s):
+        if reply.ok is not None:
+            agent.on_mission(str(reply.ok.key_expr), reply.ok.payload.to_bytes())
+
+
+def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFlag | None = None,
+              dt_s: float = DEFAULT_DT_S, ttl_s: float = DEFAULT_TTL_S) -> Agent:
+    """Run one agent until ``stop`` is set; always ends with a zero command."""
+    stop = stop or StopFlag()
+    keys = Keys(fleet)
+    inbox: queue.Queue = queue.Queue(maxsize=QUEUE_MAX)
+    overflow = [0]
+
+    def enqueue(kind: str):
+        def cb(sample: zenoh.Sample) -> None:
+            try:
+                inbox.put_nowait((kind, str(sample.key_expr), sample.payload.to_bytes()))
+            except queue.Full:
+                overflow[0] += 1
+        return cb
+
+    with zenoh.open(conf) as session:
+        cmd_pub = session.declare_publisher(keys.cmd(robot), **STREAM_QOS)
+        state_pub = session.declare_publisher(keys.state(robot), **TELEMETRY_QOS)
+        agent = Agent(robot, keys, cmd_pub.put, state_pub.put, dt_s=dt_s, ttl_s=ttl_s)
+        token = session.liveliness().declare_token(keys.alive("agent", robot))  # keep referenced
+
+        def answer_mission(query: zenoh.Query) -> None:
+            latest = agent.missions.latest()
+            if latest is not None:
+                query.reply(keys.mission, encode_mission(latest))
+
+        subs = [
+            session.declare_subscriber(keys.mission, enqueue("mission")),
+            session.declare_subscriber(keys.pose(), enqueue("pose")),
+        ]
+        queryable = session.declare_queryable(keys.mission, answer_mission, complete=False)
+        log.info("agent %s up (fleet %s)", robot, fleet)
+        next_fetch = 0.0
+        try:
+            while not stop.is_set():
+                now = agent.clock()
+                if agent.missions.latest() is None and now >= next_fetch:
+                    threading.Thread(target=fetch_mission, args=(session, keys, agent, 1.0),
+                                     daemon=True).start()
+                    next_fetch = now + 1.0
+                wait = agent.frames.time_to_deadline(now)
+                try:
+                    kind, key, payload = inbox.get(timeout=0.05 if wait is None else max(wait, 1e-4))
+                except queue.Empty:
+                    pass
+                else:
+                    if kind == "pose":
+                        agent.on_pose(key, payload)
+                    else:
+                        agent.on_mission(key, payload)
+                    # drain what has already arrived before deciding on a frame
+                    while True:
+                        try:
+                            kind, key, payload = inbox.get_nowait()
+                        except queue.Empty:
+                            break
+                        (agent.on_pose if kind == "pose" else agent.on_mission)(key, payload)
+                agent.poll()
+        finally:
+            cmd_pub.put(agent.stop_command())
+            log.info("agent %s stopping after %d ticks, %d rejected, %d dropped on overflow",
+                     robot, agent.ticks, agent.rejections.count, overflow[0])
+            for s in subs:
+                s.undeclare()
+            queryable.undeclare()
+            token.undeclare()
+    return agent
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="vsfleet agent", description=__doc__.splitlines()[0])
+    p.add_argument("--robot", required=True, help="this agent's robot id")
+    p.add_argument("--fleet", default="demo", help="fleet name (key prefix vs/<fleet>)")
+    p.add_argument("--dt", type=float, default=DEFAULT_DT_S,
+                   help="control step [s]: the structure is advanced by one dt per frame")
+    p.add_argument("--ttl", type=float, default=DEFAULT_TTL_S, help="command time-to-live [s]")
+    p.add_argument("--verbose", "-v", action="store_true")
+    add_zenoh_args(p)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    init_logging(args.verbose)
+    try:
+        check_name(args.robot, "robot")
+        check_name(args.fleet, "fleet")
+    except WireError as exc:
+        log.error("%s", exc)
+        return 2
+    run_agent(zenoh_config(args), args.robot, args.fleet, dt_s=args.dt, ttl_s=args.ttl)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,33 @@
+"""The ``vsfleet`` console script: one subcommand per program; each ``main`` is importable."""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+COMMANDS = {
+    "agent": ("agent.main", "one agent per robot"),
+    "sim": ("simfleet.main", "the simulated fleet"),
+    "tracker sim": ("tracker.sim", "the simulated tracker (VGPS)"),
+    "run": ("fleetctl.run", "the localhost multi-process fleet from a scenario"),
+    "router": ("fleetctl.router", "a zenoh router (router-mode zenoh-python session)"),
+    "mission set": ("fleetctl.mission_cmd", "publish a mission file"),
+}
+
+USAGE = "usage: vsfleet COMMAND [ARGS...]\n\ncommands:\n" + "\n".join(
+    f"  {name:<14} {doc}" for name, (_, doc) in COMMANDS.items())
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    for n_words in (2, 1):
+        name = " ".join(argv[:n_words])
+        if len(argv) >= n_words and name in COMMANDS:
+            module = importlib.import_module(COMMANDS[name][0])
+            return int(module.main(argv[n_words:]) or 0)
+    print(USAGE, file=sys.stderr)
+    return 0 if argv[:1] in (["-h"], ["--help"]) else 2
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,69 @@
+"""vsfleet router: a zenoh router as a router-mode zenoh-python session (no zenohd needed).
+
+Where zenohd is installed, ``zenohd -c deploy/router.json5`` does the same job.
+The admin space is on, so ``@/**`` queries show sessions and tokens.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import socket
+
+import zenoh
+
+from .lifecycle import StopFlag
+from .zconf import add_zenoh_args, init_logging, zenoh_config
+
+log = logging.getLogger("vsfleet.router")
+
+
+def free_loopback_port() -> int:
+    """A TCP port on 127.0.0.1 that is free right now."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def loopback_router_config(port: int) -> zenoh.Config:
+    """Router on tcp/127.0.0.1:port, multicast scouting off, admin space on."""
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"router"')
+    conf.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("adminspace/enabled", "true")
+    return conf
+
+
+def open_loopback_router(port: int | None = None) -> tuple[zenoh.Session, str]:
+    """Open an embedded router on a free loopback port; returns (session, endpoint)."""
+    port = port or free_loopback_port()
+    session = zenoh.open(loopback_router_config(port))
+    return session, f"tcp/127.0.0.1:{port}"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="vsfleet router", description=__doc__.splitlines()[0])
+    p.add_argument("--verbose", "-v", action="store_true")
+    add_zenoh_args(p)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    init_logging(args.verbose)
+    if args.mode is None and not args.config:
+        args.mode = "router"
+    conf = zenoh_config(args)
+    conf.insert_json5("adminspace/enabled", "true")
+    stop = StopFlag()
+    with zenoh.open(conf) as session:
+        log.info("router up, zid %s", session.info.zid())
+        while not stop.wait(1.0):
+            pass
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,290 @@
+"""vsfleet run SCENARIO.toml: the localhost multi-process fleet.
+
+Starts an embedded zenoh router (router-mode session on a free loopback port,
+multicast off), then simfleet, the simulated tracker and one agent process per
+robot, all as clients of that router. Publishes the mission and answers
+mission queries. Shows progress, stops everything cleanly (also on Ctrl-C or
+when a child dies), prints a summary and writes the run to runs/<timestamp>/.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import msgpack
+import zenoh
+
+from vsfleet.analysis import (
+    PAPER_MAX_M,
+    PAPER_MEAN_M,
+    PAPER_STD_M,
+    agreement,
+    deviation_stats,
+    fitted_truth,
+    goal_distance,
+    truth_frames,
+)
+from vsfleet.geometry import angle_diff
+from vsfleet.scenario import Scenario
+from vsfleet.wire import Keys, Mission, WireError, decode_state, decode_truth, encode_mission
+
+from .lifecycle import StopFlag, wall_clock
+from .mission_cmd import stamp
+from .router import open_loopback_router
+from .scenario_file import load_scenario
+from .zconf import RELIABLE_QOS, init_logging, zenoh_flags
+
+log = logging.getLogger("vsfleet.run")
+
+GOAL_POS_TOL_M = 0.01
+GOAL_TH_TOL_RAD = 0.02
+SETTLED_WHEEL_M_S = 0.002
+SETTLE_S = 1.0
+
+
+def child_command(*args: str) -> list[str]:
+    return [sys.executable, "-m", "fleetctl.cli", *args]
+
+
+@dataclass
+class Recorder:
+    """Every message under vs/<fleet>/**: (receive time [s], key, payload)."""
+
+    records: list[tuple[float, str, bytes]] = field(default_factory=list)
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def on_sample(self, sample: zenoh.Sample) -> None:
+        rec = (wall_clock(), str(sample.key_expr), sample.payload.to_bytes())
+        with self.lock:
+            self.records.append(rec)
+
+    def snapshot(self) -> list[tuple[float, str, bytes]]:
+        with self.lock:
+            return list(self.records)
+
+    def write(self, path: Path) -> None:
+        with path.open("wb") as f:
+            for t, key, payload in self.snapshot():
+                f.write(msgpack.packb([t, key, payload], use_bin_type=True))
+
+
+def decoded(records, keys: Keys, kind: str, decode):
+    out = []
+    for _, key, payload in records:
+        if key.startswith(f"{keys.prefix}/{kind}/"):
+            try:
+                out.append((keys.robot_of(key, kind), decode(payload)))
+            except WireError:
+                pass
+    return out
+
+
+@dataclass(frozen=True)
+class RunSummary:
+    scenario: str
+    duration_s: float
+    reached_goal: bool
+    goal_distance_start_m: float
+    goal_distance_end_m: float
+    deviation: list
+    agreement: dict
+    children_ok: bool
+
+    def table(self) -> str:
+        lines = [f"run {self.scenario}: {self.duration_s:.1f} s, goal reached: {self.reached_goal}, "
+                 f"distance to goal {self.goal_distance_start_m:.3f} m -> {self.goal_distance_end_m:.4f} m",
+                 "deviation from the structure (from truth)   mean [cm]  sigma [cm]  max [cm]  samples"]
+        for d in self.deviation:
+            lines.append(f"  {d['robot']:<40} {100 * d['mean_m']:9.3f} {100 * d['std_m']:10.3f} "
+                         f"{100 * d['max_m']:9.3f}  {d['samples']:7d}")
+        lines.append(f"  {'paper, real R3 robots (Fig. 10)':<40} {100 * PAPER_MEAN_M:9.3f} "
+                     f"{100 * PAPER_STD_M:10.3f} {100 * PAPER_MAX_M:9.3f}")
+        a = self.agreement
+        lines.append(f"agreement: {a['identical']}/{a['frames']} frames bit-identical across agents; "
+                     f"max difference {a['max_pos_m']:.3g} m, {a['max_th_rad']:.3g} rad")
+        return "\n".join(lines)
+
+
+def summarise(scenario: Scenario, mission: Mission, records, elapsed_s: float, children_ok: bool) -> RunSummary:
+    keys = Keys(scenario.fleet)
+    frames = truth_frames(decoded(records, keys, "truth", decode_truth))
+    fitted = fitted_truth(mission, frames)
+    states = decoded(records, keys, "state", decode_state)
+    agr = agreement(states)
+    d0 = goal_distance(mission, fitted[0][1]) if fitted else math.nan
+    d1 = goal_distance(mission, fitted[-1][1]) if fitted else math.nan
+    return RunSummary(scenario=scenario.name, duration_s=elapsed_s, reached_goal=d1 <= GOAL_POS_TOL_M,
+                      goal_distance_start_m=d0, goal_distance_end_m=d1,
+                      deviation=[asdict(s) for s in deviation_stats(fitted)], agreement=asdict(agr),
+                      children_ok=children_ok)
+
+
+class Children:
+    """The fleet's processes; stopped with SIGTERM, then SIGKILL after a grace period."""
+
+    def __init__(self, log_dir: Path) -> None:
+        self.procs: dict[str, subprocess.Popen] = {}
+        self.log_dir = log_dir
+
+    def start(self, name: str, cmd: list[str]) -> subprocess.Popen:
+        out = (self.log_dir / f"{name}.log").open("wb")
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        proc = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                env=env, start_new_session=True)
+        self.procs[name] = proc
+        return proc
+
+    def dead(self) -> list[str]:
+        return [n for n, p in self.procs.items() if p.poll() is not None]
+
+    def stop(self, names: list[str] | None = None, grace_s: float = 5.0) -> bool:
+        """Terminate (then kill) the named children; True if all exited with code 0 on SIGTERM."""
+        names = list(self.procs) if names is None else names
+        for n in names:
+            if self.procs[n].poll() is None:
+                self.procs[n].send_signal(signal.SIGTERM)
+        ok = True
+        deadline = time.monotonic() + grace_s
+        for n in names:
+            p = self.procs[n]
+            try:
+                p.wait(timeout=max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+                ok = False
+            ok = ok and p.returncode == 0
+        return ok
+
+
+def settled_at_goal(mission: Mission, recorder: Recorder, keys: Keys, window_s: float) -> bool:
+    """True when, over the last window, the truth-fitted structure sits at the goal and wheels are still."""
+    if mission.goal is None and mission.path is None:
+        return False
+    now = wall_clock()
+    recent = [r for r in recorder.snapshot()[-2000:] if r[0] >= now - window_s]
+    truth = decoded(recent, keys, "truth", decode_truth)
+    if not truth or any(abs(m.vl) > SETTLED_WHEEL_M_S or abs(m.vr) > SETTLED_WHEEL_M_S for _, m in truth):
+        return False
+    fitted = fitted_truth(mission, truth_frames(truth))
+    if not fitted:
+        return False
+    goal_th = mission.goal[2] if mission.goal is not None else mission.path[-1][2]
+    pose = fitted[-1][1]
+    return goal_distance(mission, pose) <= GOAL_POS_TOL_M and abs(angle_diff(goal_th, pose.th)) <= GOAL_TH_TOL_RAD
+
+
+def run(scenario_path: str, duration_s: float | None = None, out_dir: str = "runs",
+        fleet: str | None = None, stop: StopFlag | None = None, until_goal: bool = True,
+        progress: bool = True) -> tuple[RunSummary, Path]:
+    scenario = load_scenario(scenario_path, fleet=fleet)
+    duration = scenario.duration_s if duration_s is None else duration_s
+    keys = Keys(scenario.fleet)
+    run_dir = Path(out_dir) / time.strftime("%Y%m%d-%H%M%S") / scenario.name
+    run_dir.mkdir(parents=True, exist_ok=True)
+    stop = stop or StopFlag()
+    children = Children(run_dir)
+    recorder = Recorder()
+    router, endpoint = open_loopback_router()
+    flags = zenoh_flags(endpoint)
+    try:
+        router.declare_subscriber(keys.everything, recorder.on_sample)
+        mission = stamp(scenario.mission, wall_clock(), 0.0, version=1)
+        payload = encode_mission(mission)
+        router.declare_queryable(keys.mission, lambda q: q.reply(keys.mission, payload), complete=True)
+        tr = scenario.tracker
+        children.start("sim", child_command("sim", str(scenario_path), "--fleet", scenario.fleet, *flags))
+        children.start("tracker", child_command(
+            "tracker", "sim", "--fleet", scenario.fleet, "--rate", str(tr.rate_hz),
+            "--noise-xy", str(tr.noise_xy_m), "--noise-th", str(tr.noise_th_rad),
+            "--latency", str(tr.latency_s), "--drop", str(tr.drop_prob), *flags))
+        agents = [f"agent-{r}" for r in mission.robot_ids]
+        for r in mission.robot_ids:
+            children.start(f"agent-{r}", child_command(
+                "agent", "--robot", r, "--fleet", scenario.fleet, "--dt", str(1.0 / tr.rate_hz), *flags))
+        router.put(keys.mission, payload, **RELIABLE_QOS)
+        log.info("fleet of %d robots started on %s; logs in %s", len(agents), endpoint, run_dir)
+
+        t_start = wall_clock()
+        next_report = t_start
+        reason = "duration reached"
+        while True:
+            now = wall_clock()
+            elapsed = now - t_start
+            if stop.is_set():
+                reason = "interrupted"
+                break
+            if children.dead():
+                reason = f"child exited early: {', '.join(children.dead())}"
+                log.error("%s", reason)
+                break
+            if elapsed >= duration:
+                break
+            if now >= next_report:
+                next_report += 1.0
+                if progress:
+                    print(progress_line(mission, recorder, keys, elapsed, duration), flush=True)
+                if until_goal and elapsed > 2.0 and settled_at_goal(mission, recorder, keys, SETTLE_S):
+                    reason = "settled at the goal"
+                    break
+            stop.wait(0.1)
+        elapsed = wall_clock() - t_start
+        ok = children.stop(agents) and children.stop(["tracker", "sim"])
+        ok = ok and not reason.startswith("child")
+    finally:
+        children.stop()
+        router.close()
+    log.info("run ended: %s", reason)
+    summary = summarise(scenario, mission, recorder.snapshot(), elapsed, ok)
+    recorder.write(run_dir / "log.msgpack")
+    (run_dir / "summary.json").write_text(json.dumps(asdict(summary), indent=2))
+    (run_dir / "scenario.toml").write_bytes(Path(scenario_path).read_bytes())
+    return summary, run_dir
+
+
+def progress_line(mission: Mission, recorder: Recorder, keys: Keys, elapsed: float, duration: float) -> str:
+    recent = recorder.snapshot()[-400:]
+    fitted = fitted_truth(mission, truth_frames(decoded(recent, keys, "truth", decode_truth)))
+    if not fitted:
+        return f"[{elapsed:5.1f}/{duration:.0f} s] waiting for truth"
+    _, pose, dev = fitted[-1]
+    dist = goal_distance(mission, pose)
+    eta = min(duration - elapsed, dist / mission.speed_max if mission.speed_max > 0 else math.inf)
+    return (f"[{elapsed:5.1f}/{duration:.0f} s] structure ({pose.x:+.3f}, {pose.y:+.3f}, {pose.th:+.2f}) "
+            f"to goal {dist:.3f} m, max deviation {100 * max(dev.values()):.2f} cm, ETA {eta:4.0f} s")
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="vsfleet run", description=__doc__.splitlines()[0])
+    p.add_argument("scenario", help="scenario TOML file, e.g. scenarios/paper-triangle.toml")
+    p.add_argument("--duration", type=float, default=None, help="override the scenario's duration [s]")
+    p.add_argument("--fleet", default=None, help="override the fleet name")
+    p.add_argument("--out", default="runs", help="directory for run records")
+    p.add_argument("--no-stop-at-goal", action="store_true", help="run the full duration")
+    p.add_argument("--verbose", "-v", action="store_true")
+    args = p.parse_args(argv)
+    init_logging(args.verbose)
+    try:
+        summary, run_dir = run(args.scenario, args.duration, args.out, args.fleet,
+                               until_goal=not args.no_stop_at_goal)
+    except (OSError, ValueError) as exc:
+        log.error("%s", exc)
+        return 2
+    print(summary.table())
+    print(f"run written to {run_dir}")
+    return 0 if summary.children_ok else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

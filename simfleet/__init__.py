@@ -1,0 +1,1 @@
+"""The simulated fleet: N differential-drive robots with exact arc kinematics."""

@@ -1,0 +1,174 @@
+"""vsfleet sim: the simulated fleet. Obeys cmd/<robot> (with ttl) and fault/<robot>; publishes truth.
+
+Physics runs at a fixed rate (200 Hz by default). Simulation time is counted:
+step k is at ``t0 + k / rate_hz`` on the tracker's clock (UNIX seconds); the
+loop is paced to the wall clock so that agents see real time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import threading
+from dataclasses import dataclass
+from typing import Callable
+
+import zenoh
+
+from fleetctl.lifecycle import Rejections, StopFlag, pace, wall_clock
+from fleetctl.scenario_file import load_scenario
+from fleetctl.zconf import TELEMETRY_QOS, add_zenoh_args, init_logging, zenoh_config
+from vsfleet.geometry import Pose2
+from vsfleet.scenario import Scenario
+from vsfleet.wire import Keys, TruthMsg, WireError, decode_cmd, decode_fault, encode
+
+from .physics import Fault, RobotState, step_robot
+
+log = logging.getLogger("vsfleet.sim")
+
+
+@dataclass
+class _Cmd:
+    vl: float
+    vr: float
+    seq: int
+    arrived_t: float
+    ttl: float
+
+
+class Fleet:
+    """The simulated robots and their inputs. Thread-safe inputs, single-threaded step()."""
+
+    def __init__(self, scenario: Scenario, keys: Keys, t0: float) -> None:
+        self.scenario = scenario
+        self.keys = keys
+        self.robots = {r.robot: r for r in scenario.robots}
+        self.states = {r.robot: RobotState(Pose2(*r.start)) for r in scenario.robots}
+        self.cmds: dict[str, _Cmd] = {}
+        self.faults: dict[str, Fault] = {r: Fault() for r in self.robots}
+        self.timeline = list(scenario.faults)
+        self.t0 = t0
+        self.k = 0
+        self.dt_s = 1.0 / scenario.sim.rate_hz
+        self.lock = threading.Lock()
+        self.rejections = Rejections(log)
+
+    @property
+    def t(self) -> float:
+        return self.t0 + self.k * self.dt_s
+
+    def on_cmd(self, key: str, payload: bytes, now: float) -> None:
+        try:
+            robot = self.keys.robot_of(key, "cmd")
+            msg = decode_cmd(payload)
+        except WireError as exc:
+            self.rejections.reject(key, str(exc))
+            return
+        if robot not in self.robots:
+            self.rejections.reject(key, f"unknown robot {robot!r}")
+            return
+        with self.lock:
+            held = self.cmds.get(robot)
+            if held is not None and msg.seq < held.seq:
+                return  # out of order: a newer frame's command is already applied
+            self.cmds[robot] = _Cmd(msg.vl, msg.vr, msg.seq, now, msg.ttl)
+
+    def on_fault(self, key: str, payload: bytes, now: float) -> None:
+        try:
+            robot = self.keys.robot_of(key, "fault")
+            msg = decode_fault(payload)
+        except WireError as exc:
+            self.rejections.reject(key, str(exc))
+            return
+        if robot not in self.robots:
+            self.rejections.reject(key, f"unknown robot {robot!r}")
+            return
+        self.set_fault(robot, msg.kind, msg.factor, msg.duration, now)
+
+    def set_fault(self, robot: str, kind: str, factor: float, duration: float, now: float) -> None:
+        until = now + duration if duration > 0 else math.inf
+        with self.lock:
+            self.faults[robot] = Fault(kind, factor, until)
+        log.info("fault on %s: %s factor=%.2f duration=%.2fs", robot, kind, factor, duration)
+
+    def step(self) -> None:
+        """One physics step for every robot, at sim time self.t."""
+        t = self.t
+        while self.timeline and self.t0 + self.timeline[0].at_s <= t:
+            ev = self.timeline.pop(0)
+            self.set_fault(ev.robot, ev.kind, ev.factor, ev.duration, t)
+        with self.lock:
+            cmds = dict(self.cmds)
+            faults = dict(self.faults)
+        for rid, robot in self.robots.items():
+            c = cmds.get(rid)
+            fresh = c is not None and t - c.arrived_t <= c.ttl
+            self.states[rid] = step_robot(self.states[rid], robot, c.vl if c else 0.0,
+                                          c.vr if c else 0.0, fresh, faults[rid], t, self.dt_s)
+        self.k += 1
+
+    def truth(self) -> dict[str, TruthMsg]:
+        t = self.t
+        return {rid: TruthMsg(t=t, x=s.pose.x, y=s.pose.y, th=s.pose.th, vl=s.vl, vr=s.vr)
+                for rid, s in self.states.items()}
+
+
+def run_sim(conf: zenoh.Config, scenario: Scenario, stop: StopFlag | None = None,
+            clock: Callable[[], float] = wall_clock) -> Fleet:
+    stop = stop or StopFlag()
+    keys = Keys(scenario.fleet)
+    fleet = Fleet(scenario, keys, t0=clock())
+    truth_every = max(1, round(scenario.sim.rate_hz / scenario.sim.truth_rate_hz))
+    with zenoh.open(conf) as session:
+        pubs = {r: session.declare_publisher(keys.truth(r), **TELEMETRY_QOS) for r in fleet.robots}
+        token = session.liveliness().declare_token(keys.alive("sim", "simfleet"))
+        subs = [
+            session.declare_subscriber(keys.cmd(), lambda s: fleet.on_cmd(
+                str(s.key_expr), s.payload.to_bytes(), clock())),
+            session.declare_subscriber(keys.fault(), lambda s: fleet.on_fault(
+                str(s.key_expr), s.payload.to_bytes(), clock())),
+        ]
+        log.info("simfleet up: %d robots at %.0f Hz", len(fleet.robots), scenario.sim.rate_hz)
+        late = 0
+        try:
+            while not stop.is_set():
+                if fleet.k % truth_every == 0:
+                    for rid, msg in fleet.truth().items():
+                        pubs[rid].put(encode(msg))
+                fleet.step()
+                if clock() > fleet.t + 0.1:
+                    late += 1
+                pace(fleet.t, stop, clock)
+        finally:
+            log.info("simfleet stopping at step %d (%d steps over 100 ms late), %d rejected",
+                     fleet.k, late, fleet.rejections.count)
+            for s in subs:
+                s.undeclare()
+            token.undeclare()
+    return fleet
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="vsfleet sim", description=__doc__.splitlines()[0])
+    p.add_argument("scenario", help="scenario TOML file (robots, start poses, faults)")
+    p.add_argument("--fleet", default=None, help="override the scenario's fleet name")
+    p.add_argument("--verbose", "-v", action="store_true")
+    add_zenoh_args(p)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    init_logging(args.verbose)
+    try:
+        scenario = load_scenario(args.scenario, fleet=args.fleet)
+    except (OSError, ValueError) as exc:
+        log.error("cannot load scenario: %s", exc)
+        return 2
+    run_sim(zenoh_config(args), scenario)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

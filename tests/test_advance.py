@@ -1,0 +1,121 @@
+"""Advancing the structure: envelope respected, goal reached without overshoot."""
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from vsfleet.advance import (
+    GoalError,
+    GoalPath,
+    GoalPose,
+    GoalTwist,
+    StructureLimits,
+    Twist2,
+    advance_structure,
+    structure_points,
+)
+from vsfleet.envelope import Envelope
+from vsfleet.errors import ShapeError
+from vsfleet.geometry import Pose2, angle_diff
+
+TRIANGLE = np.array([[0.3, 0.0], [-0.15, 0.26], [-0.15, -0.26]])
+ENV = [Envelope(0.1, 0.3, 1.0), Envelope(0.12, 0.2, 0.8), Envelope(0.1, 0.3, 0.5)]
+LIMITS = StructureLimits(speed_max_m_s=0.5, turn_rate_max_rad_s=1.0)
+DT = 1.0 / 30.0
+
+
+def wheel_needs(prev: Twist2, nxt: Twist2, pose: Pose2):
+    """Per robot: wheel speed bound and wheel speed change implied by riding the structure."""
+    rho = structure_points(Pose2(0, 0, pose.th), TRIANGLE)
+    out = []
+    for i, e in enumerate(ENV):
+        def demand(vx, vy, w):
+            ux, uy = vx - w * rho[i, 1], vy + w * rho[i, 0]
+            return math.hypot(ux, uy) + abs(w) * e.wheel_base_m / 2
+
+        speed = demand(nxt.vx_m_s, nxt.vy_m_s, nxt.w_rad_s)
+        change = demand(nxt.vx_m_s - prev.vx_m_s, nxt.vy_m_s - prev.vy_m_s, nxt.w_rad_s - prev.w_rad_s)
+        out.append((speed, change, e))
+    return out
+
+
+finite = st.floats(-5, 5, allow_nan=False)
+
+
+@settings(max_examples=150, deadline=None)
+@given(x=finite, y=finite, th=st.floats(-4, 4), gx=finite, gy=finite, gth=st.floats(-4, 4),
+       pvx=st.floats(-0.005, 0.005), pvy=st.floats(-0.005, 0.005), pw=st.floats(-0.01, 0.01))
+def test_the_advance_never_asks_a_robot_for_more_than_its_envelope(x, y, th, gx, gy, gth, pvx, pvy, pw):
+    pose = Pose2(x, y, th)
+    prev = Twist2(pvx, pvy, pw)
+    res = advance_structure(pose, GoalPose(Pose2(gx, gy, gth)), DT, LIMITS, TRIANGLE, ENV, prev)
+    assert 0.0 <= res.scale <= 1.0
+    for speed, change, e in wheel_needs(prev, res.twist, pose):
+        assert speed <= e.wheel_speed_max_m_s * (1 + 1e-9)
+        # the previous twist is small enough (<= 0.011 m/s at any wheel) that braking from it
+        # is always feasible, so the acceleration bound must hold exactly
+        assert change <= e.wheel_accel_max_m_s2 * DT * (1 + 1e-9) + 1e-12
+
+
+def run_to_goal(goal, start: Pose2, steps: int):
+    pose, twist = start, Twist2()
+    trace = [pose]
+    for _ in range(steps):
+        res = advance_structure(pose, goal, DT, LIMITS, TRIANGLE, ENV, twist)
+        pose, twist = res.pose, res.twist
+        trace.append(pose)
+    return trace, res
+
+
+def test_the_structure_stops_at_a_pose_goal_without_overshoot_or_oscillation():
+    goal = Pose2(2.0, 1.0, 1.2)
+    trace, res = run_to_goal(GoalPose(goal), Pose2(0, 0, 0), 1200)
+    dists = [math.hypot(goal.x - p.x, goal.y - p.y) for p in trace]
+    angs = [abs(angle_diff(goal.th, p.th)) for p in trace]
+    assert dists[-1] < 1e-3 and angs[-1] < 1e-3
+    assert res.at_goal
+    # monotone approach: distance and heading error never grow (no overshoot, no oscillation)
+    assert all(b <= a + 1e-12 for a, b in zip(dists, dists[1:]))
+    assert all(b <= a + 1e-12 for a, b in zip(angs, angs[1:]))
+    # once there it stays there
+    assert trace[-1] == trace[-2]
+
+
+def test_the_structure_follows_a_waypoint_path_and_stops_at_its_end():
+    wps = (Pose2(0, 0, 0), Pose2(1.0, 0.0, 0.0), Pose2(1.0, 1.0, math.pi / 2))
+    trace, res = run_to_goal(GoalPath(wps), Pose2(0, 0, 0), 1500)
+    end = wps[-1]
+    assert math.hypot(trace[-1].x - end.x, trace[-1].y - end.y) < 1e-3
+    assert res.at_goal
+    # it passes near the corner waypoint (within the lookahead) rather than cutting straight across
+    d_corner = min(math.hypot(p.x - 1.0, p.y) for p in trace)
+    assert d_corner < LIMITS.path_lookahead_m
+
+
+def test_a_constant_twist_goal_moves_at_that_twist_once_accelerated():
+    goal = GoalTwist(0.1, 0.0, 0.0)
+    trace, res = run_to_goal(goal, Pose2(0, 0, math.pi / 2), 120)
+    assert res.scale == pytest.approx(1.0)
+    assert res.twist.vx_m_s == pytest.approx(0.0, abs=1e-12)
+    assert res.twist.vy_m_s == pytest.approx(0.1)
+
+
+def test_a_slow_robot_slows_the_whole_structure():
+    slow = [Envelope(0.1, 0.3, 1.0), Envelope(0.1, 0.02, 1.0), Envelope(0.1, 0.3, 1.0)]
+    res = advance_structure(Pose2(0, 0, 0), GoalTwist(0.2, 0, 0), DT, LIMITS, TRIANGLE, slow,
+                            Twist2(0.02, 0, 0))
+    assert res.twist.vx_m_s == pytest.approx(0.02)
+
+
+def test_bad_arguments_raise_typed_value_errors():
+    with pytest.raises(ShapeError):
+        advance_structure(Pose2(0, 0, 0), GoalTwist(0, 0, 0), DT, LIMITS, TRIANGLE, ENV[:2])
+    with pytest.raises(ValueError):
+        advance_structure(Pose2(0, 0, 0), GoalTwist(0, 0, 0), 0.0, LIMITS, TRIANGLE, ENV)
+    with pytest.raises(GoalError):
+        GoalPath(())
+    with pytest.raises(ValueError):
+        StructureLimits(float("nan"), 1.0)

@@ -1,0 +1,1 @@
+"""Trackers: they publish vs/<fleet>/pose/<robot> (simulated VGPS for now)."""

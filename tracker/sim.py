@@ -1,0 +1,143 @@
+"""vsfleet tracker sim: the paper's VGPS, simulated. Reads truth, publishes noisy poses.
+
+Each frame (30 Hz by default) samples the latest truth of every robot, adds
+Gaussian position and heading noise, and publishes all robots' poses with one
+shared ``seq`` after ``latency_s``; a whole frame is dropped with probability
+``drop_prob``. ``t`` is the observation time (the truth sample's time).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import threading
+from collections import deque
+from typing import Callable
+
+import numpy as np
+import zenoh
+
+from fleetctl.lifecycle import Rejections, StopFlag, pace, wall_clock
+from fleetctl.zconf import STREAM_QOS, add_zenoh_args, init_logging, zenoh_config
+from vsfleet.geometry import wrap_angle
+from vsfleet.scenario import TrackerParams
+from vsfleet.wire import Keys, PoseMsg, TruthMsg, WireError, decode_truth, encode
+
+log = logging.getLogger("vsfleet.tracker")
+
+TRUTH_MAX_AGE_S = 0.1
+
+
+class SimTracker:
+    """Frames from the latest truth; pure apart from its seeded RNG."""
+
+    def __init__(self, params: TrackerParams, src: str = "sim", seed: int = 0) -> None:
+        self.params = params
+        self.src = src
+        self.rng = np.random.default_rng(seed)
+        self.truth: dict[str, TruthMsg] = {}
+        self.lock = threading.Lock()
+        self.seq = 0
+        self.dropped = 0
+        self.rejections = Rejections(log)
+
+    def on_truth(self, keys: Keys, key: str, payload: bytes) -> None:
+        try:
+            robot = keys.robot_of(key, "truth")
+            msg = decode_truth(payload)
+        except WireError as exc:
+            self.rejections.reject(key, str(exc))
+            return
+        with self.lock:
+            held = self.truth.get(robot)
+            if held is None or msg.t > held.t:
+                self.truth[robot] = msg
+
+    def frame(self, now: float) -> list[tuple[str, PoseMsg]]:
+        """Observe every robot with fresh truth; empty when the frame is dropped."""
+        self.seq += 1
+        with self.lock:
+            truth = {r: m for r, m in self.truth.items() if now - m.t <= TRUTH_MAX_AGE_S}
+        if not truth or self.rng.random() < self.params.drop_prob:
+            self.dropped += bool(truth)
+            return []
+        out = []
+        for robot in sorted(truth):
+            m = truth[robot]
+            nx, ny = self.rng.normal(0.0, self.params.noise_xy_m, 2) if self.params.noise_xy_m > 0 else (0.0, 0.0)
+            nth = self.rng.normal(0.0, self.params.noise_th_rad) if self.params.noise_th_rad > 0 else 0.0
+            out.append((robot, PoseMsg(t=m.t, seq=self.seq, x=m.x + nx, y=m.y + ny,
+                                       th=wrap_angle(m.th + nth), src=self.src)))
+        return out
+
+
+def run_tracker(conf: zenoh.Config, params: TrackerParams, fleet: str = "demo", src: str = "sim",
+                seed: int = 0, stop: StopFlag | None = None,
+                clock: Callable[[], float] = wall_clock) -> SimTracker:
+    stop = stop or StopFlag()
+    keys = Keys(fleet)
+    tracker = SimTracker(params, src, seed)
+    period = 1.0 / params.rate_hz
+    pending: deque[tuple[float, list[tuple[str, PoseMsg]]]] = deque()
+    with zenoh.open(conf) as session:
+        pubs: dict[str, zenoh.Publisher] = {}
+        token = session.liveliness().declare_token(keys.alive("tracker", src))
+        sub = session.declare_subscriber(keys.truth(), lambda s: tracker.on_truth(
+            keys, str(s.key_expr), s.payload.to_bytes()))
+        log.info("tracker %s up at %.1f Hz", src, params.rate_hz)
+        next_frame = clock()
+        try:
+            while not stop.is_set():
+                now = clock()
+                if now >= next_frame:
+                    pending.append((now + params.latency_s, tracker.frame(now)))
+                    next_frame += period
+                    if next_frame < now:  # fell behind: skip frames rather than burst
+                        next_frame = now + period
+                while pending and pending[0][0] <= clock():
+                    for robot, msg in pending.popleft()[1]:
+                        if robot not in pubs:
+                            pubs[robot] = session.declare_publisher(keys.pose(robot), **STREAM_QOS)
+                        pubs[robot].put(encode(msg))
+                pace(min(next_frame, pending[0][0]) if pending else next_frame, stop, clock)
+        finally:
+            log.info("tracker stopping after %d frames (%d dropped), %d rejected",
+                     tracker.seq, tracker.dropped, tracker.rejections.count)
+            sub.undeclare()
+            token.undeclare()
+    return tracker
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="vsfleet tracker sim", description=__doc__.splitlines()[0])
+    p.add_argument("--fleet", default="demo")
+    p.add_argument("--src", default="sim", help="tracker id, sent as 'src'")
+    p.add_argument("--rate", type=float, default=30.0, help="frame rate [Hz]")
+    p.add_argument("--noise-xy", type=float, default=0.001, help="position noise sigma [m]")
+    p.add_argument("--noise-th", type=float, default=0.005, help="heading noise sigma [rad]")
+    p.add_argument("--latency", type=float, default=0.005, help="publish latency [s]")
+    p.add_argument("--drop", type=float, default=0.0, help="frame drop probability")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--verbose", "-v", action="store_true")
+    add_zenoh_args(p)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    init_logging(args.verbose)
+    try:
+        params = TrackerParams(rate_hz=args.rate, noise_xy_m=args.noise_xy, noise_th_rad=args.noise_th,
+                               latency_s=args.latency, drop_prob=args.drop)
+        Keys(args.fleet)
+        if not (args.rate > 0 and 0 <= args.drop <= 1 and min(args.noise_xy, args.noise_th, args.latency) >= 0):
+            raise ValueError("rate must be > 0, drop in [0, 1], noise and latency >= 0")
+    except ValueError as exc:
+        log.error("%s", exc)
+        return 2
+    run_tracker(zenoh_config(args), params, args.fleet, args.src, args.seed)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,285 @@
+"""Advancing the virtual structure: paper step 2 (eq 7) with the cost-aware push of 3.3.3.
+
+The structure is pushed from its fitted pose by a small twist (translation
+velocity [m/s; world frame] and turn rate [rad/s]) toward the mission goal.
+The twist is scaled by one factor ``s`` in [0, 1] so that no robot needs wheel
+speeds or wheel accelerations outside its envelope to stay on its structure
+point (the rigid-body velocity of point i is ``u_i = v + w x rho_i``; a robot
+riding along it needs wheel speeds ``|u_i| -/+ w b_i / 2``).
+
+Why the step never overshoots: before scaling, the commanded translation and
+rotation per tick are capped by the remaining distance and angle, and the
+scale factor is never above one.  The decelerating profile
+``v <= sqrt(2 a d)`` keeps the approach smooth, so the structure stops at the
+goal without oscillation.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Sequence, Union
+
+import numpy as np
+
+from .envelope import Envelope
+from .errors import ShapeError, VsfleetValueError
+from .geometry import Pose2, angle_diff
+
+# Iterations of the deterministic interval searches below: 2**-80 of the unit
+# interval is far below double precision, so the result is converged and
+# bit-reproducible (a fixed count, no tolerance-dependent stopping).
+_SEARCH_ITERATIONS = 80
+
+
+class GoalError(VsfleetValueError):
+    """A mission goal is malformed (empty path, non-finite values)."""
+
+
+@dataclass(frozen=True)
+class Twist2:
+    """Structure velocity: (vx, vy) [m/s; world frame] and turn rate w [rad/s, CCW]."""
+
+    vx_m_s: float = 0.0
+    vy_m_s: float = 0.0
+    w_rad_s: float = 0.0
+
+
+@dataclass(frozen=True)
+class GoalPose:
+    """Move the structure to a target pose and stop there."""
+
+    pose: Pose2
+
+
+@dataclass(frozen=True)
+class GoalPath:
+    """Follow waypoints (structure poses [m, rad; world frame]) and stop at the last one."""
+
+    waypoints: tuple[Pose2, ...]
+
+    def __post_init__(self) -> None:
+        if len(self.waypoints) == 0:
+            raise GoalError("a path needs at least one waypoint")
+
+
+@dataclass(frozen=True)
+class GoalTwist:
+    """Move at a constant twist forever: (vx, vy) [m/s; structure frame], w [rad/s]."""
+
+    vx_m_s: float
+    vy_m_s: float
+    w_rad_s: float
+
+
+Goal = Union[GoalPose, GoalPath, GoalTwist]
+
+
+@dataclass(frozen=True)
+class StructureLimits:
+    """Limits on the structure's own motion and the tolerances that count as arrived.
+
+    speed_max_m_s: largest translation speed of the structure origin [m/s].
+    turn_rate_max_rad_s: largest structure turn rate [rad/s].
+    """
+
+    speed_max_m_s: float
+    turn_rate_max_rad_s: float
+    position_tolerance_m: float = 1e-3
+    heading_tolerance_rad: float = 1e-3
+    path_lookahead_m: float = 0.15
+
+    def __post_init__(self) -> None:
+        for name in ("speed_max_m_s", "turn_rate_max_rad_s", "position_tolerance_m",
+                     "heading_tolerance_rad", "path_lookahead_m"):
+            v = getattr(self, name)
+            if not math.isfinite(v) or v < 0.0:
+                raise VsfleetValueError(f"{name} must be finite and >= 0, got {v!r}")
+
+
+@dataclass(frozen=True)
+class AdvanceResult:
+    """The next desired structure pose and the twist that leads there.
+
+    scale is the envelope factor in [0, 1] applied to the goal's twist (1 = not limited);
+    at_goal is True once a pose or path goal is reached within the tolerances.
+    """
+
+    pose: Pose2
+    twist: Twist2
+    scale: float
+    at_goal: bool
+
+
+def structure_points(pose: Pose2, template_xy: np.ndarray) -> np.ndarray:
+    """World positions (n, 2) [m] of the template points (structure frame) under ``pose``."""
+    return pose.apply(template_xy)
+
+
+def _profile_speed(distance: float, cap: float, accel: float, dt_s: float) -> float:
+    """Speed toward a target at ``distance`` that decelerates to rest there without overshoot."""
+    if distance <= 0.0:
+        return 0.0
+    return min(cap, math.sqrt(2.0 * accel * distance), distance / dt_s)
+
+
+def _twist_toward(pose: Pose2, target: Pose2, dist_to_stop: float, limits: StructureLimits,
+                  accel_m_s2: float, alpha_rad_s2: float, dt_s: float) -> Twist2:
+    """World twist from ``pose`` toward ``target``; speed profiled on ``dist_to_stop``."""
+    ex, ey = target.x - pose.x, target.y - pose.y
+    d = math.hypot(ex, ey)
+    if d > 0.0:
+        # Never step past the carrot itself, nor decelerate later than the stop allows.
+        speed = min(_profile_speed(dist_to_stop, limits.speed_max_m_s, accel_m_s2, dt_s), d / dt_s)
+        vx, vy = speed * ex / d, speed * ey / d
+    else:
+        vx = vy = 0.0
+    dth = angle_diff(target.th, pose.th)
+    w = math.copysign(_profile_speed(abs(dth), limits.turn_rate_max_rad_s, alpha_rad_s2, dt_s), dth)
+    return Twist2(vx, vy, w)
+
+
+def _path_carrot(pose: Pose2, waypoints: Sequence[Pose2], lookahead_m: float) -> tuple[Pose2, float]:
+    """Carrot pose on the waypoint polyline and the remaining path length to the end [m].
+
+    The structure position is projected on the closest segment (ties go to the
+    earliest segment, so the rule is deterministic); the carrot lies lookahead_m
+    further along the path, its heading interpolated between the segment's ends.
+    """
+    if len(waypoints) == 1:
+        w0 = waypoints[0]
+        return w0, math.hypot(w0.x - pose.x, w0.y - pose.y)
+    pts = np.array([[w.x, w.y] for w in waypoints])
+    seg = pts[1:] - pts[:-1]
+    seg_len = np.hypot(seg[:, 0], seg[:, 1])
+    cum = np.concatenate([[0.0], np.cumsum(seg_len)])
+    total = float(cum[-1])
+    best_i, best_d2, best_u = 0, math.inf, 0.0
+    for i in range(len(seg)):
+        L2 = float(seg_len[i]) ** 2
+        rx, ry = pose.x - pts[i, 0], pose.y - pts[i, 1]
+        u = 0.0 if L2 == 0.0 else min(1.0, max(0.0, (rx * seg[i, 0] + ry * seg[i, 1]) / L2))
+        qx, qy = pts[i, 0] + u * seg[i, 0], pts[i, 1] + u * seg[i, 1]
+        d2 = (pose.x - qx) ** 2 + (pose.y - qy) ** 2
+        if d2 < best_d2:
+            best_i, best_d2, best_u = i, d2, u
+    s_proj = float(cum[best_i]) + best_u * float(seg_len[best_i])
+    s_carrot = min(total, s_proj + lookahead_m)
+    j = int(np.searchsorted(cum, s_carrot, side="right")) - 1
+    j = min(max(j, 0), len(seg) - 1)
+    frac = 0.0 if seg_len[j] == 0.0 else (s_carrot - float(cum[j])) / float(seg_len[j])
+    frac = min(1.0, max(0.0, frac))
+    a, b = waypoints[j], waypoints[j + 1]
+    carrot = Pose2(a.x + frac * (b.x - a.x), a.y + frac * (b.y - a.y),
+                   a.th + frac * angle_diff(b.th, a.th))
+    if s_carrot >= total:
+        carrot = waypoints[-1]
+    remaining = (total - s_proj) + math.sqrt(best_d2)
+    return carrot, remaining
+
+
+def _wheel_demand(twist: np.ndarray, rho: np.ndarray, half_base: np.ndarray) -> np.ndarray:
+    """Per robot, |u_i| + |w| b_i/2 for a world twist (vx, vy, w) and offsets rho (n, 2)."""
+    ux = twist[0] - twist[2] * rho[:, 1]
+    uy = twist[1] + twist[2] * rho[:, 0]
+    return np.hypot(ux, uy) + abs(twist[2]) * half_base
+
+
+def envelope_scale(twist: Twist2, twist_prev: Twist2, rho_world: np.ndarray,
+                   envelopes: Sequence[Envelope], dt_s: float) -> float:
+    """Largest s in [0, 1] such that every robot's wheels stay in their envelope.
+
+    Speed: |u_i(s xi)| + |s w| b_i/2 <= v_max_i.  Acceleration: the change from
+    the previous twist, |u_i(s xi - xi_prev)| + |s w - w_prev| b_i/2 <= a_i dt.
+    Both sides are convex in s. When no s satisfies the acceleration bound (the
+    goal asks to brake harder than the wheels can), the s that violates it least
+    is returned: the structure then slows as fast as its robots can.
+    """
+    xi = np.array([twist.vx_m_s, twist.vy_m_s, twist.w_rad_s])
+    xi0 = np.array([twist_prev.vx_m_s, twist_prev.vy_m_s, twist_prev.w_rad_s])
+    half_base = np.array([e.wheel_base_m for e in envelopes]) / 2.0
+    v_max = np.array([e.wheel_speed_max_m_s for e in envelopes])
+    dv_max = np.array([e.wheel_accel_max_m_s2 for e in envelopes]) * dt_s
+
+    demand = _wheel_demand(xi, rho_world, half_base)
+    with np.errstate(divide="ignore"):
+        s_speed = float(np.min(np.where(demand > 0.0, v_max / demand, np.inf)))
+    s_hi = min(1.0, s_speed)
+
+    def excess(s: float) -> float:
+        return float(np.max(_wheel_demand(s * xi - xi0, rho_world, half_base) - dv_max))
+
+    if excess(s_hi) <= 0.0:
+        return s_hi
+    # Minimise the convex excess on [0, s_hi] (golden-section-free ternary search, fixed steps).
+    lo, hi = 0.0, s_hi
+    for _ in range(_SEARCH_ITERATIONS):
+        m1, m2 = lo + (hi - lo) / 3.0, hi - (hi - lo) / 3.0
+        if excess(m1) <= excess(m2):
+            hi = m2
+        else:
+            lo = m1
+    s_best = (lo + hi) / 2.0
+    if excess(s_best) > 0.0:
+        return s_best
+    # Feasible set is [., s_edge] with s_edge < s_hi: bisect for its upper edge.
+    lo, hi = s_best, s_hi
+    for _ in range(_SEARCH_ITERATIONS):
+        mid = (lo + hi) / 2.0
+        if excess(mid) <= 0.0:
+            lo = mid
+        else:
+            hi = mid
+    return lo
+
+
+def advance_structure(pose_fit: Pose2, goal: Goal, dt_s: float, limits: StructureLimits,
+                      template_xy: np.ndarray, envelopes: Sequence[Envelope],
+                      twist_prev: Twist2 = Twist2()) -> AdvanceResult:
+    """Next desired structure pose, one ``dt_s`` after the fitted pose (paper eq 7).
+
+    template_xy (n, 2) are the robots' points [m; structure frame], envelopes their limits
+    (same order); twist_prev is the twist returned at the previous tick (zero at rest).
+    """
+    tpl = np.asarray(template_xy, dtype=float)
+    if tpl.ndim != 2 or tpl.shape[1] != 2 or tpl.shape[0] == 0:
+        raise ShapeError(f"template_xy must have shape (n, 2) with n >= 1, got {tpl.shape}")
+    if len(envelopes) != tpl.shape[0]:
+        raise ShapeError(f"{len(envelopes)} envelopes for {tpl.shape[0]} template points")
+    if not (math.isfinite(dt_s) and dt_s > 0.0):
+        raise VsfleetValueError(f"dt_s must be finite and > 0, got {dt_s!r}")
+    if not all(math.isfinite(v) for v in pose_fit.as_tuple()):
+        raise VsfleetValueError(f"pose_fit must be finite, got {pose_fit}")
+
+    rho = structure_points(Pose2(0.0, 0.0, pose_fit.th), tpl)  # offsets [m; world frame]
+    accel = 0.5 * min(e.wheel_accel_max_m_s2 for e in envelopes)
+    reach = float(np.max(np.hypot(rho[:, 0], rho[:, 1]) + [e.wheel_base_m / 2.0 for e in envelopes]))
+    alpha = accel / reach
+
+    at_goal = False
+    if isinstance(goal, GoalTwist):
+        c, s = math.cos(pose_fit.th), math.sin(pose_fit.th)
+        desired = Twist2(c * goal.vx_m_s - s * goal.vy_m_s, s * goal.vx_m_s + c * goal.vy_m_s,
+                         goal.w_rad_s)
+    elif isinstance(goal, GoalPose):
+        d = math.hypot(goal.pose.x - pose_fit.x, goal.pose.y - pose_fit.y)
+        desired = _twist_toward(pose_fit, goal.pose, d, limits, accel, alpha, dt_s)
+        at_goal = (d <= limits.position_tolerance_m
+                   and abs(angle_diff(goal.pose.th, pose_fit.th)) <= limits.heading_tolerance_rad)
+    elif isinstance(goal, GoalPath):
+        carrot, remaining = _path_carrot(pose_fit, goal.waypoints, limits.path_lookahead_m)
+        desired = _twist_toward(pose_fit, carrot, remaining, limits, accel, alpha, dt_s)
+        end = goal.waypoints[-1]
+        at_goal = (carrot == end
+                   and math.hypot(end.x - pose_fit.x, end.y - pose_fit.y) <= limits.position_tolerance_m
+                   and abs(angle_diff(end.th, pose_fit.th)) <= limits.heading_tolerance_rad)
+    else:
+        raise GoalError(f"unknown goal type {type(goal).__name__}")
+
+    if at_goal:
+        desired = Twist2()
+    scale = envelope_scale(desired, twist_prev, rho, envelopes, dt_s)
+    twist = Twist2(scale * desired.vx_m_s, scale * desired.vy_m_s, scale * desired.w_rad_s)
+    nxt = Pose2(pose_fit.x + twist.vx_m_s * dt_s, pose_fit.y + twist.vy_m_s * dt_s,
+                pose_fit.th + twist.w_rad_s * dt_s)
+    return AdvanceResult(pose=nxt, twist=twist, scale=scale, at_goal=at_goal)

@@ -1,0 +1,109 @@
+"""One control tick of the paper's loop (steps 1-4), as a pure function.
+
+``control_step`` is what every agent runs at every frame: it fits the structure
+to the robots seen in the frame, advances it toward the mission goal, and
+computes one robot's wheel speeds. The structure part depends only on
+(mission, frame, previous twist), so duplicated agents that saw the same
+frames compute bit-identical structure poses: the paper's "distributed
+duplication".
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable, Mapping
+
+import numpy as np
+
+from .advance import (
+    Goal,
+    GoalPath,
+    GoalPose,
+    GoalTwist,
+    StructureLimits,
+    Twist2,
+    advance_structure,
+)
+from .envelope import Envelope
+from .fit import fit_structure
+from .geometry import Pose2
+from .wire import Mission
+
+Controller = Callable[[Pose2, np.ndarray, np.ndarray, float, Envelope, tuple[float, float]],
+                      tuple[float, float]]
+
+
+def mission_goal(mission: Mission) -> Goal:
+    """The advance goal named by a mission (pose, path or twist)."""
+    if mission.goal is not None:
+        return GoalPose(Pose2(*mission.goal))
+    if mission.path is not None:
+        return GoalPath(tuple(Pose2(*w) for w in mission.path))
+    assert mission.twist is not None
+    return GoalTwist(*mission.twist)
+
+
+def mission_envelopes(mission: Mission) -> list[Envelope]:
+    return [Envelope(s.wheel_base, s.wheel_speed_max, s.wheel_accel_max) for _, s in mission.robots]
+
+
+def mission_template(mission: Mission) -> np.ndarray:
+    """Template points (n, 2) [m; structure frame], in the mission's sorted robot order."""
+    return np.array([s.p for _, s in mission.robots], dtype=float)
+
+
+@dataclass(frozen=True)
+class StepResult:
+    """Result of one tick.
+
+    fit_pose / goal_pose: fitted and advanced structure poses [m, rad; world].
+    cost [m]: the fit's cost; err_m: own robot's distance to its fitted point (NaN if unseen).
+    used: robot ids in the fit; vl/vr [m/s]: own wheel speeds (0 when own robot unseen).
+    """
+
+    fit_pose: Pose2
+    goal_pose: Pose2
+    twist: Twist2
+    cost: float
+    err_m: float
+    used: tuple[str, ...]
+    vl_m_s: float
+    vr_m_s: float
+    at_goal: bool
+
+
+def control_step(mission: Mission, poses: Mapping[str, tuple[float, float, float]], robot: str,
+                 dt_s: float, twist_prev: Twist2, wheels_prev_m_s: tuple[float, float],
+                 controller: Controller, excluded: frozenset[str] = frozenset()) -> StepResult | None:
+    """Fit, advance and control one robot for one frame.
+
+    poses maps robot id -> (x, y, th) [m, rad; world] for the robots in this frame;
+    robots of the mission that are absent or in ``excluded`` are left out of the fit
+    but still bound the advance (they must be able to follow). Returns None when
+    no mission robot is in the frame.
+    """
+    ids = mission.robot_ids
+    used = tuple(r for r in ids if r in poses and r not in excluded)
+    if not used:
+        return None
+    template = mission_template(mission)
+    index = {r: i for i, r in enumerate(ids)}
+    rows = [index[r] for r in used]
+    positions = np.array([[poses[r][0], poses[r][1]] for r in used], dtype=float)
+    fit = fit_structure(template[rows], positions, metric=mission.metric)
+    limits = StructureLimits(speed_max_m_s=mission.speed_max, turn_rate_max_rad_s=mission.turn_rate_max)
+    adv = advance_structure(fit.pose, mission_goal(mission), dt_s, limits, template,
+                            mission_envelopes(mission), twist_prev)
+
+    vl = vr = 0.0
+    err = math.nan
+    if robot in poses:
+        p = template[index[robot]]
+        own = Pose2(*poses[robot])
+        err = float(np.hypot(*(own.xy - fit.pose.apply(p))))
+    if robot in poses and robot not in excluded:
+        env = mission_envelopes(mission)[index[robot]]
+        vl, vr = controller(own, fit.pose.apply(p), adv.pose.apply(p), dt_s, env, wheels_prev_m_s)
+    return StepResult(fit_pose=fit.pose, goal_pose=adv.pose, twist=adv.twist, cost=float(fit.cost),
+                      err_m=err, used=used, vl_m_s=float(vl), vr_m_s=float(vr), at_goal=adv.at_goal)

@@ -1,0 +1,412 @@
+"""The wire contract: key expressions and msgpack codecs (see docs/protocol.md).
+
+Every payload is a msgpack map. A decoder checks every required field's
+presence, type and finiteness, ignores fields it does not know, and turns a
+bad message away with :class:`WireError` (a ValueError) whose message says
+why. Encoders produce exactly what decoders accept (round-trip tested).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, fields
+from typing import Any, Mapping
+
+import msgpack
+
+from .errors import VsfleetValueError
+
+NAME_RE = re.compile(r"^[A-Za-z0-9_-]+$")
+MAX_PAYLOAD_BYTES = 4096          # pose, cmd, state, truth, fault, event
+MAX_MISSION_BYTES = 1 << 20       # a mission lists every robot
+MAX_ROBOTS = 1000
+FAULT_KINDS = ("none", "stop", "slow", "stall", "wheel")
+METRICS = ("l1", "l2", "linf")
+ON_FAILURE = ("hold", "drop", "rejoin")
+
+
+class WireError(VsfleetValueError):
+    """A message that does not meet the wire contract."""
+
+
+# ---------------------------------------------------------------- key expressions
+
+
+def check_name(name: str, what: str = "name") -> str:
+    """Return ``name`` if it is a single key chunk of [A-Za-z0-9_-], else raise WireError."""
+    if not isinstance(name, str) or not NAME_RE.match(name):
+        raise WireError(f"{what} must match [A-Za-z0-9_-]+, got {name!r}")
+    return name
+
+
+@dataclass(frozen=True)
+class Keys:
+    """Key expressions of one fleet: everything lives under ``vs/<fleet>``."""
+
+    fleet: str = "demo"
+
+    def __post_init__(self) -> None:
+        check_name(self.fleet, "fleet")
+
+    @property
+    def prefix(self) -> str:
+        return f"vs/{self.fleet}"
+
+    def pose(self, robot: str = "*") -> str:
+        return f"{self.prefix}/pose/{robot}"
+
+    def cmd(self, robot: str = "*") -> str:
+        return f"{self.prefix}/cmd/{robot}"
+
+    def state(self, robot: str = "*") -> str:
+        return f"{self.prefix}/state/{robot}"
+
+    def truth(self, robot: str = "*") -> str:
+        return f"{self.prefix}/truth/{robot}"
+
+    def fault(self, robot: str = "*") -> str:
+        return f"{self.prefix}/fault/{robot}"
+
+    @property
+    def mission(self) -> str:
+        return f"{self.prefix}/mission"
+
+    @property
+    def event(self) -> str:
+        return f"{self.prefix}/event"
+
+    def alive(self, role: str = "*", ident: str = "*") -> str:
+        return f"{self.prefix}/alive/{role}/{ident}"
+
+    @property
+    def everything(self) -> str:
+        return f"{self.prefix}/**"
+
+    def robot_of(self, key: str, kind: str) -> str:
+        """The robot id in a concrete key ``vs/<fleet>/<kind>/<robot>``; WireError otherwise."""
+        head = f"{self.prefix}/{kind}/"
+        if not key.startswith(head):
+            raise WireError(f"key {key!r} is not under {head}")
+        return check_name(key[len(head):], "robot")
+
+
+# ---------------------------------------------------------------- field checks
+
+
+def _num(m: Mapping[str, Any], name: str) -> float:
+    if name not in m:
+        raise WireError(f"missing field {name!r}")
+    v = m[name]
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        raise WireError(f"field {name!r} must be a number, got {type(v).__name__}")
+    v = float(v)
+    if not math.isfinite(v):
+        raise WireError(f"field {name!r} must be finite, got {v}")
+    return v
+
+
+def _pos(m: Mapping[str, Any], name: str, allow_zero: bool = False) -> float:
+    v = _num(m, name)
+    if v < 0.0 or (v == 0.0 and not allow_zero):
+        raise WireError(f"field {name!r} must be {'>= 0' if allow_zero else '> 0'}, got {v}")
+    return v
+
+
+def _int(m: Mapping[str, Any], name: str) -> int:
+    if name not in m:
+        raise WireError(f"missing field {name!r}")
+    v = m[name]
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise WireError(f"field {name!r} must be an integer, got {type(v).__name__}")
+    if not (0 <= v < 2**63):
+        raise WireError(f"field {name!r} out of range: {v}")
+    return v
+
+
+def _str(m: Mapping[str, Any], name: str) -> str:
+    if name not in m:
+        raise WireError(f"missing field {name!r}")
+    v = m[name]
+    if not isinstance(v, str) or not v or len(v) > 128:
+        raise WireError(f"field {name!r} must be a non-empty string of <= 128 chars")
+    return v
+
+
+def unpack_map(payload: bytes, limit: int = MAX_PAYLOAD_BYTES) -> dict:
+    """Decode a msgpack map, refusing oversize, truncated or non-map payloads."""
+    if not isinstance(payload, (bytes, bytearray, memoryview)):
+        raise WireError(f"payload must be bytes, got {type(payload).__name__}")
+    if len(payload) > limit:
+        raise WireError(f"payload of {len(payload)} bytes exceeds the {limit}-byte limit")
+    try:
+        obj = msgpack.unpackb(bytes(payload), raw=False, strict_map_key=True)
+    except Exception as exc:  # msgpack raises several unrelated types for bad bytes
+        raise WireError(f"not valid msgpack: {type(exc).__name__}: {exc}") from None
+    if not isinstance(obj, dict):
+        raise WireError(f"payload must be a msgpack map, got {type(obj).__name__}")
+    return obj
+
+
+def _pack(obj: dict) -> bytes:
+    return msgpack.packb(obj, use_bin_type=True)
+
+
+# ---------------------------------------------------------------- messages
+
+
+@dataclass(frozen=True)
+class PoseMsg:
+    """A tracker's observation of one robot: t [s, tracker clock], pose [m, rad; world]."""
+
+    t: float
+    seq: int
+    x: float
+    y: float
+    th: float
+    src: str
+
+
+@dataclass(frozen=True)
+class CmdMsg:
+    """Wheel ground speeds [m/s] for one robot, answering frame ``seq``; valid for ttl [s]."""
+
+    t: float
+    seq: int
+    vl: float
+    vr: float
+    ttl: float
+
+
+@dataclass(frozen=True)
+class StateMsg:
+    """An agent's view at frame ``seq``: fitted (x, y, th) and desired (gx, gy, gth) structure poses."""
+
+    t: float
+    seq: int
+    x: float
+    y: float
+    th: float
+    gx: float
+    gy: float
+    gth: float
+    cost: float
+    err: float
+    used: tuple[str, ...]
+    rejected: int
+
+
+@dataclass(frozen=True)
+class TruthMsg:
+    """simfleet's ground truth for one robot: pose [m, rad; world] and applied wheel speeds [m/s]."""
+
+    t: float
+    x: float
+    y: float
+    th: float
+    vl: float
+    vr: float
+
+
+@dataclass(frozen=True)
+class FaultMsg:
+    """A fault to inject into one simulated robot.
+
+    kind: none (clear), stop (both wheels 0), slow (both wheels x factor),
+    stall (stop for ``duration``), wheel (left wheel x factor: 0 = one wheel dead).
+    duration [s]: 0 = until cleared.
+    """
+
+    kind: str
+    factor: float
+    duration: float
+
+
+def encode(msg: Any) -> bytes:
+    """msgpack map of a message dataclass (tuples become arrays)."""
+    out = {}
+    for f in fields(msg):
+        v = getattr(msg, f.name)
+        out[f.name] = list(v) if isinstance(v, tuple) else v
+    return _pack(out)
+
+
+def decode_pose(payload: bytes) -> PoseMsg:
+    m = unpack_map(payload)
+    return PoseMsg(t=_num(m, "t"), seq=_int(m, "seq"), x=_num(m, "x"), y=_num(m, "y"),
+                   th=_num(m, "th"), src=_str(m, "src"))
+
+
+def decode_cmd(payload: bytes) -> CmdMsg:
+    m = unpack_map(payload)
+    return CmdMsg(t=_num(m, "t"), seq=_int(m, "seq"), vl=_num(m, "vl"), vr=_num(m, "vr"),
+                  ttl=_pos(m, "ttl"))
+
+
+def decode_state(payload: bytes) -> StateMsg:
+    m = unpack_map(payload)
+    used = m.get("used")
+    if not isinstance(used, list) or not all(isinstance(u, str) and NAME_RE.match(u) for u in used):
+        raise WireError("field 'used' must be a list of robot ids")
+    return StateMsg(t=_num(m, "t"), seq=_int(m, "seq"), x=_num(m, "x"), y=_num(m, "y"),
+                    th=_num(m, "th"), gx=_num(m, "gx"), gy=_num(m, "gy"), gth=_num(m, "gth"),
+                    cost=_pos(m, "cost", allow_zero=True), err=_pos(m, "err", allow_zero=True),
+                    used=tuple(used), rejected=_int(m, "rejected"))
+
+
+def decode_truth(payload: bytes) -> TruthMsg:
+    m = unpack_map(payload)
+    return TruthMsg(t=_num(m, "t"), x=_num(m, "x"), y=_num(m, "y"), th=_num(m, "th"),
+                    vl=_num(m, "vl"), vr=_num(m, "vr"))
+
+
+def decode_fault(payload: bytes) -> FaultMsg:
+    m = unpack_map(payload)
+    kind = _str(m, "kind")
+    if kind not in FAULT_KINDS:
+        raise WireError(f"unknown fault kind {kind!r}; expected one of {FAULT_KINDS}")
+    return FaultMsg(kind=kind, factor=_pos(m, "factor", allow_zero=True),
+                    duration=_pos(m, "duration", allow_zero=True))
+
+
+# ---------------------------------------------------------------- mission
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    """One robot of a mission: its point [m; structure frame] and its envelope."""
+
+    p: tuple[float, float]
+    wheel_base: float
+    wheel_speed_max: float
+    wheel_accel_max: float
+
+
+@dataclass(frozen=True)
+class Mission:
+    """A versioned mission; every agent switches to it at tracker time ``effective_t`` [s].
+
+    Exactly one of ``goal`` (x, y, th), ``path`` ((x, y, th), ...) or ``twist``
+    (vx, vy, w) [structure frame] is set.
+    """
+
+    version: int
+    metric: str
+    robots: tuple[tuple[str, RobotSpec], ...]  # sorted by robot id: the fit's order
+    speed_max: float
+    turn_rate_max: float
+    effective_t: float
+    goal: tuple[float, float, float] | None = None
+    path: tuple[tuple[float, float, float], ...] | None = None
+    twist: tuple[float, float, float] | None = None
+    controller: str | None = None
+    on_failure: str = "hold"
+
+    @property
+    def robot_ids(self) -> tuple[str, ...]:
+        return tuple(r for r, _ in self.robots)
+
+    def spec(self, robot: str) -> RobotSpec:
+        for r, s in self.robots:
+            if r == robot:
+                return s
+        raise KeyError(robot)
+
+    def to_dict(self) -> dict:
+        d: dict[str, Any] = {
+            "version": self.version, "metric": self.metric,
+            "robots": {r: {"p": list(s.p), "wheel_base": s.wheel_base,
+                           "wheel_speed_max": s.wheel_speed_max,
+                           "wheel_accel_max": s.wheel_accel_max} for r, s in self.robots},
+            "speed_max": self.speed_max, "turn_rate_max": self.turn_rate_max,
+            "effective_t": self.effective_t, "on_failure": self.on_failure,
+        }
+        if self.goal is not None:
+            d["goal"] = {"x": self.goal[0], "y": self.goal[1], "th": self.goal[2]}
+        if self.path is not None:
+            d["path"] = [list(p) for p in self.path]
+        if self.twist is not None:
+            d["twist"] = {"vx": self.twist[0], "vy": self.twist[1], "w": self.twist[2]}
+        if self.controller is not None:
+            d["controller"] = self.controller
+        return d
+
+
+def _triple(v: Any, what: str) -> tuple[float, float, float]:
+    if not isinstance(v, (list, tuple)) or len(v) != 3:
+        raise WireError(f"{what} must be [x, y, th]")
+    return (_num({"x": v[0]}, "x"), _num({"y": v[1]}, "y"), _num({"th": v[2]}, "th"))
+
+
+def mission_from_dict(m: Mapping[str, Any]) -> Mission:
+    """Validate a mission map (from msgpack or a scenario file) into a Mission."""
+    if not isinstance(m, Mapping):
+        raise WireError("mission must be a map")
+    metric = _str(m, "metric")
+    if metric not in METRICS:
+        raise WireError(f"unknown metric {metric!r}; expected one of {METRICS}")
+    robots_in = m.get("robots")
+    if not isinstance(robots_in, Mapping) or not robots_in:
+        raise WireError("field 'robots' must be a non-empty map of robot id -> spec")
+    if len(robots_in) > MAX_ROBOTS:
+        raise WireError(f"{len(robots_in)} robots exceed the limit of {MAX_ROBOTS}")
+    robots = []
+    for rid in sorted(robots_in):
+        check_name(rid, "robot id")
+        spec = robots_in[rid]
+        if not isinstance(spec, Mapping):
+            raise WireError(f"robot {rid!r}: spec must be a map")
+        p = spec.get("p")
+        if not isinstance(p, (list, tuple)) or len(p) != 2:
+            raise WireError(f"robot {rid!r}: 'p' must be [x, y]")
+        try:
+            robots.append((rid, RobotSpec(
+                p=(_num({"p": p[0]}, "p"), _num({"p": p[1]}, "p")),
+                wheel_base=_pos(spec, "wheel_base"), wheel_speed_max=_pos(spec, "wheel_speed_max"),
+                wheel_accel_max=_pos(spec, "wheel_accel_max"))))
+        except WireError as exc:
+            raise WireError(f"robot {rid!r}: {exc}") from None
+    targets = [k for k in ("goal", "path", "twist") if m.get(k) is not None]
+    if len(targets) != 1:
+        raise WireError(f"a mission needs exactly one of goal, path, twist; got {targets or 'none'}")
+    goal = path = twist = None
+    if "goal" in targets:
+        g = m["goal"]
+        if not isinstance(g, Mapping):
+            raise WireError("field 'goal' must be a map {x, y, th}")
+        goal = (_num(g, "x"), _num(g, "y"), _num(g, "th"))
+    elif "path" in targets:
+        p = m["path"]
+        if not isinstance(p, (list, tuple)) or not p or len(p) > 10000:
+            raise WireError("field 'path' must be a non-empty list of [x, y, th]")
+        path = tuple(_triple(w, "each path waypoint") for w in p)
+    else:
+        tw = m["twist"]
+        if not isinstance(tw, Mapping):
+            raise WireError("field 'twist' must be a map {vx, vy, w}")
+        twist = (_num(tw, "vx"), _num(tw, "vy"), _num(tw, "w"))
+    controller = m.get("controller")
+    if controller is not None and (not isinstance(controller, str) or not NAME_RE.match(controller)):
+        raise WireError("field 'controller' must be a controller name")
+    on_failure = m.get("on_failure", "hold")
+    if on_failure not in ON_FAILURE:
+        raise WireError(f"field 'on_failure' must be one of {ON_FAILURE}, got {on_failure!r}")
+    return Mission(version=_int(m, "version"), metric=metric, robots=tuple(robots),
+                   speed_max=_pos(m, "speed_max", allow_zero=True),
+                   turn_rate_max=_pos(m, "turn_rate_max", allow_zero=True),
+                   effective_t=_num(m, "effective_t"), goal=goal, path=path, twist=twist,
+                   controller=controller, on_failure=on_failure)
+
+
+def encode_mission(mission: Mission) -> bytes:
+    return _pack(mission.to_dict())
+
+
+def decode_mission(payload: bytes) -> Mission:
+    return mission_from_dict(unpack_map(payload, MAX_MISSION_BYTES))
+
+
+DECODERS = {
+    "pose": decode_pose, "cmd": decode_cmd, "state": decode_state, "truth": decode_truth,
+    "fault": decode_fault, "mission": decode_mission,
+}
