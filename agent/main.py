@@ -20,7 +20,6 @@ import zenoh
 
 from fleetctl.lifecycle import Rejections, StopFlag, wall_clock
 from fleetctl.zconf import RELIABLE_QOS, STREAM_QOS, TELEMETRY_QOS, add_zenoh_args, init_logging, zenoh_config
-from vsfleet.advance import Twist2
 from vsfleet.control import DEFAULT_CONTROLLER, make_controller
 from vsfleet.errors import VsfleetValueError
 from vsfleet.step import control_step
@@ -51,7 +50,7 @@ class Agent:
 
     def __init__(self, robot: str, keys: Keys, put_cmd: Callable[[bytes], None],
                  put_state: Callable[[bytes], None], dt_s: float = DEFAULT_DT_S,
-                 ttl_s: float = DEFAULT_TTL_S, deadline_s: float = 0.02, max_age_s: float = 0.25,
+                 ttl_s: float = DEFAULT_TTL_S, deadline_s: float | None = None, max_age_s: float = 0.25,
                  clock: Callable[[], float] = wall_clock) -> None:
         self.robot = check_name(robot, "robot")
         self.keys = keys
@@ -61,9 +60,8 @@ class Agent:
         self.ttl_s = ttl_s
         self.clock = clock
         self.missions = MissionBook()
-        self.frames = FrameAssembler((), deadline_s, max_age_s)
+        self.frames = FrameAssembler((), dt_s if deadline_s is None else deadline_s, max_age_s)
         self.rejections = Rejections(log)
-        self.twist_prev = Twist2()
         self.wheels_prev = (0.0, 0.0)
         self.mission_version = -1
         self.last_seq = 0
@@ -124,14 +122,13 @@ class Agent:
             self.mission_version = mission.version
         poses = {r: p for r, p in frame.poses.items() if r in mission.robot_ids}
         try:
-            result = control_step(mission, poses, self.robot, self.dt_s, self.twist_prev,
+            result = control_step(mission, poses, self.robot, frame.t, self.dt_s,
                                   self.wheels_prev, self.controller_for(mission))
         except VsfleetValueError as exc:
             self.rejections.reject(self.keys.pose(), f"frame {frame.seq} unusable: {exc}")
             return
         if result is None:
             return
-        self.twist_prev = result.twist
         self.wheels_prev = (result.vl_m_s, result.vr_m_s)
         self.last_seq = frame.seq
         self.ticks += 1
@@ -142,7 +139,7 @@ class Agent:
             self.put_state(encode(StateMsg(
                 t=frame.t, seq=frame.seq, x=f.x, y=f.y, th=f.th, gx=g.x, gy=g.y, gth=g.th,
                 cost=result.cost, err=result.err_m, used=result.used,
-                rejected=self.rejections.count)))
+                rejected=self.rejections.count, complete=frame.complete)))
 
     def stop_command(self) -> bytes:
         self.wheels_prev = (0.0, 0.0)

@@ -185,7 +185,7 @@ def _wheel_demand(twist: np.ndarray, rho: np.ndarray, half_base: np.ndarray) -> 
     return np.hypot(ux, uy) + abs(twist[2]) * half_base
 
 
-def envelope_scale(twist: Twist2, twist_prev: Twist2, rho_world: np.ndarray,
+def envelope_scale(twist: Twist2, twist_prev: Twist2 | None, rho_world: np.ndarray,
                    envelopes: Sequence[Envelope], dt_s: float) -> float:
     """Largest s in [0, 1] such that every robot's wheels stay in their envelope.
 
@@ -193,10 +193,10 @@ def envelope_scale(twist: Twist2, twist_prev: Twist2, rho_world: np.ndarray,
     the previous twist, |u_i(s xi - xi_prev)| + |s w - w_prev| b_i/2 <= a_i dt.
     Both sides are convex in s. When no s satisfies the acceleration bound (the
     goal asks to brake harder than the wheels can), the s that violates it least
-    is returned: the structure then slows as fast as its robots can.
+    is returned: the structure then slows as fast as its robots can. With no
+    twist_prev only the speed bound applies.
     """
     xi = np.array([twist.vx_m_s, twist.vy_m_s, twist.w_rad_s])
-    xi0 = np.array([twist_prev.vx_m_s, twist_prev.vy_m_s, twist_prev.w_rad_s])
     half_base = np.array([e.wheel_base_m for e in envelopes]) / 2.0
     v_max = np.array([e.wheel_speed_max_m_s for e in envelopes])
     dv_max = np.array([e.wheel_accel_max_m_s2 for e in envelopes]) * dt_s
@@ -205,6 +205,9 @@ def envelope_scale(twist: Twist2, twist_prev: Twist2, rho_world: np.ndarray,
     with np.errstate(divide="ignore"):
         s_speed = float(np.min(np.where(demand > 0.0, v_max / demand, np.inf)))
     s_hi = min(1.0, s_speed)
+    if twist_prev is None:
+        return s_hi
+    xi0 = np.array([twist_prev.vx_m_s, twist_prev.vy_m_s, twist_prev.w_rad_s])
 
     def excess(s: float) -> float:
         return float(np.max(_wheel_demand(s * xi - xi0, rho_world, half_base) - dv_max))
@@ -235,11 +238,17 @@ def envelope_scale(twist: Twist2, twist_prev: Twist2, rho_world: np.ndarray,
 
 def advance_structure(pose_fit: Pose2, goal: Goal, dt_s: float, limits: StructureLimits,
                       template_xy: np.ndarray, envelopes: Sequence[Envelope],
-                      twist_prev: Twist2 = Twist2()) -> AdvanceResult:
+                      twist_prev: Twist2 | None = None, elapsed_s: float | None = None) -> AdvanceResult:
     """Next desired structure pose, one ``dt_s`` after the fitted pose (paper eq 7).
 
     template_xy (n, 2) are the robots' points [m; structure frame], envelopes their limits
-    (same order); twist_prev is the twist returned at the previous tick (zero at rest).
+    (same order). Acceleration is bounded in one of two ways:
+    - twist_prev (the twist returned at the previous tick): the change of every robot's
+      wheel speeds from it is kept within its acceleration limit (stateful);
+    - elapsed_s (time since the mission started): speed and turn rate ramp up at the
+      structure's acceleration, and ramp down by the stopping profile. The result is
+      then a pure function of this call's inputs, which is what duplicated agents use
+      so that their copies agree bit for bit.
     """
     tpl = np.asarray(template_xy, dtype=float)
     if tpl.ndim != 2 or tpl.shape[1] != 2 or tpl.shape[0] == 0:
@@ -278,6 +287,12 @@ def advance_structure(pose_fit: Pose2, goal: Goal, dt_s: float, limits: Structur
 
     if at_goal:
         desired = Twist2()
+    if elapsed_s is not None:
+        ramp = max(0.0, elapsed_s)
+        v = math.hypot(desired.vx_m_s, desired.vy_m_s)
+        k_v = min(1.0, accel * ramp / v) if v > 0.0 else 1.0
+        k_w = min(1.0, alpha * ramp / abs(desired.w_rad_s)) if desired.w_rad_s != 0.0 else 1.0
+        desired = Twist2(k_v * desired.vx_m_s, k_v * desired.vy_m_s, k_w * desired.w_rad_s)
     scale = envelope_scale(desired, twist_prev, rho, envelopes, dt_s)
     twist = Twist2(scale * desired.vx_m_s, scale * desired.vy_m_s, scale * desired.w_rad_s)
     nxt = Pose2(pose_fit.x + twist.vx_m_s * dt_s, pose_fit.y + twist.vy_m_s * dt_s,

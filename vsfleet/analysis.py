@@ -80,14 +80,16 @@ class Agreement:
     max_th_rad: float
 
 
-def agreement(states: Iterable[tuple[str, StateMsg]], min_agents: int = 2) -> Agreement:
+def agreement(states: Iterable[tuple[str, StateMsg]], min_agents: int = 2,
+              complete_only: bool = True) -> Agreement:
+    """Compare agents frame by frame; with complete_only, only frames every agent saw whole."""
     by_seq: dict[int, dict[str, StateMsg]] = {}
     for agent, msg in states:
         by_seq.setdefault(msg.seq, {})[agent] = msg
     frames = identical = 0
     max_pos = max_th = 0.0
     for seq, group in by_seq.items():
-        if len(group) < min_agents:
+        if len(group) < min_agents or (complete_only and not all(m.complete for m in group.values())):
             continue
         frames += 1
         vals = [(m.x, m.y, m.th, m.gx, m.gy, m.gth) for m in group.values()]

@@ -3,7 +3,7 @@
 ``control_step`` is what every agent runs at every frame: it fits the structure
 to the robots seen in the frame, advances it toward the mission goal, and
 computes one robot's wheel speeds. The structure part depends only on
-(mission, frame, previous twist), so duplicated agents that saw the same
+(mission, frame), so duplicated agents that saw the same
 frames compute bit-identical structure poses: the paper's "distributed
 duplication".
 """
@@ -74,9 +74,12 @@ class StepResult:
 
 
 def control_step(mission: Mission, poses: Mapping[str, tuple[float, float, float]], robot: str,
-                 dt_s: float, twist_prev: Twist2, wheels_prev_m_s: tuple[float, float],
+                 frame_t: float, dt_s: float, wheels_prev_m_s: tuple[float, float],
                  controller: Controller, excluded: frozenset[str] = frozenset()) -> StepResult | None:
-    """Fit, advance and control one robot for one frame.
+    """Fit, advance and control one robot for one frame at tracker time ``frame_t`` [s].
+
+    The structure poses depend only on (mission, poses, frame_t, dt_s, excluded): the
+    advance ramps on the time since the mission's effective_t, not on past ticks.
 
     poses maps robot id -> (x, y, th) [m, rad; world] for the robots in this frame;
     robots of the mission that are absent or in ``excluded`` are left out of the fit
@@ -94,7 +97,7 @@ def control_step(mission: Mission, poses: Mapping[str, tuple[float, float, float
     fit = fit_structure(template[rows], positions, metric=mission.metric)
     limits = StructureLimits(speed_max_m_s=mission.speed_max, turn_rate_max_rad_s=mission.turn_rate_max)
     adv = advance_structure(fit.pose, mission_goal(mission), dt_s, limits, template,
-                            mission_envelopes(mission), twist_prev)
+                            mission_envelopes(mission), elapsed_s=frame_t - mission.effective_t)
 
     vl = vr = 0.0
     err = math.nan

@@ -133,6 +133,13 @@ def _str(m: Mapping[str, Any], name: str) -> str:
     return v
 
 
+def _opt_bool(m: Mapping[str, Any], name: str, default: bool) -> bool:
+    v = m.get(name, default)
+    if not isinstance(v, bool):
+        raise WireError(f"field {name!r} must be a boolean, got {type(v).__name__}")
+    return v
+
+
 def unpack_map(payload: bytes, limit: int = MAX_PAYLOAD_BYTES) -> dict:
     """Decode a msgpack map, refusing oversize, truncated or non-map payloads."""
     if not isinstance(payload, (bytes, bytearray, memoryview)):
@@ -194,6 +201,7 @@ class StateMsg:
     err: float
     used: tuple[str, ...]
     rejected: int
+    complete: bool = True  # optional field: False when the frame ran on its deadline
 
 
 @dataclass(frozen=True)
@@ -251,7 +259,8 @@ def decode_state(payload: bytes) -> StateMsg:
     return StateMsg(t=_num(m, "t"), seq=_int(m, "seq"), x=_num(m, "x"), y=_num(m, "y"),
                     th=_num(m, "th"), gx=_num(m, "gx"), gy=_num(m, "gy"), gth=_num(m, "gth"),
                     cost=_pos(m, "cost", allow_zero=True), err=_pos(m, "err", allow_zero=True),
-                    used=tuple(used), rejected=_int(m, "rejected"))
+                    used=tuple(used), rejected=_int(m, "rejected"),
+                    complete=_opt_bool(m, "complete", True))
 
 
 def decode_truth(payload: bytes) -> TruthMsg:

@@ -1,0 +1,111 @@
+"""A loopback fleet for multi-process tests: embedded router on a free port, no multicast.
+
+Processes are real `vsfleet` subprocesses; the test observes through its own
+client session. Every wait is on an event or a condition with a timeout.
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import zenoh
+
+from fleetctl.mission_cmd import stamp
+from fleetctl.router import open_loopback_router
+from fleetctl.run import child_command
+from fleetctl.scenario_file import load_scenario
+from fleetctl.zconf import RELIABLE_QOS, zenoh_flags
+from vsfleet.wire import Keys, WireError, decode_cmd, decode_state, decode_truth, encode_mission
+
+
+class Observed:
+    """Every decoded truth/state/cmd message, with its arrival time; waits with a condition."""
+
+    def __init__(self, keys: Keys) -> None:
+        self.keys = keys
+        self.cond = threading.Condition()
+        self.truth: list[tuple[float, str, object]] = []
+        self.state: list[tuple[float, str, object]] = []
+        self.cmd: list[tuple[float, str, object]] = []
+
+    def on_sample(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        now = time.time()
+        for kind, decode, store in (("truth", decode_truth, self.truth), ("state", decode_state, self.state),
+                                    ("cmd", decode_cmd, self.cmd)):
+            if key.startswith(f"{self.keys.prefix}/{kind}/"):
+                try:
+                    msg = decode(sample.payload.to_bytes())
+                except WireError:
+                    return
+                with self.cond:
+                    store.append((now, self.keys.robot_of(key, kind), msg))
+                    self.cond.notify_all()
+
+    def wait_for(self, predicate, timeout_s: float):
+        """Wait until predicate(self) returns a truthy value; returns it (or raises TimeoutError)."""
+        with self.cond:
+            result = self.cond.wait_for(lambda: predicate(self), timeout=timeout_s)
+        if not result:
+            raise TimeoutError(f"condition not met within {timeout_s} s")
+        return result
+
+
+class LoopbackFleet:
+    def __init__(self, scenario_path: str | Path, log_dir: Path) -> None:
+        self.scenario_path = str(scenario_path)
+        self.scenario = load_scenario(scenario_path)
+        self.keys = Keys(self.scenario.fleet)
+        self.log_dir = log_dir
+        self.procs: dict[str, subprocess.Popen] = {}
+        self.router, self.endpoint = open_loopback_router()
+        self.flags = zenoh_flags(self.endpoint)
+        self.observed = Observed(self.keys)
+        self.sub = self.router.declare_subscriber(self.keys.everything, self.observed.on_sample)
+        self.mission = stamp(self.scenario.mission, time.time(), 0.0, version=1)
+
+    def start(self, name: str, *args: str) -> subprocess.Popen:
+        out = (self.log_dir / f"{name}.log").open("wb")
+        p = subprocess.Popen(child_command(*args, *self.flags), stdout=out, stderr=subprocess.STDOUT,
+                             stdin=subprocess.DEVNULL, start_new_session=True)
+        self.procs[name] = p
+        return p
+
+    def start_sim_and_tracker(self) -> None:
+        tr = self.scenario.tracker
+        self.start("sim", "sim", self.scenario_path)
+        self.start("tracker", "tracker", "sim", "--fleet", self.scenario.fleet, "--rate", str(tr.rate_hz),
+                   "--noise-xy", str(tr.noise_xy_m), "--noise-th", str(tr.noise_th_rad),
+                   "--latency", str(tr.latency_s))
+
+    def start_agent(self, robot: str, *extra: str) -> subprocess.Popen:
+        return self.start(f"agent-{robot}", "agent", "--robot", robot, "--fleet", self.scenario.fleet, *extra)
+
+    def publish_mission(self) -> None:
+        self.router.put(self.keys.mission, encode_mission(self.mission), **RELIABLE_QOS)
+
+    def kill(self, name: str, sig: int = signal.SIGKILL) -> float:
+        self.procs[name].send_signal(sig)
+        return time.time()
+
+    def close(self) -> None:
+        for p in self.procs.values():
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+        for p in self.procs.values():
+            try:
+                p.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+        self.sub.undeclare()
+        self.router.close()
+
+    def logs(self) -> str:
+        return "\n".join(f"--- {f.name}\n{f.read_text(errors='replace')[-3000:]}"
+                         for f in sorted(self.log_dir.glob("*.log")))
