@@ -66,6 +66,7 @@ class Agent:
         self.mission_version = -1
         self.last_seq = 0
         self.ticks = 0
+        self.waiting = 0
         self._controllers: dict[str, object] = {}
 
     # ------------------------------------------------------------ inputs
@@ -90,6 +91,9 @@ class Agent:
             msg = decode_pose(payload)
         except WireError as exc:
             self.rejections.reject(key, str(exc))
+            return
+        if self.missions.latest() is None:
+            self.waiting += 1  # no mission yet: nothing to do with poses
             return
         if robot not in self.frames.robots:
             self.rejections.reject(key, f"robot {robot!r} is not in the mission")

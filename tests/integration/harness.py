@@ -32,6 +32,16 @@ class Observed:
         self.truth: list[tuple[float, str, object]] = []
         self.state: list[tuple[float, str, object]] = []
         self.cmd: list[tuple[float, str, object]] = []
+        self.alive: set[str] = set()
+
+    def on_liveliness(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        with self.cond:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self.alive.add(key)
+            else:
+                self.alive.discard(key)
+            self.cond.notify_all()
 
     def on_sample(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
@@ -67,6 +77,8 @@ class LoopbackFleet:
         self.flags = zenoh_flags(self.endpoint)
         self.observed = Observed(self.keys)
         self.sub = self.router.declare_subscriber(self.keys.everything, self.observed.on_sample)
+        self.alive_sub = self.router.liveliness().declare_subscriber(
+            self.keys.alive(), self.observed.on_liveliness, history=True)
         self.mission = stamp(self.scenario.mission, time.time(), 0.0, version=1)
 
     def start(self, name: str, *args: str) -> subprocess.Popen:
@@ -86,6 +98,10 @@ class LoopbackFleet:
     def start_agent(self, robot: str, *extra: str) -> subprocess.Popen:
         return self.start(f"agent-{robot}", "agent", "--robot", robot, "--fleet", self.scenario.fleet, *extra)
 
+    def wait_alive(self, role: str, ids, timeout_s: float = 20.0) -> None:
+        want = {self.keys.alive(role, i) for i in ids}
+        self.observed.wait_for(lambda o: want <= o.alive, timeout_s)
+
     def publish_mission(self) -> None:
         self.router.put(self.keys.mission, encode_mission(self.mission), **RELIABLE_QOS)
 
@@ -104,6 +120,7 @@ class LoopbackFleet:
                 p.kill()
                 p.wait()
         self.sub.undeclare()
+        self.alive_sub.undeclare()
         self.router.close()
 
     def logs(self) -> str:

@@ -54,6 +54,7 @@ def test_killing_an_agent_halts_its_robot_within_ttl_while_the_others_carry_on(f
     fleet.start_sim_and_tracker()
     for r in ("r1", "r2", "r3"):
         fleet.start_agent(r, "--ttl", str(TTL_S))
+    fleet.wait_alive("agent", ("r1", "r2", "r3"))
     fleet.publish_mission()
     fleet.observed.wait_for(moving("r1"), timeout_s=20)
     t_kill = fleet.kill("agent-r1")
@@ -82,6 +83,7 @@ def test_a_late_joining_agent_gets_the_mission_from_its_peers_and_takes_part(fle
     fleet.start_sim_and_tracker()
     fleet.start_agent("r1")
     fleet.start_agent("r2")
+    fleet.wait_alive("agent", ("r1", "r2"))
     fleet.publish_mission()  # before r3's agent exists: it must fetch it from r1/r2's queryables
     fleet.observed.wait_for(lambda o: any(r == "r1" for _, r, _ in o.state), timeout_s=20)
     fleet.start_agent("r3")
