@@ -123,6 +123,7 @@ class Agent:
         if mission is None or self.robot not in mission.robot_ids:
             return  # no command: the robot halts after ttl
         if mission.version != self.mission_version:
+            log.info("frame %d: switching to mission v%d", frame.seq, mission.version)
             self.mission_version = mission.version
         poses = {r: p for r, p in frame.poses.items() if r in mission.robot_ids}
         try:
@@ -143,7 +144,7 @@ class Agent:
             self.put_state(encode(StateMsg(
                 t=frame.t, seq=frame.seq, x=f.x, y=f.y, th=f.th, gx=g.x, gy=g.y, gth=g.th,
                 cost=result.cost, err=result.err_m, used=result.used,
-                rejected=self.rejections.count, complete=frame.complete)))
+                rejected=self.rejections.count, complete=frame.complete, mission=mission.version)))
 
     def stop_command(self) -> bytes:
         self.wheels_prev = (0.0, 0.0)

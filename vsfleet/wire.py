@@ -140,6 +140,10 @@ def _opt_bool(m: Mapping[str, Any], name: str, default: bool) -> bool:
     return v
 
 
+def _opt_int(m: Mapping[str, Any], name: str, default: int) -> int:
+    return _int(m, name) if name in m else default
+
+
 def unpack_map(payload: bytes, limit: int = MAX_PAYLOAD_BYTES) -> dict:
     """Decode a msgpack map, refusing oversize, truncated or non-map payloads."""
     if not isinstance(payload, (bytes, bytearray, memoryview)):
@@ -202,6 +206,7 @@ class StateMsg:
     used: tuple[str, ...]
     rejected: int
     complete: bool = True  # optional field: False when the frame ran on its deadline
+    mission: int = -1      # optional field: version of the mission used (-1 = not sent)
 
 
 @dataclass(frozen=True)
@@ -260,7 +265,7 @@ def decode_state(payload: bytes) -> StateMsg:
                     th=_num(m, "th"), gx=_num(m, "gx"), gy=_num(m, "gy"), gth=_num(m, "gth"),
                     cost=_pos(m, "cost", allow_zero=True), err=_pos(m, "err", allow_zero=True),
                     used=tuple(used), rejected=_int(m, "rejected"),
-                    complete=_opt_bool(m, "complete", True))
+                    complete=_opt_bool(m, "complete", True), mission=_opt_int(m, "mission", -1))
 
 
 def decode_truth(payload: bytes) -> TruthMsg:

@@ -98,3 +98,36 @@ def test_a_late_joining_agent_gets_the_mission_from_its_peers_and_takes_part(fle
     a = agreement(late, min_agents=3)
     assert a.frames > 10
     assert a.identical == a.frames
+
+
+def test_a_mission_change_is_adopted_by_every_agent_on_the_same_frame(fleet):
+    import dataclasses
+    import time
+
+    fleet.start_sim_and_tracker()
+    for r in ("r1", "r2", "r3"):
+        fleet.start_agent(r)
+    fleet.wait_alive("agent", ("r1", "r2", "r3"))
+    fleet.publish_mission()
+    fleet.observed.wait_for(lambda o: sum(1 for _, r, m in o.state if r == "r3") > 30, timeout_s=20)
+    v2 = dataclasses.replace(fleet.mission, version=2, goal=(-0.3, 0.3, -0.4), metric="l2",
+                             effective_t=time.time() + 0.5)
+    fleet.mission = v2
+    fleet.publish_mission()
+
+    def first_v2(o):
+        firsts = {}
+        for _, r, m in o.state:
+            if m.mission == 2 and r not in firsts:
+                firsts[r] = m.seq
+        return firsts if len(firsts) == 3 else None
+
+    firsts = fleet.observed.wait_for(first_v2, timeout_s=10)
+    assert len(set(firsts.values())) == 1, firsts
+    # every agent used v1 before that frame and v2 from it on
+    switch = next(iter(firsts.values()))
+    for _, r, m in fleet.observed.state:
+        assert m.mission == (2 if m.seq >= switch else 1)
+    fleet.observed.wait_for(lambda o: sum(1 for _, r, m in o.state if m.mission == 2) > 90, timeout_s=10)
+    a = agreement([(r, m) for _, r, m in fleet.observed.state])
+    assert a.frames > 50 and a.identical == a.frames
