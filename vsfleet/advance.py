@@ -30,6 +30,8 @@ from .geometry import Pose2, angle_diff
 # interval is far below double precision, so the result is converged and
 # bit-reproducible (a fixed count, no tolerance-dependent stopping).
 _SEARCH_ITERATIONS = 80
+ALIGN_FLOOR = 0.2
+ALIGN_POWER = 8.0
 
 
 class GoalError(VsfleetValueError):
@@ -81,12 +83,15 @@ class StructureLimits:
 
     speed_max_m_s: largest translation speed of the structure origin [m/s].
     turn_rate_max_rad_s: largest structure turn rate [rad/s].
+    position_tolerance_m / heading_tolerance_rad: within these of a pose or path goal the
+    structure counts as arrived and stops being pushed; set them above the tracker's
+    noise so that a fleet at rest does not chase it.
     """
 
     speed_max_m_s: float
     turn_rate_max_rad_s: float
-    position_tolerance_m: float = 1e-3
-    heading_tolerance_rad: float = 1e-3
+    position_tolerance_m: float = 3e-3
+    heading_tolerance_rad: float = 0.01
     path_lookahead_m: float = 0.15
 
     def __post_init__(self) -> None:
@@ -236,9 +241,37 @@ def envelope_scale(twist: Twist2, twist_prev: Twist2 | None, rho_world: np.ndarr
     return lo
 
 
+def alignment_scale(twist: Twist2, rho_world: np.ndarray, headings_rad: Sequence[float | None],
+                    floor: float | None = None, power: float | None = None) -> float:
+    """The paper's cost-aware push (3.3.3): slow the structure while robots face across their path.
+
+    A differential-drive robot moves only along its heading, so the part of its point's
+    velocity across it becomes error. Per robot the factor is max(floor, |cos d|**power), with d
+    the angle between its heading and its point's velocity (either way: robots may reverse).
+    The structure moves at the smallest factor; the floor keeps it creeping so robots turn.
+    None headings (robots not seen) are skipped. floor and power default to ALIGN_FLOOR
+    and ALIGN_POWER.
+    """
+    floor = ALIGN_FLOOR if floor is None else floor
+    power = ALIGN_POWER if power is None else power
+    out = 1.0
+    for i, h in enumerate(headings_rad):
+        if h is None:
+            continue
+        ux = twist.vx_m_s - twist.w_rad_s * rho_world[i, 1]
+        uy = twist.vy_m_s + twist.w_rad_s * rho_world[i, 0]
+        u = math.hypot(ux, uy)
+        if u == 0.0:
+            continue
+        cos_d = abs(ux * math.cos(h) + uy * math.sin(h)) / u
+        out = min(out, max(floor, cos_d ** power))
+    return out
+
+
 def advance_structure(pose_fit: Pose2, goal: Goal, dt_s: float, limits: StructureLimits,
                       template_xy: np.ndarray, envelopes: Sequence[Envelope],
-                      twist_prev: Twist2 | None = None, elapsed_s: float | None = None) -> AdvanceResult:
+                      twist_prev: Twist2 | None = None, elapsed_s: float | None = None,
+                      headings_rad: Sequence[float | None] | None = None) -> AdvanceResult:
     """Next desired structure pose, one ``dt_s`` after the fitted pose (paper eq 7).
 
     template_xy (n, 2) are the robots' points [m; structure frame], envelopes their limits
@@ -249,6 +282,8 @@ def advance_structure(pose_fit: Pose2, goal: Goal, dt_s: float, limits: Structur
       structure's acceleration, and ramp down by the stopping profile. The result is
       then a pure function of this call's inputs, which is what duplicated agents use
       so that their copies agree bit for bit.
+    headings_rad (robot headings [rad], template order, None if unseen) turns on the
+    cost-aware push: see :func:`alignment_scale`.
     """
     tpl = np.asarray(template_xy, dtype=float)
     if tpl.ndim != 2 or tpl.shape[1] != 2 or tpl.shape[0] == 0:
@@ -293,6 +328,9 @@ def advance_structure(pose_fit: Pose2, goal: Goal, dt_s: float, limits: Structur
         k_v = min(1.0, accel * ramp / v) if v > 0.0 else 1.0
         k_w = min(1.0, alpha * ramp / abs(desired.w_rad_s)) if desired.w_rad_s != 0.0 else 1.0
         desired = Twist2(k_v * desired.vx_m_s, k_v * desired.vy_m_s, k_w * desired.w_rad_s)
+    if headings_rad is not None:
+        k = alignment_scale(desired, rho, headings_rad)
+        desired = Twist2(k * desired.vx_m_s, k * desired.vy_m_s, k * desired.w_rad_s)
     scale = envelope_scale(desired, twist_prev, rho, envelopes, dt_s)
     twist = Twist2(scale * desired.vx_m_s, scale * desired.vy_m_s, scale * desired.w_rad_s)
     nxt = Pose2(pose_fit.x + twist.vx_m_s * dt_s, pose_fit.y + twist.vy_m_s * dt_s,

@@ -97,7 +97,8 @@ def control_step(mission: Mission, poses: Mapping[str, tuple[float, float, float
     fit = fit_structure(template[rows], positions, metric=mission.metric)
     limits = StructureLimits(speed_max_m_s=mission.speed_max, turn_rate_max_rad_s=mission.turn_rate_max)
     adv = advance_structure(fit.pose, mission_goal(mission), dt_s, limits, template,
-                            mission_envelopes(mission), elapsed_s=frame_t - mission.effective_t)
+                            mission_envelopes(mission), elapsed_s=frame_t - mission.effective_t,
+                            headings_rad=[poses[r][2] if r in used else None for r in ids])
 
     vl = vr = 0.0
     err = math.nan

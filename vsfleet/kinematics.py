@@ -1,0 +1,187 @@
+"""Differential-drive kinematics over one control tick (Tan & Lewis 1996, eqs 12-18).
+
+Conventions: SI units, world frame, headings in radians CCW from +x. A robot
+pose is a :class:`~vsfleet.geometry.Pose2`; wheel speeds are ground speeds
+[m/s], left then right. ``vr > vl`` turns left (CCW), which is also the sign of
+the paper's eq 17 once its ``-2r`` is read as ``-(wheel base)``.
+
+Within one tick the wheel speeds are constant, so the robot moves along a
+circular arc (a straight line when ``vl == vr``). :func:`integrate_arc` is that
+motion, exactly; :func:`inverse_arc` is its inverse for a target point.
+"""
+
+from __future__ import annotations
+
+import math
+
+from .envelope import Envelope
+from .errors import NonFiniteError, VsfleetValueError
+from .geometry import Pose2
+
+# Below this |x| the series of sin(x)/x is used; its error there is < 1e-24.
+_SINC_SERIES_BELOW = 1e-4
+
+
+class TimeStepError(VsfleetValueError):
+    """A time step is not finite and > 0."""
+
+
+def _sinc(x: float) -> float:
+    """sin(x)/x, smooth through x = 0 (series near 0, no division by zero)."""
+    if abs(x) < _SINC_SERIES_BELOW:
+        x2 = x * x
+        return 1.0 - x2 / 6.0 * (1.0 - x2 / 20.0)
+    return math.sin(x) / x
+
+
+def _check_dt(dt_s: float) -> float:
+    dt_s = float(dt_s)
+    if not math.isfinite(dt_s) or dt_s <= 0.0:
+        raise TimeStepError(f"dt_s must be finite and > 0, got {dt_s!r}")
+    return dt_s
+
+
+def _check_finite(**values: float) -> None:
+    for name, value in values.items():
+        if not math.isfinite(value):
+            raise NonFiniteError(f"{name} must be finite, got {value!r}")
+
+
+def twist_from_wheels(vl_m_s: float, vr_m_s: float, wheel_base_m: float) -> tuple[float, float]:
+    """Wheel ground speeds (vl, vr) [m/s] -> body twist (v [m/s], w [rad/s, CCW]).
+
+    v = (vl + vr) / 2, w = (vr - vl) / wheel_base_m (paper eqs 17-18 per unit time).
+    """
+    return (0.5 * (vl_m_s + vr_m_s), (vr_m_s - vl_m_s) / wheel_base_m)
+
+
+def wheels_from_twist(v_m_s: float, w_rad_s: float, wheel_base_m: float) -> tuple[float, float]:
+    """Body twist (v [m/s], w [rad/s, CCW]) -> wheel ground speeds (vl, vr) [m/s].
+
+    The inverse of :func:`twist_from_wheels`: vl = v - w b/2, vr = v + w b/2.
+    """
+    half = 0.5 * w_rad_s * wheel_base_m
+    return (v_m_s - half, v_m_s + half)
+
+
+def integrate_arc(
+    pose: Pose2, vl_m_s: float, vr_m_s: float, dt_s: float, wheel_base_m: float
+) -> Pose2:
+    """Pose [world frame] after driving constant wheel speeds (vl, vr) [m/s] for dt_s [s].
+
+    Exact arc motion (paper eqs 17-18): the chord has length v dt sinc(w dt / 2) and
+    points along th + w dt / 2. Smooth through w = 0 (straight line) and v = 0 (spin).
+    """
+    v_m_s, w_rad_s = twist_from_wheels(vl_m_s, vr_m_s, wheel_base_m)
+    dth_rad = w_rad_s * dt_s
+    half_rad = 0.5 * dth_rad
+    chord_m = v_m_s * dt_s * _sinc(half_rad)
+    chord_dir_rad = pose.th + half_rad
+    return Pose2(
+        pose.x + chord_m * math.cos(chord_dir_rad),
+        pose.y + chord_m * math.sin(chord_dir_rad),
+        pose.th + dth_rad,
+    )
+
+
+def inverse_arc(
+    pose: Pose2, target_xy, dt_s: float, wheel_base_m: float
+) -> tuple[float, float]:
+    """Constant wheel speeds (vl, vr) [m/s] that drive from ``pose`` to ``target_xy`` [m; world] in dt_s.
+
+    The arc is tangent to the heading (paper eqs 12-16; eq 14 as printed is asin of
+    cos th_arc, so the exact th_arc = 2 atan(dy/dx) is used). Targets behind (dx < 0, robot
+    frame) are reached in reverse on the same circle, so |th_arc| <= pi; dx == 0 is a forward
+    half circle; the own position gives (0, 0).
+    """
+    dt_s = _check_dt(dt_s)
+    tx, ty = float(target_xy[0]), float(target_xy[1])
+    _check_finite(target_x=tx, target_y=ty)
+    c, s = math.cos(pose.th), math.sin(pose.th)
+    wx, wy = tx - pose.x, ty - pose.y
+    dx, dy = c * wx + s * wy, -s * wx + c * wy  # target in the robot frame
+    dist_m = math.hypot(dx, dy)
+    if dist_m == 0.0:
+        return (0.0, 0.0)
+    if dx >= 0.0:
+        # Forward: the chord leaves at half the turn angle, beta in [-pi/2, pi/2].
+        beta_rad = math.atan2(dy, dx)
+        direction = 1.0
+    else:
+        # Reverse: the chord leaves backwards; beta measured from the robot's rear.
+        beta_rad = math.atan2(-dy, -dx)
+        direction = -1.0
+    # Chord = v dt sinc(beta), so the signed speed is dist / (dt sinc(beta)); sinc(beta) >= 2/pi.
+    v_m_s = direction * dist_m / (dt_s * _sinc(beta_rad))
+    # Either way the heading turns by twice the chord's angle: th_arc = 2 beta.
+    w_rad_s = 2.0 * beta_rad / dt_s
+    return wheels_from_twist(v_m_s, w_rad_s, wheel_base_m)
+
+
+def limit_wheels(
+    vl_m_s: float,
+    vr_m_s: float,
+    wheels_prev_m_s: tuple[float, float],
+    dt_s: float,
+    envelope: Envelope,
+) -> tuple[float, float]:
+    """Clip a wheel command (vl, vr) [m/s] to the envelope's speed and per-tick acceleration limits.
+
+    Feasible commands come back unchanged; otherwise the command is scaled by the largest s in
+    [0, 1] that fits, keeping the curvature vl : vr. When no such s exists, see the fallback in
+    :func:`_reachable_toward` (keep the curvature at s > 1, else turn toward it, else brake).
+    """
+    dt_s = _check_dt(dt_s)
+    u = (float(vl_m_s), float(vr_m_s))
+    p = (float(wheels_prev_m_s[0]), float(wheels_prev_m_s[1]))
+    _check_finite(vl_m_s=u[0], vr_m_s=u[1], vl_prev_m_s=p[0], vr_prev_m_s=p[1])
+    speed_max = envelope.wheel_speed_max_m_s
+    step_max = envelope.wheel_accel_max_m_s2 * dt_s
+
+    if all(abs(u[i]) <= speed_max and abs(u[i] - p[i]) <= step_max for i in (0, 1)):
+        return (vl_m_s, vr_m_s)
+
+    # The reachable box: the speed box intersected with the acceleration box around prev.
+    # If prev is so far outside the speed box that the two do not meet, the speed limit
+    # wins and that wheel is pinned to the speed bound nearest prev.
+    box = []
+    for i in (0, 1):
+        lo, hi = max(p[i] - step_max, -speed_max), min(p[i] + step_max, speed_max)
+        if lo > hi:
+            lo = hi = math.copysign(speed_max, p[i])
+        box.append((lo, hi))
+
+    out = _reachable_toward(u, box)
+    # Clamping into the box moves the result by rounding error only; it makes the limits exact.
+    return (min(max(out[0], box[0][0]), box[0][1]), min(max(out[1], box[1][0]), box[1][1]))
+
+
+def _reachable_toward(u: tuple[float, float], box) -> tuple[float, float]:
+    """The point of the box that best follows the command u = (vl, vr) [m/s].
+
+    1. On the ray {s u, s >= 0}: the largest s <= 1, else the smallest s > 1 (curvature kept).
+    2. Else, if some point of the box lies within 90 deg of u: the box corner at the smallest
+       angle to u (turn as far toward the commanded curvature as one tick allows).
+    3. Else (u points away from everything reachable, e.g. a reversal): the point nearest zero.
+    """
+    s_lo, s_hi = 0.0, math.inf
+    for ui, (lo, hi) in zip(u, box):
+        if ui > 0.0:
+            s_lo, s_hi = max(s_lo, lo / ui), min(s_hi, hi / ui)
+        elif ui < 0.0:
+            s_lo, s_hi = max(s_lo, hi / ui), min(s_hi, lo / ui)
+        elif not lo <= 0.0 <= hi:
+            s_lo, s_hi = math.inf, 0.0
+    if s_lo <= s_hi:
+        s = min(s_hi, 1.0) if s_lo <= 1.0 else s_lo
+        return (s * u[0], s * u[1])
+
+    corners = [(a, b) for a in box[0] for b in box[1]]
+
+    def angle_to_u(x: tuple[float, float]) -> float:
+        return abs(math.atan2(u[0] * x[1] - u[1] * x[0], u[0] * x[0] + u[1] * x[1]))
+
+    best = min(corners, key=lambda x: (angle_to_u(x), math.hypot(x[0] - u[0], x[1] - u[1])))
+    if u != (0.0, 0.0) and angle_to_u(best) < 0.5 * math.pi:
+        return best
+    return (min(max(0.0, box[0][0]), box[0][1]), min(max(0.0, box[1][0]), box[1][1]))
