@@ -1,0 +1,58 @@
+"""The whole loop in one process (simfleet.offline): controller choice, determinism, a halted robot."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fleetctl.scenario_file import load_scenario
+from simfleet.offline import run_offline
+from vsfleet.control import CONTROLLERS, DEFAULT_CONTROLLER, make_controller
+from vsfleet.step import control_step
+
+ROOT = Path(__file__).parent.parent
+E2E = load_scenario(ROOT / "tests" / "data" / "e2e-triangle.toml")
+FAILURE = load_scenario(ROOT / "scenarios" / "paper-failure.toml")
+
+
+def test_the_default_controller_measures_best_in_the_closed_loop():
+    runs = {name: run_offline(E2E, 30.0, controller=name, seed=1) for name in CONTROLLERS}
+    table = {n: (r.t_goal_s, round(100 * float(r.deviations_m.mean()), 3), round(r.wheel_tv_m_s2, 3))
+             for n, r in runs.items()}
+    print("controller: (time to goal s, mean deviation cm, wheel TV m/s per s)", table)
+    best = runs[DEFAULT_CONTROLLER]
+    assert best.t_goal_s is not None, table
+    assert float(best.deviations_m.max()) < 0.02, table
+    for name, r in runs.items():
+        assert r.t_goal_s is None or best.t_goal_s <= r.t_goal_s, table
+        assert best.wheel_tv_m_s2 <= r.wheel_tv_m_s2, table
+
+
+def test_the_structure_part_of_a_step_is_a_pure_function_of_mission_and_frame():
+    mission = E2E.mission
+    poses = {"r1": (0.31, 0.01, 0.1), "r2": (-0.14, 0.26, 0.3), "r3": (-0.16, -0.25, 0.0)}
+    ctrl = make_controller(DEFAULT_CONTROLLER)
+    a = control_step(mission, poses, "r1", 2.5, 1 / 30, (0.0, 0.0), ctrl)
+    b = control_step(mission, poses, "r2", 2.5, 1 / 30, (0.1, -0.1), ctrl)
+    assert (a.fit_pose, a.goal_pose) == (b.fit_pose, b.goal_pose)  # other robot, other history
+    c = control_step(mission, dict(reversed(list(poses.items()))), "r3", 2.5, 1 / 30, (0.0, 0.0), ctrl)
+    assert (c.fit_pose, c.goal_pose) == (a.fit_pose, a.goal_pose)  # arrival order does not matter
+    d = control_step(mission, {**poses, "r2": (-0.14, 0.2601, 0.3)}, "r1", 2.5, 1 / 30, (0.0, 0.0), ctrl)
+    assert d.fit_pose != a.fit_pose
+
+
+def test_a_halted_robot_bends_the_structure_which_halts_instead_of_leaving_it_behind():
+    run = run_offline(FAILURE, 30.0, seed=2, stop_at_goal=False)
+    i_fault = int(FAILURE.faults[0].at_s * FAILURE.tracker.rate_hz)
+    t, before = run.trace[i_fault]
+    _, end = run.trace[-1]
+    # the structure moved before the fault, then stopped well short of the goal
+    start = run.trace[0][1]
+    assert np.hypot(before.x - start.x, before.y - start.y) > 0.2
+    assert np.hypot(end.x - run.trace[-30][1].x, end.y - run.trace[-30][1].y) < 0.005
+    goal = FAILURE.mission.goal
+    assert np.hypot(goal[0] - end.x, goal[1] - end.y) > 0.5
+    # and the formation error stays bounded: nobody is left behind
+    worst = float(run.deviations_m[i_fault:].max())
+    print(f"deviation after the fault: max {100 * worst:.2f} cm")
+    assert worst < 0.10
