@@ -131,3 +131,49 @@ def test_a_mission_change_is_adopted_by_every_agent_on_the_same_frame(fleet):
     fleet.observed.wait_for(lambda o: sum(1 for _, r, m in o.state if m.mission == 2) > 90, timeout_s=10)
     a = agreement([(r, m) for _, r, m in fleet.observed.state])
     assert a.frames > 50 and a.identical == a.frames
+
+
+def test_mission_set_publishes_a_scenario_mission_that_a_subscriber_decodes(fleet):
+    import subprocess
+    import sys
+    import threading
+    import time
+
+    from fleetctl.run import child_command
+    from vsfleet.wire import decode_mission
+
+    got: list = []
+    arrived = threading.Event()
+
+    def on_mission(sample):
+        got.append(decode_mission(sample.payload.to_bytes()))
+        arrived.set()
+
+    sub = fleet.router.declare_subscriber(fleet.keys.mission, on_mission)
+    try:
+        before = time.time()
+        out = subprocess.run(child_command("mission", "set", str(E2E), "--fleet", fleet.keys.fleet,
+                                           "--delay", "2.0", *fleet.flags),
+                             capture_output=True, text=True, timeout=30)
+        assert out.returncode == 0, out.stderr
+        assert arrived.wait(timeout=10)
+    finally:
+        sub.undeclare()
+    m = got[0]
+    assert m.robot_ids == ("r1", "r2", "r3") and m.metric == "linf"
+    assert m.goal == (0.45, 0.2, 0.1)
+    assert before + 2.0 <= m.effective_t <= time.time() + 2.0
+    assert m.version >= int(before * 1000)
+
+
+def test_mission_set_refuses_a_malformed_file_with_a_clear_message(tmp_path):
+    import subprocess
+
+    from fleetctl.run import child_command
+
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[mission]\nmetric = "l3"\n[robots.r1]\np = [0, 0]\n')
+    out = subprocess.run(child_command("mission", "set", str(bad), "--no-multicast-scouting"),
+                         capture_output=True, text=True, timeout=30)
+    assert out.returncode == 2
+    assert "unknown metric" in out.stderr
