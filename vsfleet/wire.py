@@ -141,7 +141,9 @@ def _opt_bool(m: Mapping[str, Any], name: str, default: bool) -> bool:
 
 
 def _opt_int(m: Mapping[str, Any], name: str, default: int) -> int:
-    return _int(m, name) if name in m else default
+    if name not in m or m[name] == default:
+        return default
+    return _int(m, name)
 
 
 def unpack_map(payload: bytes, limit: int = MAX_PAYLOAD_BYTES) -> dict:
