@@ -1,0 +1,119 @@
+"""simfleet physics and the simulated tracker, without transport (counted clocks)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from simfleet.main import Fleet
+from simfleet.physics import Fault, RobotState, step_robot
+from tracker.sim import SimTracker
+from vsfleet.geometry import Pose2
+from vsfleet.scenario import SimRobot, TrackerParams
+from vsfleet.wire import CmdMsg, FaultMsg, Keys, TruthMsg, encode
+from fleetctl.scenario_file import load_scenario
+from pathlib import Path
+
+ROBOT = SimRobot("r1", (0.0, 0.0, 0.0), wheel_base=0.1, wheel_speed_max=0.3, wheel_accel_max=1.0,
+                 gain=(1.0, 0.9))
+DT = 0.005
+
+
+def drive(cmd, steps, fault=Fault(), fresh=True, state=None):
+    s = state or RobotState(Pose2(0, 0, 0))
+    for k in range(steps):
+        s = step_robot(s, ROBOT, cmd[0], cmd[1], fresh, fault, k * DT, DT)
+    return s
+
+
+def test_wheels_ramp_at_the_acceleration_limit_and_apply_the_gain_mismatch():
+    s = drive((0.2, 0.2), 1)
+    assert (s.vl, s.vr) == pytest.approx((1.0 * DT, 1.0 * DT))
+    s = drive((0.2, 0.2), 200)
+    assert (s.vl, s.vr) == pytest.approx((0.2, 0.18))  # right wheel 10% weak
+    assert s.pose.th > 0.0 or s.pose.th < 0.0  # mismatch curves the path
+
+
+def test_wheel_speeds_are_clipped_to_the_speed_limit():
+    s = drive((5.0, -5.0), 400)
+    assert (s.vl, s.vr) == pytest.approx((0.3, -0.3))
+
+
+def test_a_stale_command_brakes_the_robot_to_rest():
+    moving = drive((0.2, 0.2), 200)
+    s = drive((0.2, 0.2), 200, fresh=False, state=moving)
+    assert (s.vl, s.vr) == (0.0, 0.0)
+
+
+@pytest.mark.parametrize("fault, expect", [
+    (Fault("stop", 0.0), (0.0, 0.0)),
+    (Fault("stall", 0.0, until_t=10.0), (0.0, 0.0)),
+    (Fault("slow", 0.5), (0.1, 0.09)),
+    (Fault("wheel", 0.0), (0.0, 0.18)),
+    (Fault("none", 0.0), (0.2, 0.18)),
+])
+def test_each_fault_kind_changes_the_applied_wheel_speeds(fault, expect):
+    s = drive((0.2, 0.2), 400, fault=fault)
+    assert (s.vl, s.vr) == pytest.approx(expect)
+
+
+def test_a_stall_ends_after_its_duration():
+    s = drive((0.2, 0.2), 400, fault=Fault("stall", 0.0, until_t=1.0))  # 400 steps = 2 s
+    assert (s.vl, s.vr) == pytest.approx((0.2, 0.18))
+
+
+def test_the_fleet_obeys_ttl_faults_and_rejects_bad_messages():
+    sc = load_scenario(Path(__file__).parent / "data" / "e2e-triangle.toml")
+    keys = Keys(sc.fleet)
+    fleet = Fleet(sc, keys, t0=1000.0)
+    fleet.on_cmd(keys.cmd("r1"), encode(CmdMsg(1000.0, 1, 0.2, 0.2, 0.3)), now=1000.0)
+    for _ in range(40):  # 0.2 s < ttl
+        fleet.step()
+    assert fleet.states["r1"].vl > 0.1
+    for _ in range(80):  # ttl (0.3 s after arrival), then braking at 0.8 m/s^2 (0.25 s)
+        fleet.step()
+    assert fleet.states["r1"].vl == 0.0
+    # an older command never replaces a newer one
+    fleet.on_cmd(keys.cmd("r2"), encode(CmdMsg(1000.5, 9, 0.1, 0.1, 5.0)), now=fleet.t)
+    fleet.on_cmd(keys.cmd("r2"), encode(CmdMsg(1000.4, 8, -0.1, -0.1, 5.0)), now=fleet.t)
+    assert fleet.cmds["r2"].seq == 9
+    # a fault on the key space stops the robot although commands keep coming
+    fleet.on_fault(keys.fault("r2"), encode(FaultMsg("stop", 0.0, 0.0)), now=fleet.t)
+    for _ in range(10):
+        fleet.step()
+    assert (fleet.states["r2"].vl, fleet.states["r2"].vr) == (0.0, 0.0)
+    before = fleet.rejections.count
+    fleet.on_cmd(keys.cmd("r1"), b"\x93garbage", now=fleet.t)
+    fleet.on_cmd(keys.cmd("nobody"), encode(CmdMsg(1.0, 1, 0.1, 0.1, 1.0)), now=fleet.t)
+    fleet.on_fault(keys.fault("r1"), encode(FaultMsg("stop", 0.0, 0.0))[:-2], now=fleet.t)
+    assert fleet.rejections.count == before + 3
+
+
+def test_a_scenario_fault_timeline_fires_at_its_time():
+    sc = load_scenario(Path(__file__).parent.parent / "scenarios" / "paper-failure.toml")
+    fleet = Fleet(sc, Keys(sc.fleet), t0=0.0)
+    steps_to_fault = int(sc.faults[0].at_s * sc.sim.rate_hz)
+    for _ in range(steps_to_fault - 1):
+        fleet.step()
+    assert fleet.faults["r2"].kind == "none"
+    fleet.step()
+    fleet.step()
+    assert fleet.faults["r2"].kind == "stop"
+
+
+def test_the_tracker_shares_one_seq_per_frame_adds_noise_and_drops_frames():
+    keys = Keys("demo")
+    tr = SimTracker(TrackerParams(noise_xy_m=0.01, noise_th_rad=0.02, drop_prob=0.0), src="cam", seed=3)
+    for r, x in (("r1", 1.0), ("r2", 2.0)):
+        tr.on_truth(keys, keys.truth(r), encode(TruthMsg(100.0, x, 0.0, 3.1, 0.0, 0.0)))
+    frames = [tr.frame(now=100.01) for _ in range(400)]
+    assert all(len(f) == 2 and f[0][1].seq == f[1][1].seq for f in frames)
+    xs = np.array([f[0][1].x for f in frames])
+    assert abs(xs.mean() - 1.0) < 0.003 and 0.008 < xs.std() < 0.012
+    assert all(-math.pi <= f[0][1].th < math.pi and f[0][1].t == 100.0 and f[0][1].src == "cam" for f in frames)
+    # stale truth is not observed
+    assert tr.frame(now=100.5) == []
+    dropper = SimTracker(TrackerParams(drop_prob=0.3), seed=4)
+    dropper.on_truth(keys, keys.truth("r1"), encode(TruthMsg(100.0, 0.0, 0.0, 0.0, 0.0, 0.0)))
+    empty = sum(1 for _ in range(1000) if not dropper.frame(now=100.0))
+    assert 250 < empty < 350
