@@ -1,0 +1,84 @@
+"""Benchmark: vsfleet.fit.fit_structure against scipy's Powell on the same cost.
+
+Run: .venv/bin/python bench/fit.py   (or: make bench-fit)
+
+For each n in {3, 10, 100, 1000} and metric in {l1, l2, linf}: one seeded
+formation (template uniform in [-1, 1]^2, a random rigid transform, Gaussian
+noise 0.05 m).  Both methods run side by side in this process, interleaved.
+Powell minimises ``structure_cost`` (the library's objective, which validates
+its inputs on every call) from the centroid translation with th = 0, with
+scipy's default tolerances.  Times are medians per fit; "ratio" is
+powell / ours.  Progress goes to stderr; the table to stdout.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+import sys
+import time
+
+import numpy as np
+from scipy.optimize import minimize
+
+from vsfleet.fit import fit_structure, structure_cost
+from vsfleet.geometry import Pose2
+
+SIZES = (3, 10, 100, 1000)
+METRICS = ("l1", "l2", "linf")
+# repetitions (ours, powell) per size: keeps the whole run well under two minutes
+REPS = {3: (500, 40), 10: (500, 40), 100: (60, 10), 1000: (10, 5)}
+NOISE_M = 0.05
+
+
+def formation(n: int, seed: int):
+    rng = np.random.default_rng(seed)
+    p = rng.uniform(-1.0, 1.0, (n, 2))
+    g = Pose2(rng.uniform(-5.0, 5.0), rng.uniform(-5.0, 5.0), rng.uniform(-math.pi, math.pi))
+    r = g.apply(p) + rng.normal(0.0, NOISE_M, (n, 2))
+    return p, r
+
+
+def run_powell(p, r, metric):
+    cost = lambda x: structure_cost(p, r, (x[0], x[1], x[2]), metric)  # noqa: E731
+    c = r.mean(axis=0) - p.mean(axis=0)
+    return minimize(cost, [c[0], c[1], 0.0], method="Powell").fun
+
+
+def main() -> int:
+    rows = []
+    for n in SIZES:
+        p, r = formation(n, seed=1000 + n)
+        reps_ours, reps_powell = REPS[n]
+        for metric in METRICS:
+            print(f"n={n:<5} {metric:<5} ...", file=sys.stderr, flush=True)
+            fit_structure(p, r, metric)  # warm caches
+            t_ours, t_powell = [], []
+            ours_cost = powell_cost = math.nan
+            every = max(1, reps_ours // reps_powell)
+            for k in range(reps_ours):
+                t0 = time.perf_counter()
+                res = fit_structure(p, r, metric)
+                t_ours.append(time.perf_counter() - t0)
+                ours_cost = res.cost
+                if k % every == 0 and len(t_powell) < reps_powell:
+                    t0 = time.perf_counter()
+                    powell_cost = float(run_powell(p, r, metric))
+                    t_powell.append(time.perf_counter() - t0)
+            while len(t_powell) < reps_powell:
+                t0 = time.perf_counter()
+                powell_cost = float(run_powell(p, r, metric))
+                t_powell.append(time.perf_counter() - t0)
+            mo = statistics.median(t_ours)
+            mp = statistics.median(t_powell)
+            rows.append((n, metric, mo, mp, mp / mo, ours_cost, powell_cost))
+    head = f"{'n':>5} {'metric':<6} {'ours [ms]':>10} {'powell [ms]':>12} {'ratio':>8} {'our cost':>14} {'powell cost':>14}"
+    print(head)
+    print("-" * len(head))
+    for n, metric, mo, mp, ratio, oc, pc in rows:
+        print(f"{n:>5} {metric:<6} {mo * 1e3:>10.3f} {mp * 1e3:>12.3f} {ratio:>8.1f} {oc:>14.9f} {pc:>14.9f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
