@@ -12,6 +12,10 @@ COMMANDS = {
     "run": ("fleetctl.run", "the localhost multi-process fleet from a scenario"),
     "router": ("fleetctl.router", "a zenoh router (router-mode zenoh-python session)"),
     "mission set": ("fleetctl.mission_cmd", "publish a mission file"),
+    "record": ("fleetctl.record", "record a fleet's key space into an MCAP file"),
+    "replay": ("fleetctl.replay", "publish a recording back into a key space"),
+    "plot": ("fleetctl.plot", "the paper's figures (PNG) from a recording"),
+    "monitor": ("fleetctl.monitor", "live terminal view of a running fleet"),
 }
 
 USAGE = "usage: vsfleet COMMAND [ARGS...]\n\ncommands:\n" + "\n".join(

@@ -4,7 +4,10 @@ Starts an embedded zenoh router (router-mode session on a free loopback port,
 multicast off), then simfleet, the simulated tracker and one agent process per
 robot, all as clients of that router. Publishes the mission and answers
 mission queries. Shows progress, stops everything cleanly (also on Ctrl-C or
-when a child dies), prints a summary and writes the run to runs/<timestamp>/.
+when a child dies), prints a summary and writes the run to runs/<timestamp>/:
+``run.mcap`` (every message and liveliness token, as ``vsfleet record`` writes
+it), ``log.msgpack``, ``summary.json``, the scenario and the plots of
+``vsfleet plot`` (trajectories.png, deviation.png, fault.png).
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from pathlib import Path
 
 import msgpack
 import zenoh
+from mcap.exceptions import McapError
 
 from vsfleet.analysis import (
     PAPER_MAX_M,
@@ -41,6 +45,8 @@ from vsfleet.wire import Keys, Mission, WireError, decode_state, decode_truth, e
 
 from .lifecycle import StopFlag, wall_clock
 from .mission_cmd import stamp
+from .plot import plot_file
+from .record import LiveRecorder
 from .router import open_loopback_router
 from .scenario_file import load_scenario
 from .zconf import RELIABLE_QOS, init_logging, zenoh_flags
@@ -198,8 +204,11 @@ def run(scenario_path: str, duration_s: float | None = None, out_dir: str = "run
     recorder = Recorder()
     router, endpoint = open_loopback_router()
     flags = zenoh_flags(endpoint)
+    mcap = LiveRecorder(run_dir / "run.mcap")
     try:
         router.declare_subscriber(keys.everything, recorder.on_sample)
+        router.declare_subscriber(keys.everything, mcap.on_sample)
+        router.liveliness().declare_subscriber(keys.alive(), mcap.on_liveliness, history=True)
         mission = stamp(scenario.mission, wall_clock(), 0.0, version=1)
         payload = encode_mission(mission)
         router.declare_queryable(keys.mission, lambda q: q.reply(keys.mission, payload), complete=True)
@@ -245,11 +254,18 @@ def run(scenario_path: str, duration_s: float | None = None, out_dir: str = "run
     finally:
         children.stop()
         router.close()
+        mcap.close()
     log.info("run ended: %s", reason)
     summary = summarise(scenario, mission, recorder.snapshot(), elapsed, ok)
     recorder.write(run_dir / "log.msgpack")
     (run_dir / "summary.json").write_text(json.dumps(asdict(summary), indent=2))
     (run_dir / "scenario.toml").write_bytes(Path(scenario_path).read_bytes())
+    try:
+        plots = plot_file(run_dir / "run.mcap", run_dir, fleet=scenario.fleet, timeline=scenario.faults)
+        for note in plots.notes:
+            log.info("plots: %s", note)
+    except (OSError, ValueError, McapError) as exc:
+        log.error("cannot plot the run: %s", exc)
     return summary, run_dir
 
 

@@ -1,0 +1,323 @@
+"""vsfleet monitor: a live terminal view of a running fleet, from its key space alone.
+
+Per robot: age and rate of its tracker pose, its commanded wheel speeds, its
+deviation from the structure (the agent's ``err``), whether its agent is alive
+(liveliness token ``vs/<fleet>/alive/agent/<robot>``) and how many bad
+messages the agent rejected. For the fleet: the fitted structure pose and the
+mission version the agents use, their agreement (the largest difference
+between agents' structure poses on the newest frame that every live agent
+reported), and the latest events (``vs/<fleet>/event`` maps, and faults).
+
+:class:`FleetModel` holds the state; it ingests (receive time, key, payload)
+and produces plain rows (:class:`FleetView`), so it runs as well on a
+recorded log as on live samples. Rendering (rich) is separate.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import math
+import threading
+import time
+from collections import OrderedDict, deque
+from dataclasses import dataclass, field
+
+import zenoh
+
+from vsfleet.geometry import angle_diff
+from vsfleet.wire import (
+    WireError,
+    check_name,
+    decode_cmd,
+    decode_fault,
+    decode_mission,
+    decode_pose,
+    decode_state,
+    unpack_map,
+)
+
+from .lifecycle import StopFlag
+from .record import split_key
+from .zconf import add_zenoh_args, init_logging, zenoh_config
+
+log = logging.getLogger("vsfleet.monitor")
+
+RATE_WINDOW_S = 2.0      # pose rate: poses received over the last window
+STALE_S = 2.0            # an agent whose last state is older than this is left out of the agreement
+SEQ_HISTORY = 256        # frames kept per agent for the agreement
+EVENTS_KEPT = 5
+
+
+@dataclass(frozen=True)
+class RobotRow:
+    """One robot as the key space shows it; None where nothing was received."""
+
+    robot: str
+    pose_age_s: float | None
+    pose_rate_hz: float
+    vl_m_s: float | None
+    vr_m_s: float | None
+    err_m: float | None
+    alive: bool | None          # agent's liveliness token; None: never seen
+    rejected: int | None
+    state_seq: int | None
+
+
+@dataclass(frozen=True)
+class FleetView:
+    now_s: float
+    fleet: str | None
+    robots: list[RobotRow]
+    structure: tuple[float, float, float] | None   # fitted (x [m], y [m], th [rad])
+    structure_seq: int | None
+    mission_version: int | None
+    agreement_seq: int | None        # newest frame every live agent reported
+    agreement_pos_m: float | None
+    agreement_th_rad: float | None
+    agents_compared: int
+    events: list[tuple[float, str, dict]]   # (receive time [s], key suffix, map), newest last
+    bad_messages: int
+
+
+@dataclass
+class _Robot:
+    pose_times: deque = field(default_factory=deque)
+    last_pose_s: float | None = None
+    cmd: tuple[float, float] | None = None
+    state_t_recv_s: float | None = None
+    err_m: float | None = None
+    rejected: int | None = None
+    state_seq: int | None = None
+    mission: int | None = None
+    frames: OrderedDict = field(default_factory=OrderedDict)  # seq -> (x, y, th)
+
+
+class FleetModel:
+    """Fleet state from (receive time [s], key, payload) samples and liveliness changes. Not thread-safe."""
+
+    def __init__(self, fleet: str | None = None, rate_window_s: float = RATE_WINDOW_S,
+                 stale_s: float = STALE_S, events_kept: int = EVENTS_KEPT) -> None:
+        self.fleet = check_name(fleet, "fleet") if fleet is not None else None
+        self.rate_window_s = rate_window_s
+        self.stale_s = stale_s
+        self.robots: dict[str, _Robot] = {}
+        self.alive: dict[str, bool] = {}           # agent id -> token alive
+        self.mission_robots: tuple[str, ...] = ()
+        self.mission_version: int | None = None
+        self.events: deque = deque(maxlen=events_kept)
+        self.bad = 0
+        self.last_t_s = -math.inf
+
+    def _robot(self, rid: str) -> _Robot:
+        r = self.robots.get(rid)
+        if r is None:
+            r = self.robots[rid] = _Robot()
+        return r
+
+    def _parts(self, key: str):
+        parts = split_key(key)
+        if parts is None or (self.fleet is not None and parts[0] != self.fleet):
+            return None
+        if self.fleet is None:
+            self.fleet = parts[0]  # the first fleet seen; others are ignored
+        return parts if parts[0] == self.fleet else None
+
+    def ingest(self, t_recv_s: float, key: str, payload: bytes) -> None:
+        """One data sample."""
+        self.last_t_s = max(self.last_t_s, t_recv_s)
+        parts = self._parts(key)
+        if parts is None:
+            return
+        _, kind, rid = parts
+        try:
+            if kind == "pose" and rid:
+                decode_pose(payload)
+                r = self._robot(check_name(rid, "robot"))
+                r.last_pose_s = t_recv_s
+                r.pose_times.append(t_recv_s)
+                while r.pose_times and r.pose_times[0] < t_recv_s - self.rate_window_s:
+                    r.pose_times.popleft()
+            elif kind == "cmd" and rid:
+                m = decode_cmd(payload)
+                self._robot(check_name(rid, "robot")).cmd = (m.vl, m.vr)
+            elif kind == "state" and rid:
+                m = decode_state(payload)
+                r = self._robot(check_name(rid, "robot"))
+                r.state_t_recv_s, r.err_m, r.rejected, r.state_seq = t_recv_s, m.err, m.rejected, m.seq
+                r.mission = m.mission if m.mission >= 0 else None
+                r.frames[m.seq] = (m.x, m.y, m.th)
+                while len(r.frames) > SEQ_HISTORY:
+                    r.frames.popitem(last=False)
+            elif kind == "mission" and rid is None:
+                mission = decode_mission(payload)
+                self.mission_robots = mission.robot_ids
+                self.mission_version = mission.version
+            elif kind == "fault" and rid:
+                f = decode_fault(payload)
+                self.events.append((t_recv_s, f"fault/{rid}",
+                                    {"kind": f.kind, "factor": f.factor, "duration": f.duration}))
+            elif kind == "event" and rid is None:
+                self.events.append((t_recv_s, "event", unpack_map(payload)))
+        except WireError:
+            self.bad += 1
+
+    def ingest_liveliness(self, t_recv_s: float, key: str, alive: bool) -> None:
+        """A liveliness token under vs/<fleet>/alive/<role>/<id> appeared (True) or went away (False)."""
+        self.last_t_s = max(self.last_t_s, t_recv_s)
+        parts = self._parts(key)
+        if parts is None or parts[1] != "alive" or not parts[2]:
+            return
+        role, _, ident = parts[2].partition("/")
+        if role == "agent" and ident:
+            self.alive[ident] = alive
+
+    # ------------------------------------------------------------ view
+
+    def _agreement(self, now_s: float):
+        live = [rid for rid, r in sorted(self.robots.items())
+                if r.state_t_recv_s is not None and now_s - r.state_t_recv_s <= self.stale_s
+                and self.alive.get(rid, True)]
+        if len(live) < 2:
+            return None, None, None, len(live)
+        common = set(self.robots[live[0]].frames)
+        for rid in live[1:]:
+            common &= set(self.robots[rid].frames)
+        if not common:
+            return None, None, None, len(live)
+        seq = max(common)
+        poses = [self.robots[rid].frames[seq] for rid in live]
+        pos = max(math.hypot(a[0] - b[0], a[1] - b[1]) for a in poses for b in poses)
+        th = max(abs(angle_diff(a[2], b[2])) for a in poses for b in poses)
+        return seq, pos, th, len(live)
+
+    def view(self, now_s: float | None = None) -> FleetView:
+        """The table as plain data; ``now_s`` defaults to the latest receive time ingested."""
+        now = self.last_t_s if now_s is None else now_s
+        ids = sorted(set(self.mission_robots) | set(self.robots) | set(self.alive))
+        rows = []
+        for rid in ids:
+            r = self.robots.get(rid, _Robot())
+            n = sum(1 for t in r.pose_times if now - self.rate_window_s < t <= now)
+            rows.append(RobotRow(
+                robot=rid,
+                pose_age_s=None if r.last_pose_s is None else now - r.last_pose_s,
+                pose_rate_hz=n / self.rate_window_s,
+                vl_m_s=r.cmd[0] if r.cmd else None, vr_m_s=r.cmd[1] if r.cmd else None,
+                err_m=r.err_m, alive=self.alive.get(rid), rejected=r.rejected, state_seq=r.state_seq))
+        seq, pos, th, n = self._agreement(now)
+        newest = max((r for r in self.robots.values() if r.state_seq is not None),
+                     key=lambda r: r.state_seq, default=None)
+        structure = structure_seq = None
+        if seq is not None:
+            structure_seq = seq
+            structure = next(r.frames[seq] for _, r in sorted(self.robots.items()) if seq in r.frames)
+        elif newest is not None:
+            structure_seq, structure = newest.state_seq, newest.frames[newest.state_seq]
+        version = newest.mission if newest is not None and newest.mission is not None else self.mission_version
+        return FleetView(now_s=now, fleet=self.fleet, robots=rows, structure=structure,
+                         structure_seq=structure_seq, mission_version=version, agreement_seq=seq,
+                         agreement_pos_m=pos, agreement_th_rad=th, agents_compared=n,
+                         events=list(self.events), bad_messages=self.bad)
+
+
+# ---------------------------------------------------------------- rendering
+
+
+def _fmt(v: float | None, spec: str, scale: float = 1.0) -> str:
+    if v is None:
+        return "-"
+    return format(v * scale if scale != 1.0 else v, spec)
+
+
+def render(view: FleetView):
+    """A rich renderable (a table per robot, then the fleet's lines) for a FleetView."""
+    from rich.console import Group
+    from rich.markup import escape
+    from rich.table import Table
+    from rich.text import Text
+
+    table = Table(title=f"vsfleet monitor: fleet {view.fleet or '?'}", title_justify="left")
+    for name, justify in (("robot", "left"), ("agent", "center"), ("pose age [s]", "right"),
+                          ("pose rate [Hz]", "right"), ("vl [m/s]", "right"), ("vr [m/s]", "right"),
+                          ("err [cm]", "right"), ("rejected", "right"), ("seq", "right")):
+        table.add_column(escape(name), justify=justify)
+    for r in view.robots:
+        alive = {True: Text("alive", "green"), False: Text("gone", "bold red"), None: Text("-")}[r.alive]
+        table.add_row(Text(r.robot), alive, _fmt(r.pose_age_s, ".2f"), f"{r.pose_rate_hz:.1f}",
+                      _fmt(r.vl_m_s, "+.3f"), _fmt(r.vr_m_s, "+.3f"), _fmt(r.err_m, ".2f", 100.0),
+                      _fmt(r.rejected, "d"), _fmt(r.state_seq, "d"))
+    lines = []
+    if view.structure is not None:
+        x, y, th = view.structure
+        lines.append(f"structure (frame {view.structure_seq}): x {x:+.3f} m, y {y:+.3f} m, th {th:+.3f} rad")
+    else:
+        lines.append("structure: no agent state yet")
+    lines.append(f"mission version: {view.mission_version if view.mission_version is not None else '-'}")
+    if view.agreement_seq is not None:
+        lines.append(f"agreement on frame {view.agreement_seq} over {view.agents_compared} agents: "
+                     f"{view.agreement_pos_m:.3g} m, {view.agreement_th_rad:.3g} rad")
+    else:
+        lines.append(f"agreement: no frame reported by every live agent ({view.agents_compared} live)")
+    texts = [Text(line) for line in lines]
+    if view.bad_messages:
+        texts.append(Text(f"{view.bad_messages} messages the monitor could not decode", "yellow"))
+    for t, src, m in view.events:
+        texts.append(Text(f"event {time.strftime('%H:%M:%S', time.localtime(t))} {src}: {m}"))
+    return Group(table, *texts)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="vsfleet monitor", description=__doc__.splitlines()[0])
+    which = p.add_mutually_exclusive_group()
+    which.add_argument("--fleet", default=None, help="watch vs/<fleet>/** (default fleet: demo)")
+    which.add_argument("--key", default=None, help="watch this key expression instead (one fleet shown)")
+    p.add_argument("--duration", type=float, default=0.0, help="stop after this many seconds (0: at Ctrl-C)")
+    p.add_argument("--refresh", type=float, default=4.0, help="screen refreshes per second")
+    p.add_argument("--verbose", "-v", action="store_true")
+    add_zenoh_args(p)
+    args = p.parse_args(argv)
+    init_logging(args.verbose)
+    from rich.live import Live
+
+    try:
+        fleet = check_name(args.fleet or "demo", "fleet") if args.key is None else None
+        key_expr = args.key or f"vs/{fleet}/**"
+        zenoh.KeyExpr(key_expr)
+    except (ValueError, zenoh.ZError) as exc:
+        log.error("%s", exc)
+        return 2
+    model = FleetModel(fleet)
+    lock = threading.Lock()
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        if sample.kind == zenoh.SampleKind.PUT:
+            with lock:
+                model.ingest(time.time(), str(sample.key_expr), sample.payload.to_bytes())
+
+    def on_token(sample: zenoh.Sample) -> None:
+        with lock:
+            model.ingest_liveliness(time.time(), str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT)
+
+    def current():
+        with lock:
+            return render(model.view(time.time()))
+
+    stop = StopFlag()
+    t_end = time.monotonic() + args.duration if args.duration > 0 else math.inf
+    with zenoh.open(zenoh_config(args)) as session:
+        session.declare_subscriber(key_expr, on_sample)
+        session.liveliness().declare_subscriber(key_expr, on_token, history=True)
+        for reply in session.get(key_expr.rsplit("/", 1)[0] + "/mission" if fleet else "vs/*/mission",
+                                 timeout=2.0):
+            if reply.ok is not None:
+                on_sample(reply.ok)
+        with Live(current(), refresh_per_second=args.refresh, get_renderable=current, screen=False):
+            while not stop.wait(min(0.25, max(0.0, t_end - time.monotonic()))):
+                if time.monotonic() >= t_end:
+                    break
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

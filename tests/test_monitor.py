@@ -1,0 +1,131 @@
+"""vsfleet monitor's model: the table as plain data from (receive time, key, payload); and its rendering."""
+
+from __future__ import annotations
+
+import msgpack
+import pytest
+from rich.console import Console
+
+from fleetctl.monitor import FleetModel, render
+from vsfleet.wire import CmdMsg, FaultMsg, PoseMsg, StateMsg, encode
+
+T0 = 1795378500.0
+ROBOTS = ("r1", "r2", "r3")
+
+
+def state(seq: int, x: float = 0.1, th: float = 0.0, rejected: int = 0, mission: int = 4, err: float = 0.002):
+    return encode(StateMsg(t=T0 + seq / 30, seq=seq, x=x, y=0.2, th=th, gx=x, gy=0.2, gth=th, cost=0.001,
+                           err=err, used=ROBOTS, rejected=rejected, mission=mission))
+
+
+def fed(fleet: str = "demo", seconds: float = 2.0) -> FleetModel:
+    """Three robots, poses at 30 Hz, agents alive, every agent answering every frame identically."""
+    m = FleetModel(fleet)
+    for r in ROBOTS:
+        m.ingest_liveliness(T0, f"vs/{fleet}/alive/agent/{r}", True)
+    m.ingest_liveliness(T0, f"vs/{fleet}/alive/sim/simfleet", True)
+    for k in range(int(seconds * 30)):
+        t = T0 + k / 30
+        for r in ROBOTS:
+            m.ingest(t, f"vs/{fleet}/pose/{r}", encode(PoseMsg(t=t, seq=k, x=0.0, y=0.0, th=0.0, src="s")))
+        for r in ROBOTS:
+            m.ingest(t + 0.004, f"vs/{fleet}/state/{r}", state(k))
+            m.ingest(t + 0.005, f"vs/{fleet}/cmd/{r}", encode(CmdMsg(t=t, seq=k, vl=0.01 * k, vr=-0.01, ttl=0.3)))
+    return m
+
+
+def test_each_robot_shows_pose_age_and_rate_wheel_speeds_err_liveliness_and_rejections():
+    view = fed().view()
+    assert [r.robot for r in view.robots] == list(ROBOTS)
+    for row in view.robots:
+        assert row.pose_rate_hz == pytest.approx(30.0, abs=0.6)
+        assert row.pose_age_s == pytest.approx(0.005, abs=1e-5)
+        assert (row.vl_m_s, row.vr_m_s) == (0.01 * 59, -0.01)
+        assert row.err_m == 0.002 and row.alive is True and row.rejected == 0 and row.state_seq == 59
+
+
+def test_the_pose_rate_falls_to_zero_and_the_age_grows_when_poses_stop():
+    view = fed().view(now_s=T0 + 10.0)
+    assert all(r.pose_rate_hz == 0.0 for r in view.robots)
+    assert all(r.pose_age_s > 8.0 for r in view.robots)
+
+
+def test_identical_agents_agree_to_zero_on_the_newest_frame_and_show_the_structure_and_mission_version():
+    view = fed().view()
+    assert view.agreement_seq == 59 and view.agents_compared == 3
+    assert view.agreement_pos_m == 0.0 and view.agreement_th_rad == 0.0
+    assert view.structure == (0.1, 0.2, 0.0) and view.structure_seq == 59
+    assert view.mission_version == 4
+
+
+def test_agreement_uses_the_newest_frame_every_agent_reported_and_measures_the_difference():
+    m = fed()
+    t = T0 + 2.0
+    m.ingest(t, "vs/demo/state/r1", state(60, x=0.1))
+    m.ingest(t, "vs/demo/state/r2", state(60, x=0.13, th=0.05))  # r3 has not answered frame 60 yet
+    view = m.view()
+    assert view.agreement_seq == 59 and view.agreement_pos_m == 0.0
+    m.ingest(t + 0.01, "vs/demo/state/r3", state(60, x=0.1))
+    view = m.view()
+    assert view.agreement_seq == 60
+    assert view.agreement_pos_m == pytest.approx(0.03) and view.agreement_th_rad == pytest.approx(0.05)
+
+
+def test_a_dead_agent_shows_gone_and_is_left_out_of_the_agreement():
+    m = fed()
+    m.ingest_liveliness(T0 + 2.0, "vs/demo/alive/agent/r3", False)
+    m.ingest(T0 + 2.01, "vs/demo/state/r1", state(60))
+    m.ingest(T0 + 2.01, "vs/demo/state/r2", state(60))
+    view = m.view()
+    assert {r.robot: r.alive for r in view.robots} == {"r1": True, "r2": True, "r3": False}
+    assert view.agreement_seq == 60 and view.agents_compared == 2
+
+
+def test_rejections_come_from_the_agents_state():
+    m = fed()
+    m.ingest(T0 + 2.0, "vs/demo/state/r2", state(60, rejected=7))
+    assert {r.robot: r.rejected for r in m.view().robots}["r2"] == 7
+
+
+def test_events_and_faults_keep_the_latest_few_in_order():
+    m = fed()
+    for i in range(7):
+        m.ingest(T0 + 3 + i, "vs/demo/event", msgpack.packb({"kind": "note", "i": i}))
+    m.ingest(T0 + 11, "vs/demo/fault/r2", encode(FaultMsg("stop", 0.0, 0.0)))
+    events = m.view().events
+    assert len(events) == 5
+    assert [e[2].get("i") for e in events[:4]] == [3, 4, 5, 6]
+    assert events[-1][1:] == ("fault/r2", {"kind": "stop", "factor": 0.0, "duration": 0.0})
+
+
+def test_bad_messages_are_counted_and_never_break_the_view():
+    m = fed()
+    m.ingest(T0 + 2, "vs/demo/pose/r1", b"\xc1")
+    m.ingest(T0 + 2, "vs/demo/state/r2", msgpack.packb({"seq": "x"}))
+    m.ingest(T0 + 2, "vs/demo/event", msgpack.packb([1, 2]))
+    view = m.view()
+    assert view.bad_messages == 3 and len(view.robots) == 3
+
+
+def test_other_fleets_are_ignored():
+    m = fed()
+    m.ingest(T0 + 2, "vs/other/pose/r9", encode(PoseMsg(t=T0, seq=1, x=0, y=0, th=0, src="s")))
+    m.ingest_liveliness(T0 + 2, "vs/other/alive/agent/r9", True)
+    assert [r.robot for r in m.view().robots] == list(ROBOTS)
+
+
+def test_without_a_fleet_the_model_follows_the_first_fleet_it_sees():
+    m = FleetModel()
+    m.ingest(T0, "vs/lab/pose/r1", encode(PoseMsg(t=T0, seq=1, x=0, y=0, th=0, src="s")))
+    m.ingest(T0, "vs/other/pose/r2", encode(PoseMsg(t=T0, seq=1, x=0, y=0, th=0, src="s")))
+    view = m.view()
+    assert view.fleet == "lab" and [r.robot for r in view.robots] == ["r1"]
+
+
+def test_the_rendered_table_names_every_robot_with_units_in_the_headers():
+    console = Console(record=True, width=160)
+    console.print(render(fed().view()))
+    text = console.export_text()
+    for needle in ("r1", "r2", "r3", "alive", "pose age [s]", "pose rate [Hz]", "vl [m/s]", "err [cm]",
+                   "rejected", "mission version: 4", "agreement on frame 59 over 3 agents: 0 m"):
+        assert needle in text

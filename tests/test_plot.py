@@ -1,0 +1,142 @@
+"""vsfleet plot: the paper's Figures 9, 10 and 12 from a log (synthetic fleet, exact geometry)."""
+
+from __future__ import annotations
+
+import math
+import re
+
+import numpy as np
+import pytest
+
+from fleetctl import plot
+from fleetctl.plot import FaultMark, add_timeline, extract, write_plots
+from fleetctl.record import LogRecord, publish_time_ns, seconds_to_ns, structure_points, write_log
+from vsfleet.scenario import FaultEvent
+from vsfleet.wire import (FaultMsg, Mission, PoseMsg, RobotSpec, StateMsg, TruthMsg, encode,
+                          encode_mission)
+
+T0 = 1795378500.0
+ROBOTS = ("r1", "r2", "r3")
+MISSION = Mission(version=1, metric="l2", speed_max=0.1, turn_rate_max=0.3, effective_t=T0, goal=(0.5, 0.0, 0.0),
+                  robots=(("r1", RobotSpec((0.3, 0.0), 0.12, 0.3, 0.8)),
+                          ("r2", RobotSpec((-0.15, 0.26), 0.12, 0.3, 0.8)),
+                          ("r3", RobotSpec((-0.15, -0.26), 0.12, 0.3, 0.8))))
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+def rec(key: str, payload: bytes, t_s: float) -> LogRecord:
+    log_ns = seconds_to_ns(t_s)
+    return LogRecord(log_ns, publish_time_ns(payload, None, log_ns), key, payload)
+
+
+def synthetic_log(fleet: str = "demo", truth: bool = True, mission: bool = True, fault_at_s: float | None = None,
+                  frames: int = 200) -> list[LogRecord]:
+    """A structure sliding along +x at 0.1 m/s; r1 wobbles off its point by up to 4 mm; 50 Hz."""
+    out = [rec(f"vs/{fleet}/mission", encode_mission(MISSION), T0 - 0.5)] if mission else []
+    for k in range(frames):
+        t = T0 + k * 0.02
+        sx = 0.1 * (t - T0)
+        pts = structure_points(MISSION, sx, 0.0, 0.0)
+        for i, r in enumerate(ROBOTS):
+            x, y, _ = pts[i]
+            if r == "r1":
+                y += 0.004 * math.sin(k / 10)
+            if truth:
+                out.append(rec(f"vs/{fleet}/truth/{r}", encode(TruthMsg(t=t, x=x, y=y, th=0.0, vl=0.1, vr=0.1)), t))
+            out.append(rec(f"vs/{fleet}/pose/{r}", encode(PoseMsg(t=t, seq=k, x=x, y=y, th=0.0, src="s")), t))
+            out.append(rec(f"vs/{fleet}/state/{r}", encode(StateMsg(
+                t=t, seq=k, x=sx, y=0.0, th=0.0, gx=sx, gy=0.0, gth=0.0, cost=0.001, err=0.001 * (i + 1),
+                used=ROBOTS, rejected=0)), t + 0.005))
+        if fault_at_s is not None and abs(t - T0 - fault_at_s) < 1e-9:
+            out.append(rec(f"vs/{fleet}/fault/r2", encode(FaultMsg("stop", 0.0, 0.0)), t))
+    return out
+
+
+def lines_by_label(fig):
+    return [line.get_label() for ax in fig.axes for line in ax.get_lines()]
+
+
+def test_the_trajectory_plot_has_one_line_per_robot_plus_the_structure_and_the_goal_with_labelled_axes():
+    data = extract(synthetic_log())
+    fig = plot.trajectory_figure(data)
+    labels = lines_by_label(fig)
+    for r in ROBOTS:
+        assert labels.count(r) == 1
+    assert "goal" in labels and any(label.startswith("structure") for label in labels)
+    ax = fig.axes[0]
+    assert ax.get_xlabel() == "x [m]" and ax.get_ylabel() == "y [m]"
+    (r1,) = [line for line in ax.get_lines() if line.get_label() == "r1"]
+    assert r1.get_xdata()[0] == pytest.approx(0.3) and r1.get_xdata()[-1] == pytest.approx(0.3 + 0.1 * 199 * 0.02)
+
+
+def test_without_truth_the_robots_paths_come_from_the_tracker_poses():
+    data = extract(synthetic_log(truth=False))
+    fig = plot.trajectory_figure(data)
+    assert "tracker poses" in fig.axes[0].get_title()
+    assert sorted(label for label in lines_by_label(fig) if label in ROBOTS) == list(ROBOTS)
+
+
+def test_the_deviation_plot_has_one_line_per_robot_annotated_with_its_mean_sigma_and_max():
+    fig = plot.deviation_figure(extract(synthetic_log()))
+    ax = fig.axes[0]
+    assert ax.get_xlabel() == "time [s]" and ax.get_ylabel() == "deviation from structure [cm]"
+    lines = ax.get_lines()
+    assert [line.get_label().split(":")[0] for line in lines] == list(ROBOTS)
+    for line in lines:
+        y = np.asarray(line.get_ydata())
+        mean, sigma, peak = map(float, re.findall(r"([0-9.]+) cm", line.get_label()))
+        assert (mean, sigma, peak) == (round(y.mean(), 2), round(y.std(), 2), round(y.max(), 2))
+    r1 = np.asarray(lines[0].get_ydata())
+    assert 0.1 < r1.max() < 0.4  # r1 wobbles by up to 0.4 cm; the fit shares part of it
+
+
+def test_without_a_mission_the_deviation_falls_back_to_the_agents_err():
+    fig = plot.deviation_figure(extract(synthetic_log(mission=False)))
+    assert "err" in fig.axes[0].get_title()
+    assert [float(np.max(line.get_ydata())) for line in fig.axes[0].get_lines()] == pytest.approx([0.1, 0.2, 0.3])
+
+
+def test_the_fault_plot_marks_the_time_of_a_fault_message_and_draws_one_line_per_robot():
+    data = extract(synthetic_log(fault_at_s=2.0))
+    assert data.faults == [FaultMark(T0 + 2.0, "r2", "stop", "fault message")]
+    fig = plot.fault_figure(data)
+    ax = fig.axes[0]
+    (mark,) = [line for line in ax.get_lines() if line.get_label().startswith("fault:")]
+    assert list(mark.get_xdata()) == pytest.approx([2.0, 2.0])
+    assert "r2 stop" in mark.get_label()
+    assert [line.get_label() for line in ax.get_lines() if line is not mark] == list(ROBOTS)
+    assert ax.get_xlabel() == "time [s]" and "[cm]" in ax.get_ylabel()
+
+
+def test_a_fault_event_or_a_scenario_timeline_also_marks_the_fault():
+    assert plot.fault_from_event({"kind": "fault", "robot": "r3", "fault": "slow", "t": T0 + 1}, 0.0) == \
+        FaultMark(T0 + 1, "r3", "slow", "event")
+    assert plot.fault_from_event({"kind": "mission", "version": 2}, 0.0) is None
+    data = extract(synthetic_log())
+    add_timeline(data, [FaultEvent(robot="r1", at_s=1.5, kind="wheel", factor=0.0, duration=0.0)])
+    assert data.faults == [FaultMark(T0 + 1.5, "r1", "wheel", "scenario")]
+    assert plot.fault_figure(data) is not None
+
+
+def test_without_fault_information_fault_png_is_skipped_and_the_notes_say_so(tmp_path):
+    result = write_plots(extract(synthetic_log()), tmp_path)
+    assert sorted(p.name for p in result.written) == ["deviation.png", "trajectories.png"]
+    assert any("fault.png skipped" in note for note in result.notes)
+    for p in result.written:
+        assert p.read_bytes()[:8] == PNG
+
+
+def test_a_log_with_several_fleets_needs_a_fleet_choice():
+    log = synthetic_log("a", frames=3) + synthetic_log("b", frames=3)
+    with pytest.raises(ValueError, match="--fleet"):
+        extract(log)
+    assert extract(log, fleet="b").fleet == "b"
+
+
+def test_vsfleet_plot_writes_the_three_pngs_of_an_mcap_file(tmp_path, capsys):
+    path = tmp_path / "run.mcap"
+    write_log(path, synthetic_log(fault_at_s=2.0))
+    assert plot.main([str(path), "--out", str(tmp_path / "png")]) == 0
+    for name in ("trajectories.png", "deviation.png", "fault.png"):
+        assert (tmp_path / "png" / name).read_bytes()[:8] == PNG
+    assert "wrote" in capsys.readouterr().out
