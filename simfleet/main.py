@@ -58,16 +58,24 @@ class Fleet:
     def t(self) -> float:
         return self.t0 + self.k * self.dt_s
 
-    def on_cmd(self, key: str, payload: bytes, now: float) -> None:
+    def _decode(self, key: str, kind: str, decode, payload: bytes):
+        """(robot, message) for one of our robots, or None after a counted rejection."""
         try:
-            robot = self.keys.robot_of(key, "cmd")
-            msg = decode_cmd(payload)
+            robot = self.keys.robot_of(key, kind)
+            msg = decode(payload)
         except WireError as exc:
             self.rejections.reject(key, str(exc))
-            return
+            return None
         if robot not in self.robots:
             self.rejections.reject(key, f"unknown robot {robot!r}")
+            return None
+        return robot, msg
+
+    def on_cmd(self, key: str, payload: bytes, now: float) -> None:
+        got = self._decode(key, "cmd", decode_cmd, payload)
+        if got is None:
             return
+        robot, msg = got
         with self.lock:
             held = self.cmds.get(robot)
             if held is not None and msg.seq < held.seq:
@@ -75,16 +83,10 @@ class Fleet:
             self.cmds[robot] = _Cmd(msg.vl, msg.vr, msg.seq, now, msg.ttl)
 
     def on_fault(self, key: str, payload: bytes, now: float) -> None:
-        try:
-            robot = self.keys.robot_of(key, "fault")
-            msg = decode_fault(payload)
-        except WireError as exc:
-            self.rejections.reject(key, str(exc))
-            return
-        if robot not in self.robots:
-            self.rejections.reject(key, f"unknown robot {robot!r}")
-            return
-        self.set_fault(robot, msg.kind, msg.factor, msg.duration, now)
+        got = self._decode(key, "fault", decode_fault, payload)
+        if got is not None:
+            robot, msg = got
+            self.set_fault(robot, msg.kind, msg.factor, msg.duration, now)
 
     def set_fault(self, robot: str, kind: str, factor: float, duration: float, now: float) -> None:
         until = now + duration if duration > 0 else math.inf
