@@ -22,9 +22,11 @@ from fleetctl.lifecycle import Rejections, StopFlag, wall_clock
 from fleetctl.zconf import RELIABLE_QOS, STREAM_QOS, TELEMETRY_QOS, add_zenoh_args, init_logging, zenoh_config
 from vsfleet.control import DEFAULT_CONTROLLER, make_controller
 from vsfleet.errors import VsfleetValueError
+from vsfleet.failure import FailurePolicy, Health, update_health
 from vsfleet.step import control_step
 from vsfleet.wire import (
     CmdMsg,
+    EventMsg,
     Keys,
     Mission,
     StateMsg,
@@ -33,6 +35,7 @@ from vsfleet.wire import (
     decode_mission,
     decode_pose,
     encode,
+    encode_event,
     encode_mission,
 )
 
@@ -51,8 +54,11 @@ class Agent:
     def __init__(self, robot: str, keys: Keys, put_cmd: Callable[[bytes], None],
                  put_state: Callable[[bytes], None], dt_s: float = DEFAULT_DT_S,
                  ttl_s: float = DEFAULT_TTL_S, deadline_s: float | None = None, max_age_s: float = 0.25,
-                 clock: Callable[[], float] = wall_clock) -> None:
+                 clock: Callable[[], float] = wall_clock,
+                 put_event: Callable[[bytes], None] = lambda payload: None) -> None:
         self.robot = check_name(robot, "robot")
+        self.put_event = put_event
+        self.health = Health()
         self.keys = keys
         self.put_cmd = put_cmd
         self.put_state = put_state
@@ -128,12 +134,21 @@ class Agent:
         poses = {r: p for r, p in frame.poses.items() if r in mission.robot_ids}
         try:
             result = control_step(mission, poses, self.robot, frame.t, self.dt_s,
-                                  self.wheels_prev, self.controller_for(mission))
+                                  self.wheels_prev, self.controller_for(mission),
+                                  excluded=self.health.dropped,
+                                  drive_excluded=mission.on_failure == "rejoin")
         except VsfleetValueError as exc:
             self.rejections.reject(self.keys.pose(), f"frame {frame.seq} unusable: {exc}")
             return
         if result is None:
             return
+        self.health, decisions = update_health(FailurePolicy(mission.on_failure), self.health,
+                                               result.deviations_m, mission.robot_ids, frame.t)
+        for d in decisions:
+            log.warning("frame %d: robot %s %s (deviation %.3f m, on_failure=%s)", frame.seq, d.robot,
+                        d.kind, d.deviation_m, mission.on_failure)
+            self.put_event(encode_event(EventMsg(t=d.t, seq=frame.seq, robot=d.robot, kind=d.kind,
+                                                 dev=d.deviation_m, by=self.robot)))
         self.wheels_prev = (result.vl_m_s, result.vr_m_s)
         self.last_seq = frame.seq
         self.ticks += 1
@@ -177,7 +192,9 @@ def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFla
     with zenoh.open(conf) as session:
         cmd_pub = session.declare_publisher(keys.cmd(robot), **STREAM_QOS)
         state_pub = session.declare_publisher(keys.state(robot), **TELEMETRY_QOS)
-        agent = Agent(robot, keys, cmd_pub.put, state_pub.put, dt_s=dt_s, ttl_s=ttl_s)
+        event_pub = session.declare_publisher(keys.event, **RELIABLE_QOS)
+        agent = Agent(robot, keys, cmd_pub.put, state_pub.put, dt_s=dt_s, ttl_s=ttl_s,
+                      put_event=event_pub.put)
         token = session.liveliness().declare_token(keys.alive("agent", robot))  # keep referenced
 
         def answer_mission(query: zenoh.Query) -> None:

@@ -16,6 +16,7 @@ import numpy as np
 
 from vsfleet.analysis import goal_distance
 from vsfleet.control import DEFAULT_CONTROLLER, make_controller
+from vsfleet.failure import FailurePolicy, Health, update_health
 from vsfleet.fit import fit_structure
 from vsfleet.geometry import Pose2
 from vsfleet.scenario import Scenario
@@ -39,6 +40,7 @@ class OfflineRun:
     wheel_tv_m_s2: float
     trace: tuple[tuple[float, Pose2], ...]
     final_poses: dict
+    decisions: dict  # robot -> the failure-policy decisions its agent made, in order
 
 
 def run_offline(scenario: Scenario, duration_s: float, controller: str | None = None,
@@ -68,13 +70,20 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
     tv = 0.0
     devs, trace = [], []
     t_goal = None
+    policy = FailurePolicy(mission.on_failure)
+    health = {r: Health() for r in robots}
+    decisions: dict[str, list] = {r: [] for r in robots}
     for _ in range(int(round(duration_s / dt))):
         poses = {r: (s.pose.x + rng.normal(0.0, nxy), s.pose.y + rng.normal(0.0, nxy),
                      s.pose.th + rng.normal(0.0, nth)) for r, s in states.items()}
         new = {}
-        for r in robots:
-            res = control_step(mission, poses, r, t, dt, cmds[r], ctrl)
+        for r in robots:  # each robot's agent, with its own failure state
+            res = control_step(mission, poses, r, t, dt, cmds[r], ctrl, excluded=health[r].dropped,
+                               drive_excluded=mission.on_failure == "rejoin")
             new[r] = (res.vl_m_s, res.vr_m_s) if res is not None else (0.0, 0.0)
+            if res is not None:
+                health[r], made = update_health(policy, health[r], res.deviations_m, ids, t)
+                decisions[r].extend(made)
         pending.append(new)
         if len(pending) > latency_frames:
             applied = pending.pop(0)
@@ -99,5 +108,5 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
     span = t_goal if t_goal is not None else t
     return OfflineRun(deviations_m=np.array(devs), robots=ids, t_goal_s=t_goal,
                       wheel_tv_m_s2=tv / len(robots) / max(span, 1e-9), trace=tuple(trace),
-                      final_poses={r: s.pose for r, s in states.items()})
+                      final_poses={r: s.pose for r, s in states.items()}, decisions=decisions)
 

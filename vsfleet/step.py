@@ -71,11 +71,13 @@ class StepResult:
     vl_m_s: float
     vr_m_s: float
     at_goal: bool
+    deviations_m: dict[str, float]  # every seen robot's distance to its fitted point [m]
 
 
 def control_step(mission: Mission, poses: Mapping[str, tuple[float, float, float]], robot: str,
                  frame_t: float, dt_s: float, wheels_prev_m_s: tuple[float, float],
-                 controller: Controller, excluded: frozenset[str] = frozenset()) -> StepResult | None:
+                 controller: Controller, excluded: frozenset[str] = frozenset(),
+                 drive_excluded: bool = False) -> StepResult | None:
     """Fit, advance and control one robot for one frame at tracker time ``frame_t`` [s].
 
     The structure poses depend only on (mission, poses, frame_t, dt_s, excluded): the
@@ -83,8 +85,9 @@ def control_step(mission: Mission, poses: Mapping[str, tuple[float, float, float
 
     poses maps robot id -> (x, y, th) [m, rad; world] for the robots in this frame;
     robots of the mission that are absent or in ``excluded`` are left out of the fit
-    but still bound the advance (they must be able to follow). Returns None when
-    no mission robot is in the frame.
+    but still bound the advance (they must be able to follow). An excluded own robot
+    is stopped, unless drive_excluded (on_failure = rejoin: it keeps chasing its
+    point so that it can rejoin). Returns None when no mission robot is in the frame.
     """
     ids = mission.robot_ids
     used = tuple(r for r in ids if r in poses and r not in excluded)
@@ -100,14 +103,15 @@ def control_step(mission: Mission, poses: Mapping[str, tuple[float, float, float
                             mission_envelopes(mission), elapsed_s=frame_t - mission.effective_t,
                             headings_rad=[poses[r][2] if r in used else None for r in ids])
 
+    deviations = {r: float(np.hypot(poses[r][0] - q[0], poses[r][1] - q[1]))
+                  for r, q in zip(ids, fit.pose.apply(template)) if r in poses}
     vl = vr = 0.0
-    err = math.nan
-    if robot in poses:
+    err = deviations.get(robot, math.nan)
+    if robot in poses and (robot not in excluded or drive_excluded):
         p = template[index[robot]]
         own = Pose2(*poses[robot])
-        err = float(np.hypot(*(own.xy - fit.pose.apply(p))))
-    if robot in poses and robot not in excluded:
         env = mission_envelopes(mission)[index[robot]]
         vl, vr = controller(own, fit.pose.apply(p), adv.pose.apply(p), dt_s, env, wheels_prev_m_s)
     return StepResult(fit_pose=fit.pose, goal_pose=adv.pose, twist=adv.twist, cost=float(fit.cost),
-                      err_m=err, used=used, vl_m_s=float(vl), vr_m_s=float(vr), at_goal=adv.at_goal)
+                      err_m=err, used=used, vl_m_s=float(vl), vr_m_s=float(vr), at_goal=adv.at_goal,
+                      deviations_m=deviations)

@@ -237,6 +237,44 @@ class FaultMsg:
     duration: float
 
 
+EVENT_KINDS = ("fail", "drop", "rejoin", "recover")
+
+
+@dataclass(frozen=True)
+class EventMsg:
+    """A failure-policy decision by agent ``by`` at frame ``seq`` (tracker time t [s]).
+
+    kind: fail, drop, rejoin or recover; dev [m]: the robot's deviation at that frame.
+    """
+
+    t: float
+    seq: int
+    robot: str
+    kind: str
+    dev: float
+    by: str
+
+
+def decode_event(payload: bytes) -> EventMsg:
+    m = unpack_map(payload)
+    kind = _str(m, "kind")
+    if kind not in EVENT_KINDS:
+        raise WireError(f"unknown event kind {kind!r}; expected one of {EVENT_KINDS}")
+    robot, by = _str(m, "robot"), _str(m, "by")
+    check_name(robot, "robot")
+    check_name(by, "by")
+    dev = m.get("dev")
+    dev = math.inf if dev == "inf" else _pos({"dev": dev}, "dev", allow_zero=True)
+    return EventMsg(t=_num(m, "t"), seq=_int(m, "seq"), robot=robot, kind=kind, dev=dev, by=by)
+
+
+def encode_event(msg: EventMsg) -> bytes:
+    d = {f.name: getattr(msg, f.name) for f in fields(msg)}
+    if not math.isfinite(d["dev"]):
+        d["dev"] = "inf"  # a robot not seen in the frame
+    return _pack(d)
+
+
 def encode(msg: Any) -> bytes:
     """msgpack map of a message dataclass (tuples become arrays)."""
     out = {}
@@ -424,5 +462,5 @@ def decode_mission(payload: bytes) -> Mission:
 
 DECODERS = {
     "pose": decode_pose, "cmd": decode_cmd, "state": decode_state, "truth": decode_truth,
-    "fault": decode_fault, "mission": decode_mission,
+    "fault": decode_fault, "mission": decode_mission, "event": decode_event,
 }
