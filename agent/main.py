@@ -71,8 +71,11 @@ class Agent:
         self.wheels_prev = (0.0, 0.0)
         self.mission_version = -1
         self.last_seq = 0
+        self.last_cmd_t = float("-inf")
         self.ticks = 0
         self.waiting = 0
+        self.ignored = 0
+        self.mission_payload: bytes | None = None
         self._controllers: dict[str, object] = {}
 
     # ------------------------------------------------------------ inputs
@@ -86,10 +89,8 @@ class Agent:
             log.info("mission v%d (%s, %d robots, effective_t %.3f)", mission.version,
                      mission.metric, len(mission.robots), mission.effective_t)
             latest = self.missions.latest()
-            ids = set(latest.robot_ids)
-            for m in self.missions.by_version.values():
-                ids |= set(m.robot_ids)
-            self.frames.set_robots(tuple(sorted(ids)))
+            self.mission_payload = encode_mission(latest)  # one assignment: read by the queryable
+            self.frames.set_robots(latest.robot_ids)
 
     def on_pose(self, key: str, payload: bytes) -> None:
         try:
@@ -101,10 +102,17 @@ class Agent:
         if self.missions.latest() is None:
             self.waiting += 1  # no mission yet: nothing to do with poses
             return
-        if robot not in self.frames.robots:
-            self.rejections.reject(key, f"robot {robot!r} is not in the mission")
+        if not any(robot in m.robot_ids for m in self.missions.by_version.values()):
+            self.ignored += 1  # a tracked object that no mission names: not an error
             return
         self.frames.offer(robot, msg, self.clock())
+
+    def on_message(self, kind: str, key: str, payload: bytes) -> None:
+        """Dispatch one message; nothing a peer sends may end the agent."""
+        try:
+            (self.on_pose if kind == "pose" else self.on_mission)(key, payload)
+        except Exception as exc:  # noqa: BLE001 - counted and logged, never fatal
+            self.rejections.reject(key, f"unexpected {type(exc).__name__}: {exc}")
 
     # ------------------------------------------------------------ control
     def controller_for(self, mission: Mission):
@@ -127,30 +135,27 @@ class Agent:
     def tick(self, frame: Frame) -> None:
         mission = self.missions.active(frame.t)
         if mission is None or self.robot not in mission.robot_ids:
-            return  # no command: the robot halts after ttl
+            self.wheels_prev = (0.0, 0.0)  # no command: the robot halts after ttl
+            return
         if mission.version != self.mission_version:
             log.info("frame %d: switching to mission v%d", frame.seq, mission.version)
             self.mission_version = mission.version
+        if frame.t - self.last_cmd_t > self.ttl_s:
+            self.wheels_prev = (0.0, 0.0)  # the robot has halted since our last command
         poses = {r: p for r, p in frame.poses.items() if r in mission.robot_ids}
         try:
             result = control_step(mission, poses, self.robot, frame.t, self.dt_s,
                                   self.wheels_prev, self.controller_for(mission),
                                   excluded=self.health.dropped,
                                   drive_excluded=mission.on_failure == "rejoin")
-        except VsfleetValueError as exc:
-            self.rejections.reject(self.keys.pose(), f"frame {frame.seq} unusable: {exc}")
+        except (VsfleetValueError, ArithmeticError, ValueError, MemoryError) as exc:
+            self.rejections.reject(self.keys.pose(), f"frame {frame.seq} unusable: {exc!r}")
             return
         if result is None:
             return
-        self.health, decisions = update_health(FailurePolicy(mission.on_failure), self.health,
-                                               result.deviations_m, mission.robot_ids, frame.t)
-        for d in decisions:
-            log.warning("frame %d: robot %s %s (deviation %.3f m, on_failure=%s)", frame.seq, d.robot,
-                        d.kind, d.deviation_m, mission.on_failure)
-            self.put_event(encode_event(EventMsg(t=d.t, seq=frame.seq, robot=d.robot, kind=d.kind,
-                                                 dev=d.deviation_m, by=self.robot)))
         self.wheels_prev = (result.vl_m_s, result.vr_m_s)
         self.last_seq = frame.seq
+        self.last_cmd_t = frame.t
         self.ticks += 1
         self.put_cmd(encode(CmdMsg(t=frame.t, seq=frame.seq, vl=result.vl_m_s, vr=result.vr_m_s,
                                    ttl=self.ttl_s)))
@@ -160,17 +165,27 @@ class Agent:
                 t=frame.t, seq=frame.seq, x=f.x, y=f.y, th=f.th, gx=g.x, gy=g.y, gth=g.th,
                 cost=result.cost, err=result.err_m, used=result.used,
                 rejected=self.rejections.count, complete=frame.complete, mission=mission.version)))
+        self.health, decisions = update_health(FailurePolicy(mission.on_failure), self.health,
+                                               result.deviations_m, mission.robot_ids, frame.t)
+        for d in decisions:
+            log.warning("frame %d: robot %s %s (deviation %.3f m, on_failure=%s)", frame.seq, d.robot,
+                        d.kind, d.deviation_m, mission.on_failure)
+            self.put_event(encode_event(EventMsg(t=d.t, seq=frame.seq, robot=d.robot, kind=d.kind,
+                                                 dev=d.deviation_m, by=self.robot)))
 
     def stop_command(self) -> bytes:
         self.wheels_prev = (0.0, 0.0)
         return encode(CmdMsg(t=self.clock(), seq=self.last_seq, vl=0.0, vr=0.0, ttl=self.ttl_s))
 
 
-def fetch_mission(session: zenoh.Session, keys: Keys, agent: Agent, timeout_s: float) -> None:
-    """Ask the key space for the mission; every reply (any version) is offered to the agent."""
+def fetch_mission(session: zenoh.Session, keys: Keys, inbox: queue.Queue, timeout_s: float) -> None:
+    """Ask the key space for the mission; every reply (any version) goes to the agent's inbox."""
     for reply in session.get(keys.mission, timeout=timeout_s):
         if reply.ok is not None:
-            agent.on_mission(str(reply.ok.key_expr), reply.ok.payload.to_bytes())
+            try:
+                inbox.put_nowait(("mission", str(reply.ok.key_expr), reply.ok.payload.to_bytes()))
+            except queue.Full:
+                pass
 
 
 def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFlag | None = None,
@@ -198,9 +213,9 @@ def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFla
         token = session.liveliness().declare_token(keys.alive("agent", robot))  # keep referenced
 
         def answer_mission(query: zenoh.Query) -> None:
-            latest = agent.missions.latest()
-            if latest is not None:
-                query.reply(keys.mission, encode_mission(latest))
+            payload = agent.mission_payload  # a bytes object swapped in by the main thread
+            if payload is not None:
+                query.reply(keys.mission, payload)
 
         subs = [
             session.declare_subscriber(keys.mission, enqueue("mission")),
@@ -209,12 +224,15 @@ def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFla
         queryable = session.declare_queryable(keys.mission, answer_mission, complete=False)
         log.info("agent %s up (fleet %s)", robot, fleet)
         next_fetch = 0.0
+        fetcher: threading.Thread | None = None
         try:
             while not stop.is_set():
                 now = agent.clock()
-                if agent.missions.latest() is None and now >= next_fetch:
-                    threading.Thread(target=fetch_mission, args=(session, keys, agent, 1.0),
-                                     daemon=True).start()
+                if agent.missions.latest() is None and now >= next_fetch and not (
+                        fetcher and fetcher.is_alive()):
+                    fetcher = threading.Thread(target=fetch_mission, args=(session, keys, inbox, 1.0),
+                                               daemon=True)
+                    fetcher.start()
                     next_fetch = now + 1.0
                 wait = agent.frames.time_to_deadline(now)
                 try:
@@ -222,17 +240,14 @@ def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFla
                 except queue.Empty:
                     pass
                 else:
-                    if kind == "pose":
-                        agent.on_pose(key, payload)
-                    else:
-                        agent.on_mission(key, payload)
+                    agent.on_message(kind, key, payload)
                     # drain what has already arrived before deciding on a frame
                     while True:
                         try:
                             kind, key, payload = inbox.get_nowait()
                         except queue.Empty:
                             break
-                        (agent.on_pose if kind == "pose" else agent.on_mission)(key, payload)
+                        agent.on_message(kind, key, payload)
                 agent.poll()
         finally:
             cmd_pub.put(agent.stop_command())
@@ -242,6 +257,8 @@ def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFla
                 s.undeclare()
             queryable.undeclare()
             token.undeclare()
+            if fetcher is not None:
+                fetcher.join(timeout=2.0)
     return agent
 
 

@@ -144,10 +144,10 @@ class Children:
         self.log_dir = log_dir
 
     def start(self, name: str, cmd: list[str]) -> subprocess.Popen:
-        out = (self.log_dir / f"{name}.log").open("wb")
         env = dict(os.environ, PYTHONUNBUFFERED="1")
-        proc = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                env=env, start_new_session=True)
+        with (self.log_dir / f"{name}.log").open("wb") as out:  # the child keeps its own handle
+            proc = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                                    env=env, start_new_session=True)
         self.procs[name] = proc
         return proc
 

@@ -21,7 +21,7 @@ from fleetctl.scenario_file import load_scenario
 from fleetctl.zconf import TELEMETRY_QOS, add_zenoh_args, init_logging, zenoh_config
 from vsfleet.geometry import Pose2
 from vsfleet.scenario import Scenario
-from vsfleet.wire import Keys, TruthMsg, WireError, decode_cmd, decode_fault, encode
+from vsfleet.wire import Keys, TruthMsg, decode_cmd, decode_fault, encode
 
 from .physics import Fault, RobotState, step_robot
 
@@ -33,7 +33,8 @@ class _Cmd:
     vl: float
     vr: float
     seq: int
-    arrived_t: float
+    t: float
+    arrived_t: float  # [s, sim clock]
     ttl: float
 
 
@@ -63,7 +64,7 @@ class Fleet:
         try:
             robot = self.keys.robot_of(key, kind)
             msg = decode(payload)
-        except WireError as exc:
+        except Exception as exc:  # noqa: BLE001 - WireError, or anything else: counted, never fatal
             self.rejections.reject(key, str(exc))
             return None
         if robot not in self.robots:
@@ -78,9 +79,9 @@ class Fleet:
         robot, msg = got
         with self.lock:
             held = self.cmds.get(robot)
-            if held is not None and msg.seq < held.seq:
+            if held is not None and (msg.t, msg.seq) < (held.t, held.seq):
                 return  # out of order: a newer frame's command is already applied
-            self.cmds[robot] = _Cmd(msg.vl, msg.vr, msg.seq, now, msg.ttl)
+            self.cmds[robot] = _Cmd(msg.vl, msg.vr, msg.seq, msg.t, now, msg.ttl)
 
     def on_fault(self, key: str, payload: bytes, now: float) -> None:
         got = self._decode(key, "fault", decode_fault, payload)
@@ -127,9 +128,9 @@ def run_sim(conf: zenoh.Config, scenario: Scenario, stop: StopFlag | None = None
         token = session.liveliness().declare_token(keys.alive("sim", "simfleet"))
         subs = [
             session.declare_subscriber(keys.cmd(), lambda s: fleet.on_cmd(
-                str(s.key_expr), s.payload.to_bytes(), clock())),
+                str(s.key_expr), s.payload.to_bytes(), fleet.t)),
             session.declare_subscriber(keys.fault(), lambda s: fleet.on_fault(
-                str(s.key_expr), s.payload.to_bytes(), clock())),
+                str(s.key_expr), s.payload.to_bytes(), fleet.t)),
         ]
         log.info("simfleet up: %d robots at %.0f Hz", len(fleet.robots), scenario.sim.rate_hz)
         late = 0

@@ -333,3 +333,9 @@ def test_a_robot_near_a_resting_point_holds_still_instead_of_chasing_noise(name)
     assert held(pose, point, moving, DT, ENV, (0.0, 0.0)) == bare(pose, point, moving, DT, ENV, (0.0, 0.0))
     with pytest.raises(ValueError):
         with_deadband(bare, deadband_m=float("nan"))
+
+
+def test_the_wire_contract_names_exactly_the_registered_controllers():
+    from vsfleet.wire import CONTROLLER_NAMES
+
+    assert set(CONTROLLER_NAMES) == set(CONTROLLERS)

@@ -115,6 +115,11 @@ REJECT = [
     (decode_mission, msgpack.packb(with_(MISSION_MAP, goal={"x": 1, "y": math.nan, "th": 0})), "finite"),
     (decode_mission, msgpack.packb(with_(MISSION_MAP, on_failure="panic")), "on_failure"),
     (decode_mission, b"\x00" * (2 << 20), "exceeds"),
+    (decode_mission, msgpack.packb(with_(MISSION_MAP, controller="pid")), "'controller'"),
+    (decode_mission, msgpack.packb(with_(MISSION_MAP, robots={b"r1": MISSION_MAP["robots"]["r1"],
+                                                              "r2": MISSION_MAP["robots"]["r2"]})), "robot id"),
+    (decode_pose, msgpack.packb(with_(POSE, x=1e300)), "out of range"),
+    (decode_cmd, msgpack.packb(with_(CMD, ttl=60.0)), "<= 5.0 s"),
 ]
 
 

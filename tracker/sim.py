@@ -21,7 +21,7 @@ from fleetctl.lifecycle import Rejections, StopFlag, pace, wall_clock
 from fleetctl.zconf import STREAM_QOS, add_zenoh_args, init_logging, zenoh_config
 from vsfleet.geometry import wrap_angle
 from vsfleet.scenario import TrackerParams
-from vsfleet.wire import Keys, PoseMsg, TruthMsg, WireError, decode_truth, encode
+from vsfleet.wire import Keys, PoseMsg, TruthMsg, decode_truth, encode
 
 log = logging.getLogger("vsfleet.tracker")
 
@@ -45,7 +45,7 @@ class SimTracker:
         try:
             robot = keys.robot_of(key, "truth")
             msg = decode_truth(payload)
-        except WireError as exc:
+        except Exception as exc:  # noqa: BLE001 - WireError, or anything else: counted, never fatal
             self.rejections.reject(key, str(exc))
             return
         with self.lock:

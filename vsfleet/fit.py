@@ -248,6 +248,17 @@ def _validate(template_xy, positions_xy, metric, weights):
 
 
 def _residuals(p: np.ndarray, r: np.ndarray, pose: Pose2) -> np.ndarray:
+    if len(p) <= 32:
+        # plain Python, the same operations in the same order as Pose2.apply
+        c, s = math.cos(pose.th), math.sin(pose.th)
+        x, y = pose.x, pose.y
+        sqrt = math.sqrt
+        out = []
+        for (px, py), (rx, ry) in zip(p.tolist(), r.tolist()):
+            dx = rx - (c * px - s * py + x)
+            dy = ry - (s * px + c * py + y)
+            out.append(sqrt(dx * dx + dy * dy))
+        return np.array(out)
     world = pose.apply(p)
     dx = r[:, 0] - world[:, 0]
     dy = r[:, 1] - world[:, 1]
@@ -587,22 +598,30 @@ class _Problem:
         self.lQy = [v - cry for v in lry]
         self.lw = lw
         self.lw2 = [v * v for v in lw]
-        self.Px = np.array(self.lPx)
-        self.Py = np.array(self.lPy)
-        self.Qx = np.array(self.lQx)
-        self.Qy = np.array(self.lQy)
         self.equal_w = all(v == lw[0] for v in lw)
         self.bound = max(sqrt(x * x + y * y) for x, y in zip(self.lQx, self.lQy)) + max(
             sqrt(x * x + y * y) for x, y in zip(self.lPx, self.lPy)
         )
         self.wmax = max(lw)
+
+    _NP = ("Px", "Py", "Qx", "Qy", "cPx", "cPy", "cQx", "cQy", "cw", "tab")
+
+    def __getattr__(self, name):
+        # the numpy copies, built on first use (the plain-Python search needs none)
+        if name not in _Problem._NP:
+            raise AttributeError(name)
+        self.Px = np.array(self.lPx)
+        self.Py = np.array(self.lPy)
+        self.Qx = np.array(self.lQx)
+        self.Qy = np.array(self.lQy)
         # column views for the (robots, angles) layout
         self.cPx = self.Px[:, None]
         self.cPy = self.Py[:, None]
         self.cQx = self.Qx[:, None]
         self.cQy = self.Qy[:, None]
-        self.cw = w[:, None]
-        self.tab = np.stack([self.Qx, self.Qy, self.Px, self.Py, np.ones(n)])
+        self.cw = self.w[:, None]
+        self.tab = np.stack([self.Qx, self.Qy, self.Px, self.Py, np.ones(self.n)])
+        return getattr(self, name)
 
     def qT(self, c: np.ndarray, s: np.ndarray):
         """q_i(th) in the (robots, angles) layout."""
@@ -824,7 +843,8 @@ def _linf_eval_s(prob: _Problem, th: float, hint):
     Px, Py, Qx, Qy, w = prob.lPx, prob.lPy, prob.lQx, prob.lQy, prob.lw
     qx = [a - (px * c - py * s) for a, px, py in zip(Qx, Px, Py)]
     qy = [a - (px * s + py * c) for a, px, py in zip(Qy, Px, Py)]
-    pts = hint if hint is not None else (0, 1)
+    n = prob.n
+    pts = (0, 1, 2) if n == 3 else hint if hint is not None else (0, 1)
     w2 = prob.lw2
     for _ in range(100):
         rho, tx, ty, basis, duals = _mec_small_s(qx, qy, w, pts)
@@ -832,7 +852,7 @@ def _linf_eval_s(prob: _Problem, th: float, hint):
         worst = max(wd)
         jw = wd.index(worst)
         worst = math.sqrt(worst)
-        if worst <= rho * (1.0 + 8.0 * _EPS) or jw in basis:
+        if worst <= rho * (1.0 + 8.0 * _EPS) or jw in basis or len(pts) == n:
             break
         pts = basis + (jw,)
     K = A = B = fx = fy = 0.0
@@ -843,8 +863,9 @@ def _linf_eval_s(prob: _Problem, th: float, hint):
         fx += kx
         fy += ky
     kabs = sum(math.sqrt(kx * kx + ky * ky) for _, kx, ky in duals)
-    slack = (abs(fx) + abs(fy) + 64.0 * _EPS * kabs) * prob.bound
-    return worst, tx, ty, K, A, B, slack, basis, tuple(sorted(basis)), A * s - B * c
+    rslack = 64.0 * _EPS * kabs * prob.bound
+    slack = (abs(fx) + abs(fy)) * prob.bound + rslack
+    return worst, tx, ty, K, A, B, slack, basis, tuple(sorted(basis)), A * s - B * c, rslack
 
 
 # --------------------------------------------------------------------------
@@ -1539,6 +1560,147 @@ def _search(prob: _Problem, oracle, evalf, seed: float, tol: float):
     return float(TH[j]), float(TX[j]), float(TY[j]), best_f, min(lb_all, best_f)
 
 
+def _cell_bound_s(ca, sa, cb, sb, K1, A1, B1, K2, A2, B2):
+    """Scalar :func:`_cell_bounds` (same candidates, same arithmetic): (lb, argmin_c, argmin_s)."""
+    sqrt = math.sqrt
+    best = max(K1 - A1 * ca - B1 * sa, K2 - A2 * ca - B2 * sa)
+    bc, bs = ca, sa
+    v = max(K1 - A1 * cb - B1 * sb, K2 - A2 * cb - B2 * sb)
+    if v < best:
+        best, bc, bs = v, cb, sb
+    cands = []
+    r1 = sqrt(A1 * A1 + B1 * B1)
+    if r1 > 0.0:
+        cands.append((A1 / r1, B1 / r1))
+    r2 = sqrt(A2 * A2 + B2 * B2)
+    if r2 > 0.0:
+        cands.append((A2 / r2, B2 / r2))
+    dA = A1 - A2
+    dB = B1 - B2
+    R = sqrt(dA * dA + dB * dB)
+    if R > 0.0:
+        u = (K1 - K2) / R
+        e = 1.0 - u * u
+        if e >= 0.0:
+            h = sqrt(e) / R
+            u = u / R
+            bx = u * dA
+            by = u * dB
+            px = h * dB
+            py = h * dA
+            cands.append((bx - px, by + py))
+            cands.append((bx + px, by - py))
+    for cx, cy in cands:
+        if (ca * cy - sa * cx) >= -1e-15 and (cx * sb - cy * cb) >= -1e-15:
+            v = max(K1 - A1 * cx - B1 * cy, K2 - A2 * cx - B2 * cy)
+            if v < best:
+                best, bc, bs = v, cx, cy
+    return best, bc, bs
+
+
+_SMALL_MAX_N = 10  # linf: the whole certified search in plain Python up to this many robots
+_SMALL_MAX_EVALS = 400  # evaluation budget of the plain-Python search (then the batch search)
+
+
+def _search_small(prob: _Problem, seed: float, tol: float):
+    """:func:`_search` for linf and few robots, in plain Python (no numpy calls).
+
+    Same certificate (sinusoidal minorants, closed-form cell bounds, the same
+    tolerance rule); only the choice of angles differs: the local descent's
+    angles plus three angles a quarter turn apart (so every cell is shorter
+    than pi), then uncertified cells are split at the minimiser of their bound
+    (cutting plane) and, when wide, also at the middle, until every cell is
+    certified.  Returns None when the evaluation budget runs out (the caller
+    then runs the batch search).
+    """
+    two_pi = 2.0 * math.pi
+    pi = math.pi
+    cos, sin = math.cos, math.sin
+    recs = _local_search(prob, _linf_eval_s, seed)
+    pts = {}  # wrapped angle -> (c, s, f, tx, ty, K - slack, A, B, rslack, basis)
+
+    def put(th, r):
+        pts[th] = (cos(th), sin(th), r[0], r[1], r[2], r[3] - r[6], r[4], r[5], r[10], r[7])
+
+    for th, r, _ in recs:
+        th = wrap_angle(th)
+        if th not in pts:
+            put(th, r)
+    if pts:
+        th_loc = min(pts, key=lambda a: pts[a][2])
+        hint = pts[th_loc][9]
+    else:
+        th_loc = wrap_angle(seed)
+        hint = None
+    for k in (1, 2, 3):
+        x = wrap_angle(th_loc + 0.5 * pi * k)
+        if x not in pts:
+            put(x, _linf_eval_s(prob, x, hint))
+    cells = {}  # (a, b) -> cell bound, kept across rounds
+    while True:
+        TH = sorted(pts)
+        m = len(TH)
+        if m > _SMALL_MAX_EVALS:
+            return None
+        P = [pts[a] for a in TH]
+        ib = min(range(m), key=lambda i: P[i][2])
+        U = P[ib][2]
+        tol_eff = max(tol, 4.0 * P[ib][8])
+        lb_all = math.inf
+        new = []
+        for i in range(m):
+            j = i + 1 if i + 1 < m else 0
+            a = TH[i]
+            b = TH[j] if j else TH[0] + two_pi
+            h = b - a
+            pa, pb = P[i], P[j]
+            cb = cells.get((a, b))
+            if cb is not None:
+                lb, lc, ls = cb
+            elif h >= 3.0:
+                lb, lc, ls = -math.inf, 0.0, 0.0
+            else:
+                lb, lc, ls = _cell_bound_s(pa[0], pa[1], pb[0], pb[1], pa[5], pa[6], pa[7], pb[5], pb[6], pb[7])
+                if lb < 0.0:
+                    lb = 0.0  # every cost is >= 0 (the zero minorant)
+                cells[(a, b)] = (lb, lc, ls)
+            if lb < lb_all:
+                lb_all = lb
+            if lb >= U - tol_eff:
+                continue
+            cand = []
+            if h < 3.0:
+                xk = math.atan2(ls, lc)
+                while xk < a:
+                    xk += two_pi
+                while xk > b:
+                    xk -= two_pi
+                inner = a + 1e-3 * h < xk < b - 1e-3 * h
+                if a < xk < b:
+                    cand.append(xk)
+                if h > 0.1 or not inner:
+                    cand.append(a + 0.5 * h)
+            else:
+                cand.append(a + 0.5 * h)
+            for x in cand:
+                if a < x < b:
+                    x = x - two_pi if x >= pi else x
+                    new.append((x, pa[9] if x - a < b - x else pb[9]))
+        if lb_all >= U - tol_eff:
+            break
+        added = False
+        for x, hb in new:
+            if x not in pts:
+                put(x, _linf_eval_s(prob, x, hb))
+                added = True
+        if not added:
+            return None
+    TH = sorted(pts)
+    best_f = min(v[2] for v in pts.values())
+    j = min((a for a in TH if pts[a][2] == best_f), key=lambda a: (abs(a), a))
+    return j, pts[j][3], pts[j][4], best_f, min(lb_all, best_f)
+
+
 def _first_pass(prob: _Problem, oracle, uniq, c, s, warm, recs, th_loc: float, h0: float):
     """The first certification batch, made cheap; any shortfall is refined later.
 
@@ -1708,7 +1870,12 @@ def _fit(p: np.ndarray, r: np.ndarray, metric: str, w: np.ndarray) -> FitResult:
         else:
             evalf = _batch_eval(oracle, metric == "linf")
         seed = _fit_l2(prob)
-        th, tx, ty, best, lower = _search(prob, oracle, evalf, seed, CERT_TOL)
+        out = None
+        if metric == "linf" and prob.n <= _SMALL_MAX_N:
+            out = _search_small(prob, seed, CERT_TOL)
+        if out is None:
+            out = _search(prob, oracle, evalf, seed, CERT_TOL)
+        th, tx, ty, best, lower = out
         pose = _pose_from_centred(prob, th, tx, ty)
     d = _residuals(p, r, pose)
     cost = _cost_of(d, w, metric)

@@ -21,6 +21,9 @@ NAME_RE = re.compile(r"^[A-Za-z0-9_-]+$")
 MAX_PAYLOAD_BYTES = 4096          # pose, cmd, state, truth, fault, event
 MAX_MISSION_BYTES = 1 << 20       # a mission lists every robot
 MAX_ROBOTS = 1000
+MAX_ABS = 1e6           # any number field: |v| <= 1e6 (metres, seconds apart from t, m/s, rad)
+MAX_TTL_S = 5.0         # a command may keep a robot moving for at most this long
+CONTROLLER_NAMES = ("arc", "tracking", "turn_then_go")  # vsfleet.control.CONTROLLERS
 FAULT_KINDS = ("none", "stop", "slow", "stall", "wheel")
 METRICS = ("l1", "l2", "linf")
 ON_FAILURE = ("hold", "drop", "rejoin")
@@ -103,6 +106,8 @@ def _num(m: Mapping[str, Any], name: str) -> float:
     v = float(v)
     if not math.isfinite(v):
         raise WireError(f"field {name!r} must be finite, got {v}")
+    if abs(v) > (1e11 if name in ("t", "effective_t") else MAX_ABS):
+        raise WireError(f"field {name!r} out of range: {v}")
     return v
 
 
@@ -292,8 +297,10 @@ def decode_pose(payload: bytes) -> PoseMsg:
 
 def decode_cmd(payload: bytes) -> CmdMsg:
     m = unpack_map(payload)
-    return CmdMsg(t=_num(m, "t"), seq=_int(m, "seq"), vl=_num(m, "vl"), vr=_num(m, "vr"),
-                  ttl=_pos(m, "ttl"))
+    ttl = _pos(m, "ttl")
+    if ttl > MAX_TTL_S:
+        raise WireError(f"field 'ttl' must be <= {MAX_TTL_S} s, got {ttl}")
+    return CmdMsg(t=_num(m, "t"), seq=_int(m, "seq"), vl=_num(m, "vl"), vr=_num(m, "vr"), ttl=ttl)
 
 
 def decode_state(payload: bytes) -> StateMsg:
@@ -405,8 +412,9 @@ def mission_from_dict(m: Mapping[str, Any]) -> Mission:
     if len(robots_in) > MAX_ROBOTS:
         raise WireError(f"{len(robots_in)} robots exceed the limit of {MAX_ROBOTS}")
     robots = []
-    for rid in sorted(robots_in):
+    for rid in robots_in:
         check_name(rid, "robot id")
+    for rid in sorted(robots_in):
         spec = robots_in[rid]
         if not isinstance(spec, Mapping):
             raise WireError(f"robot {rid!r}: spec must be a map")
@@ -440,8 +448,8 @@ def mission_from_dict(m: Mapping[str, Any]) -> Mission:
             raise WireError("field 'twist' must be a map {vx, vy, w}")
         twist = (_num(tw, "vx"), _num(tw, "vy"), _num(tw, "w"))
     controller = m.get("controller")
-    if controller is not None and (not isinstance(controller, str) or not NAME_RE.match(controller)):
-        raise WireError("field 'controller' must be a controller name")
+    if controller is not None and controller not in CONTROLLER_NAMES:
+        raise WireError(f"field 'controller' must be one of {CONTROLLER_NAMES}, got {controller!r}")
     on_failure = m.get("on_failure", "hold")
     if on_failure not in ON_FAILURE:
         raise WireError(f"field 'on_failure' must be one of {ON_FAILURE}, got {on_failure!r}")

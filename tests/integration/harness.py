@@ -82,9 +82,9 @@ class LoopbackFleet:
         self.mission = stamp(self.scenario.mission, time.time(), 0.0, version=1)
 
     def start(self, name: str, *args: str) -> subprocess.Popen:
-        out = (self.log_dir / f"{name}.log").open("wb")
-        p = subprocess.Popen(child_command(*args, *self.flags), stdout=out, stderr=subprocess.STDOUT,
-                             stdin=subprocess.DEVNULL, start_new_session=True)
+        with (self.log_dir / f"{name}.log").open("wb") as out:
+            p = subprocess.Popen(child_command(*args, *self.flags), stdout=out, stderr=subprocess.STDOUT,
+                                 stdin=subprocess.DEVNULL, start_new_session=True)
         self.procs[name] = p
         return p
 
