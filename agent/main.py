@@ -22,8 +22,8 @@ from fleetctl.lifecycle import Rejections, StopFlag, wall_clock
 from fleetctl.zconf import RELIABLE_QOS, STREAM_QOS, TELEMETRY_QOS, add_zenoh_args, init_logging, zenoh_config
 from vsfleet.control import DEFAULT_CONTROLLER, make_controller
 from vsfleet.errors import VsfleetValueError
-from vsfleet.failure import FailurePolicy, Health, update_health
-from vsfleet.step import control_step
+from vsfleet.failure import FailurePolicy, Health, Motion, update_health, update_motion
+from vsfleet.step import control_step, expected_steps
 from vsfleet.wire import (
     CmdMsg,
     EventMsg,
@@ -59,6 +59,8 @@ class Agent:
         self.robot = check_name(robot, "robot")
         self.put_event = put_event
         self.health = Health()
+        self.motion = Motion()
+        self.predicted: dict[str, tuple[float, float]] = {}  # every robot's last command, predicted
         self.keys = keys
         self.put_cmd = put_cmd
         self.put_state = put_state
@@ -147,7 +149,8 @@ class Agent:
             result = control_step(mission, poses, self.robot, frame.t, self.dt_s,
                                   self.wheels_prev, self.controller_for(mission),
                                   excluded=self.health.dropped,
-                                  drive_excluded=mission.on_failure == "rejoin")
+                                  drive_excluded=mission.on_failure == "rejoin",
+                                  others_wheels_prev=self.predicted)
         except (VsfleetValueError, ArithmeticError, ValueError, MemoryError) as exc:
             self.rejections.reject(self.keys.pose(), f"frame {frame.seq} unusable: {exc!r}")
             return
@@ -165,8 +168,13 @@ class Agent:
                 t=frame.t, seq=frame.seq, x=f.x, y=f.y, th=f.th, gx=g.x, gy=g.y, gth=g.th,
                 cost=result.cost, err=result.err_m, used=result.used,
                 rejected=self.rejections.count, complete=frame.complete, mission=mission.version)))
-        self.health, decisions = update_health(FailurePolicy(mission.on_failure), self.health,
-                                               result.deviations_m, mission.robot_ids, frame.t)
+        policy = FailurePolicy(mission.on_failure)
+        self.predicted = dict(result.commands)
+        self.motion, progress = update_motion(policy, self.motion, poses,
+                                              expected_steps(mission, poses, result.commands, self.dt_s),
+                                              frame.t)
+        self.health, decisions = update_health(policy, self.health, result.deviations_m,
+                                               mission.robot_ids, frame.t, progress)
         for d in decisions:
             log.warning("frame %d: robot %s %s (deviation %.3f m, on_failure=%s)", frame.seq, d.robot,
                         d.kind, d.deviation_m, mission.on_failure)

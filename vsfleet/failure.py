@@ -3,9 +3,19 @@
 Every agent runs the same rule on the same frames, so all of them decide on the
 same frame. The rule is:
 
-- A robot is **non-compliant** in a frame when its distance to its structure point
-  exceeds ``fail_deviation_m``. For a robot already dropped from the fit, this is
-  its distance to its point on the structure fitted to the others.
+- A robot is **non-compliant** in a frame when either:
+  - its distance to its structure point exceeds ``fail_deviation_m`` (for a robot
+    already dropped from the fit, its point on the structure fitted to the
+    others); or
+  - it does not move as commanded. Every agent predicts every robot's command
+    (the same deterministic function its own agent runs) and so the
+    displacement each command should produce in one frame. Over the last
+    ``fail_after_s``, the robot's net observed displacement along the net
+    predicted one must be at least ``min_progress_ratio`` of it, once the net
+    prediction reaches ``min_expected_m``. A halted robot, or one with a dead wheel, fails
+    this test. It fails it even when the structure has stopped for it, which the
+    deviation test cannot see under ``linf``, where the residuals even out. A
+    robot slowed to 50% passes.
 - A robot that has been non-compliant in every frame for ``fail_after_s`` of
   tracker time (measured from the first such frame) has **failed**. A frame in
   which the robot is missing counts as non-compliant.
@@ -38,11 +48,14 @@ class FailurePolicy:
     fail_after_s: float = 2.0
     rejoin_deviation_m: float = 0.02
     rejoin_after_s: float = 1.0
+    min_progress_ratio: float = 0.3
+    min_expected_m: float = 0.05
 
     def __post_init__(self) -> None:
         if self.mode not in ("hold", "drop", "rejoin"):
             raise VsfleetValueError(f"on_failure must be hold, drop or rejoin, got {self.mode!r}")
-        for name in ("fail_deviation_m", "fail_after_s", "rejoin_deviation_m", "rejoin_after_s"):
+        for name in ("fail_deviation_m", "fail_after_s", "rejoin_deviation_m", "rejoin_after_s",
+                     "min_progress_ratio", "min_expected_m"):
             v = getattr(self, name)
             if not math.isfinite(v) or v < 0.0:
                 raise VsfleetValueError(f"{name} must be finite and >= 0, got {v!r}")
@@ -67,13 +80,56 @@ class Decision:
     deviation_m: float
 
 
+@dataclass(frozen=True)
+class Motion:
+    """Per robot: the last frame's (t, x, y, expected dx, expected dy) and a window of
+    (t, expected dx, expected dy, observed dx, observed dy) [s, m; world] per frame."""
+
+    last: dict[str, tuple[float, float, float, float, float]] = field(default_factory=dict)
+    window: dict[str, tuple[tuple[float, float, float, float, float], ...]] = field(default_factory=dict)
+
+
+def update_motion(policy: FailurePolicy, motion: Motion, poses: Mapping[str, tuple[float, float, float]],
+                  expected_next_m: Mapping[str, tuple[float, float]], t: float
+                  ) -> tuple[Motion, dict[str, float]]:
+    """Record this frame's observed motion; return each robot's progress ratio where known.
+
+    poses: robot -> (x, y, th) [m, rad] in this frame; expected_next_m: robot -> the
+    displacement [m; world] its predicted command should produce by the next frame.
+    Over the window the net expected displacement E (vector sum) is compared with the
+    net observed one projected on it: ratio = (sum observed . E) / |E|^2. Net sums make
+    the test blind to dithering and to a frame of command latency. A ratio is reported
+    once the window spans 80% of fail_after_s and |E| reaches min_expected_m.
+    """
+    last, window, ratios = dict(motion.last), dict(motion.window), {}
+    for r, (x, y, _th) in poses.items():
+        if r in last:
+            _t0, x0, y0, ex, ey = last[r]
+            w = tuple(item for item in window.get(r, ()) if item[0] > t - policy.fail_after_s)
+            w += ((t, ex, ey, x - x0, y - y0),)
+            window[r] = w
+            sx = math.fsum(item[1] for item in w)
+            sy = math.fsum(item[2] for item in w)
+            e2 = sx * sx + sy * sy
+            if t - w[0][0] >= 0.8 * policy.fail_after_s and e2 >= policy.min_expected_m ** 2:
+                ox = math.fsum(item[3] for item in w)
+                oy = math.fsum(item[4] for item in w)
+                ratios[r] = (ox * sx + oy * sy) / e2
+        ex, ey = expected_next_m.get(r, (0.0, 0.0))
+        last[r] = (t, x, y, ex, ey)
+    return Motion(last, window), ratios
+
+
 def update_health(policy: FailurePolicy, health: Health, deviations_m: Mapping[str, float],
-                  robots: tuple[str, ...], t: float) -> tuple[Health, list[Decision]]:
+                  robots: tuple[str, ...], t: float,
+                  progress: Mapping[str, float] | None = None) -> tuple[Health, list[Decision]]:
     """Advance the failure state by one frame at tracker time t [s].
 
     deviations_m: each seen robot's distance [m] to its structure point; robots of
-    ``robots`` absent from it were not seen in this frame.
+    ``robots`` absent from it were not seen in this frame. progress: each robot's
+    progress ratio from :func:`update_motion`, where known.
     """
+    progress = progress or {}
     since = dict(health.since_t)
     failed, dropped = set(health.failed), set(health.dropped)
     decisions: list[Decision] = []
@@ -92,8 +148,9 @@ def update_health(policy: FailurePolicy, health: Health, deviations_m: Mapping[s
             else:
                 since.pop(r, None)
             continue
-        if d > policy.fail_deviation_m:
-            start = since.setdefault(r, t)
+        stuck = progress.get(r, 1.0) < policy.min_progress_ratio
+        if d > policy.fail_deviation_m or stuck:
+            start = since.setdefault(r, t - (policy.fail_after_s if stuck else 0.0))
             if r not in failed and t - start >= policy.fail_after_s:
                 failed.add(r)
                 decisions.append(Decision(t, r, "fail", d))

@@ -28,6 +28,7 @@ from .advance import (
 from .envelope import Envelope
 from .fit import fit_structure
 from .geometry import Pose2
+from .kinematics import integrate_arc
 from .wire import Mission
 
 Controller = Callable[[Pose2, np.ndarray, np.ndarray, float, Envelope, tuple[float, float]],
@@ -72,12 +73,14 @@ class StepResult:
     vr_m_s: float
     at_goal: bool
     deviations_m: dict[str, float]  # every seen robot's distance to its fitted point [m]
+    commands: dict[str, tuple[float, float]]  # (vl, vr) [m/s] of own robot, and of others if predicted
 
 
 def control_step(mission: Mission, poses: Mapping[str, tuple[float, float, float]], robot: str,
                  frame_t: float, dt_s: float, wheels_prev_m_s: tuple[float, float],
                  controller: Controller, excluded: frozenset[str] = frozenset(),
-                 drive_excluded: bool = False) -> StepResult | None:
+                 drive_excluded: bool = False,
+                 others_wheels_prev: Mapping[str, tuple[float, float]] | None = None) -> StepResult | None:
     """Fit, advance and control one robot for one frame at tracker time ``frame_t`` [s].
 
     The structure poses depend only on (mission, poses, frame_t, dt_s, excluded): the
@@ -88,6 +91,10 @@ def control_step(mission: Mission, poses: Mapping[str, tuple[float, float, float
     but still bound the advance (they must be able to follow). An excluded own robot
     is stopped, unless drive_excluded (on_failure = rejoin: it keeps chasing its
     point so that it can rejoin). Returns None when no mission robot is in the frame.
+
+    With others_wheels_prev (every robot's previous command, as this agent predicted
+    it), the commands every other robot's agent computes are predicted too, into
+    ``commands``: the failure rule compares them with how the robots moved.
     """
     ids = mission.robot_ids
     used = tuple(r for r in ids if r in poses and r not in excluded)
@@ -105,13 +112,30 @@ def control_step(mission: Mission, poses: Mapping[str, tuple[float, float, float
 
     deviations = {r: float(np.hypot(poses[r][0] - q[0], poses[r][1] - q[1]))
                   for r, q in zip(ids, fit.pose.apply(template)) if r in poses}
-    vl = vr = 0.0
     err = deviations.get(robot, math.nan)
-    if robot in poses and (robot not in excluded or drive_excluded):
-        p = template[index[robot]]
-        own = Pose2(*poses[robot])
-        env = mission_envelopes(mission)[index[robot]]
-        vl, vr = controller(own, fit.pose.apply(p), adv.pose.apply(p), dt_s, env, wheels_prev_m_s)
+    envelopes = mission_envelopes(mission)
+    now_pts, next_pts = fit.pose.apply(template), adv.pose.apply(template)
+    targets = [robot] + (list(ids) if others_wheels_prev is not None else [])
+    commands: dict[str, tuple[float, float]] = {}
+    for r in targets:
+        if r in commands or r not in poses or (r in excluded and not drive_excluded):
+            continue
+        i = index[r]
+        prev = wheels_prev_m_s if r == robot else others_wheels_prev.get(r, (0.0, 0.0))
+        vl_r, vr_r = controller(Pose2(*poses[r]), now_pts[i], next_pts[i], dt_s, envelopes[i], prev)
+        commands[r] = (float(vl_r), float(vr_r))
+    vl, vr = commands.get(robot, (0.0, 0.0))
     return StepResult(fit_pose=fit.pose, goal_pose=adv.pose, twist=adv.twist, cost=float(fit.cost),
                       err_m=err, used=used, vl_m_s=float(vl), vr_m_s=float(vr), at_goal=adv.at_goal,
-                      deviations_m=deviations)
+                      deviations_m=deviations, commands=commands)
+
+
+def expected_steps(mission: Mission, poses: Mapping[str, tuple[float, float, float]],
+                   commands: Mapping[str, tuple[float, float]], dt_s: float) -> dict[str, tuple[float, float]]:
+    """Displacement [m; world] each commanded robot should make in dt_s at its command (eqs 17-18)."""
+    out = {}
+    for r, (vl, vr) in commands.items():
+        pose = Pose2(*poses[r])
+        nxt = integrate_arc(pose, vl, vr, dt_s, mission.spec(r).wheel_base)
+        out[r] = (nxt.x - pose.x, nxt.y - pose.y)
+    return out
