@@ -80,7 +80,14 @@ linf and l1: a certified global search over the rotation
     pair of robots is the basis) finds a local minimum ``th_loc``; one
     vectorised batch then evaluates a 16-point grid, a geometric stencil
     around ``th_loc`` (offsets ``(2 pi / 16) / 4^k``, k = 1..9) and the
-    descent's four angles nearest ``th_loc``.  That usually certifies at once;
+    descent's four angles nearest ``th_loc``.  (linf with at most 10 robots
+    instead runs the whole search in plain Python, one exact angle at a time:
+    the descent's angles, three angles a quarter turn away -- bounded by the
+    template's widest pair, re-solved exactly only if a cell next to them stays
+    uncertified -- then the cutting-plane point, the middle of wide cells and
+    a small geometric stencil next to the best angle for each uncertified cell,
+    until all are certified; the batch search takes over if that does not end
+    within 400 angles.)  That usually certifies at once;
     otherwise uncertified cells are refined (cutting-plane point, secant
     point, stencils) until all are.  In
     that first batch l1 runs only a few inner iterations and linf with more
@@ -806,7 +813,7 @@ def _tri_duals_s(qx, qy, w, i, j, k, sol):
     return rho, tx, ty, (i, j, k), duals
 
 
-def _mec_small_s(qx, qy, w, pts):
+def _mec_small_s(qx, qy, w, pts, violator: bool = False):
     """Exact weighted minimax centre of the points ``pts`` (2 to 4 indices) by enumeration.
 
     Returns (rho, tx, ty, basis, duals) with duals [(i, kx, ky), ...].  A
@@ -818,27 +825,106 @@ def _mec_small_s(qx, qy, w, pts):
         sol = _tri_s(qx[i], qy[i], qx[j], qy[j], qx[k], qy[k], w[i], w[j], w[k])
         if sol is not None:
             return _tri_duals_s(qx, qy, w, i, j, k, sol)
+    if violator:
+        # pts = an optimal basis + a point outside its circle: every basis of
+        # the union holds that point (LP-type), so only subsets with it count
+        h = pts[-1]
+        pairs = [(i, h) if i < h else (h, i) for i in pts[:-1]]
+        triples = [tuple(sorted(pts[:-1][:a] + pts[:-1][a + 1:] + (h,))) for a in range(3)] if m == 4 else ()
+    else:
+        pairs = [(pts[a], pts[b]) for a in range(m) for b in range(a + 1, m)]
+        triples = [(pts[a], pts[b], pts[c]) for a in range(m) for b in range(a + 1, m) for c in range(b + 1, m)] if m == 4 else ()
     best = None
-    for a in range(m):
-        i = pts[a]
-        for b in range(a + 1, m):
-            j = pts[b]
-            rho, tx, ty, kx, ky = _pair_s(qx[i], qy[i], qx[j], qy[j], w[i], w[j])
-            if best is None or rho > best[0]:
-                best = (rho, tx, ty, (i, j), ((i, kx, ky), (j, -kx, -ky)))
-    if m == 4:
-        for a in range(m):
-            for b in range(a + 1, m):
-                for c in range(b + 1, m):
-                    i, j, k = pts[a], pts[b], pts[c]
-                    sol = _tri_s(qx[i], qy[i], qx[j], qy[j], qx[k], qy[k], w[i], w[j], w[k])
-                    if sol is not None and sol[0] > best[0]:
-                        best = _tri_duals_s(qx, qy, w, i, j, k, sol)
+    for i, j in pairs:
+        rho, tx, ty, kx, ky = _pair_s(qx[i], qy[i], qx[j], qy[j], w[i], w[j])
+        if best is None or rho > best[0]:
+            best = (rho, tx, ty, (i, j), ((i, kx, ky), (j, -kx, -ky)))
+    for i, j, k in triples:
+        sol = _tri_s(qx[i], qy[i], qx[j], qy[j], qx[k], qy[k], w[i], w[j], w[k])
+        if sol is not None and sol[0] > best[0]:
+            best = _tri_duals_s(qx, qy, w, i, j, k, sol)
     return best
 
 
+def _linf_eval3(prob: _Problem, th: float, hint):
+    """:func:`_linf_eval_s` for exactly three robots, inlined (the same arithmetic)."""
+    c, s = math.cos(th), math.sin(th)
+    sqrt = math.sqrt
+    Px, Py, Qx, Qy, w = prob.lPx, prob.lPy, prob.lQx, prob.lQy, prob.lw
+    p0x, p1x, p2x = Px
+    p0y, p1y, p2y = Py
+    x0 = Qx[0] - (p0x * c - p0y * s)
+    x1 = Qx[1] - (p1x * c - p1y * s)
+    x2 = Qx[2] - (p2x * c - p2y * s)
+    y0 = Qy[0] - (p0x * s + p0y * c)
+    y1 = Qy[1] - (p1x * s + p1y * c)
+    y2 = Qy[2] - (p2x * s + p2y * c)
+    w0, w1, w2 = w
+    sol = _tri_s(x0, y0, x1, y1, x2, y2, w0, w1, w2)
+    if sol is not None:
+        rho, tx, ty, c1, c2, c3 = sol
+        den = rho * (c1 / (w0 * w0) + c2 / (w1 * w1) + c3 / (w2 * w2))
+        sc = 1.0 / den if den > 0.0 else 0.0
+        c1 *= sc
+        c2 *= sc
+        c3 *= sc
+        k0x, k0y = c1 * (x0 - tx), c1 * (y0 - ty)
+        k1x, k1y = c2 * (x1 - tx), c2 * (y1 - ty)
+        k2x, k2y = c3 * (x2 - tx), c3 * (y2 - ty)
+        K = A = B = 0.0
+        K += k0x * Qx[0] + k0y * Qy[0]
+        A += k0x * p0x + k0y * p0y
+        B += k0y * p0x - k0x * p0y
+        K += k1x * Qx[1] + k1y * Qy[1]
+        A += k1x * p1x + k1y * p1y
+        B += k1y * p1x - k1x * p1y
+        K += k2x * Qx[2] + k2y * Qy[2]
+        A += k2x * p2x + k2y * p2y
+        B += k2y * p2x - k2x * p2y
+        fx = 0.0 + k0x + k1x + k2x
+        fy = 0.0 + k0y + k1y + k2y
+        kabs = 0.0 + sqrt(k0x * k0x + k0y * k0y) + sqrt(k1x * k1x + k1y * k1y) + sqrt(k2x * k2x + k2y * k2y)
+        basis = (0, 1, 2)
+    else:
+        r01, t01x, t01y, k01x, k01y = _pair_s(x0, y0, x1, y1, w0, w1)
+        r02, t02x, t02y, k02x, k02y = _pair_s(x0, y0, x2, y2, w0, w2)
+        r12, t12x, t12y, k12x, k12y = _pair_s(x1, y1, x2, y2, w1, w2)
+        if r02 > r01:
+            if r12 > r02:
+                i, j, rho, tx, ty, kx, ky = 1, 2, r12, t12x, t12y, k12x, k12y
+            else:
+                i, j, rho, tx, ty, kx, ky = 0, 2, r02, t02x, t02y, k02x, k02y
+        elif r12 > r01:
+            i, j, rho, tx, ty, kx, ky = 1, 2, r12, t12x, t12y, k12x, k12y
+        else:
+            i, j, rho, tx, ty, kx, ky = 0, 1, r01, t01x, t01y, k01x, k01y
+        K = A = B = 0.0
+        K += kx * Qx[i] + ky * Qy[i]
+        A += kx * Px[i] + ky * Py[i]
+        B += ky * Px[i] - kx * Py[i]
+        K += -kx * Qx[j] + -ky * Qy[j]
+        A += -kx * Px[j] + -ky * Py[j]
+        B += -ky * Px[j] - -kx * Py[j]
+        fx = fy = 0.0
+        kabs = 2.0 * sqrt(kx * kx + ky * ky)
+        basis = (i, j)
+    a0, b0 = x0 - tx, y0 - ty
+    a1, b1 = x1 - tx, y1 - ty
+    a2, b2 = x2 - tx, y2 - ty
+    if prob.equal_w:
+        v = w0 * w0
+        worst = sqrt(max(v * (a0 * a0 + b0 * b0), v * (a1 * a1 + b1 * b1), v * (a2 * a2 + b2 * b2)))
+    else:
+        worst = sqrt(max(w0 * w0 * (a0 * a0 + b0 * b0), w1 * w1 * (a1 * a1 + b1 * b1), w2 * w2 * (a2 * a2 + b2 * b2)))
+    rslack = 64.0 * _EPS * kabs * prob.bound
+    slack = (abs(fx) + abs(fy)) * prob.bound + rslack
+    return worst, tx, ty, K, A, B, slack, basis, basis, A * s - B * c, rslack
+
+
 def _linf_eval_s(prob: _Problem, th: float, hint):
-    """One angle, plain Python: (f, tx, ty, K, A, B, slack, basis)."""
+    """One angle, plain Python: (f, tx, ty, K, A, B, slack, basis, key, slope, rounding slack)."""
+    if prob.n == 3:
+        return _linf_eval3(prob, th, hint)
     c, s = math.cos(th), math.sin(th)
     Px, Py, Qx, Qy, w = prob.lPx, prob.lPy, prob.lQx, prob.lQy, prob.lw
     qx = [a - (px * c - py * s) for a, px, py in zip(Qx, Px, Py)]
@@ -846,8 +932,9 @@ def _linf_eval_s(prob: _Problem, th: float, hint):
     n = prob.n
     pts = (0, 1, 2) if n == 3 else hint if hint is not None else (0, 1)
     w2 = prob.lw2
+    viol = False
     for _ in range(100):
-        rho, tx, ty, basis, duals = _mec_small_s(qx, qy, w, pts)
+        rho, tx, ty, basis, duals = _mec_small_s(qx, qy, w, pts, viol)
         wd = [v * ((x - tx) * (x - tx) + (y - ty) * (y - ty)) for v, x, y in zip(w2, qx, qy)]
         worst = max(wd)
         jw = wd.index(worst)
@@ -855,6 +942,7 @@ def _linf_eval_s(prob: _Problem, th: float, hint):
         if worst <= rho * (1.0 + 8.0 * _EPS) or jw in basis or len(pts) == n:
             break
         pts = basis + (jw,)
+        viol = True
     K = A = B = fx = fy = 0.0
     for i, kx, ky in duals:
         K += kx * Qx[i] + ky * Qy[i]
@@ -1599,6 +1687,8 @@ def _cell_bound_s(ca, sa, cb, sb, K1, A1, B1, K2, A2, B2):
 
 
 _SMALL_MAX_N = 10  # linf: the whole certified search in plain Python up to this many robots
+_SMALL_STENCIL = 1  # stencil points added next to the best angle per round
+_SMALL_RATIO = 16.0
 _SMALL_MAX_EVALS = 400  # evaluation budget of the plain-Python search (then the batch search)
 
 
@@ -1632,9 +1722,36 @@ def _search_small(prob: _Problem, seed: float, tol: float):
     else:
         th_loc = wrap_angle(seed)
         hint = None
+    # three angles a quarter turn apart; with robots enough, far from the
+    # optimum a pair dual (the template's widest pair) is bound enough: the
+    # point is re-solved exactly only if a cell next to it stays uncertified
+    n = prob.n
+    Px, Py, Qx, Qy, w = prob.lPx, prob.lPy, prob.lQx, prob.lQy, prob.lw
+    pi_ = max(range(n), key=lambda k: Px[k] * Px[k] + Py[k] * Py[k])
+    pj_ = max(range(n), key=lambda k: (Px[k] - Px[pi_]) ** 2 + (Py[k] - Py[pi_]) ** 2)
+    cheap = bool(pts) and pi_ != pj_
     for k in (1, 2, 3):
         x = wrap_angle(th_loc + 0.5 * pi * k)
-        if x not in pts:
+        if x in pts:
+            continue
+        if cheap:
+            c, s = cos(x), sin(x)
+            i, j = (pi_, pj_) if pi_ < pj_ else (pj_, pi_)
+            rho, tx, ty, kx, ky = _pair_s(
+                Qx[i] - (Px[i] * c - Py[i] * s), Qy[i] - (Px[i] * s + Py[i] * c),
+                Qx[j] - (Px[j] * c - Py[j] * s), Qy[j] - (Px[j] * s + Py[j] * c), w[i], w[j],
+            )
+            K = A = B = 0.0
+            K += kx * Qx[i] + ky * Qy[i]
+            A += kx * Px[i] + ky * Py[i]
+            B += ky * Px[i] - kx * Py[i]
+            K += -kx * Qx[j] + -ky * Qy[j]
+            A += -kx * Px[j] + -ky * Py[j]
+            B += -ky * Px[j] - -kx * Py[j]
+            rslack = 64.0 * _EPS * (2.0 * math.sqrt(kx * kx + ky * ky)) * prob.bound
+            # f = inf: not a candidate optimum until solved exactly
+            pts[x] = (c, s, math.inf, tx, ty, K - rslack, A, B, rslack, (i, j))
+        else:
             put(x, _linf_eval_s(prob, x, hint))
     cells = {}  # (a, b) -> cell bound, kept across rounds
     while True:
@@ -1654,7 +1771,8 @@ def _search_small(prob: _Problem, seed: float, tol: float):
             b = TH[j] if j else TH[0] + two_pi
             h = b - a
             pa, pb = P[i], P[j]
-            cb = cells.get((a, b))
+            key = (a, b, pa[2] == math.inf, pb[2] == math.inf)
+            cb = cells.get(key)
             if cb is not None:
                 lb, lc, ls = cb
             elif h >= 3.0:
@@ -1663,10 +1781,16 @@ def _search_small(prob: _Problem, seed: float, tol: float):
                 lb, lc, ls = _cell_bound_s(pa[0], pa[1], pb[0], pb[1], pa[5], pa[6], pa[7], pb[5], pb[6], pb[7])
                 if lb < 0.0:
                     lb = 0.0  # every cost is >= 0 (the zero minorant)
-                cells[(a, b)] = (lb, lc, ls)
+                cells[key] = (lb, lc, ls)
             if lb < lb_all:
                 lb_all = lb
             if lb >= U - tol_eff:
+                continue
+            if pa[2] == math.inf or pb[2] == math.inf:
+                # an endpoint with a pair bound only: solve it exactly first
+                for x, pr in ((a, pa), (TH[j], pb)):
+                    if pr[2] == math.inf:
+                        new.append((x, pr[9]))
                 continue
             cand = []
             if h < 3.0:
@@ -1680,6 +1804,14 @@ def _search_small(prob: _Problem, seed: float, tol: float):
                     cand.append(xk)
                 if h > 0.1 or not inner:
                     cand.append(a + 0.5 * h)
+                elif i == ib or j == ib:
+                    # next to the best angle the minorants' curvature, not their
+                    # slope, limits the bound: a geometric stencil towards it
+                    x0, sg = (a, 1.0) if i == ib else (b, -1.0)
+                    e = h
+                    for _ in range(_SMALL_STENCIL):
+                        e /= _SMALL_RATIO
+                        cand.append(x0 + sg * e)
             else:
                 cand.append(a + 0.5 * h)
             for x in cand:
@@ -1690,7 +1822,7 @@ def _search_small(prob: _Problem, seed: float, tol: float):
             break
         added = False
         for x, hb in new:
-            if x not in pts:
+            if x not in pts or pts[x][2] == math.inf:
                 put(x, _linf_eval_s(prob, x, hb))
                 added = True
         if not added:
