@@ -67,11 +67,15 @@ def run_powell(p, r, metric):
 
 def main() -> int:
     rows = []
+    jobs, done, start = len(SIZES) * len(METRICS), 0, time.perf_counter()
     for n in SIZES:
         p, r = formation(n, seed=1000 + n)
         reps_ours, reps_powell = REPS[n]
         for metric in METRICS:
-            print(f"n={n:<5} {metric:<5} ...", file=sys.stderr, flush=True)
+            elapsed = time.perf_counter() - start
+            eta = f"ETA {elapsed / done * (jobs - done):.0f} s" if done else "ETA ?"
+            print(f"[{done + 1}/{jobs}] n={n:<5} {metric:<5} {eta}", file=sys.stderr, flush=True)
+            done += 1
             fit_structure(p, r, metric)  # warm caches
             t_ours, t_powell = [], []
             ours_cost = powell_cost = math.nan
