@@ -22,8 +22,8 @@ from fleetctl.lifecycle import Rejections, StopFlag, wall_clock
 from fleetctl.zconf import RELIABLE_QOS, STREAM_QOS, TELEMETRY_QOS, add_zenoh_args, init_logging, zenoh_config
 from vsfleet.control import DEFAULT_CONTROLLER, make_controller
 from vsfleet.errors import VsfleetValueError
-from vsfleet.failure import FailurePolicy, Health, Motion, update_health, update_motion
-from vsfleet.step import control_step, expected_steps
+from vsfleet.failure import Decision, FailurePolicy, Health, Motion, update_health, update_motion
+from vsfleet.step import Controller, control_step, expected_steps
 from vsfleet.wire import (
     CmdMsg,
     EventMsg,
@@ -55,9 +55,12 @@ class Agent:
                  put_state: Callable[[bytes], None], dt_s: float = DEFAULT_DT_S,
                  ttl_s: float = DEFAULT_TTL_S, deadline_s: float | None = None, max_age_s: float = 0.25,
                  clock: Callable[[], float] = wall_clock,
-                 put_event: Callable[[bytes], None] = lambda payload: None) -> None:
+                 put_event: Callable[[bytes], None] = lambda payload: None,
+                 controller: Controller | None = None) -> None:
         self.robot = check_name(robot, "robot")
         self.put_event = put_event
+        self.controller = controller  # overrides the mission's controller (offline runs, tests)
+        self.decisions: list[Decision] = []  # every failure-policy decision, in order
         self.health = Health()
         self.motion = Motion()
         self.predicted: dict[str, tuple[float, float]] = {}  # every robot's last command, predicted
@@ -117,7 +120,9 @@ class Agent:
             self.rejections.reject(key, f"unexpected {type(exc).__name__}: {exc}")
 
     # ------------------------------------------------------------ control
-    def controller_for(self, mission: Mission):
+    def controller_for(self, mission: Mission) -> Controller:
+        if self.controller is not None:
+            return self.controller
         name = mission.controller or DEFAULT_CONTROLLER
         if name not in self._controllers:
             try:
@@ -175,6 +180,7 @@ class Agent:
                                               frame.t)
         self.health, decisions = update_health(policy, self.health, result.deviations_m,
                                                mission.robot_ids, frame.t, progress)
+        self.decisions.extend(decisions)
         for d in decisions:
             log.warning("frame %d: robot %s %s (deviation %.3f m, on_failure=%s)", frame.seq, d.robot,
                         d.kind, d.deviation_m, mission.on_failure)

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 
 import zenoh
 
-from vsfleet.geometry import angle_diff
+from vsfleet.analysis import pose_spread
 from vsfleet.wire import (
     WireError,
     check_name,
@@ -187,8 +187,7 @@ class FleetModel:
             return None, None, None, len(live)
         seq = max(common)
         poses = [self.robots[rid].frames[seq] for rid in live]
-        pos = max(math.hypot(a[0] - b[0], a[1] - b[1]) for a in poses for b in poses)
-        th = max(abs(angle_diff(a[2], b[2])) for a in poses for b in poses)
+        pos, th = pose_spread(poses)
         return seq, pos, th, len(live)
 
     def view(self, now_s: float | None = None) -> FleetView:

@@ -202,12 +202,15 @@ def run(scenario_path: str, duration_s: float | None = None, out_dir: str = "run
     stop = stop or StopFlag()
     children = Children(run_dir)
     recorder = Recorder()
+    mcap = LiveRecorder(run_dir / "run.mcap")
     router, endpoint = open_loopback_router()
     flags = zenoh_flags(endpoint)
-    mcap = LiveRecorder(run_dir / "run.mcap")
     try:
-        router.declare_subscriber(keys.everything, recorder.on_sample)
-        router.declare_subscriber(keys.everything, mcap.on_sample)
+        def on_sample(sample: zenoh.Sample) -> None:  # one subscription feeds both records
+            recorder.on_sample(sample)
+            mcap.on_sample(sample)
+
+        router.declare_subscriber(keys.everything, on_sample)
         router.liveliness().declare_subscriber(keys.alive(), mcap.on_liveliness, history=True)
         mission = stamp(scenario.mission, wall_clock(), 0.0, version=1)
         payload = encode_mission(mission)

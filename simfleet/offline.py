@@ -1,7 +1,8 @@
 """The whole fleet in one process, with no transport: agents, tracker and physics on a counted clock.
 
-Each frame is observed with Gaussian noise, every robot's command is computed
-with the same ``control_step`` the agent runs, and commands take effect
+Each frame is observed with Gaussian noise and handed to one real ``Agent``
+per robot (the agent process's logic, with transport and clock injected);
+their commands take effect
 ``latency_frames`` frames later. Used by the tests (controller choice, faults)
 and by the benchmarks. It does the same job as the multi-process fleet, minus
 zenoh.
@@ -16,11 +17,14 @@ import numpy as np
 
 from vsfleet.analysis import goal_distance
 from vsfleet.control import DEFAULT_CONTROLLER, make_controller
-from vsfleet.failure import FailurePolicy, Health, Motion, update_health, update_motion
 from vsfleet.fit import fit_structure
 from vsfleet.geometry import Pose2
 from vsfleet.scenario import Scenario
-from vsfleet.step import control_step, expected_steps, mission_template
+from vsfleet.step import mission_template
+from vsfleet.wire import Keys, decode_cmd, encode_mission
+
+from agent.frames import Frame
+from agent.main import Agent
 
 from .physics import Fault, RobotState, step_robot
 
@@ -70,26 +74,21 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
     tv = 0.0
     devs, trace = [], []
     t_goal = None
-    policy = FailurePolicy(mission.on_failure)
-    health = {r: Health() for r in robots}
-    motion = {r: Motion() for r in robots}
-    predicted = {r: {} for r in robots}  # each agent's prediction of every robot's last command
-    decisions: dict[str, list] = {r: [] for r in robots}
-    for _ in range(int(round(duration_s / dt))):
+    keys = Keys(scenario.fleet)
+    sent: dict[str, tuple[float, float]] = {}
+    agents = {}
+    for r in robots:  # one agent per robot, each with its own state, as in the fleet
+        agents[r] = Agent(r, keys, put_cmd=lambda b, r=r: sent.__setitem__(r, _wheels(b)),
+                          put_state=lambda b: None, dt_s=dt, clock=lambda: t, controller=ctrl)
+        agents[r].on_mission(keys.mission, encode_mission(mission))
+    for k in range(int(round(duration_s / dt))):
         poses = {r: (s.pose.x + rng.normal(0.0, nxy), s.pose.y + rng.normal(0.0, nxy),
                      s.pose.th + rng.normal(0.0, nth)) for r, s in states.items()}
-        new = {}
-        for r in robots:  # each robot's agent, with its own failure state
-            res = control_step(mission, poses, r, t, dt, predicted[r].get(r, (0.0, 0.0)), ctrl,
-                               excluded=health[r].dropped, drive_excluded=mission.on_failure == "rejoin",
-                               others_wheels_prev=predicted[r])
-            new[r] = (res.vl_m_s, res.vr_m_s) if res is not None else (0.0, 0.0)
-            if res is not None:
-                predicted[r] = dict(res.commands)
-                motion[r], ratios = update_motion(policy, motion[r], poses,
-                                                  expected_steps(mission, poses, res.commands, dt), t)
-                health[r], made = update_health(policy, health[r], res.deviations_m, ids, t, ratios)
-                decisions[r].extend(made)
+        sent.clear()
+        frame = Frame(seq=k + 1, t=t, poses=poses, complete=True)
+        for agent in agents.values():
+            agent.tick(frame)
+        new = {r: sent.get(r, (0.0, 0.0)) for r in robots}
         pending.append(new)
         if len(pending) > latency_frames:
             applied = pending.pop(0)
@@ -114,5 +113,11 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
     span = t_goal if t_goal is not None else t
     return OfflineRun(deviations_m=np.array(devs), robots=ids, t_goal_s=t_goal,
                       wheel_tv_m_s2=tv / len(robots) / max(span, 1e-9), trace=tuple(trace),
-                      final_poses={r: s.pose for r, s in states.items()}, decisions=decisions)
+                      final_poses={r: s.pose for r, s in states.items()},
+                      decisions={r: list(a.decisions) for r, a in agents.items()})
+
+
+def _wheels(payload: bytes) -> tuple[float, float]:
+    cmd = decode_cmd(payload)
+    return (cmd.vl, cmd.vr)
 

@@ -3,7 +3,6 @@
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from fleetctl.scenario_file import load_scenario
 from simfleet.offline import run_offline

@@ -80,6 +80,13 @@ class Agreement:
     max_th_rad: float
 
 
+def pose_spread(poses: Sequence[tuple[float, float, float]]) -> tuple[float, float]:
+    """Largest pairwise position [m] and heading [rad] difference among (x, y, th) poses."""
+    pos = max((math.hypot(a[0] - b[0], a[1] - b[1]) for a in poses for b in poses), default=0.0)
+    th = max((abs(angle_diff(a[2], b[2])) for a in poses for b in poses), default=0.0)
+    return pos, th
+
+
 def agreement(states: Iterable[tuple[str, StateMsg]], min_agents: int = 2,
               complete_only: bool = True) -> Agreement:
     """Compare agents frame by frame; with complete_only, only frames every agent saw whole."""
@@ -96,11 +103,9 @@ def agreement(states: Iterable[tuple[str, StateMsg]], min_agents: int = 2,
         if all(v == vals[0] for v in vals):
             identical += 1
             continue
-        for a in vals:
-            for b in vals:
-                max_pos = max(max_pos, math.hypot(a[0] - b[0], a[1] - b[1]),
-                              math.hypot(a[3] - b[3], a[4] - b[4]))
-                max_th = max(max_th, abs(angle_diff(a[2], b[2])), abs(angle_diff(a[5], b[5])))
+        for part in ([v[:3] for v in vals], [v[3:] for v in vals]):  # fitted, then advanced pose
+            pos, th = pose_spread(part)
+            max_pos, max_th = max(max_pos, pos), max(max_th, th)
     return Agreement(frames, identical, max_pos, max_th)
 
 

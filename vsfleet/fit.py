@@ -473,17 +473,21 @@ def _mec_enum(X, Y, W, equal_w: bool, pairs_only: bool = False):
                 wa, wb, wc = Wb[i, ar], Wb[j, ar], Wb[l, ar]
                 sc = 1.0 / (trho * (c1 / (wa * wa) + c2 / (wb * wb) + c3 / (wc * wc)))
             sc[~(np.abs(sc) < np.inf)] = 0.0
-            c1 = c1 * sc
-            c2 = c2 * sc
-            c3 = c3 * sc
-            # q_m - t with t = q_1 + o: -o, v2 - o, v3 - o
-            g3 = np.stack([
-                ax + sx, ay + sy, trho,
-                -c1 * sx, c2 * (bx - sx), c3 * (cx - sx),
-                -c1 * sy, c2 * (by - sy), c3 * (cy - sy),
-            ])
-            g = np.where(is_tri, g3, g)
+            g = np.where(is_tri, _triple_rows(ax, ay, trho, sx, sy, bx, by, cx, cy, c1, c2, c3, sc), g)
     return g, mem
+
+
+def _triple_rows(x0, y0, rho, ox, oy, v2x, v2y, v3x, v3y, c1, c2, c3, sc):
+    """Result rows of a triple basis: centre t = q_1 + o, radius rho, and the duals
+    c_k * sc times q_k - t (that is -o, v2 - o, v3 - o for q_1, q_2, q_3)."""
+    c1 = c1 * sc
+    c2 = c2 * sc
+    c3 = c3 * sc
+    return np.stack([
+        x0 + ox, y0 + oy, rho,
+        -c1 * ox, c2 * (v2x - ox), c3 * (v3x - ox),
+        -c1 * oy, c2 * (v2y - oy), c3 * (v3y - oy),
+    ])
 
 
 def _mec3(X, Y, w, equal_w: bool):
@@ -554,15 +558,7 @@ def _mec3(X, Y, w, equal_w: bool):
             sc = w0 * w0 / rt
         else:
             sc = 1.0 / (rt * (c1 / (w0 * w0) + c2 / (w1 * w1) + c3 / (w2 * w2)))
-        c1 = c1 * sc
-        c2 = c2 * sc
-        c3 = c3 * sc
-        g3 = np.stack([
-            x0 + ox, y0 + oy, rt,
-            -c1 * ox, c2 * (v2x - ox), c3 * (v3x - ox),
-            -c1 * oy, c2 * (v2y - oy), c3 * (v3y - oy),
-        ])
-        g = np.where(tri, g3, g)
+        g = np.where(tri, _triple_rows(x0, y0, rt, ox, oy, v2x, v2y, v3x, v3y, c1, c2, c3, sc), g)
         mem[0][tri] = 0
         mem[1][tri] = 1
         mem[2][tri] = 2

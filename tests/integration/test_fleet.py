@@ -135,7 +135,6 @@ def test_a_mission_change_is_adopted_by_every_agent_on_the_same_frame(fleet):
 
 def test_mission_set_publishes_a_scenario_mission_that_a_subscriber_decodes(fleet):
     import subprocess
-    import sys
     import threading
     import time
 
