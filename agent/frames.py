@@ -5,11 +5,15 @@ Frame rule (docs/protocol.md):
   than the one held; older or duplicate poses are dropped (counted). A pose
   whose ``t`` is more than ``max_future_s`` ahead of the local clock is refused.
 - The newest frame is the ``(t, seq)`` of the newest pose held. It is complete
-  when every mission robot's held pose has that ``seq``. The agent then runs its
-  control step at once.
+  when every mission robot's held pose has that ``seq`` from the same ``src``
+  (tracker or camera). The agent then runs its control step at once. With
+  several trackers, each robot's freshest pose wins, whichever source it is from.
 - Otherwise, ``deadline_s`` after the first pose that arrived while no frame was
   pending, the agent runs the newest frame with the freshest poses it holds.
 - Poses older than ``max_age_s`` before the frame's time are left out.
+- A frame whose ``t`` is more than ``max_stale_s`` behind the local clock is
+  stale: it is not run (counted in ``stale``), so no command answers it and the
+  robots halt after their command's ttl.
 - A frame runs at most once, and never one older than the last frame run (by
   ``(t, seq)``). So a tracker that restarts its ``seq`` is followed at once.
 """
@@ -33,16 +37,18 @@ class Frame:
 
 class FrameAssembler:
     def __init__(self, robots: tuple[str, ...], deadline_s: float = 0.02, max_age_s: float = 0.25,
-                 max_future_s: float = 1.0):
+                 max_future_s: float = 1.0, max_stale_s: float = 0.5):
         self.robots = tuple(robots)
         self.deadline_s = deadline_s
         self.max_age_s = max_age_s
         self.max_future_s = max_future_s
+        self.max_stale_s = max_stale_s
         self.latest: dict[str, PoseMsg] = {}
         self.done: tuple[float, int] = (float("-inf"), -1)
         self.deadline_at: float | None = None
         self.dropped_old = 0
         self.refused_future = 0
+        self.stale = 0
 
     def set_robots(self, robots: tuple[str, ...]) -> None:
         self.robots = tuple(robots)
@@ -77,8 +83,14 @@ class FrameAssembler:
             self.deadline_at = None
             return None
         held = {r: self.latest.get(r) for r in robots}
-        complete = all(m is not None and m.seq == newest.seq for m in held.values())
+        complete = all(m is not None and m.seq == newest.seq and m.src == newest.src
+                       for m in held.values())
         if not complete and (self.deadline_at is None or now < self.deadline_at):
+            return None
+        if newest.t < now - self.max_stale_s:
+            self.done = key
+            self.deadline_at = None
+            self.stale += 1
             return None
         poses = {r: (m.x, m.y, m.th) for r, m in held.items()
                  if m is not None and newest.t - self.max_age_s <= m.t}

@@ -1,10 +1,11 @@
 """vsfleet agent: one identical process per robot; fits, advances, commands its own wheels.
 
 Startup: declare the liveliness token, subscribe to mission updates and poses,
-answer mission queries (so late joiners get the mission from any agent), and
-ask for the mission with a get. Then, at every frame (see agent.frames), run
-``vsfleet.step.control_step`` and publish ``cmd/<robot>`` and ``state/<robot>``.
-On any exit it publishes a zero command.
+answer mission and health queries (so late joiners and restarted agents get the
+mission and the failure-policy state from any agent), and ask for both with a
+get. Then, at every frame (see agent.frames), run ``vsfleet.step.control_step``
+and publish ``cmd/<robot>`` and ``state/<robot>``. On any exit it publishes a
+zero command.
 """
 
 from __future__ import annotations
@@ -27,15 +28,18 @@ from vsfleet.step import Controller, control_step, expected_steps
 from vsfleet.wire import (
     CmdMsg,
     EventMsg,
+    HealthMsg,
     Keys,
     Mission,
     StateMsg,
     WireError,
     check_name,
+    decode_health,
     decode_mission,
     decode_pose,
     encode,
     encode_event,
+    encode_health,
     encode_mission,
 )
 
@@ -81,6 +85,10 @@ class Agent:
         self.waiting = 0
         self.ignored = 0
         self.mission_payload: bytes | None = None
+        self.health_payload: bytes | None = None  # answers health queries; swapped in after each tick
+        self.health_adopted = False
+        self.stale_logged = 0
+        self.unnamed_logged: set[int] = set()
         self._controllers: dict[str, object] = {}
 
     # ------------------------------------------------------------ inputs
@@ -112,10 +120,26 @@ class Agent:
             return
         self.frames.offer(robot, msg, self.clock())
 
+    def on_health(self, key: str, payload: bytes) -> None:
+        """Adopt a peer's failure-policy state once, at (re)start, so decisions agree at once."""
+        try:
+            msg = decode_health(payload)
+        except WireError as exc:
+            self.rejections.reject(key, str(exc))
+            return
+        if self.health_adopted or msg.mission not in self.missions.by_version:
+            return
+        self.health = Health(since_t=dict(msg.since), failed=frozenset(msg.failed),
+                             dropped=frozenset(msg.dropped))
+        self.health_adopted = True
+        log.info("adopted peers' failure state at frame %d: failed %s, dropped %s", msg.seq,
+                 sorted(msg.failed), sorted(msg.dropped))
+
     def on_message(self, kind: str, key: str, payload: bytes) -> None:
         """Dispatch one message; nothing a peer sends may end the agent."""
+        handlers = {"pose": self.on_pose, "mission": self.on_mission, "health": self.on_health}
         try:
-            (self.on_pose if kind == "pose" else self.on_mission)(key, payload)
+            handlers[kind](key, payload)
         except Exception as exc:  # noqa: BLE001 - counted and logged, never fatal
             self.rejections.reject(key, f"unexpected {type(exc).__name__}: {exc}")
 
@@ -137,18 +161,30 @@ class Agent:
         frame = self.frames.ready(self.clock())
         if frame is not None:
             self.tick(frame)
+        elif self.frames.stale > self.stale_logged:
+            n = self.stale_logged = self.frames.stale
+            if n <= 10 or n % 100 == 0:
+                log.warning("stale frame #%d skipped: tracker time more than %.2f s behind this host's "
+                            "clock (clock skew or a stalled link); the robot halts", n,
+                            self.frames.max_stale_s)
         return frame
 
     def tick(self, frame: Frame) -> None:
         mission = self.missions.active(frame.t)
         if mission is None or self.robot not in mission.robot_ids:
             self.wheels_prev = (0.0, 0.0)  # no command: the robot halts after ttl
+            if mission is not None and mission.version not in self.unnamed_logged:
+                self.unnamed_logged.add(mission.version)
+                log.warning("mission v%d does not name robot %s: it stays stopped", mission.version,
+                            self.robot)
             return
         if mission.version != self.mission_version:
             log.info("frame %d: switching to mission v%d", frame.seq, mission.version)
             self.mission_version = mission.version
         if frame.t - self.last_cmd_t > self.ttl_s:
-            self.wheels_prev = (0.0, 0.0)  # the robot has halted since our last command
+            # a gap longer than ttl: every robot has halted since the last commands
+            self.wheels_prev = (0.0, 0.0)
+            self.predicted = {}
         poses = {r: p for r, p in frame.poses.items() if r in mission.robot_ids}
         try:
             result = control_step(mission, poses, self.robot, frame.t, self.dt_s,
@@ -181,6 +217,10 @@ class Agent:
         self.health, decisions = update_health(policy, self.health, result.deviations_m,
                                                mission.robot_ids, frame.t, progress)
         self.decisions.extend(decisions)
+        h = self.health
+        self.health_payload = encode_health(HealthMsg(
+            t=frame.t, seq=frame.seq, mission=mission.version, failed=tuple(sorted(h.failed)),
+            dropped=tuple(sorted(h.dropped)), since=tuple(sorted(h.since_t.items()))))
         for d in decisions:
             log.warning("frame %d: robot %s %s (deviation %.3f m, on_failure=%s)", frame.seq, d.robot,
                         d.kind, d.deviation_m, mission.on_failure)
@@ -192,12 +232,12 @@ class Agent:
         return encode(CmdMsg(t=self.clock(), seq=self.last_seq, vl=0.0, vr=0.0, ttl=self.ttl_s))
 
 
-def fetch_mission(session: zenoh.Session, keys: Keys, inbox: queue.Queue, timeout_s: float) -> None:
-    """Ask the key space for the mission; every reply (any version) goes to the agent's inbox."""
-    for reply in session.get(keys.mission, timeout=timeout_s):
+def fetch(session: zenoh.Session, key: str, kind: str, inbox: queue.Queue, timeout_s: float) -> None:
+    """Ask the key space for ``key`` (mission or health); every reply goes to the agent's inbox."""
+    for reply in session.get(key, timeout=timeout_s):
         if reply.ok is not None:
             try:
-                inbox.put_nowait(("mission", str(reply.ok.key_expr), reply.ok.payload.to_bytes()))
+                inbox.put_nowait((kind, str(reply.ok.key_expr), reply.ok.payload.to_bytes()))
             except queue.Full:
                 pass
 
@@ -216,6 +256,7 @@ def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFla
                 inbox.put_nowait((kind, str(sample.key_expr), sample.payload.to_bytes()))
             except queue.Full:
                 overflow[0] += 1
+                agent.rejections.reject(str(sample.key_expr), "inbox full (flood)")
         return cb
 
     with zenoh.open(conf) as session:
@@ -231,23 +272,35 @@ def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFla
             if payload is not None:
                 query.reply(keys.mission, payload)
 
+        def answer_health(query: zenoh.Query) -> None:
+            payload = agent.health_payload  # likewise
+            if payload is not None:
+                query.reply(keys.health, payload)
+
         subs = [
             session.declare_subscriber(keys.mission, enqueue("mission")),
             session.declare_subscriber(keys.pose(), enqueue("pose")),
         ]
-        queryable = session.declare_queryable(keys.mission, answer_mission, complete=False)
+        queryables = [session.declare_queryable(keys.mission, answer_mission, complete=False),
+                      session.declare_queryable(keys.health, answer_health, complete=False)]
         log.info("agent %s up (fleet %s)", robot, fleet)
         next_fetch = 0.0
         fetcher: threading.Thread | None = None
+        health_asked = False
         try:
             while not stop.is_set():
                 now = agent.clock()
-                if agent.missions.latest() is None and now >= next_fetch and not (
-                        fetcher and fetcher.is_alive()):
-                    fetcher = threading.Thread(target=fetch_mission, args=(session, keys, inbox, 1.0),
-                                               daemon=True)
+                idle = not (fetcher and fetcher.is_alive())
+                if agent.missions.latest() is None and now >= next_fetch and idle:
+                    fetcher = threading.Thread(target=fetch, args=(session, keys.mission, "mission",
+                                                                   inbox, 1.0), daemon=True)
                     fetcher.start()
                     next_fetch = now + 1.0
+                elif agent.missions.latest() is not None and not health_asked and idle:
+                    health_asked = True  # once: a restarted agent takes its peers' failure state
+                    fetcher = threading.Thread(target=fetch, args=(session, keys.health, "health",
+                                                                   inbox, 1.0), daemon=True)
+                    fetcher.start()
                 wait = agent.frames.time_to_deadline(now)
                 try:
                     kind, key, payload = inbox.get(timeout=0.05 if wait is None else max(wait, 1e-4))
@@ -265,11 +318,12 @@ def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFla
                 agent.poll()
         finally:
             cmd_pub.put(agent.stop_command())
-            log.info("agent %s stopping after %d ticks, %d rejected, %d dropped on overflow",
-                     robot, agent.ticks, agent.rejections.count, overflow[0])
+            log.info("agent %s stopping after %d ticks, %d rejected (%d on overflow), %d stale frames",
+                     robot, agent.ticks, agent.rejections.count, overflow[0], agent.frames.stale)
             for s in subs:
                 s.undeclare()
-            queryable.undeclare()
+            for q in queryables:
+                q.undeclare()
             token.undeclare()
             if fetcher is not None:
                 fetcher.join(timeout=2.0)

@@ -24,9 +24,9 @@ def test_an_incomplete_frame_runs_after_the_deadline_with_the_freshest_poses():
     fa.offer("r1", pose(1, 10.0), 10.0)
     fa.offer("r2", pose(1, 10.0), 10.0)
     fa.ready(10.0)
-    fa.offer("r1", pose(2, 10.033, x=1.0), 11.0)
-    assert fa.ready(11.019) is None
-    frame = fa.ready(11.021)
+    fa.offer("r1", pose(2, 10.033, x=1.0), 10.05)
+    assert fa.ready(10.069) is None
+    frame = fa.ready(10.071)
     assert frame is not None and not frame.complete and frame.seq == 2
     assert frame.poses["r1"][0] == 1.0
     assert "r2" in frame.poses  # 33 ms old: still within max_age
@@ -69,6 +69,27 @@ def test_a_pose_from_the_future_is_refused():
     assert not fa.offer("r1", pose(1, 1e9), now=10.0)
     assert fa.refused_future == 1 and fa.ready(10.0) is None
     assert fa.offer("r1", pose(2, 10.5), now=10.0)
+
+
+def test_a_stale_frame_is_not_run_and_is_counted():
+    fa = FrameAssembler(("r1",), deadline_s=0.02, max_stale_s=0.5)
+    fa.offer("r1", pose(1, 10.0), now=10.6)            # 0.6 s old on arrival (clock skew or a stalled link)
+    assert fa.ready(10.6) is None
+    assert fa.stale == 1
+    fa.offer("r1", pose(2, 10.2), now=10.6)            # 0.4 s old: run
+    assert fa.ready(10.6).seq == 2 and fa.stale == 1
+
+
+def test_frames_from_two_cameras_are_complete_only_within_one_source():
+    fa = FrameAssembler(("r1", "r2"), deadline_s=0.02)
+    fa.offer("r1", PoseMsg(t=10.0, seq=7, x=0.0, y=0.0, th=0.0, src="cam1"), 10.0)
+    fa.offer("r2", PoseMsg(t=10.001, seq=7, x=1.0, y=0.0, th=0.0, src="cam2"), 10.001)
+    assert fa.ready(10.002) is None                    # same seq, other source: not complete
+    frame = fa.ready(10.03)                            # the deadline: freshest pose of each robot
+    assert not frame.complete and set(frame.poses) == {"r1", "r2"}
+    for r in ("r1", "r2"):
+        fa.offer(r, PoseMsg(t=10.04, seq=8, x=0.0, y=0.0, th=0.0, src="cam1"), 10.04)
+    assert fa.ready(10.04).complete
 
 
 def mission(version, effective_t):

@@ -79,6 +79,11 @@ class Keys:
     def event(self) -> str:
         return f"{self.prefix}/event"
 
+    @property
+    def health(self) -> str:
+        """Queryable of every agent: its failure-policy state, for an agent that (re)starts."""
+        return f"{self.prefix}/health"
+
     def alive(self, role: str = "*", ident: str = "*") -> str:
         return f"{self.prefix}/alive/{role}/{ident}"
 
@@ -151,6 +156,16 @@ def _opt_int(m: Mapping[str, Any], name: str, default: int) -> int:
     return _int(m, name)
 
 
+def _unique_map(pairs: list[tuple[Any, Any]]) -> dict:
+    """A msgpack map as a dict, refusing a key that appears twice (msgpack would keep the last)."""
+    out: dict = {}
+    for k, v in pairs:
+        if k in out:
+            raise WireError(f"duplicate key {k!r} in a msgpack map")
+        out[k] = v
+    return out
+
+
 def unpack_map(payload: bytes, limit: int = MAX_PAYLOAD_BYTES) -> dict:
     """Decode a msgpack map, refusing oversize, truncated or non-map payloads."""
     if not isinstance(payload, (bytes, bytearray, memoryview)):
@@ -158,7 +173,10 @@ def unpack_map(payload: bytes, limit: int = MAX_PAYLOAD_BYTES) -> dict:
     if len(payload) > limit:
         raise WireError(f"payload of {len(payload)} bytes exceeds the {limit}-byte limit")
     try:
-        obj = msgpack.unpackb(bytes(payload), raw=False, strict_map_key=True)
+        obj = msgpack.unpackb(bytes(payload), raw=False, strict_map_key=True,
+                              object_pairs_hook=_unique_map)
+    except WireError:
+        raise
     except Exception as exc:  # msgpack raises several unrelated types for bad bytes
         raise WireError(f"not valid msgpack: {type(exc).__name__}: {exc}") from None
     if not isinstance(obj, dict):
@@ -278,6 +296,44 @@ def encode_event(msg: EventMsg) -> bytes:
     if not math.isfinite(d["dev"]):
         d["dev"] = "inf"  # a robot not seen in the frame
     return _pack(d)
+
+
+@dataclass(frozen=True)
+class HealthMsg:
+    """An agent's failure-policy state after frame ``seq`` (tracker time t [s]) of mission ``mission``.
+
+    failed, dropped: robot ids; since: robot id -> tracker time [s] its current
+    non-compliance (or, once dropped, compliance) began.
+    """
+
+    t: float
+    seq: int
+    mission: int
+    failed: tuple[str, ...]
+    dropped: tuple[str, ...]
+    since: tuple[tuple[str, float], ...]
+
+
+def _robot_list(m: Mapping[str, Any], name: str) -> tuple[str, ...]:
+    v = m.get(name)
+    if not isinstance(v, list) or len(v) > MAX_ROBOTS:
+        raise WireError(f"field {name!r} must be a list of at most {MAX_ROBOTS} robot ids")
+    return tuple(check_name(r, name) for r in v)
+
+
+def decode_health(payload: bytes) -> HealthMsg:
+    m = unpack_map(payload, MAX_MISSION_BYTES)
+    since = m.get("since")
+    if not isinstance(since, Mapping) or len(since) > MAX_ROBOTS:
+        raise WireError("field 'since' must be a map of robot id -> time")
+    pairs = tuple(sorted((check_name(r, "since"), _num({"t": since[r]}, "t")) for r in since))
+    return HealthMsg(t=_num(m, "t"), seq=_int(m, "seq"), mission=_int(m, "mission"),
+                     failed=_robot_list(m, "failed"), dropped=_robot_list(m, "dropped"), since=pairs)
+
+
+def encode_health(msg: HealthMsg) -> bytes:
+    return _pack({"t": msg.t, "seq": msg.seq, "mission": msg.mission, "failed": list(msg.failed),
+                  "dropped": list(msg.dropped), "since": dict(msg.since)})
 
 
 def encode(msg: Any) -> bytes:
@@ -428,6 +484,11 @@ def mission_from_dict(m: Mapping[str, Any]) -> Mission:
                 wheel_accel_max=_pos(spec, "wheel_accel_max"))))
         except WireError as exc:
             raise WireError(f"robot {rid!r}: {exc}") from None
+    points: dict[tuple[float, float], str] = {}
+    for rid, spec in robots:
+        if spec.p in points:
+            raise WireError(f"robots {points[spec.p]!r} and {rid!r} share the template point {list(spec.p)}")
+        points[spec.p] = rid
     targets = [k for k in ("goal", "path", "twist") if m.get(k) is not None]
     if len(targets) != 1:
         raise WireError(f"a mission needs exactly one of goal, path, twist; got {targets or 'none'}")
@@ -471,4 +532,5 @@ def decode_mission(payload: bytes) -> Mission:
 DECODERS = {
     "pose": decode_pose, "cmd": decode_cmd, "state": decode_state, "truth": decode_truth,
     "fault": decode_fault, "mission": decode_mission, "event": decode_event,
+    "health": decode_health,
 }
