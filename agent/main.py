@@ -213,7 +213,7 @@ class Agent:
         self.predicted = dict(result.commands)
         self.motion, progress = update_motion(policy, self.motion, poses,
                                               expected_steps(mission, poses, result.commands, self.dt_s),
-                                              frame.t)
+                                              frame.t, step_s=self.dt_s, max_gap_s=self.ttl_s)
         self.health, decisions = update_health(policy, self.health, result.deviations_m,
                                                mission.robot_ids, frame.t, progress)
         self.decisions.extend(decisions)

@@ -9,6 +9,9 @@ COMMANDS = {
     "agent": ("agent.main", "one agent per robot"),
     "sim": ("simfleet.main", "the simulated fleet"),
     "tracker sim": ("tracker.sim", "the simulated tracker (VGPS)"),
+    "tracker camera": ("tracker.camera", "ArUco markers from an overhead camera -> poses"),
+    "tracker calibrate": ("tracker.calibrate", "floor calibration from reference markers"),
+    "render": ("tracker.render", "synthetic overhead camera frames of the simulated fleet"),
     "run": ("fleetctl.run", "the localhost multi-process fleet from a scenario"),
     "router": ("fleetctl.router", "a zenoh router (router-mode zenoh-python session)"),
     "mission set": ("fleetctl.mission_cmd", "publish a mission file"),
@@ -16,6 +19,7 @@ COMMANDS = {
     "replay": ("fleetctl.replay", "publish a recording back into a key space"),
     "plot": ("fleetctl.plot", "the paper's figures (PNG) from a recording"),
     "monitor": ("fleetctl.monitor", "live terminal view of a running fleet"),
+    "fuzz": ("fleetctl.fuzz", "throw invalid messages at every key the fleet subscribes to"),
 }
 
 USAGE = "usage: vsfleet COMMAND [ARGS...]\n\ncommands:\n" + "\n".join(

@@ -54,6 +54,8 @@ class Fleet:
         self.dt_s = 1.0 / scenario.sim.rate_hz
         self.lock = threading.Lock()
         self.rejections = Rejections(log)
+        self.commanded = {r: False for r in self.robots}  # has a fresh command (within its ttl)
+        self.expiries = 0
 
     @property
     def t(self) -> float:
@@ -107,6 +109,14 @@ class Fleet:
         for rid, robot in self.robots.items():
             c = cmds.get(rid)
             fresh = c is not None and t - c.arrived_t <= c.ttl
+            if fresh != self.commanded[rid]:
+                self.commanded[rid] = fresh
+                if not fresh:
+                    self.expiries += 1
+                    log.info("%s: command expired at t=%.3f (last seq %d, arrived %.3f, ttl %.3f): halting",
+                             rid, t, c.seq, c.arrived_t, c.ttl)
+                else:
+                    log.info("%s: commanded again at t=%.3f (seq %d)", rid, t, c.seq)
             self.states[rid] = step_robot(self.states[rid], robot, c.vl if c else 0.0,
                                           c.vr if c else 0.0, fresh, faults[rid], t, self.dt_s)
         self.k += 1

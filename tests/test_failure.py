@@ -77,3 +77,30 @@ def test_events_round_trip_including_an_unseen_robots_infinite_deviation():
         assert decode_event(encode_event(msg)) == msg
     with pytest.raises(WireError):
         decode_event(encode_event(EventMsg(1.0, 1, "r2", "drop", 0.1, "r1")).replace(b"drop", b"boom"))
+
+
+def test_an_agent_that_missed_a_frame_reaches_the_same_progress_ratio_and_fails_the_robot_on_the_same_frame():
+    from vsfleet.failure import FailurePolicy, Health, Motion, update_health, update_motion
+
+    policy = FailurePolicy("drop")
+    dt = 1.0 / 30.0
+    step = (0.1 * dt, 0.0)           # commanded 0.1 m/s along +x, every frame
+    def run(skip):
+        motion, health, x, out = Motion(), Health(), 0.0, []
+        for k in range(200):
+            t = 100.0 + k * dt + (0.004 if k % 3 else 0.0)   # jittered frame times
+            if k < 60:
+                x = 0.1 * (t - 100.0)                          # moving, then halted for good
+            if k in skip:
+                continue
+            motion, ratios = update_motion(policy, motion, {"r1": (x, 0.0, 0.0)}, {"r1": step}, t,
+                                           step_s=dt, max_gap_s=0.3)
+            health, decisions = update_health(policy, health, {"r1": 0.0}, ("r1",), t, ratios)
+            out.append((k, ratios.get("r1"), [d.kind for d in decisions]))
+        return out
+    full, missed = run(set()), run({95, 96, 97, 98, 99, 110, 111, 120})
+    decided = lambda rows: next(k for k, _, kinds in rows if "drop" in kinds)   # noqa: E731
+    assert decided(full) == decided(missed)
+    ratios = dict((k, r) for k, r, _ in full)
+    diffs = [abs(r - ratios[k]) for k, r, _ in missed if r is not None and ratios[k] is not None]
+    assert max(diffs) < 1e-2

@@ -31,9 +31,11 @@ TRUTH_MAX_AGE_S = 0.1
 class SimTracker:
     """Frames from the latest truth; pure apart from its seeded RNG."""
 
-    def __init__(self, params: TrackerParams, src: str = "sim", seed: int = 0) -> None:
+    def __init__(self, params: TrackerParams, src: str = "sim", seed: int = 0,
+                 clock_offset_s: float = 0.0) -> None:
         self.params = params
         self.src = src
+        self.clock_offset_s = clock_offset_s  # added to every published t: a skewed tracker host
         self.rng = np.random.default_rng(seed)
         self.truth: dict[str, TruthMsg] = {}
         self.lock = threading.Lock()
@@ -66,17 +68,17 @@ class SimTracker:
             m = truth[robot]
             nx, ny = self.rng.normal(0.0, self.params.noise_xy_m, 2) if self.params.noise_xy_m > 0 else (0.0, 0.0)
             nth = self.rng.normal(0.0, self.params.noise_th_rad) if self.params.noise_th_rad > 0 else 0.0
-            out.append((robot, PoseMsg(t=m.t, seq=self.seq, x=m.x + nx, y=m.y + ny,
+            out.append((robot, PoseMsg(t=m.t + self.clock_offset_s, seq=self.seq, x=m.x + nx, y=m.y + ny,
                                        th=wrap_angle(m.th + nth), src=self.src)))
         return out
 
 
 def run_tracker(conf: zenoh.Config, params: TrackerParams, fleet: str = "demo", src: str = "sim",
                 seed: int = 0, stop: StopFlag | None = None,
-                clock: Callable[[], float] = wall_clock) -> SimTracker:
+                clock: Callable[[], float] = wall_clock, clock_offset_s: float = 0.0) -> SimTracker:
     stop = stop or StopFlag()
     keys = Keys(fleet)
-    tracker = SimTracker(params, src, seed)
+    tracker = SimTracker(params, src, seed, clock_offset_s)
     period = 1.0 / params.rate_hz
     pending: deque[tuple[float, list[tuple[str, PoseMsg]]]] = deque()
     with zenoh.open(conf) as session:
@@ -118,6 +120,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--latency", type=float, default=0.005, help="publish latency [s]")
     p.add_argument("--drop", type=float, default=0.0, help="frame drop probability")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--clock-offset", type=float, default=0.0,
+                   help="add this to every published t [s]: simulates a tracker host with a skewed clock")
     p.add_argument("--verbose", "-v", action="store_true")
     add_zenoh_args(p)
     return p
@@ -135,7 +139,11 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         log.error("%s", exc)
         return 2
-    run_tracker(zenoh_config(args), params, args.fleet, args.src, args.seed)
+    if abs(args.clock_offset) > 3600:
+        log.error("--clock-offset must be within an hour")
+        return 2
+    run_tracker(zenoh_config(args), params, args.fleet, args.src, args.seed,
+                clock_offset_s=args.clock_offset)
     return 0
 
 

@@ -90,7 +90,8 @@ class Motion:
 
 
 def update_motion(policy: FailurePolicy, motion: Motion, poses: Mapping[str, tuple[float, float, float]],
-                  expected_next_m: Mapping[str, tuple[float, float]], t: float
+                  expected_next_m: Mapping[str, tuple[float, float]], t: float,
+                  step_s: float | None = None, max_gap_s: float = math.inf
                   ) -> tuple[Motion, dict[str, float]]:
     """Record this frame's observed motion; return each robot's progress ratio where known.
 
@@ -100,11 +101,19 @@ def update_motion(policy: FailurePolicy, motion: Motion, poses: Mapping[str, tup
     net observed one projected on it: ratio = (sum observed . E) / |E|^2. Net sums make
     the test blind to dithering and to a frame of command latency. A ratio is reported
     once the window spans 80% of fail_after_s and |E| reaches min_expected_m.
+
+    With step_s (the time [s] expected_next_m is for), each expected step is scaled to
+    the time that actually passed to the next frame, capped at max_gap_s (a command's
+    ttl: after it the robot halts). An agent that missed a frame then sums nearly the
+    same expectation as one that saw it, so their decisions fall on the same frame.
     """
     last, window, ratios = dict(motion.last), dict(motion.window), {}
     for r, (x, y, _th) in poses.items():
         if r in last:
-            _t0, x0, y0, ex, ey = last[r]
+            t0, x0, y0, ex, ey = last[r]
+            if step_s is not None:
+                scale = min(t - t0, max_gap_s) / step_s
+                ex, ey = ex * scale, ey * scale
             w = tuple(item for item in window.get(r, ()) if item[0] > t - policy.fail_after_s)
             w += ((t, ex, ey, x - x0, y - y0),)
             window[r] = w
