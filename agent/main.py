@@ -118,7 +118,12 @@ class Agent:
         if not any(robot in m.robot_ids for m in self.missions.by_version.values()):
             self.ignored += 1  # a tracked object that no mission names: not an error
             return
+        before = self.frames.refused_future
         self.frames.offer(robot, msg, self.clock())
+        n = self.frames.refused_future
+        if n > before and (n <= 10 or n % 100 == 0):
+            log.warning("pose #%d from the future refused: t %.3f is more than %.2f s ahead of this "
+                        "host's clock (clock skew?)", n, msg.t, self.frames.max_future_s)
 
     def on_health(self, key: str, payload: bytes) -> None:
         """Adopt a peer's failure-policy state once, at (re)start, so decisions agree at once."""

@@ -245,3 +245,20 @@ def test_a_killed_agent_restarted_takes_its_peers_decisions_and_agrees_within_a_
     after = [(r, m) for t, r, m in fleet.observed.state if m.seq > max(rejoins.values())]
     a = agreement(after, min_agents=3, complete_only=True)
     assert a.frames > 10 and a.identical == a.frames
+
+
+@pytest.mark.parametrize("skew_s, works", [(-0.4, True), (0.9, True), (-0.7, False), (1.2, False)])
+def test_a_skewed_tracker_clock_inside_the_documented_window_works_and_outside_it_nothing_moves(
+        fleet, skew_s, works):
+    """Agents refuse poses > 1 s ahead of their clock and skip frames > 0.5 s behind it."""
+    start_fleet(fleet, "--clock-offset", str(skew_s))
+    if works:
+        fleet.observed.wait_for(at_goal(fleet), timeout_s=40)
+        assert max_state_err_m(fleet.observed) < 0.025
+        return
+    # out of the window: the agents answer no frame; the robots never move
+    fleet.observed.wait_for(lambda o: len(o.truth) > 3 * 30 * 3, timeout_s=20)  # 3 s of truth
+    assert fleet.observed.state == [] and fleet.observed.cmd == []
+    assert all(m.vl == 0.0 and m.vr == 0.0 for _, _, m in fleet.observed.truth)
+    log = (fleet.log_dir / "agent-r1.log").read_text()
+    assert ("stale frame" if skew_s < 0 else "from the future refused") in log

@@ -1,0 +1,87 @@
+"""A bounded soak: `vsfleet fuzz` floods every subscribed key with invalid messages at 10x the
+tracker's rate while the fleet runs. Nothing crashes, every rejection is counted, no robot moves
+on an invalid command, and the fleet keeps formation."""
+
+from __future__ import annotations
+
+import json
+import re
+import signal
+from pathlib import Path
+
+import pytest
+
+from .harness import LoopbackFleet
+from .test_faults import ROBOTS, at_goal, max_state_err_m, moving, start_fleet
+
+pytestmark = pytest.mark.integration
+
+E2E = Path(__file__).parent.parent / "data" / "e2e-triangle.toml"
+
+
+def fuzz(fleet: LoopbackFleet, kinds: str, duration_s: float) -> dict:
+    """Run the fuzzer to the end; returns its summary line."""
+    p = fleet.start("fuzz", "fuzz", "--fleet", fleet.keys.fleet, "--kinds", kinds, "--rate", "300",
+                    "--duration", str(duration_s), "--robots", ",".join(ROBOTS))
+    assert p.wait(timeout=duration_s + 60) == 0, fleet.logs()
+    line = next(ln for ln in reversed((fleet.log_dir / "fuzz.log").read_text().splitlines())
+                if ln.startswith("{"))
+    return json.loads(line)
+
+
+def sim_rejected(fleet: LoopbackFleet) -> int:
+    """Stop simfleet and read the rejection count from its last log line."""
+    fleet.procs["sim"].send_signal(signal.SIGTERM)
+    assert fleet.procs["sim"].wait(timeout=20) == 0
+    text = (fleet.log_dir / "sim.log").read_text()
+    return int(re.findall(r"simfleet stopping at step \d+ .*?, (\d+) rejected", text)[-1])
+
+
+@pytest.fixture
+def fleet(tmp_path):
+    f = LoopbackFleet(E2E, tmp_path)
+    yield f
+    f.close()
+
+
+def test_a_fleet_under_a_flood_of_invalid_messages_counts_every_one_and_keeps_formation(fleet):
+    start_fleet(fleet)
+    fleet.observed.wait_for(moving("r1"), timeout_s=20)
+    summary = fuzz(fleet, "pose,mission,fault,cmd", duration_s=4.0)
+    sent = summary["sent"]
+    for_agents = summary["by_kind"]["pose"] - sent.get("pose/unknown_robot", 0) + summary["by_kind"]["mission"]
+    for_sim = summary["by_kind"]["cmd"] + summary["by_kind"]["fault"]
+
+    def counted(o):
+        latest = {r: m.rejected for _, r, m in o.state}
+        return latest if len(latest) == 3 and all(n == for_agents for n in latest.values()) else None
+
+    try:
+        fleet.observed.wait_for(counted, timeout_s=20)
+    finally:
+        latest = {r: m.rejected for _, r, m in fleet.observed.state}
+        print(f"fuzzer sent {sum(sent.values())} invalid messages ({summary['by_kind']}); "
+              f"agents counted {latest} of {for_agents}")
+    fleet.observed.wait_for(at_goal(fleet), timeout_s=40)
+    for name, p in fleet.procs.items():
+        if name != "fuzz":
+            assert p.poll() is None, f"{name} died:\n{fleet.logs()}"
+    err = max_state_err_m(fleet.observed)
+    got_sim = sim_rejected(fleet)
+    print(f"max error {err * 100:.2f} cm; simfleet counted {got_sim} of {for_sim}")
+    assert got_sim == for_sim
+    assert err < 0.025
+
+
+def test_no_robot_moves_on_an_invalid_command(fleet):
+    fleet.start_sim_and_tracker()
+    fleet.wait_alive("sim", ("simfleet",))
+    fleet.observed.wait_for(lambda o: len(o.truth) > 30, timeout_s=20)
+    start = {r: (m.x, m.y, m.th) for _, r, m in fleet.observed.truth}
+    n_before = len(fleet.observed.truth)
+    summary = fuzz(fleet, "cmd,fault", duration_s=2.0)
+    fleet.observed.wait_for(lambda o: len(o.truth) > n_before + 100, timeout_s=20)
+    during = fleet.observed.truth[n_before:]
+    assert all(m.vl == 0.0 and m.vr == 0.0 for _, _, m in during)
+    assert all((m.x, m.y, m.th) == start[r] for _, r, m in during)
+    assert sim_rejected(fleet) == summary["by_kind"]["cmd"] + summary["by_kind"]["fault"]
