@@ -21,9 +21,8 @@ from vsfleet.fit import fit_structure
 from vsfleet.geometry import Pose2
 from vsfleet.scenario import Scenario
 from vsfleet.step import mission_template
-from vsfleet.wire import Keys, decode_cmd, encode_mission
+from vsfleet.wire import Keys, PoseMsg, decode_cmd, encode, encode_mission
 
-from agent.frames import Frame
 from agent.main import Agent
 
 from .physics import Fault, RobotState, step_robot
@@ -45,12 +44,14 @@ class OfflineRun:
     trace: tuple[tuple[float, Pose2], ...]
     final_poses: dict
     decisions: dict  # robot -> the failure-policy decisions its agent made, in order
+    positions_m: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 0, 2)))  # (frames, n, 2) truth
 
 
 def run_offline(scenario: Scenario, duration_s: float, controller: str | None = None,
                 metric: str | None = None, noise_xy_m: float | None = None,
                 noise_th_rad: float | None = None, latency_frames: int = 1, seed: int = 0,
-                goal_tol_m: float = 0.005, stop_at_goal: bool = True, **gains: float) -> OfflineRun:
+                goal_tol_m: float = 0.005, stop_at_goal: bool = True, tracker_clock_ahead_s: float = 0.0,
+                **gains: float) -> OfflineRun:
     mission = scenario.mission
     if metric is not None:
         mission = dataclasses.replace(mission, metric=metric)
@@ -72,22 +73,24 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
     pending: list[dict] = []
     t = 0.0
     tv = 0.0
-    devs, trace = [], []
+    devs, trace, positions = [], [], []
     t_goal = None
     keys = Keys(scenario.fleet)
     sent: dict[str, tuple[float, float]] = {}
     agents = {}
     for r in robots:  # one agent per robot, each with its own state, as in the fleet
         agents[r] = Agent(r, keys, put_cmd=lambda b, r=r: sent.__setitem__(r, _wheels(b)),
-                          put_state=lambda b: None, dt_s=dt, clock=lambda: t, controller=ctrl)
+                          put_state=lambda b: None, dt_s=dt,
+                          clock=lambda: t - tracker_clock_ahead_s, controller=ctrl)
         agents[r].on_mission(keys.mission, encode_mission(mission))
     for k in range(int(round(duration_s / dt))):
         poses = {r: (s.pose.x + rng.normal(0.0, nxy), s.pose.y + rng.normal(0.0, nxy),
                      s.pose.th + rng.normal(0.0, nth)) for r, s in states.items()}
         sent.clear()
-        frame = Frame(seq=k + 1, t=t, poses=poses, complete=True)
-        for agent in agents.values():
-            agent.tick(frame)
+        for agent in agents.values():  # through the agent's frame rule (future / stale frames)
+            for r, (x, y, th) in poses.items():
+                agent.on_pose(keys.pose(r), encode(PoseMsg(t, k + 1, x, y, th, "offline")))
+            agent.poll()
         new = {r: sent.get(r, (0.0, 0.0)) for r in robots}
         pending.append(new)
         if len(pending) > latency_frames:
@@ -102,8 +105,9 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
             for r in robots:
                 states[r] = step_robot(states[r], robots[r], *cmds[r], True, faults[r], t, dt_phys)
             t += dt_phys
-        fit = fit_structure(template, np.array([[states[r].pose.x, states[r].pose.y] for r in ids]),
-                            metric=mission.metric)
+        xy = np.array([[states[r].pose.x, states[r].pose.y] for r in ids])
+        positions.append(xy)
+        fit = fit_structure(template, xy, metric=mission.metric)
         trace.append((t, fit.pose))
         devs.append(fit.residuals_m)
         if t_goal is None and goal_distance(mission, fit.pose) < goal_tol_m and (mission.goal or mission.path):
@@ -114,7 +118,8 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
     return OfflineRun(deviations_m=np.array(devs), robots=ids, t_goal_s=t_goal,
                       wheel_tv_m_s2=tv / len(robots) / max(span, 1e-9), trace=tuple(trace),
                       final_poses={r: s.pose for r, s in states.items()},
-                      decisions={r: list(a.decisions) for r, a in agents.items()})
+                      decisions={r: list(a.decisions) for r, a in agents.items()},
+                      positions_m=np.array(positions))
 
 
 def _wheels(payload: bytes) -> tuple[float, float]:

@@ -96,3 +96,16 @@ def test_after_a_transient_stall_the_fleet_resumes_and_with_rejoin_the_robot_is_
     assert kinds == [("r2", "fail"), ("r2", "drop"), ("r2", "rejoin")]
     assert all(v == rejoin.decisions["r3"] for v in rejoin.decisions.values())
     assert rejoin.t_goal_s is not None
+
+
+def test_a_robot_with_a_dead_wheel_is_declared_failed_and_with_hold_the_structure_waits_in_formation():
+    hold = failure_run("hold", "wheel", 0.0, 0.0, seconds=30.0)
+    made = hold.decisions["r1"]
+    assert all(v == made for v in hold.decisions.values())
+    assert [(d.robot, d.kind) for d in made][:1] == [("r2", "fail")]
+    assert 8.0 < made[0].t < 8.0 + 3.0
+    i_fault = int(8.0 * FAILURE.tracker.rate_hz)
+    assert float(hold.deviations_m[i_fault:].max()) < 0.03      # bounded: nobody is left behind
+    end, before_end = hold.trace[-1][1], hold.trace[-30][1]
+    assert np.hypot(end.x - before_end.x, end.y - before_end.y) < 0.005   # the structure waits
+    assert hold.t_goal_s is None
