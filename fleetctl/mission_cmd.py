@@ -3,6 +3,10 @@
 The mission's ``version`` defaults to the current UNIX time in milliseconds (so
 it increases), and ``effective_t`` to now + --delay seconds. Agents answer
 mission queries themselves, so late joiners get it without this process.
+
+Before publishing it checks the mission's robots against the fleet's live agents
+(their liveliness tokens) and refuses a mismatch with a clear message; --force
+publishes anyway (for example before the agents start, when nothing can check).
 """
 
 from __future__ import annotations
@@ -37,6 +41,26 @@ def stamp(mission: Mission, now_s: float, delay_s: float, version: int | None = 
                                effective_t=now_s + delay_s)
 
 
+def live_agents(session: zenoh.Session, keys: Keys, timeout_s: float = 2.0) -> set[str]:
+    """Robot ids of the agents whose liveliness tokens are up now."""
+    prefix = keys.alive("agent", "")
+    return {str(r.ok.key_expr)[len(prefix):] for r in
+            session.liveliness().get(keys.alive("agent"), timeout=timeout_s) if r.ok is not None}
+
+
+def robot_set_mismatch(mission: Mission, live: set[str]) -> str | None:
+    """Why the mission's robots do not match the live agents, or None when they do."""
+    named = set(mission.robot_ids)
+    if named == live:
+        return None
+    parts = []
+    if named - live:
+        parts.append(f"names robots with no live agent: {sorted(named - live)}")
+    if live - named:
+        parts.append(f"leaves out live agents: {sorted(live - named)}")
+    return "the mission " + " and ".join(parts)
+
+
 def publish_mission(session: zenoh.Session, keys: Keys, mission: Mission) -> None:
     session.put(keys.mission, encode_mission(mission), **RELIABLE_QOS)
 
@@ -47,6 +71,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--fleet", default="demo")
     p.add_argument("--delay", type=float, default=0.5, help="effective_t = now + delay [s]")
     p.add_argument("--version", type=int, default=None)
+    p.add_argument("--force", action="store_true",
+                   help="publish even if the mission's robots do not match the live agents")
     add_zenoh_args(p)
     args = p.parse_args(argv)
     init_logging()
@@ -57,6 +83,11 @@ def main(argv: list[str] | None = None) -> int:
         log.error("cannot load mission: %s", exc)
         return 2
     with zenoh.open(zenoh_config(args)) as session:
+        if not args.force:
+            why = robot_set_mismatch(mission, live_agents(session, keys))
+            if why is not None:
+                log.error("%s; nothing published (use --force to publish anyway)", why)
+                return 2
         publish_mission(session, keys, mission)
     log.info("published mission v%d on %s", mission.version, keys.mission)
     return 0

@@ -152,7 +152,7 @@ def test_mission_set_publishes_a_scenario_mission_that_a_subscriber_decodes(flee
     try:
         before = time.time()
         out = subprocess.run(child_command("mission", "set", str(E2E), "--fleet", fleet.keys.fleet,
-                                           "--delay", "2.0", *fleet.flags),
+                                           "--delay", "2.0", "--force", *fleet.flags),
                              capture_output=True, text=True, timeout=30)
         assert out.returncode == 0, out.stderr
         assert arrived.wait(timeout=10)
@@ -176,3 +176,18 @@ def test_mission_set_refuses_a_malformed_file_with_a_clear_message(tmp_path):
                          capture_output=True, text=True, timeout=30)
     assert out.returncode == 2
     assert "unknown metric" in out.stderr
+
+
+def test_mission_set_refuses_a_mission_whose_robots_do_not_match_the_live_agents(fleet):
+    import subprocess
+
+    from fleetctl.run import child_command
+
+    fleet.start_agent("r1")
+    fleet.start_agent("r2")
+    fleet.wait_alive("agent", ("r1", "r2"))
+    out = subprocess.run(child_command("mission", "set", str(E2E), "--fleet", fleet.keys.fleet,
+                                       *fleet.flags), capture_output=True, text=True, timeout=30)
+    assert out.returncode == 2
+    assert "names robots with no live agent: ['r3']" in out.stderr
+    assert fleet.observed.state == []
