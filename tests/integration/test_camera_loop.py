@@ -1,0 +1,113 @@
+"""Closed loop on camera poses: simfleet -> rendered overhead frames -> ArUco tracker -> agents -> simfleet.
+
+The tracker is `vsfleet tracker camera --source render`: it draws the fleet's
+truth through the synthetic camera of deploy/camera/overhead.toml and detects
+the markers with cv2.aruco, calibrated from the rendered reference markers. The run is
+scenarios/paper-triangle.toml, the paper's Figures 9 and 10.
+"""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+import pytest
+
+cv2 = pytest.importorskip("cv2")
+
+from tracker.calibrate import calibrate_frames  # noqa: E402
+from tracker.markers import load_config  # noqa: E402
+from tracker.render import Renderer, reference_scene, sim_camera_from_dict  # noqa: E402
+from vsfleet.analysis import deviation_stats, fitted_truth, goal_distance, truth_frames  # noqa: E402
+from vsfleet.geometry import angle_diff  # noqa: E402
+from vsfleet.wire import decode_pose  # noqa: E402
+
+from .harness import LoopbackFleet  # noqa: E402
+
+pytestmark = pytest.mark.integration
+
+ROOT = Path(__file__).parent.parent.parent
+PAPER = ROOT / "scenarios" / "paper-triangle.toml"
+CAMERA = ROOT / "deploy" / "camera" / "overhead.toml"
+# The paper's real robots reached 2.5 cm (the bound of the simulated tracker's closed loop in
+# tests/integration/test_fleet.py). Measured on camera poses: 0.80-0.97 cm max in 3 runs (docs/tracker.md).
+MAX_DEVIATION_M = 0.025
+GOAL_TOL_M = 0.01
+GOAL_TH_TOL_RAD = 0.02
+STILL_M_S = 0.002
+
+
+def settled(mission):
+    """Predicate: the truth-fitted structure is at the goal and every wheel is still."""
+    robots = mission.robot_ids
+
+    def pred(obs):
+        last = {}
+        for _, r, m in reversed(obs.truth[-60:]):
+            last.setdefault(r, m)
+        if set(last) != set(robots) or any(abs(m.vl) > STILL_M_S or abs(m.vr) > STILL_M_S for m in last.values()):
+            return None
+        fitted = fitted_truth(mission, truth_frames(list(last.items())))
+        if not fitted:
+            return None
+        pose = fitted[-1][1]
+        ok = goal_distance(mission, pose) <= GOAL_TOL_M and abs(angle_diff(mission.goal[2], pose.th)) <= GOAL_TH_TOL_RAD
+        return pose if ok else None
+    return pred
+
+
+def test_the_fleet_keeps_formation_and_reaches_the_goal_on_camera_poses(tmp_path):
+    config = load_config(CAMERA)
+    renderer = Renderer(sim_camera_from_dict(config.sim_camera), config.dictionary)
+    calibration = calibrate_frames([renderer.render(reference_scene(config), 0.0)], config,
+                                   renderer.camera.intrinsics)
+    cal_path = tmp_path / "calibration.json"
+    calibration.save(cal_path)
+
+    fleet = LoopbackFleet(PAPER, tmp_path)
+    poses, lock = [], threading.Lock()
+
+    def on_pose(sample):
+        msg = decode_pose(sample.payload.to_bytes())
+        with lock:
+            poses.append(msg)
+
+    pose_sub = fleet.router.declare_subscriber(fleet.keys.pose(), on_pose)
+    robots = fleet.mission.robot_ids
+    try:
+        fleet.start("sim", "sim", str(PAPER))
+        fleet.start("tracker", "tracker", "camera", "--camera", str(CAMERA), "--calibration", str(cal_path),
+                    "--source", "render", "--rate", str(fleet.scenario.tracker.rate_hz),
+                    "--fleet", fleet.scenario.fleet)
+        for r in robots:
+            fleet.start_agent(r)
+        fleet.wait_alive("agent", robots)
+        fleet.wait_alive("tracker", [config.src])
+        fleet.publish_mission()
+        at_goal = fleet.observed.wait_for(settled(fleet.mission), timeout_s=fleet.scenario.duration_s)
+        states = list(fleet.observed.state)
+    except TimeoutError:
+        pytest.fail("fleet did not settle at the goal\n" + fleet.logs())
+    finally:
+        pose_sub.undeclare()
+        fleet.close()
+
+    truth = [(r, m) for _, r, m in fleet.observed.truth]
+    fitted = fitted_truth(fleet.mission, truth_frames(truth))
+    # formation is judged from when the agents first commanded (before that the robots sit at their starts)
+    t_first = min(s.t for _, _, s in states)
+    stats = deviation_stats([f for f in fitted if f[0] >= t_first])
+    for d in stats:
+        print(f"{d.robot}: deviation mean {100 * d.mean_m:.2f} cm, max {100 * d.max_m:.2f} cm over {d.samples}")
+    assert len(stats) == 3
+    assert all(d.max_m < MAX_DEVIATION_M for d in stats), fleet.logs()
+    assert goal_distance(fleet.mission, at_goal) <= GOAL_TOL_M
+    with lock:
+        seen = list(poses)
+    assert seen and {p.src for p in seen} == {config.src}
+    by_seq = {}
+    for p in seen:
+        by_seq.setdefault(p.seq, set()).add(p.t)
+    assert all(len(ts) == 1 for ts in by_seq.values())  # one capture time per frame
+    complete = sum(1 for _, _, s in states if s.complete)
+    assert complete > 0.9 * len(states)

@@ -1,0 +1,114 @@
+"""vsfleet tracker calibrate: the floor calibration from reference markers at known floor positions.
+
+Reads one image (or up to ``--frames`` frames of a video, camera or stream,
+averaging the corners), finds the config's ``[[references]]`` markers and fits
+a homography, or with ``--intrinsics`` the camera's floor pose (pinhole
+model). Writes the calibration JSON and reports the reprojection error on the
+floor in mm.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .calib import CalibrationError, FloorCalibration, Intrinsics, fit_calibration
+from .camera import IMAGE_SUFFIXES, CameraOpenError, is_live, quiet_opencv
+from .markers import CameraConfig, ConfigError, FrameError, MarkerDetector, as_gray, load_config
+
+log = logging.getLogger("vsfleet.tracker.calibrate")
+
+
+def read_frames(source: str, n_frames: int) -> list[np.ndarray]:
+    """Up to ``n_frames`` frames of an image file, video file, camera index or stream URL."""
+    if not is_live(source) and not Path(source).exists():
+        raise CameraOpenError(f"no such image or video file {source!r}")
+    if Path(source).suffix.lower() in IMAGE_SUFFIXES:
+        image = cv2.imread(source, cv2.IMREAD_UNCHANGED)
+        if image is None:
+            raise CameraOpenError(f"cannot read image {source!r}")
+        return [image]
+    cap = cv2.VideoCapture(int(source) if source.isdigit() else source)
+    try:
+        if not cap.isOpened():
+            raise CameraOpenError(f"cannot open camera source {source!r}")
+        frames = []
+        while len(frames) < n_frames:
+            ok, image = cap.read()
+            if not ok or image is None:
+                break
+            frames.append(image)
+    finally:
+        cap.release()
+    if not frames:
+        raise CameraOpenError(f"camera source {source!r} gave no frame")
+    return frames
+
+
+def calibrate_frames(frames: list[np.ndarray], config: CameraConfig,
+                     intrinsics: Intrinsics | None = None) -> FloorCalibration:
+    """Detect the references in every frame, average each one's corners, and fit the calibration."""
+    if not config.references:
+        raise ConfigError("the camera config lists no [[references]]")
+    detector = MarkerDetector(config.dictionary)
+    wanted = {r.marker_id for r in config.references}
+    seen: dict[int, list[np.ndarray]] = {}
+    size = None
+    for image in frames:
+        gray = as_gray(image)
+        if size is not None and gray.shape != size:
+            raise FrameError("frames of different sizes")
+        size = gray.shape
+        for marker_id, quads in detector.detect(gray).items():
+            if marker_id in wanted and len(quads) == 1:
+                seen.setdefault(marker_id, []).append(quads[0])
+    mean = {i: np.mean(q, axis=0) for i, q in seen.items()}
+    return fit_calibration(mean, config.references, size[1], size[0], intrinsics)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="vsfleet tracker calibrate", description=__doc__.splitlines()[0])
+    p.add_argument("--camera", required=True, help="camera config TOML with [[references]]")
+    p.add_argument("--source", required=True, help="image file, video file, camera index or stream URL")
+    p.add_argument("--out", required=True, help="calibration JSON to write")
+    p.add_argument("--intrinsics", help="camera intrinsics JSON: fit the pinhole model (floor pose)")
+    p.add_argument("--frames", type=int, default=10, help="frames to average from a video or camera")
+    p.add_argument("--verbose", "-v", action="store_true")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    from fleetctl.zconf import init_logging
+
+    args = build_parser().parse_args(argv)
+    init_logging(args.verbose)
+    quiet_opencv(args.verbose)
+    try:
+        if args.frames < 1:
+            raise ConfigError("--frames must be >= 1")
+        config = load_config(args.camera)
+        intrinsics = Intrinsics.load(args.intrinsics) if args.intrinsics else None
+        frames = read_frames(args.source, args.frames)
+        calibration = calibrate_frames(frames, config, intrinsics)
+        calibration.save(args.out)
+    except (ConfigError, CalibrationError, CameraOpenError, FrameError) as exc:
+        log.error("%s", exc)
+        return 2
+    except OSError as exc:
+        log.error("cannot write %s: %s", args.out, exc.strerror or exc)
+        return 2
+    e = calibration.error_mm
+    print(f"{calibration.model} calibration from {len(e['markers'])} reference markers "
+          f"({e['points']} corners, {len(frames)} frame(s)) written to {args.out}")
+    print(f"reprojection error on the floor: mean {e['mean']:.2f} mm, rms {e['rms']:.2f} mm, max {e['max']:.2f} mm")
+    sys.stdout.flush()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
