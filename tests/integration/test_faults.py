@@ -182,10 +182,6 @@ def test_a_stopped_robot_is_dropped_by_every_agent_on_the_same_frame_and_the_res
     drops = fleet.observed.wait_for(
         lambda o: {by: e for _, by, e in o.event if e.kind == "drop" and e.robot == "r2"}
         if len({by for _, by, e in o.event if e.kind == "drop"}) == 3 else None, timeout_s=20)
-    by_agent = {r: {m.seq: m.complete for _, a, m in fleet.observed.state if a == r} for r in ROBOTS}
-    seqs = range(min(e.seq for e in drops.values()) - 70, max(e.seq for e in drops.values()) + 1)
-    print({r: ([s for s in seqs if s not in got], [s for s in seqs if got.get(s) is False])
-           for r, got in by_agent.items()})
     assert len({e.seq for e in drops.values()}) == 1, drops
     t_drop = next(iter(drops.values())).t
     fleet.observed.wait_for(
