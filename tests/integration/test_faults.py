@@ -123,7 +123,8 @@ def test_router_killed_and_restarted_robots_halt_during_the_outage_and_the_fleet
     halted = expiries(sim_log, t_kill)
     print(f"router down {t_restart - t_kill:.2f} s; robots halted "
           f"{ {r: round(t - t_kill, 3) for r, t in halted.items()} } s after the kill; "
-          f"state again {t_back - t_restart:.2f} s after the restart")
+          f"state again {t_back - t_restart:.2f} s after the restart; max error after it "
+          f"{max_state_err_m(fleet.observed, t_restart) * 100:.2f} cm")
     assert set(halted) == set(ROBOTS), sim_log[-2000:]
     for r, t in halted.items():
         assert t - t_kill <= TTL_S + 0.05, (r, t - t_kill)
