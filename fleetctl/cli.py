@@ -14,6 +14,7 @@ COMMANDS = {
     "render": ("tracker.render", "synthetic overhead camera frames of the simulated fleet"),
     "run": ("fleetctl.run", "the localhost multi-process fleet from a scenario"),
     "router": ("fleetctl.router", "a zenoh router (router-mode zenoh-python session)"),
+    "deploy config": ("fleetctl.deploy", "zenoh configs with logins and access control for real hosts"),
     "mission set": ("fleetctl.mission_cmd", "publish a mission file"),
     "record": ("fleetctl.record", "record a fleet's key space into an MCAP file"),
     "replay": ("fleetctl.replay", "publish a recording back into a key space"),
@@ -31,7 +32,14 @@ def main(argv: list[str] | None = None) -> int:
     for n_words in (2, 1):
         name = " ".join(argv[:n_words])
         if len(argv) >= n_words and name in COMMANDS:
-            module = importlib.import_module(COMMANDS[name][0])
+            try:
+                module = importlib.import_module(COMMANDS[name][0])
+            except ModuleNotFoundError as exc:
+                if (exc.name or "").split(".")[0] != "cv2":
+                    raise
+                print(f"vsfleet {name}: needs OpenCV, which is not installed: install vsfleet[camera] "
+                      "(pip install '.[camera]')", file=sys.stderr)
+                return 2
             return int(module.main(argv[n_words:]) or 0)
     print(USAGE, file=sys.stderr)
     return 0 if argv[:1] in (["-h"], ["--help"]) else 2

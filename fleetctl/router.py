@@ -55,11 +55,17 @@ def main(argv: list[str] | None = None) -> int:
     init_logging(args.verbose)
     if args.mode is None and not args.config:
         args.mode = "router"
-    conf = zenoh_config(args)
-    conf.insert_json5("adminspace/enabled", "true")
+    try:
+        conf = zenoh_config(args)
+        conf.insert_json5("adminspace/enabled", "true")
+        session = zenoh.open(conf)
+    except zenoh.ZError as exc:  # a bad config file, a missing password dictionary or certificate
+        log.error("cannot start the router: %s", exc)
+        return 1
     stop = StopFlag()
-    with zenoh.open(conf) as session:
-        log.info("router up, zid %s", session.info.zid())
+    with session:
+        acl = conf.get_json("access_control/enabled") == "true"
+        log.info("router up, zid %s, access control %s", session.info.zid(), "on" if acl else "off")
         while not stop.wait(1.0):
             pass
     return 0
