@@ -48,6 +48,7 @@ from .frames import Frame, FrameAssembler, MissionBook
 log = logging.getLogger("vsfleet.agent")
 
 DEFAULT_TTL_S = 0.3
+RESYNC_GAP_S = 1.0  # a longer gap between frames run: this agent may have missed its peers' decisions
 DEFAULT_DT_S = 1.0 / 30.0
 QUEUE_MAX = 4096
 
@@ -87,6 +88,9 @@ class Agent:
         self.mission_payload: bytes | None = None
         self.health_payload: bytes | None = None  # answers health queries; swapped in after each tick
         self.health_adopted = False
+        self.want_health = True   # ask the peers for their failure state (at start, and after a gap)
+        self.resyncing = False    # after a gap: adopt only which robots are failed or dropped
+        self.last_frame_t = float("-inf")
         self.stale_logged = 0
         self.unnamed_logged: set[int] = set()
         self._controllers: dict[str, object] = {}
@@ -134,8 +138,8 @@ class Agent:
             return
         if self.health_adopted or msg.mission not in self.missions.by_version:
             return
-        self.health = Health(since_t=dict(msg.since), failed=frozenset(msg.failed),
-                             dropped=frozenset(msg.dropped))
+        since = self.health.since_t if self.resyncing else dict(msg.since)
+        self.health = Health(since_t=since, failed=frozenset(msg.failed), dropped=frozenset(msg.dropped))
         self.health_adopted = True
         log.info("adopted peers' failure state at frame %d: failed %s, dropped %s", msg.seq,
                  sorted(msg.failed), sorted(msg.dropped))
@@ -190,6 +194,15 @@ class Agent:
             # a gap longer than ttl: every robot has halted since the last commands
             self.wheels_prev = (0.0, 0.0)
             self.predicted = {}
+        if frame.t - self.last_frame_t > RESYNC_GAP_S and self.last_frame_t > float("-inf"):
+            # this agent (or the whole fleet) saw no frame for a while: restart the failure
+            # timers and the motion window, and ask the peers which robots they failed or dropped
+            log.warning("frame %d: no frame for %.2f s; restarting failure timers and asking peers "
+                        "for their failure state", frame.seq, frame.t - self.last_frame_t)
+            self.motion = Motion()
+            self.health = Health(failed=self.health.failed, dropped=self.health.dropped)
+            self.health_adopted, self.want_health, self.resyncing = False, True, True
+        self.last_frame_t = frame.t
         poses = {r: p for r, p in frame.poses.items() if r in mission.robot_ids}
         try:
             result = control_step(mission, poses, self.robot, frame.t, self.dt_s,
@@ -291,7 +304,6 @@ def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFla
         log.info("agent %s up (fleet %s)", robot, fleet)
         next_fetch = 0.0
         fetcher: threading.Thread | None = None
-        health_asked = False
         try:
             while not stop.is_set():
                 now = agent.clock()
@@ -301,8 +313,8 @@ def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFla
                                                                    inbox, 1.0), daemon=True)
                     fetcher.start()
                     next_fetch = now + 1.0
-                elif agent.missions.latest() is not None and not health_asked and idle:
-                    health_asked = True  # once: a restarted agent takes its peers' failure state
+                elif agent.missions.latest() is not None and agent.want_health and idle:
+                    agent.want_health = False  # a (re)started or resynced agent takes its peers' state
                     fetcher = threading.Thread(target=fetch, args=(session, keys.health, "health",
                                                                    inbox, 1.0), daemon=True)
                     fetcher.start()

@@ -168,3 +168,19 @@ def test_a_mission_with_a_robot_listed_twice_is_rejected():
     payload = bytes([0x80 | (len(body) + 1)]) + msgpack.packb(body)[1:] + msgpack.packb("robots") + robots
     agent.on_message("mission", KEYS.mission, payload)
     assert agent.rejections.count == 1 and agent.missions.latest().version == 1
+
+
+def test_after_a_long_gap_the_agent_restarts_its_timers_and_adopts_only_its_peers_decisions():
+    agent, cmds, states, clock = make_agent()
+    frame(agent, clock, 1, 100.0, POSES)
+    agent.want_health = False                                   # the start-up query was made
+    agent.health = Health(since_t={"r3": 99.5})
+    frame(agent, clock, 2, 105.0, POSES)                        # 5 s without a frame (a partition)
+    assert agent.want_health and agent.resyncing and not agent.health_adopted
+    assert "r3" not in agent.health.since_t
+    peer, _, _, peer_clock = make_agent()
+    peer.health = Health(since_t={"r1": 104.0}, failed=frozenset({"r1"}), dropped=frozenset({"r1"}))
+    frame(peer, peer_clock, 2, 105.0, {**POSES, "r1": (0.0, 0.0, 0.0)})
+    agent.on_message("health", KEYS.health, peer.health_payload)
+    assert agent.health.dropped == {"r1"}                       # the decision it missed
+    assert "r1" not in agent.health.since_t                     # but its own timers

@@ -104,3 +104,21 @@ def test_an_agent_that_missed_a_frame_reaches_the_same_progress_ratio_and_fails_
     ratios = dict((k, r) for k, r, _ in full)
     diffs = [abs(r - ratios[k]) for k, r, _ in missed if r is not None and ratios[k] is not None]
     assert max(diffs) < 1e-2
+
+
+def test_when_every_robot_in_the_fit_is_off_the_structure_is_blamed_not_a_robot():
+    from vsfleet.failure import FailurePolicy, Health, update_health
+
+    policy = FailurePolicy("drop")
+    health, made = Health(), []
+    for k in range(100):                                    # 3.3 s, everyone 7 cm off
+        health, d = update_health(policy, health, {"r1": 0.07, "r2": 0.07, "r3": 0.07},
+                                  ("r1", "r2", "r3"), 100.0 + k / 30)
+        made += d
+    assert made == []
+    for k in range(100, 200):                               # now only r2 is off
+        health, d = update_health(policy, health, {"r1": 0.01, "r2": 0.07, "r3": 0.01},
+                                  ("r1", "r2", "r3"), 100.0 + k / 30)
+        made += d
+    assert [(x.robot, x.kind) for x in made] == [("r2", "fail"), ("r2", "drop")]
+    assert abs(made[0].t - (100.0 + 100 / 30 + 2.0)) < 0.05

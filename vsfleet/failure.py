@@ -6,7 +6,9 @@ same frame. The rule is:
 - A robot is **non-compliant** in a frame when either:
   - its distance to its structure point exceeds ``fail_deviation_m`` (for a robot
     already dropped from the fit, its point on the structure fitted to the
-    others); or
+    others), while at least one other robot in the fit is within it. When every
+    robot in the fit is off by more, the structure is off, not one robot (under
+    ``linf`` the residuals even out), and the test says nothing; or
   - it does not move as commanded. Every agent predicts every robot's command
     (the same deterministic function its own agent runs) and so the
     displacement each command should produce in one frame. Over the last
@@ -142,6 +144,8 @@ def update_health(policy: FailurePolicy, health: Health, deviations_m: Mapping[s
     since = dict(health.since_t)
     failed, dropped = set(health.failed), set(health.dropped)
     decisions: list[Decision] = []
+    in_fit = [deviations_m[r] for r in robots if r not in dropped and r in deviations_m]
+    structure_off = len(in_fit) >= 2 and min(in_fit) > policy.fail_deviation_m
     for r in robots:
         d = deviations_m.get(r, math.inf)
         if r in dropped:
@@ -158,7 +162,7 @@ def update_health(policy: FailurePolicy, health: Health, deviations_m: Mapping[s
                 since.pop(r, None)
             continue
         stuck = progress.get(r, 1.0) < policy.min_progress_ratio
-        if d > policy.fail_deviation_m or stuck:
+        if (d > policy.fail_deviation_m and not (structure_off and math.isfinite(d))) or stuck:
             start = since.setdefault(r, t - (policy.fail_after_s if stuck else 0.0))
             if r not in failed and t - start >= policy.fail_after_s:
                 failed.add(r)
