@@ -20,7 +20,9 @@ test: $(STAMP)
 bench-fit: $(STAMP)
 	$(BIN)/python bench/fit.py
 
-bench: bench-fit
+# every benchmark -> docs/benchmarks.md + docs/bench/*.png (20-40 min; BENCH_ARGS=--quick for a short run)
+bench: $(STAMP)
+	$(BIN)/python -m bench.run_all $(BENCH_ARGS)
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache .hypothesis

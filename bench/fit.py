@@ -65,7 +65,8 @@ def run_powell(p, r, metric):
     return x
 
 
-def main() -> int:
+def measure(log=lambda line: print(line, file=sys.stderr, flush=True)) -> list[tuple]:
+    """Rows (n, metric, ours_s, powell_s, time ratio powell/ours, our cost, powell cost); progress to ``log``."""
     rows = []
     jobs, done, start = len(SIZES) * len(METRICS), 0, time.perf_counter()
     for n in SIZES:
@@ -74,7 +75,7 @@ def main() -> int:
         for metric in METRICS:
             elapsed = time.perf_counter() - start
             eta = f"ETA {elapsed / done * (jobs - done):.0f} s" if done else "ETA ?"
-            print(f"[{done + 1}/{jobs}] n={n:<5} {metric:<5} {eta}", file=sys.stderr, flush=True)
+            log(f"[fit {done + 1}/{jobs}] n={n:<5} {metric:<5} {eta}")
             done += 1
             fit_structure(p, r, metric)  # warm caches
             t_ours, t_powell = [], []
@@ -97,6 +98,11 @@ def main() -> int:
             mo = statistics.median(t_ours)
             mp = statistics.median(t_powell)
             rows.append((n, metric, mo, mp, mp / mo, ours_cost, powell_cost))
+    return rows
+
+
+def main() -> int:
+    rows = measure()
     head = f"{'n':>5} {'metric':<6} {'ours [ms]':>10} {'powell [ms]':>12} {'ratio':>8} {'our cost':>14} {'powell cost':>14}"
     print(head)
     print("-" * len(head))

@@ -1,0 +1,1 @@
+"""Benchmarks (``make bench``): fit speed, loop latency, scale, precision, leader-follower baseline."""

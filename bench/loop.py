@@ -1,0 +1,479 @@
+"""Loop latency and scale: real `vsfleet agent` processes against a scripted tracker and fleet.
+
+This process plays the tracker and simfleet's receiving side: it opens an
+embedded loopback router (fleetctl.router, as `vsfleet run` does), connects two
+client sessions to it (a "tracker" that publishes vs/<fleet>/pose/<robot> and a
+"sim" that subscribes to vs/<fleet>/cmd/** and state/**), and starts N real
+agent processes (fleetctl.run.child_command) as clients of that router. So a
+frame goes tracker client -> router -> N agents -> router -> sim client, the
+same path as in `vsfleet run`.
+
+Each frame publishes every robot's pose with one shared ``seq``; the robots
+move by a kinematic model (each robot integrates its latest fresh command
+exactly, vsfleet.kinematics.integrate_arc, over one frame period), observed
+with 1 mm / 5 mrad Gaussian noise. The mission: robots on a circle, metric l2,
+the default controller, goal 1 km ahead, so every robot keeps moving.
+
+Latency of a (frame, robot) = receipt of that robot's cmd with the frame's
+``seq`` - the moment just before the frame's first pose is put (one clock,
+time.perf_counter, in this process). A (frame, robot) with no cmd for that
+``seq`` is missed. Agents' ``state`` messages say whether they ran the frame
+complete or on their deadline.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import msgpack
+import numpy as np
+import zenoh
+
+from fleetctl.mission_cmd import stamp
+from fleetctl.router import open_loopback_router
+from fleetctl.run import child_command
+from fleetctl.zconf import RELIABLE_QOS, STREAM_QOS, add_zenoh_args, zenoh_config, zenoh_flags
+from vsfleet.geometry import Pose2
+from vsfleet.kinematics import integrate_arc
+from vsfleet.wire import (
+    Keys,
+    Mission,
+    PoseMsg,
+    RobotSpec,
+    WireError,
+    decode_cmd,
+    decode_state,
+    encode,
+    encode_mission,
+)
+
+ROOT = Path(__file__).resolve().parent.parent
+CLK_TCK = os.sysconf("SC_CLK_TCK")
+WHEEL_BASE_M = 0.12
+NOISE_XY_M = 0.001
+NOISE_TH_RAD = 0.005
+CMD_TTL_S = 0.3   # the agents' default ttl: an older command counts as zero
+SPACING_M = 0.3   # neighbours on the template circle are at least this far apart
+
+
+# ---------------------------------------------------------------- pure helpers
+
+
+def circle_template(n: int, spacing_m: float = SPACING_M) -> list[tuple[str, tuple[float, float]]]:
+    """Robots r1..rn evenly on a circle whose neighbours are >= spacing_m apart (radius >= 0.3 m)."""
+    radius = max(0.3, spacing_m / (2.0 * math.sin(math.pi / n))) if n > 1 else 0.0
+    return [(f"r{i + 1}", (radius * math.cos(2 * math.pi * i / n), radius * math.sin(2 * math.pi * i / n)))
+            for i in range(n)]
+
+
+def bench_mission(n: int, now_s: float) -> Mission:
+    robots = tuple(sorted((r, RobotSpec(p, WHEEL_BASE_M, 0.3, 0.8)) for r, p in circle_template(n)))
+    m = Mission(version=1, metric="l2", robots=robots, speed_max=0.08, turn_rate_max=0.3, effective_t=0.0,
+                goal=(1000.0, 0.0, 0.0))
+    return stamp(m, now_s, 0.0, version=1)
+
+
+def percentiles_s(x: np.ndarray) -> dict[str, float]:
+    """p50, p99 and max [s] of a sample (NaN when empty)."""
+    if x.size == 0:
+        return {"p50": math.nan, "p99": math.nan, "max": math.nan}
+    return {"p50": float(np.percentile(x, 50)), "p99": float(np.percentile(x, 99)), "max": float(x.max())}
+
+
+def messages_per_frame(n: int, state_subscribed: bool = True) -> dict[str, int]:
+    """Messages per tracker frame for n robots: published, and delivered by the router.
+
+    Every agent subscribes to every pose (fan-out n^2); cmd goes to the fleet (simfleet),
+    state to whoever records or monitors.
+    """
+    published = 3 * n  # n poses, n cmds, n states
+    delivered = n * n + n + (n if state_subscribed else 0)
+    return {"published": published, "delivered": delivered}
+
+
+def proc_cpu_s(pid: int | str) -> float:
+    """User + system CPU time [s] of a process (all its threads), from /proc/<pid>/stat."""
+    stat = Path(f"/proc/{pid}/stat").read_text()
+    rest = stat[stat.rfind(")") + 2:].split()
+    return (int(rest[11]) + int(rest[12])) / CLK_TCK
+
+
+def proc_rss_mib(pid: int | str) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024.0
+    return math.nan
+
+
+def machine_busy_s() -> tuple[float, float]:
+    """(busy, total) CPU seconds of the whole machine since boot, from /proc/stat."""
+    v = [int(x) for x in Path("/proc/stat").read_text().splitlines()[0].split()[1:9]]
+    total = sum(v)
+    return (total - v[3] - v[4]) / CLK_TCK, total / CLK_TCK
+
+
+# ---------------------------------------------------------------- the fleet
+
+
+@dataclass(frozen=True)
+class LoopRun:
+    """One run: n agents at rate_hz for `frames` measured frames."""
+
+    robots: int
+    rate_hz: float
+    frames: int
+    latency_s: np.ndarray          # per answered (frame, robot)
+    frame_latency_s: np.ndarray    # per fully answered frame: its last cmd's latency
+    publish_s: np.ndarray          # per frame: time to put all n poses
+    missed: int                    # (frame, robot) pairs never answered
+    frames_missed: int             # frames with at least one robot unanswered
+    late: int                      # answered pairs with latency > one period
+    incomplete: int                # agent states of measured frames run on the deadline (complete false)
+    states: int
+    agent_cpu_s_per_tick: np.ndarray   # per agent: CPU time / measured frames
+    agent_cpu_s_per_answer: np.ndarray # per agent: CPU time / frames it answered
+    agent_rss_mib: np.ndarray          # per agent, at the end
+    bench_cpu_s_per_frame: float       # this process (router, tracker, sim side)
+    others_cores: float                # CPU cores busy with other processes of the machine meanwhile
+    wall_s: float
+
+    @property
+    def period_s(self) -> float:
+        return 1.0 / self.rate_hz
+
+    @property
+    def missed_share(self) -> float:
+        return self.missed / max(1, self.frames * self.robots)
+
+    @property
+    def holds(self) -> bool:
+        """Every frame answered by every agent, and p99 latency within one period."""
+        return self.missed == 0 and self.latency_s.size > 0 and percentiles_s(self.latency_s)["p99"] < self.period_s
+
+    @property
+    def nearly_holds(self) -> bool:
+        """At most 0.1% of (frame, robot) pairs missed, and p99 latency within one period."""
+        return (self.missed_share <= 0.001 and self.latency_s.size > 0
+                and percentiles_s(self.latency_s)["p99"] < self.period_s)
+
+
+def _client_config(endpoint: str) -> zenoh.Config:
+    p = argparse.ArgumentParser()
+    add_zenoh_args(p)
+    return zenoh_config(p.parse_args(zenoh_flags(endpoint)))
+
+
+class _Sink:
+    """The sim side: every cmd and state with its arrival time, and each robot's latest wheels."""
+
+    def __init__(self, keys: Keys) -> None:
+        self.cmd_head = f"{keys.prefix}/cmd/"
+        self.cmds: list[tuple[float, str, bytes]] = []
+        self.states: list[tuple[str, bytes]] = []
+        self.wheels: dict[str, tuple[float, float, float]] = {}  # robot -> (vl, vr, arrival)
+
+    def on_cmd(self, sample: zenoh.Sample) -> None:
+        t = time.perf_counter()
+        key, payload = str(sample.key_expr), sample.payload.to_bytes()
+        self.cmds.append((t, key, payload))
+        try:
+            m = msgpack.unpackb(payload)
+            self.wheels[key[len(self.cmd_head):]] = (float(m["vl"]), float(m["vr"]), t)
+        except Exception:  # noqa: BLE001 - validated after the run
+            pass
+
+    def on_state(self, sample: zenoh.Sample) -> None:
+        self.states.append((str(sample.key_expr), sample.payload.to_bytes()))
+
+
+def _wait(predicate, timeout_s: float, what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not predicate():
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"{what} not within {timeout_s:.0f} s")
+        time.sleep(0.05)
+
+
+def _pace_until(t: float) -> None:
+    dt = t - time.perf_counter()
+    if dt > 0:
+        time.sleep(dt)
+
+
+def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2.0, seed: int = 0,
+             label: str = "loop") -> LoopRun:
+    """Start n agents, warm up, then measure `frames` frames at rate_hz."""
+    fleet = "bench"
+    keys = Keys(fleet)
+    period = 1.0 / rate_hz
+    rng = np.random.default_rng(seed)
+    router, endpoint = open_loopback_router()
+    procs: dict[str, subprocess.Popen] = {}
+    log_dir = Path(tempfile.mkdtemp(prefix=f"vsfleet-bench-{n}-"))
+    sessions = []
+    alive: set[str] = set()
+
+    def on_alive(sample: zenoh.Sample) -> None:
+        (alive.add if sample.kind == zenoh.SampleKind.PUT else alive.discard)(str(sample.key_expr))
+
+    try:
+        alive_sub = router.liveliness().declare_subscriber(keys.alive("agent"), on_alive, history=True)
+        mission = bench_mission(n, time.time())
+        payload = encode_mission(mission)
+        queryable = router.declare_queryable(keys.mission, lambda q: q.reply(keys.mission, payload),
+                                             complete=True)
+        tracker_s = zenoh.open(_client_config(endpoint))
+        sim_s = zenoh.open(_client_config(endpoint))
+        sessions += [tracker_s, sim_s]
+        sink = _Sink(keys)
+        subs = [sim_s.declare_subscriber(keys.cmd(), sink.on_cmd),
+                sim_s.declare_subscriber(keys.state(), sink.on_state)]
+        ids = mission.robot_ids
+        pubs = {r: tracker_s.declare_publisher(keys.pose(r), **STREAM_QOS) for r in ids}
+        env = dict(os.environ, PYTHONUNBUFFERED="1")
+        for r in ids:
+            with (log_dir / f"agent-{r}.log").open("wb") as out:
+                procs[r] = subprocess.Popen(
+                    child_command("agent", "--robot", r, "--fleet", fleet, "--dt", repr(period),
+                                  *zenoh_flags(endpoint)),
+                    stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env, cwd=ROOT,
+                    start_new_session=True)
+        t_start = time.monotonic()
+        want = {keys.alive("agent", r) for r in ids}
+        _wait(lambda: want <= alive or any(p.poll() is not None for p in procs.values()),
+              60.0 + 4.0 * n, f"{n} agents alive")
+        dead = [r for r, p in procs.items() if p.poll() is not None]
+        if dead:
+            raise RuntimeError(f"agents exited at start: {dead}; logs in {log_dir}")
+        router.put(keys.mission, payload, **RELIABLE_QOS)
+        log(f"[{label}] {n} agents up in {time.monotonic() - t_start:.0f} s; warming up")
+
+        poses = {r: Pose2(*mission.spec(r).p, 0.0) for r in ids}
+        seq = 0
+        t_pub: dict[int, float] = {}
+        publish: list[float] = []
+
+        def frame(next_t: float) -> float:
+            nonlocal seq
+            _pace_until(next_t)
+            now = time.perf_counter()
+            for r in ids:  # kinematics: each robot drives its latest fresh command for one period
+                w = sink.wheels.get(r)
+                if w is not None and now - w[2] <= CMD_TTL_S:
+                    poses[r] = integrate_arc(poses[r], w[0], w[1], period, WHEEL_BASE_M)
+            seq += 1
+            noise = rng.normal(0.0, 1.0, (len(ids), 3)) * (NOISE_XY_M, NOISE_XY_M, NOISE_TH_RAD)
+            tw = time.time()
+            t0 = time.perf_counter()
+            for i, r in enumerate(ids):
+                p = poses[r]
+                pubs[r].put(encode(PoseMsg(t=tw, seq=seq, x=p.x + noise[i, 0], y=p.y + noise[i, 1],
+                                           th=p.th + noise[i, 2], src="bench")))
+            t1 = time.perf_counter()
+            t_pub[seq] = t0
+            publish.append(t1 - t0)
+            nxt = next_t + period
+            return nxt if nxt > t1 else t1 + period  # fell behind: skip rather than burst
+
+        # warm-up: until every agent has answered, then warmup_s more
+        next_t = time.perf_counter()
+        deadline = time.monotonic() + 60.0 + 2.0 * n
+        while len(sink.wheels) < n:
+            next_t = frame(next_t)
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"only {len(sink.wheels)}/{n} agents answered; logs in {log_dir}")
+        for _ in range(int(warmup_s * rate_hz)):
+            next_t = frame(next_t)
+
+        # measurement
+        first = seq + 1
+        publish.clear()
+        cpu0 = {r: proc_cpu_s(p.pid) for r, p in procs.items()}
+        bench0 = time.process_time()
+        busy0, tot0 = machine_busy_s()
+        w0 = time.perf_counter()
+        report_every = max(1, int(10 * rate_hz))
+        for k in range(frames):
+            next_t = frame(next_t)
+            if (k + 1) % report_every == 0:
+                el = time.perf_counter() - w0
+                log(f"[{label}] frame {k + 1}/{frames}, {len(sink.cmds)} cmds received, "
+                    f"ETA {el / (k + 1) * (frames - k - 1):.0f} s")
+        _pace_until(next_t + 0.5)  # stragglers
+        wall = time.perf_counter() - w0
+        cpu1 = {r: proc_cpu_s(p.pid) for r, p in procs.items()}
+        bench_cpu = time.process_time() - bench0
+        busy1, tot1 = machine_busy_s()
+        rss = np.array([proc_rss_mib(p.pid) for p in procs.values()])
+        last = seq
+        for s in subs:
+            s.undeclare()
+        cmds, states = list(sink.cmds), list(sink.states)
+        queryable.undeclare()
+        alive_sub.undeclare()
+    finally:
+        for p in procs.values():
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+        for p in procs.values():
+            try:
+                p.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+        for s in sessions:
+            s.close()
+        router.close()
+
+    shutil.rmtree(log_dir, ignore_errors=True)  # kept only when the run failed
+
+    # ---- analysis (pure from here on)
+    answered: dict[tuple[int, str], float] = {}
+    head = keys.cmd("")
+    for t, key, payload in cmds:
+        try:
+            msg = decode_cmd(payload)
+        except WireError:
+            continue
+        robot = key[len(head):]
+        if first <= msg.seq <= last and (msg.seq, robot) not in answered:
+            answered[(msg.seq, robot)] = t - t_pub[msg.seq]
+    lat = np.array(list(answered.values()))
+    per_robot = {r: 0 for r in procs}
+    for _, robot in answered:
+        per_robot[robot] = per_robot.get(robot, 0) + 1
+    per_frame: dict[int, list[float]] = {}
+    for (s, _), v in answered.items():
+        per_frame.setdefault(s, []).append(v)
+    frame_lat = np.array([max(v) for v in per_frame.values() if len(v) == n])
+    measured = last - first + 1
+    incomplete = n_states = 0
+    for key, payload in states:
+        try:
+            st = decode_state(payload)
+        except WireError:
+            continue
+        if first <= st.seq <= last:
+            n_states += 1
+            incomplete += not st.complete
+    wall_cores = (tot1 - tot0) / os.cpu_count() if tot1 > tot0 else wall
+    own = sum(cpu1[r] - cpu0[r] for r in procs) + bench_cpu
+    return LoopRun(
+        robots=n, rate_hz=rate_hz, frames=measured, latency_s=lat, frame_latency_s=frame_lat,
+        publish_s=np.array(publish), missed=measured * n - len(answered),
+        frames_missed=measured - len(frame_lat), late=int((lat > period).sum()), incomplete=incomplete,
+        states=n_states, agent_cpu_s_per_tick=np.array([(cpu1[r] - cpu0[r]) / measured for r in procs]),
+        agent_cpu_s_per_answer=np.array([(cpu1[r] - cpu0[r]) / max(1, per_robot[r]) for r in procs]),
+        agent_rss_mib=rss, bench_cpu_s_per_frame=bench_cpu / measured,
+        others_cores=max(0.0, (busy1 - busy0) - own) / max(wall_cores, 1e-9), wall_s=wall)
+
+
+# ---------------------------------------------------------------- the zenoh floor
+
+
+@dataclass(frozen=True)
+class FloorRun:
+    """Round trips [s] of a plain message: this process -> router -> pong process -> router -> here."""
+
+    label: str
+    rate_hz: float | None          # None = back to back
+    rtt_s: np.ndarray
+    lost: int
+
+
+def run_floor(plans: list[tuple[str, float | None, int]], log=print) -> list[FloorRun]:
+    """Ping-pong through an embedded loopback router, one plan (label, rate or None, count) at a time."""
+    fleet = "bench"
+    keys = Keys(fleet)
+    router, endpoint = open_loopback_router()
+    alive: set[str] = set()
+    sessions, out = [], []
+    pong = None
+    try:
+        router.liveliness().declare_subscriber(keys.alive("pong"), lambda s: alive.add(str(s.key_expr)),
+                                               history=True)
+        pong = subprocess.Popen([sys.executable, "-m", "bench.zenoh_pong", "--fleet", fleet, *zenoh_flags(endpoint)],
+                                cwd=ROOT, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+                                stderr=subprocess.DEVNULL, start_new_session=True)
+        _wait(lambda: alive, 60.0, "pong process alive")
+        sess = zenoh.open(_client_config(endpoint))
+        sessions.append(sess)
+        got = threading.Event()
+        box: list[float] = [0.0]
+
+        def on_pong(sample: zenoh.Sample) -> None:
+            box[0] = time.perf_counter()
+            got.set()
+
+        sess.declare_subscriber(f"{keys.prefix}/bench/pong", on_pong)
+        pub = sess.declare_publisher(f"{keys.prefix}/bench/ping", **STREAM_QOS)
+        payload = encode(PoseMsg(t=time.time(), seq=1, x=0.1, y=0.2, th=0.3, src="bench"))
+        for _ in range(200):  # warm-up, until the route is up
+            got.clear()
+            pub.put(payload)
+            got.wait(0.05)
+        for label, rate, count in plans:
+            rtt, lost = [], 0
+            next_t = time.perf_counter()
+            w0 = time.perf_counter()
+            for i in range(count):
+                if rate is not None:
+                    _pace_until(next_t)
+                    next_t += 1.0 / rate
+                got.clear()
+                t0 = time.perf_counter()
+                pub.put(payload)
+                if got.wait(1.0):
+                    rtt.append(box[0] - t0)
+                else:
+                    lost += 1
+                if rate is not None and (i + 1) % int(10 * rate) == 0:
+                    el = time.perf_counter() - w0
+                    log(f"[floor {label}] {i + 1}/{count}, ETA {el / (i + 1) * (count - i - 1):.0f} s")
+            out.append(FloorRun(label, rate, np.array(rtt), lost))
+    finally:
+        if pong is not None:
+            pong.send_signal(signal.SIGTERM)
+            try:
+                pong.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                pong.kill()
+                pong.wait()
+        for s in sessions:
+            s.close()
+        router.close()
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description="one loop-latency run (development)")
+    p.add_argument("--robots", type=int, default=3)
+    p.add_argument("--rate", type=float, default=30.0)
+    p.add_argument("--frames", type=int, default=300)
+    p.add_argument("--floor", action="store_true", help="also measure the zenoh floor")
+    a = p.parse_args(argv)
+    if a.floor:
+        for f in run_floor([("back to back", None, 2000), ("30 Hz", 30.0, 300)]):
+            print(f.label, {k: round(v * 1e3, 3) for k, v in percentiles_s(f.rtt_s).items()}, "lost", f.lost)
+    r = run_loop(a.robots, a.rate, a.frames)
+    print({k: round(v * 1e3, 3) for k, v in percentiles_s(r.latency_s).items()}, "ms; missed", r.missed,
+          "late", r.late, "incomplete", r.incomplete, "/", r.states, "cpu/tick ms",
+          round(1e3 * float(r.agent_cpu_s_per_tick.mean()), 3), "rss MiB", round(float(r.agent_rss_mib.mean()), 1),
+          "bench cpu/frame ms", round(1e3 * r.bench_cpu_s_per_frame, 3), "others cores", round(r.others_cores, 2),
+          "holds", r.holds)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
