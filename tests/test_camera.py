@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 from pathlib import Path
 
@@ -11,9 +12,16 @@ import pytest
 
 cv2 = pytest.importorskip("cv2")
 
-from tracker.calib import CalibrationError, FloorCalibration, Reference  # noqa: E402
+from tracker.calib import CalibrationError, FloorCalibration, Intrinsics, PinholeCamera, Reference  # noqa: E402
 from tracker.calibrate import calibrate_frames  # noqa: E402
-from tracker.markers import CameraTracker, ConfigError, FrameError, config_from_dict, load_config  # noqa: E402
+from tracker.markers import (  # noqa: E402
+    CameraTracker,
+    ConfigError,
+    FrameError,
+    config_from_dict,
+    load_config,
+    size_ok,
+)
 from tracker.render import (  # noqa: E402
     Renderer,
     reference_scene,
@@ -165,6 +173,23 @@ def test_two_cameras_each_publish_their_own_src_and_seq_and_agree_on_the_overlap
     assert math.hypot(a.x - 1.0, a.y - 0.5) < POS_MAX_M
 
 
+def test_the_two_deploy_cameras_calibrate_on_their_own_and_agree_in_their_overlap():
+    truth = {"r1": (0.5, 0.4, 0.7), "r2": (1.6, 1.1, -2.0), "r3": (-0.3, -0.2, 2.5)}
+    seen = {}
+    for path in (CONFIG, CONFIG.with_name("overhead-2.toml")):
+        cfg = load_config(path)
+        ren = Renderer(sim_camera_from_dict(cfg.sim_camera), cfg.dictionary)
+        cal = calibrate_frames([ren.render(reference_scene(cfg), 0.0)], cfg, ren.camera.intrinsics)
+        assert cal.error_mm["max"] < 3.0
+        seen[cfg.src] = dict(CameraTracker(cfg, cal).process(render_frame(cfg, truth, 0.0), 1.0))
+    assert set(seen) == {"cam1", "cam2"}
+    for src, poses in seen.items():
+        assert set(poses) == set(truth) and {m.src for m in poses.values()} == {src}
+        for r, (x, y, th) in truth.items():
+            assert math.hypot(poses[r].x - x, poses[r].y - y) < POS_MAX_M
+            assert abs(angle_diff(poses[r].th, th)) < TH_MAX_RAD
+
+
 def test_heading_offset_of_a_marker_mount(config, renderer, calibration):
     cfg = dataclasses.replace(config, markers={**config.markers, 1: dataclasses.replace(
         config.markers[1], heading_offset_rad=math.pi / 2)})
@@ -214,6 +239,16 @@ def test_a_malformed_calibration_file_is_a_clear_error(tmp_path, text, message):
 @pytest.mark.parametrize("doc, message", [
     ({"dictionary": "DICT_9X9_1"}, "unknown ArUco dictionary"),
     ({"markers": {"one": "r1"}}, "not an integer"),
+    ({"markers": {"1_0": "r1"}}, "not an integer"),   # int("1_0") == 10
+    ({"markers": {"+2": "r1"}}, "not an integer"),
+    ({"markers": {" 3": "r1"}}, "not an integer"),
+    ({"markers": {"\u0663": "r1"}}, "not an integer"),   # an Arabic-Indic 3: int() takes it
+    ({"markers": {"1": "r1", "01": "r2"}}, "given twice"),
+    ({"markers": {"1": {"robot": "r1", "heading_ofset_rad": 1.57}}}, r"marker 1: unknown keys \['heading_ofset_rad'\]"),
+    ({"markers": {"1": {"robt": "r1"}}}, r"marker 1: unknown keys \['robt'\]"),
+    ({"references": [{"id": 40, "x_m": 0, "y_m": 0, "size_m": 0.1, "z": 0.1}]},
+     r"reference #1: unknown keys \['z'\]"),
+    ({"references": [{"id": 40, "x_m": 0, "y_m": 0, "size_m": 0.1, "th_deg": 90}]}, "unknown keys"),
     ({"markers": {"99": "r1"}}, "not in DICT_4X4_50"),
     ({"markers": {"1": "r 1"}}, "robot must match"),
     ({"markers": {"1": "r1", "2": "r1"}}, "more than one marker"),
@@ -225,7 +260,20 @@ def test_a_malformed_calibration_file_is_a_clear_error(tmp_path, text, message):
 ])
 def test_a_malformed_camera_config_is_a_clear_error(doc, message):
     with pytest.raises(ConfigError, match=message):
-        config_from_dict(doc)
+        config_from_dict({"src": "cam1", **doc})
+
+
+def test_the_camera_config_needs_its_own_src():
+    with pytest.raises(ConfigError, match="missing 'src'"):
+        config_from_dict({"markers": {"1": "r1"}})
+    cfg = config_from_dict({"src": "camB", "markers": {"1": "r1", "7": {"robot": "r2", "heading_offset_rad": 0.5}}})
+    assert cfg.src == "camB" and set(cfg.markers) == {1, 7} and cfg.markers[7].heading_offset_rad == 0.5
+
+
+def test_a_marker_size_check_never_passes_nan_or_inf():
+    assert size_ok(0.10, 0.10, 0.25) and size_ok(0.124, 0.10, 0.25) and not size_ok(0.126, 0.10, 0.25)
+    assert not size_ok(float("nan"), 0.10, 0.25)
+    assert not size_ok(float("inf"), 0.10, 0.25)
 
 
 def test_a_missing_or_broken_config_file_is_a_clear_error(tmp_path):
@@ -255,3 +303,80 @@ def test_lens_distortion_is_undone_by_the_pinhole_calibration(config):
     undistorted = dataclasses.replace(cal.camera.intrinsics, dist_coeffs=np.zeros(5))
     wrong = calibrate_frames([ren.render(reference_scene(config), 0.0)], config, undistorted)
     assert wrong.error_mm["max"] > 5 * cal.error_mm["max"]  # ignoring the distortion shows in the report
+
+
+# ---------------------------------------------------------------- calibrations that load but cannot be right
+
+
+def pinhole_doc(camera: PinholeCamera) -> dict:
+    return FloorCalibration("pinhole", 1280, 720, camera=camera).to_dict()
+
+
+def floor_homography(camera: PinholeCamera) -> np.ndarray:
+    """image px -> floor (x, y): the inverse of K [r1 r2 t] (no distortion)."""
+    rot = camera.rotation
+    return np.linalg.inv(camera.intrinsics.camera_matrix @ np.column_stack([rot[:, 0], rot[:, 1], camera.tvec]))
+
+
+def tilted(down_rad: float, centre_m=(1.0, 0.5, 2.5)) -> PinholeCamera:
+    """A camera looking along +y, ``down_rad`` below the horizontal, image up = world up."""
+    a = down_rad
+    rot = np.array([[1.0, 0.0, 0.0], [0.0, -math.sin(a), -math.cos(a)], [0.0, math.cos(a), -math.sin(a)]])
+    k = np.array([[800.0, 0.0, 639.5], [0.0, 800.0, 359.5], [0.0, 0.0, 1.0]])
+    return PinholeCamera(Intrinsics(1280, 720, k, np.zeros(5)), cv2.Rodrigues(rot)[0].ravel(),
+                         -rot @ np.asarray(centre_m))
+
+
+# 0.05 rad down: the rows above 360 - 800 tan(0.05) = 320 see above the horizon
+TILTED = tilted(0.05)
+
+
+@pytest.mark.parametrize("camera, message", [
+    (PinholeCamera.look_at(1280, 720, 800.0, (1.0, 0.5, -2.5), (1.0, 0.5, 0.0)), "not above the floor"),
+    (PinholeCamera.look_at(1280, 720, 800.0, (1.0, 0.5, 2.5), (1.0, 0.5, 5.0)), "does not look down"),
+])
+def test_a_calibration_with_the_camera_below_the_floor_or_looking_up_fails_to_load(tmp_path, camera, message):
+    path = tmp_path / "cal.json"
+    path.write_text(json.dumps(pinhole_doc(camera)))
+    with pytest.raises(CalibrationError, match=message):
+        FloorCalibration.load(path)
+
+
+def test_a_camera_below_the_markers_plane_is_refused_by_the_tracker(config):
+    from tracker.calib import calibration_from_dict
+
+    low = calibration_from_dict(pinhole_doc(PinholeCamera.look_at(1280, 720, 800.0, (1.0, 0.5, 0.05),
+                                                                  (1.0, 0.6, 0.0))))
+    with pytest.raises(CalibrationError, match="not above the markers' plane"):
+        CameraTracker(config, low)
+
+
+def test_a_homography_with_the_horizon_in_the_image_fails_to_load():
+    from tracker.calib import calibration_from_dict
+
+    doc = {"format": "vsfleet-floor-calibration", "model": "homography", "image_size_px": [1280, 720],
+           "plane_z_m": 0.0, "homography": floor_homography(TILTED).tolist()}
+    with pytest.raises(CalibrationError, match="horizon inside the image"):
+        calibration_from_dict(doc)
+    overhead = PinholeCamera.look_at(1280, 720, 800.0, (1.0, 0.5, 2.5), (1.0, 0.6, 0.0))
+    ok = calibration_from_dict({**doc, "homography": floor_homography(overhead).tolist()})
+    assert np.allclose(ok.to_plane(np.array([[639.5, 359.5]]), 0.0), [[1.0, 0.6]], atol=1e-6)
+
+
+def test_pixels_above_the_horizon_map_to_nan_not_to_a_point_behind_the_camera():
+    from tracker.calib import calibration_from_dict
+
+    cal = calibration_from_dict(pinhole_doc(TILTED))  # it loads: above the floor, looking (slightly) down
+    xy = cal.to_plane(np.array([[640.0, 10.0], [640.0, 300.0], [640.0, 710.0]]), 0.1)
+    assert np.all(np.isnan(xy[:2])) and np.all(np.isfinite(xy[2]))
+    assert xy[2][1] > 0.5  # in front of the camera, along +y
+
+
+def test_a_marker_whose_rays_miss_the_plane_is_rejected_not_published(config, renderer, caplog):
+    from tracker.calib import calibration_from_dict
+
+    tracker = CameraTracker(config, calibration_from_dict(pinhole_doc(TILTED)))
+    frame = render_frame(config, {"r1": (1.0, 1.3, 0.0)}, 0.0, renderer.spec)  # near the image's top edge
+    assert tracker.process(frame, 1.0) == []
+    assert tracker.rejections.by_key == {"marker": 1}
+    assert "do not meet the marker plane" in caplog.text

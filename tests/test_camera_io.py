@@ -165,9 +165,13 @@ def test_a_video_file_gives_capture_times_from_t0_and_fps(tmp_path, config, rend
     assert times == pytest.approx([1000.0, 1000.1, 1000.2])
 
 
-def test_a_missing_camera_source_fails_to_open():
-    with pytest.raises(CameraOpenError, match="cannot open camera source"):
+def test_a_missing_video_file_fails_to_open_for_good_a_missing_camera_is_retried():
+    with pytest.raises(CameraOpenError, match="cannot open video file") as err:
         VideoSource("/nonexistent/clip.avi")
+    assert err.value.fatal
+    with pytest.raises(CameraOpenError, match="cannot open camera source") as err:
+        VideoSource("/nonexistent/clip.avi", live=True)
+    assert not err.value.fatal
 
 
 def test_calibrate_command_writes_a_calibration_and_reports_mm(tmp_path, capsys):
@@ -208,7 +212,7 @@ def test_camera_command_refuses_a_malformed_config_and_a_missing_video(tmp_path,
     cal = tmp_path / "cal.json"
     calibration.save(cal)
     bad = tmp_path / "cam.toml"
-    bad.write_text('dictionary = "DICT_4X4_50"\n[markers]\n1 = "r1"\n2 = "r1"\n')
+    bad.write_text('src = "cam1"\ndictionary = "DICT_4X4_50"\n[markers]\n1 = "r1"\n2 = "r1"\n')
     out = run_cli("tracker", "camera", "--camera", str(bad), "--calibration", str(cal), "--source", "0",
                   "--no-multicast-scouting")
     assert out.returncode == 2 and "more than one marker" in out.stderr and "Traceback" not in out.stderr

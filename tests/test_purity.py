@@ -1,11 +1,11 @@
-"""The pure core never imports zenoh, time or logging (I/O stays at the edges)."""
+"""The pure core never imports zenoh, time, logging or cv2 (I/O and OpenCV stay at the edges)."""
 
 import ast
 from pathlib import Path
 
 import pytest
 
-FORBIDDEN = {"zenoh", "time", "logging", "socket", "threading"}
+FORBIDDEN = {"zenoh", "time", "logging", "socket", "threading", "cv2"}
 CORE = sorted((Path(__file__).parent.parent / "vsfleet").glob("*.py"))
 
 

@@ -116,14 +116,26 @@ class PinholeCamera:
                                   self.intrinsics.camera_matrix, self.intrinsics.dist_coeffs)
         return px.reshape(-1, 2)
 
+    @property
+    def axis_world(self) -> np.ndarray:
+        """The optical axis (unit vector, world): the camera's +z."""
+        return self.rotation[2]
+
     def to_plane(self, pixels: np.ndarray, z_m: float) -> np.ndarray:
-        """World (x, y) [m] (N, 2) where the rays through ``pixels`` (N, 2) meet the plane z = z_m."""
+        """World (x, y) [m] (N, 2) where the rays through ``pixels`` (N, 2) meet the plane z = z_m.
+
+        A ray that meets the plane behind the camera, or never (parallel), gives NaN.
+        """
         px = np.asarray(pixels, dtype=float).reshape(-1, 1, 2)
         norm = cv2.undistortPoints(px, self.intrinsics.camera_matrix, self.intrinsics.dist_coeffs).reshape(-1, 2)
         rays_w = np.column_stack([norm, np.ones(len(norm))]) @ self.rotation  # R^T d, row-wise
         c = self.centre_world
-        s = (z_m - c[2]) / rays_w[:, 2]
-        return c[:2] + s[:, None] * rays_w[:, :2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = (z_m - c[2]) / rays_w[:, 2]
+            xy = c[:2] + s[:, None] * rays_w[:, :2]
+        bad = ~(np.isfinite(s) & (s > 0)) | ~np.all(np.isfinite(xy), axis=1)
+        xy[bad] = np.nan
+        return xy
 
 
 @dataclass(frozen=True)
@@ -138,17 +150,37 @@ class FloorCalibration:
     camera: PinholeCamera | None = None
     error_mm: dict | None = None            # reprojection error on the floor: mean, max, rms
 
-    def to_plane(self, pixels: np.ndarray, z_m: float) -> np.ndarray:
-        """World (x, y) [m] of image points on the plane z = z_m (homography: only its own plane)."""
+    def check_plane(self, z_m: float) -> None:
+        """CalibrationError unless markers at height ``z_m`` can be placed: a homography holds only for
+        its own plane; a pinhole camera must be above that plane."""
         if self.model == "pinhole":
-            return self.camera.to_plane(pixels, z_m)
-        if abs(z_m - self.plane_z_m) > 1e-3:
+            cz = float(self.camera.centre_world[2])
+            if not cz > z_m:
+                raise CalibrationError(f"the calibrated camera is at z = {cz:.3f} m, not above the markers' "
+                                       f"plane z = {z_m:.3f} m: the calibration is wrong")
+        elif abs(z_m - self.plane_z_m) > 1e-3:
             raise CalibrationError(
                 f"a homography calibration holds only for markers at z = {self.plane_z_m:.3f} m, not "
                 f"{z_m:.3f} m: calibrate with the reference markers at the robots' marker height, or "
                 "give --intrinsics for a pinhole calibration")
-        px = np.asarray(pixels, dtype=float).reshape(-1, 1, 2)
-        return cv2.perspectiveTransform(px, self.homography).reshape(-1, 2)
+
+    def to_plane(self, pixels: np.ndarray, z_m: float) -> np.ndarray:
+        """World (x, y) [m] of image points on the plane z = z_m (homography: only its own plane).
+
+        Rows are NaN for pixels that see no point of the plane in front of the camera (beyond the
+        horizon) or map to no finite point.
+        """
+        self.check_plane(z_m)
+        if self.model == "pinhole":
+            return self.camera.to_plane(pixels, z_m)
+        px = np.asarray(pixels, dtype=float).reshape(-1, 2)
+        w = np.column_stack([px, np.ones(len(px))]) @ self.homography[2]
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            xy = cv2.perspectiveTransform(px.reshape(-1, 1, 2), self.homography).reshape(-1, 2)
+        bad = ~(w * homography_side(self.homography, self.width_px, self.height_px) > 0) | \
+            ~np.all(np.isfinite(xy), axis=1)
+        xy[bad] = np.nan
+        return xy
 
     def to_dict(self) -> dict:
         d: dict = {"format": CALIBRATION_FORMAT, "version": 1, "model": self.model,
@@ -230,6 +262,38 @@ def intrinsics_from_dict(doc: dict, where: str = "intrinsics") -> Intrinsics:
     return Intrinsics(w, h, k, _dist(doc, where))
 
 
+def image_corners(width_px: int, height_px: int) -> np.ndarray:
+    return np.array([[0.0, 0.0], [width_px - 1.0, 0.0], [width_px - 1.0, height_px - 1.0], [0.0, height_px - 1.0]])
+
+
+def homography_side(hom: np.ndarray, width_px: int, height_px: int) -> float:
+    """The sign (+1, -1) of the homogeneous w over the whole image, or 0 if the plane's horizon (w = 0)
+    crosses the image. w is affine in the pixel, so the image's 4 corners decide."""
+    w = np.column_stack([image_corners(width_px, height_px), np.ones(4)]) @ hom[2]
+    if np.all(w > 0):
+        return 1.0
+    if np.all(w < 0):
+        return -1.0
+    return 0.0
+
+
+def check_geometry(cal: FloorCalibration, where: str) -> FloorCalibration:
+    """CalibrationError unless the calibration describes a camera above the floor looking down at it."""
+    if cal.model == "pinhole":
+        cam = cal.camera
+        c, axis = cam.centre_world, cam.axis_world
+        if not np.all(np.isfinite(c)) or not c[2] > 0:
+            raise CalibrationError(f"{where}: the camera centre is at z = {c[2]:.3f} m: not above the floor "
+                                   "(a mirrored solvePnP solution, or a wrong rvec/tvec)")
+        if not axis[2] < 0:
+            raise CalibrationError(f"{where}: the camera does not look down (optical axis z = {axis[2]:.3f}): "
+                                   "an overhead camera must face the floor")
+    elif homography_side(cal.homography, cal.width_px, cal.height_px) == 0.0:
+        raise CalibrationError(f"{where}: the homography puts the plane's horizon inside the image: "
+                               "not an overhead camera looking down at the floor")
+    return cal
+
+
 def calibration_from_dict(doc: dict, where: str = "calibration") -> FloorCalibration:
     if doc.get("format") != CALIBRATION_FORMAT:
         raise CalibrationError(f"{where}: not a floor calibration (field 'format' must be {CALIBRATION_FORMAT!r})")
@@ -243,11 +307,12 @@ def calibration_from_dict(doc: dict, where: str = "calibration") -> FloorCalibra
         z = doc.get("plane_z_m", 0.0)
         if isinstance(z, bool) or not isinstance(z, (int, float)) or not math.isfinite(z):
             raise CalibrationError(f"{where}: field 'plane_z_m' must be a number")
-        return FloorCalibration("homography", w, h, homography=hom, plane_z_m=float(z), error_mm=err)
+        return check_geometry(
+            FloorCalibration("homography", w, h, homography=hom, plane_z_m=float(z), error_mm=err), where)
     if model == "pinhole":
         intr = intrinsics_from_dict(doc, where)
         cam = PinholeCamera(intr, _matrix(doc, "rvec", (3,), where), _matrix(doc, "tvec", (3,), where))
-        return FloorCalibration("pinhole", w, h, camera=cam, error_mm=err)
+        return check_geometry(FloorCalibration("pinhole", w, h, camera=cam, error_mm=err), where)
     raise CalibrationError(f"{where}: field 'model' must be 'homography' or 'pinhole', got {model!r}")
 
 
@@ -307,6 +372,7 @@ def fit_calibration(seen: dict[int, np.ndarray], references: Sequence[Reference]
         if hom is None:
             raise CalibrationError("no homography fits the reference markers (are they collinear?)")
         cal = FloorCalibration("homography", width_px, height_px, homography=hom, plane_z_m=refs[0].z_m)
+    check_geometry(cal, "the fitted calibration")
     errors_m = np.concatenate([
         np.linalg.norm(cal.to_plane(seen[r.marker_id], r.z_m) - r.corners_world()[:, :2], axis=1) for r in refs])
     error_mm = {"mean": float(1000 * errors_m.mean()), "max": float(1000 * errors_m.max()),

@@ -18,22 +18,23 @@ import cv2
 import numpy as np
 
 from .calib import CalibrationError, FloorCalibration, Intrinsics, fit_calibration
-from .camera import IMAGE_SUFFIXES, CameraOpenError, is_live, quiet_opencv
+from .camera import IMAGE_SUFFIXES, CameraOpenError, is_live, open_capture, quiet_opencv
 from .markers import CameraConfig, ConfigError, FrameError, MarkerDetector, as_gray, load_config
 
 log = logging.getLogger("vsfleet.tracker.calibrate")
 
 
 def read_frames(source: str, n_frames: int) -> list[np.ndarray]:
-    """Up to ``n_frames`` frames of an image file, video file, camera index or stream URL."""
-    if not is_live(source) and not Path(source).exists():
+    """Up to ``n_frames`` frames of an image file, video file, camera index, device, stream URL or pipeline."""
+    live = is_live(source)
+    if not live and not Path(source).exists():
         raise CameraOpenError(f"no such image or video file {source!r}")
-    if Path(source).suffix.lower() in IMAGE_SUFFIXES:
+    if not live and Path(source).suffix.lower() in IMAGE_SUFFIXES:
         image = cv2.imread(source, cv2.IMREAD_UNCHANGED)
         if image is None:
             raise CameraOpenError(f"cannot read image {source!r}")
         return [image]
-    cap = cv2.VideoCapture(int(source) if source.isdigit() else source)
+    cap = open_capture(source)
     try:
         if not cap.isOpened():
             raise CameraOpenError(f"cannot open camera source {source!r}")
@@ -74,7 +75,8 @@ def calibrate_frames(frames: list[np.ndarray], config: CameraConfig,
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="vsfleet tracker calibrate", description=__doc__.splitlines()[0])
     p.add_argument("--camera", required=True, help="camera config TOML with [[references]]")
-    p.add_argument("--source", required=True, help="image file, video file, camera index or stream URL")
+    p.add_argument("--source", required=True,
+                   help="image file, video file, camera index, /dev/video* device, stream URL or GStreamer pipeline")
     p.add_argument("--out", required=True, help="calibration JSON to write")
     p.add_argument("--intrinsics", help="camera intrinsics JSON: fit the pinhole model (floor pose)")
     p.add_argument("--frames", type=int, default=10, help="frames to average from a video or camera")

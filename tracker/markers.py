@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -59,7 +60,7 @@ class MarkerMount:
 class CameraConfig:
     """One camera's tracker config (TOML); see deploy/camera/overhead.toml."""
 
-    src: str = "cam1"
+    src: str                               # tracker id sent as 'src'; one per camera (required)
     dictionary: str = DEFAULT_DICTIONARY
     marker_size_m: float = 0.10            # side of the black square
     marker_height_m: float = 0.10          # marker plane above the floor
@@ -80,15 +81,27 @@ def _number(doc: dict, name: str, default: float | None, where: str, positive: b
     return float(v)
 
 
+CONFIG_KEYS = {"src", "dictionary", "marker_size_m", "marker_height_m", "size_tolerance", "markers", "references",
+               "sim_camera"}
+MOUNT_KEYS = {"robot", "heading_offset_rad"}
+REFERENCE_KEYS = {"id", "x_m", "y_m", "th_rad", "size_m", "z_m"}
+MARKER_ID = re.compile(r"[0-9]+")
+
+
+def _no_unknown_keys(table: dict, known: set[str], where: str) -> None:
+    unknown = sorted(set(table) - known)
+    if unknown:
+        raise ConfigError(f"{where}: unknown keys {unknown} (expected some of {sorted(known)})")
+
+
 def config_from_dict(doc: dict, where: str = "camera config") -> CameraConfig:
     """Validate a parsed camera config; ConfigError names the first problem."""
-    known = {"src", "dictionary", "marker_size_m", "marker_height_m", "size_tolerance", "markers",
-             "references", "sim_camera"}
-    unknown = sorted(set(doc) - known)
-    if unknown:
-        raise ConfigError(f"{where}: unknown keys {unknown}")
+    _no_unknown_keys(doc, CONFIG_KEYS, where)
+    if "src" not in doc:
+        raise ConfigError(f"{where}: missing 'src' (this camera's tracker id, e.g. src = \"cam1\"; "
+                          "one per camera)")
     try:
-        src = check_name(doc.get("src", "cam1"), "src")
+        src = check_name(doc["src"], "src")
     except WireError as exc:
         raise ConfigError(f"{where}: {exc}") from None
     dictionary = doc.get("dictionary", DEFAULT_DICTIONARY)
@@ -100,16 +113,18 @@ def config_from_dict(doc: dict, where: str = "camera config") -> CameraConfig:
     if not isinstance(table, dict):
         raise ConfigError(f"{where}: [markers] must map marker ids to robot ids")
     for key, v in table.items():
-        try:
-            marker_id = int(key)
-        except ValueError:
-            raise ConfigError(f"{where}: marker id {key!r} is not an integer") from None
+        if not MARKER_ID.fullmatch(key):  # int() would also take "1_0", "+2", " 3" and other digits
+            raise ConfigError(f"{where}: marker id {key!r} is not an integer (plain digits 0-9)")
+        marker_id = int(key)
+        if marker_id in markers:
+            raise ConfigError(f"{where}: marker id {marker_id} is given twice")
         if not 0 <= marker_id < n_ids:
             raise ConfigError(f"{where}: marker id {marker_id} is not in {dictionary} (0..{n_ids - 1})")
         if isinstance(v, str):
             v = {"robot": v}
         if not isinstance(v, dict):
             raise ConfigError(f"{where}: marker {marker_id} must map to a robot id or {{robot, heading_offset_rad}}")
+        _no_unknown_keys(v, MOUNT_KEYS, f"{where}: marker {marker_id}")
         try:
             robot = check_name(v.get("robot"), "robot")
         except WireError as exc:
@@ -126,6 +141,7 @@ def config_from_dict(doc: dict, where: str = "camera config") -> CameraConfig:
         w = f"{where}: reference #{i + 1}"
         if not isinstance(r, dict) or not isinstance(r.get("id"), int) or isinstance(r.get("id"), bool):
             raise ConfigError(f"{w}: needs an integer 'id'")
+        _no_unknown_keys(r, REFERENCE_KEYS, w)
         if not 0 <= r["id"] < n_ids or r["id"] in markers:
             raise ConfigError(f"{w}: id {r['id']} must be in {dictionary} and not worn by a robot")
         refs.append(Reference(r["id"], _number(r, "x_m", None, w), _number(r, "y_m", None, w),
@@ -191,6 +207,11 @@ def as_gray(image: np.ndarray) -> np.ndarray:
     raise FrameError(f"frame must be grey or BGR, got shape {image.shape}")
 
 
+def size_ok(side_m: float, size_m: float, tolerance: float) -> bool:
+    """A measured side within ``tolerance`` (a fraction) of ``size_m``; NaN or inf is never ok."""
+    return bool(abs(side_m / size_m - 1.0) <= tolerance)
+
+
 class CameraTracker:
     """One camera's frames -> poses. Pure: no I/O, no clock; one ``seq`` per processed frame."""
 
@@ -201,7 +222,7 @@ class CameraTracker:
         self.detector = MarkerDetector(config.dictionary)
         self.seq = 0
         self.rejections = Rejections(log)
-        calibration.to_plane(np.zeros((1, 2)), config.marker_height_m)  # a homography at another height raises
+        calibration.check_plane(config.marker_height_m)  # a homography at another height, a camera below: raise
 
     def check_frame(self, image: np.ndarray) -> np.ndarray:
         gray = as_gray(image)
@@ -233,8 +254,12 @@ class CameraTracker:
                 self.rejections.reject(key, f"marker id {marker_id} seen {len(quads)} times in one frame")
                 continue
             corners_xy = self.calibration.to_plane(quads[0], cfg.marker_height_m)
+            if not np.all(np.isfinite(corners_xy)):
+                self.rejections.reject(key, f"marker id {marker_id}: its corners' rays do not meet the marker "
+                                            "plane in front of the camera (a wrong calibration?)")
+                continue
             x, y, th, side_m = marker_pose_from_corners(corners_xy)
-            if abs(side_m / cfg.marker_size_m - 1.0) > cfg.size_tolerance:
+            if not size_ok(side_m, cfg.marker_size_m, cfg.size_tolerance):
                 self.rejections.reject(key, f"marker id {marker_id} measures {1000 * side_m:.0f} mm, "
                                             f"expected {1000 * cfg.marker_size_m:.0f} mm")
                 continue

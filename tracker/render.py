@@ -45,7 +45,7 @@ class SimCameraSpec:
     look_at_m: tuple[float, float, float] = (1.0, 0.55, 0.0)
     dist_coeffs: tuple[float, ...] = ()
     blur_sigma_px: float = 0.8        # lens blur (Gaussian)
-    noise_sigma: float = 3.0          # sensor noise [grey levels]
+    noise_sigma_grey: float = 3.0     # sensor noise, standard deviation [grey levels, 0..255]
     light_gain: tuple[float, float] = (0.7, 1.05)  # global illumination swings between these
     light_period_s: float = 8.0
     light_gradient: float = 0.2       # +- fraction across the image, turning with time
@@ -118,8 +118,8 @@ class Renderer:
         r2 = self.u ** 2 + self.v ** 2
         self.vignette = (1.0 - spec.vignetting * r2 / r2.max()).astype(np.float32)
         pad = 32
-        self.noise = [self.rng.normal(0.0, spec.noise_sigma, (h + pad, w + pad)).astype(np.float32)
-                      for _ in range(2)] if spec.noise_sigma > 0 else []
+        self.noise = [self.rng.normal(0.0, spec.noise_sigma_grey, (h + pad, w + pad)).astype(np.float32)
+                      for _ in range(2)] if spec.noise_sigma_grey > 0 else []
         self.textures: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     def _floor(self) -> np.ndarray:
@@ -134,7 +134,7 @@ class Renderer:
         mottle = 12 * np.sin(2.1 * x + 0.7) * np.sin(3.3 * y + 1.3) + 6 * np.sin(9.0 * x - 5.0 * y)
         checker = 10 * ((np.floor(x / tile) + np.floor(y / tile)) % 2)
         floor = 150 + mottle + checker - 60 * seam
-        return np.clip(floor, 0, 255).astype(np.float32)
+        return np.clip(np.nan_to_num(floor, nan=150.0), 0, 255).astype(np.float32)  # NaN: pixels above the horizon
 
     def _texture(self, marker_id: int) -> tuple[np.ndarray, np.ndarray]:
         """Marker at one pixel per cell with a one-cell white quiet zone, and its coverage mask."""

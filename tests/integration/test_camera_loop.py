@@ -109,5 +109,8 @@ def test_the_fleet_keeps_formation_and_reaches_the_goal_on_camera_poses(tmp_path
     for p in seen:
         by_seq.setdefault(p.seq, set()).add(p.t)
     assert all(len(ts) == 1 for ts in by_seq.values())  # one capture time per frame
+    assert len({p.t for p in seen}) == len(by_seq)  # and one frame per capture time (no truth drawn twice)
+    # the capture time of a rendered frame is the time of the truth it drew (all 3 robots share each truth t)
+    assert {p.t for p in seen} <= {m.t for _, m in truth}
     complete = sum(1 for _, _, s in states if s.complete)
     assert complete > 0.9 * len(states)
