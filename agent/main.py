@@ -1,11 +1,14 @@
 """vsfleet agent: one identical process per robot; fits, advances, commands its own wheels.
 
 Startup: declare the liveliness token, subscribe to mission updates and poses,
-answer mission and health queries (so late joiners and restarted agents get the
-mission and the failure-policy state from any agent), and ask for both with a
-get. Then, at every frame (see agent.frames), run ``vsfleet.step.control_step``
-and publish ``cmd/<robot>`` and ``state/<robot>``. On any exit it publishes a
-zero command.
+answer mission and health queries under its own key ``vs/<fleet>/peer/<robot>/``
+(so late joiners and restarted agents get the mission and the failure-policy
+state from their peers), and ask for both with a get. An answer is taken only
+if a strict majority of the peers that replied gave it (vsfleet.quorum); the
+operator's mission (its put, or its answer on ``vs/<fleet>/mission``) is taken
+as it is. Then, at every frame (see agent.frames), run
+``vsfleet.step.control_step`` and publish ``cmd/<robot>``, ``state/<robot>`` and
+``event/<robot>``. On any exit it publishes a zero command.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from fleetctl.zconf import RELIABLE_QOS, STREAM_QOS, TELEMETRY_QOS, add_zenoh_ar
 from vsfleet.control import DEFAULT_CONTROLLER, make_controller
 from vsfleet.errors import VsfleetValueError
 from vsfleet.failure import Decision, FailurePolicy, Health, Motion, update_health, update_motion
+from vsfleet.quorum import majority
 from vsfleet.step import Controller, control_step, expected_steps
 from vsfleet.wire import (
     CmdMsg,
@@ -49,6 +53,7 @@ log = logging.getLogger("vsfleet.agent")
 
 DEFAULT_TTL_S = 0.3
 RESYNC_GAP_S = 1.0  # a longer gap between frames run: this agent may have missed its peers' decisions
+FETCH_PERIOD_S = 1.0  # without a mission, ask again this often
 DEFAULT_DT_S = 1.0 / 30.0
 QUEUE_MAX = 4096
 
@@ -92,22 +97,26 @@ class Agent:
         self.resyncing = False    # after a gap: adopt only which robots are failed or dropped
         self.last_frame_t = float("-inf")
         self.stale_logged = 0
+        self.no_quorum = 0        # queries whose replies had no majority answer
         self.unnamed_logged: set[int] = set()
         self._controllers: dict[str, object] = {}
 
     # ------------------------------------------------------------ inputs
-    def on_mission(self, key: str, payload: bytes) -> None:
+    def on_mission(self, key: str, payload: bytes) -> bool:
+        """Take a mission from the operator (its put) or agreed by the peers; True if it is new."""
         try:
             mission = decode_mission(payload)
         except WireError as exc:
             self.rejections.reject(key, str(exc))
-            return
+            return False
         if self.missions.add(mission):
             log.info("mission v%d (%s, %d robots, effective_t %.3f)", mission.version,
                      mission.metric, len(mission.robots), mission.effective_t)
             latest = self.missions.latest()
             self.mission_payload = encode_mission(latest)  # one assignment: read by the queryable
             self.frames.set_robots(latest.robot_ids)
+            return True
+        return False
 
     def on_pose(self, key: str, payload: bytes) -> None:
         try:
@@ -129,24 +138,103 @@ class Agent:
             log.warning("pose #%d from the future refused: t %.3f is more than %.2f s ahead of this "
                         "host's clock (clock skew?)", n, msg.t, self.frames.max_future_s)
 
-    def on_health(self, key: str, payload: bytes) -> None:
-        """Adopt a peer's failure-policy state once, at (re)start, so decisions agree at once."""
+    def on_health(self, key: str, payload: bytes, timers: bool = True) -> bool:
+        """Adopt the peers' failure-policy state (agreed by a majority, see on_query_replies) once,
+        at (re)start, so decisions agree at once; after a gap (or with ``timers`` False), only
+        which robots are failed or dropped. True if adopted."""
         try:
             msg = decode_health(payload)
         except WireError as exc:
             self.rejections.reject(key, str(exc))
-            return
+            return False
         if self.health_adopted or msg.mission not in self.missions.by_version:
-            return
-        since = self.health.since_t if self.resyncing else dict(msg.since)
+            return False
+        since = self.health.since_t if self.resyncing or not timers else dict(msg.since)
         self.health = Health(since_t=since, failed=frozenset(msg.failed), dropped=frozenset(msg.dropped))
         self.health_adopted = True
         log.info("adopted peers' failure state at frame %d: failed %s, dropped %s", msg.seq,
                  sorted(msg.failed), sorted(msg.dropped))
+        return True
 
-    def on_message(self, kind: str, key: str, payload: bytes) -> None:
-        """Dispatch one message; nothing a peer sends may end the agent."""
-        handlers = {"pose": self.on_pose, "mission": self.on_mission, "health": self.on_health}
+    @staticmethod
+    def health_vote(payload: bytes, timers: bool) -> bytes | None:
+        """What peers must agree on in a health reply: what this agent would adopt from it (the
+        mission version, failed, dropped and, with ``timers``, since), canonically encoded.
+        ``t`` and ``seq`` are left out: peers answer at whatever frame they are on. None if invalid."""
+        try:
+            msg = decode_health(payload)
+        except WireError:
+            return None
+        return encode_health(HealthMsg(t=0.0, seq=0, mission=msg.mission, failed=tuple(sorted(set(msg.failed))),
+                                       dropped=tuple(sorted(set(msg.dropped))), since=msg.since if timers else ()))
+
+    def on_query_replies(self, kind: str, replies: list[tuple[str, bytes]]) -> bool:
+        """Every reply to one ``kind`` query ("mission" or "health"), as (key, payload); True if
+        something was taken.
+
+        A reply on ``vs/<fleet>/mission`` is the operator's (only that login may answer there) and
+        is taken like its put. A peer answers under ``vs/<fleet>/peer/<robot>/<kind>``; this
+        agent's own replies are left out. A peer answer is taken only if a strict majority of the
+        distinct peers that replied gave it (identical payloads; for health, identical
+        ``health_vote``: if the majority agrees on the decisions but not on the failure timers,
+        the decisions are adopted and this agent's timers start afresh, as after a gap).
+        Otherwise nothing is taken and the reason is logged: without a mission the agent asks
+        again a second later; without agreed health it keeps its own state.
+        """
+        taken = False
+        peers: list[tuple[str, str, bytes]] = []  # (peer, key, payload)
+        for key, payload in replies:
+            if kind == "mission" and key == self.keys.mission:
+                taken = self.on_mission(key, payload) or taken
+                continue
+            try:
+                peer = self.keys.peer_of(key, kind)
+            except WireError as exc:
+                self.rejections.reject(key, str(exc))
+                continue
+            if peer == self.robot:
+                continue
+            if kind == "health" and self.health_vote(payload, timers=False) is None:
+                self.rejections.reject(key, "not a valid health message")
+            peers.append((peer, key, payload))
+        if kind == "mission":
+            verdict = majority((peer, payload) for peer, _, payload in peers)
+            if verdict.answer is not None:
+                return self.on_mission(self.keys.peer_mission(verdict.supporters[0]), verdict.answer) or taken
+        else:
+            for timers in ((False,) if self.resyncing else (True, False)):
+                votes = [(peer, self.health_vote(payload, timers), key, payload) for peer, key, payload in peers]
+                verdict = majority((peer, vote) for peer, vote, _, _ in votes)
+                if verdict.answer is not None:
+                    key, payload = next((k, p) for _, v, k, p in votes if v == verdict.answer)
+                    if not timers and not self.resyncing:
+                        log.info("health query: peers %s agree on the decisions, not on the failure timers; "
+                                 "adopting the decisions with this agent's own timers", list(verdict.supporters))
+                    adopted = self.on_health(key, payload, timers=timers)
+                    if not adopted and not self.health_adopted:
+                        log.warning("health query: peers %s agree on a mission this agent does not hold; "
+                                    "keeping its own failure state", list(verdict.supporters))
+                    return adopted
+        if taken:
+            return True
+        if not verdict.peers:  # the first agent up, or its peers have nothing yet
+            log.log(logging.INFO if kind == "health" else logging.DEBUG, "%s query: no peer answered%s", kind,
+                    "; keeping this agent's own failure state" if kind == "health" else "")
+            return False
+        self.no_quorum += 1
+        n = self.no_quorum
+        if n <= 10 or n % 100 == 0:
+            then = ("asking again in %.0f s" % FETCH_PERIOD_S if kind == "mission"
+                    else "keeping this agent's own failure state")
+            log.warning("%s query #%d: nothing taken: %s; %s", kind, n, verdict.why, then)
+        return False
+
+    def on_message(self, kind: str, key: str, payload) -> None:
+        """Dispatch one message (or, for "mission-replies"/"health-replies", the list of replies
+        to one query); nothing a peer sends may end the agent."""
+        handlers = {"pose": self.on_pose, "mission": self.on_mission,
+                    "mission-replies": lambda _key, replies: self.on_query_replies("mission", replies),
+                    "health-replies": lambda _key, replies: self.on_query_replies("health", replies)}
         try:
             handlers[kind](key, payload)
         except Exception as exc:  # noqa: BLE001 - counted and logged, never fatal
@@ -250,14 +338,22 @@ class Agent:
         return encode(CmdMsg(t=self.clock(), seq=self.last_seq, vl=0.0, vr=0.0, ttl=self.ttl_s))
 
 
-def fetch(session: zenoh.Session, key: str, kind: str, inbox: queue.Queue, timeout_s: float) -> None:
-    """Ask the key space for ``key`` (mission or health); every reply goes to the agent's inbox."""
-    for reply in session.get(key, timeout=timeout_s):
-        if reply.ok is not None:
-            try:
-                inbox.put_nowait((kind, str(reply.ok.key_expr), reply.ok.payload.to_bytes()))
-            except queue.Full:
-                pass
+def fetch(session: zenoh.Session, selectors: tuple[str, ...], kind: str, inbox: queue.Queue,
+          timeout_s: float) -> None:
+    """Ask ``selectors`` (for the mission or the peers' health) and collect every reply, unconsolidated,
+    until the gets end; then the whole list goes to the agent's inbox as one item."""
+    gets = [session.get(s, timeout=timeout_s, target=zenoh.QueryTarget.ALL,
+                        consolidation=zenoh.ConsolidationMode.NONE, allowed_destination=zenoh.Locality.REMOTE)
+            for s in selectors]
+    replies: list[tuple[str, bytes]] = []
+    for handler in gets:
+        for reply in handler:
+            if reply.ok is not None:
+                replies.append((str(reply.ok.key_expr), reply.ok.payload.to_bytes()))
+    try:
+        inbox.put((f"{kind}-replies", "|".join(selectors), replies), timeout=timeout_s)
+    except queue.Full:
+        log.warning("%s query: inbox full, %d replies dropped", kind, len(replies))
 
 
 def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFlag | None = None,
@@ -280,27 +376,29 @@ def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFla
     with zenoh.open(conf) as session:
         cmd_pub = session.declare_publisher(keys.cmd(robot), **STREAM_QOS)
         state_pub = session.declare_publisher(keys.state(robot), **TELEMETRY_QOS)
-        event_pub = session.declare_publisher(keys.event, **RELIABLE_QOS)
+        event_pub = session.declare_publisher(keys.event(robot), **RELIABLE_QOS)
         agent = Agent(robot, keys, cmd_pub.put, state_pub.put, dt_s=dt_s, ttl_s=ttl_s,
                       put_event=event_pub.put)
         token = session.liveliness().declare_token(keys.alive("agent", robot))  # keep referenced
 
+        own_mission, own_health = keys.peer_mission(robot), keys.peer_health(robot)
+
         def answer_mission(query: zenoh.Query) -> None:
             payload = agent.mission_payload  # a bytes object swapped in by the main thread
             if payload is not None:
-                query.reply(keys.mission, payload)
+                query.reply(own_mission, payload)
 
         def answer_health(query: zenoh.Query) -> None:
             payload = agent.health_payload  # likewise
             if payload is not None:
-                query.reply(keys.health, payload)
+                query.reply(own_health, payload)
 
         subs = [
             session.declare_subscriber(keys.mission, enqueue("mission")),
             session.declare_subscriber(keys.pose(), enqueue("pose")),
         ]
-        queryables = [session.declare_queryable(keys.mission, answer_mission, complete=False),
-                      session.declare_queryable(keys.health, answer_health, complete=False)]
+        queryables = [session.declare_queryable(own_mission, answer_mission, complete=False),
+                      session.declare_queryable(own_health, answer_health, complete=False)]
         log.info("agent %s up (fleet %s)", robot, fleet)
         next_fetch = 0.0
         fetcher: threading.Thread | None = None
@@ -309,14 +407,15 @@ def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFla
                 now = agent.clock()
                 idle = not (fetcher and fetcher.is_alive())
                 if agent.missions.latest() is None and now >= next_fetch and idle:
-                    fetcher = threading.Thread(target=fetch, args=(session, keys.mission, "mission",
-                                                                   inbox, 1.0), daemon=True)
+                    # the operator's answer, if its tool is up, and every peer's
+                    fetcher = threading.Thread(target=fetch, args=(
+                        session, (keys.mission, keys.peer_mission()), "mission", inbox, 1.0), daemon=True)
                     fetcher.start()
-                    next_fetch = now + 1.0
+                    next_fetch = now + FETCH_PERIOD_S
                 elif agent.missions.latest() is not None and agent.want_health and idle:
                     agent.want_health = False  # a (re)started or resynced agent takes its peers' state
-                    fetcher = threading.Thread(target=fetch, args=(session, keys.health, "health",
-                                                                   inbox, 1.0), daemon=True)
+                    fetcher = threading.Thread(target=fetch, args=(
+                        session, (keys.peer_health(),), "health", inbox, 1.0), daemon=True)
                     fetcher.start()
                 wait = agent.frames.time_to_deadline(now)
                 try:

@@ -2,12 +2,16 @@
 
 Writes, per host, what goes into its /etc/vsfleet: the router's config (access
 control, user/password dictionary or mTLS), one client config per identity
-(tracker, sim, operator, one agent per robot) and a vsfleet.env for systemd.
+(tracker, operator, one agent per robot, and sim if asked for) and a vsfleet.env
+for systemd. Files with credentials (client configs, the password dictionary,
+private keys) are created mode 0600 and installed root:vsfleet 0640 on the hosts
+(deploy/README.md).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import logging
 import os
@@ -17,6 +21,7 @@ import subprocess
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Iterator
 
 from vsfleet.wire import Keys, WireError, check_name
 
@@ -25,6 +30,9 @@ from .scenario_file import load_scenario
 log = logging.getLogger("vsfleet.deploy")
 
 SERVICE_IDENTITIES = ("tracker", "sim", "operator")
+# names the config already uses: the router's certificate and directory, the CA's directory, the
+# ACL subject of every login, the agents' liveliness role; a robot may not be called that either
+RESERVED_IDS = ("router", "pki", "everyone", "agent")
 AUTH_MODES = ("usrpwd", "mtls")
 # Services wait for the router forever and retry quickly after losing it; the
 # operator's one-shot commands fail after CONNECT_TIMEOUT_OPERATOR_MS instead.
@@ -39,8 +47,8 @@ class DeployError(ValueError):
     """Bad input to the config generator (fleet, robots, endpoints, auth mode)."""
 
 
-def identities(robots: list[str] | tuple[str, ...]) -> tuple[str, ...]:
-    """Every login of a fleet: tracker, sim, operator, then one per robot (its agent)."""
+def identities(robots: list[str] | tuple[str, ...], sim: bool = False) -> tuple[str, ...]:
+    """Every login of a fleet: tracker, (sim, if asked for,) operator, then one per robot (its agent)."""
     for r in robots:
         try:
             check_name(r, "robot id")
@@ -48,9 +56,12 @@ def identities(robots: list[str] | tuple[str, ...]) -> tuple[str, ...]:
             raise DeployError(str(exc)) from None
         if r in SERVICE_IDENTITIES:
             raise DeployError(f"robot id {r!r} clashes with the {r!r} identity; rename the robot")
+        if r in RESERVED_IDS:
+            raise DeployError(f"robot id {r!r} is reserved (the config uses {', '.join(RESERVED_IDS)} "
+                              f"itself); rename the robot")
     if len(set(robots)) != len(robots) or not robots:
         raise DeployError(f"robots must be distinct and at least one, got {list(robots)}")
-    return (*SERVICE_IDENTITIES, *robots)
+    return (*(i for i in SERVICE_IDENTITIES if sim or i != "sim"), *robots)
 
 
 def _rule(rule_id: str, flow: str, messages: list[str], key_exprs: list[str]) -> dict:
@@ -58,11 +69,14 @@ def _rule(rule_id: str, flow: str, messages: list[str], key_exprs: list[str]) ->
             "key_exprs": key_exprs}
 
 
-def access_control(fleet: str, robots: list[str] | tuple[str, ...], auth: str = "usrpwd") -> dict:
+def access_control(fleet: str, robots: list[str] | tuple[str, ...], auth: str = "usrpwd",
+                   sim: bool = False) -> dict:
     """The router's ``access_control`` block: default deny, then what each identity may do.
 
     Flows are the router's: ``ingress`` is what a client sends, ``egress`` what it is sent.
     Subjects match the usrpwd user name, or the certificate's common name under mTLS.
+    Agent rN answers queries only under ``vs/<fleet>/peer/rN/**`` and puts events only on
+    ``event/rN``, so no robot's login can answer or decide for another.
     """
     if auth not in AUTH_MODES:
         raise DeployError(f"auth must be one of {AUTH_MODES}, got {auth!r}")
@@ -70,18 +84,21 @@ def access_control(fleet: str, robots: list[str] | tuple[str, ...], auth: str = 
         p = Keys(fleet).prefix
     except WireError as exc:
         raise DeployError(str(exc)) from None
-    ids = identities(robots)
+    ids = identities(robots, sim)
+    k = Keys(fleet)
     match = "usernames" if auth == "usrpwd" else "cert_common_names"
     rules = [
         _rule("read", "ingress", READ_MESSAGES, [f"{p}/**"]),
         _rule("deliver", "egress", DELIVER_MESSAGES, [f"{p}/**"]),
         _rule("tracker-pose", "ingress", ["put"], [f"{p}/pose/**"]),
         _rule("tracker-alive", "ingress", ["liveliness_token"], [f"{p}/alive/tracker/*"]),
-        _rule("sim-truth", "ingress", ["put"], [f"{p}/truth/**"]),
-        _rule("sim-alive", "ingress", ["liveliness_token"], [f"{p}/alive/sim/*"]),
-        _rule("operator-put", "ingress", ["put"], [f"{p}/mission", f"{p}/fault/**"]),
-        _rule("operator-answer", "ingress", ["declare_queryable", "reply"], [f"{p}/mission"]),
-        _rule("agent-answer", "ingress", ["declare_queryable", "reply"], [f"{p}/mission", f"{p}/health"]),
+    ]
+    if sim:
+        rules += [_rule("sim-truth", "ingress", ["put"], [f"{p}/truth/**"]),
+                  _rule("sim-alive", "ingress", ["liveliness_token"], [f"{p}/alive/sim/*"])]
+    rules += [
+        _rule("operator-put", "ingress", ["put"], [k.mission, f"{p}/fault/**"]),
+        _rule("operator-answer", "ingress", ["declare_queryable", "reply"], [k.mission]),
         _rule("admin-query", "ingress", ["query"], ["@/**"]),
         _rule("admin-reply", "egress", ["reply"], ["@/**"]),
     ]
@@ -89,15 +106,16 @@ def access_control(fleet: str, robots: list[str] | tuple[str, ...], auth: str = 
     policies = [
         {"id": "everyone", "rules": ["read", "deliver"], "subjects": ["everyone"]},
         {"id": "tracker", "rules": ["tracker-pose", "tracker-alive"], "subjects": ["tracker"]},
-        {"id": "sim", "rules": ["sim-truth", "sim-alive"], "subjects": ["sim"]},
-        {"id": "operator", "rules": ["operator-put", "operator-answer", "admin-query", "admin-reply"],
-         "subjects": ["operator"]},
     ]
+    if sim:
+        policies.append({"id": "sim", "rules": ["sim-truth", "sim-alive"], "subjects": ["sim"]})
+    policies.append({"id": "operator", "rules": ["operator-put", "operator-answer", "admin-query", "admin-reply"],
+                     "subjects": ["operator"]})
     for r in robots:
-        rules.append(_rule(f"agent-{r}-put", "ingress", ["put"],
-                           [f"{p}/cmd/{r}", f"{p}/state/{r}", f"{p}/event"]))
-        rules.append(_rule(f"agent-{r}-alive", "ingress", ["liveliness_token"], [f"{p}/alive/agent/{r}"]))
-        policies.append({"id": f"agent-{r}", "rules": [f"agent-{r}-put", f"agent-{r}-alive", "agent-answer"],
+        rules.append(_rule(f"agent-{r}-put", "ingress", ["put"], [k.cmd(r), k.state(r), k.event(r)]))
+        rules.append(_rule(f"agent-{r}-alive", "ingress", ["liveliness_token"], [k.alive("agent", r)]))
+        rules.append(_rule(f"agent-{r}-answer", "ingress", ["declare_queryable", "reply"], [f"{k.peer(r)}/**"]))
+        policies.append({"id": f"agent-{r}", "rules": [f"agent-{r}-put", f"agent-{r}-alive", f"agent-{r}-answer"],
                          "subjects": [r]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
             "policies": policies}
@@ -113,7 +131,7 @@ class Tls:
 
 
 def router_config(fleet: str, robots, listen: list[str], auth: str = "usrpwd",
-                  dictionary_file: str | None = None, tls: Tls | None = None) -> dict:
+                  dictionary_file: str | None = None, tls: Tls | None = None, sim: bool = False) -> dict:
     """A router-mode config: listens on ``listen``, no scouting, admin space on, access control on."""
     if not listen:
         raise DeployError("the router needs at least one listen endpoint, e.g. tcp/0.0.0.0:7447")
@@ -122,7 +140,7 @@ def router_config(fleet: str, robots, listen: list[str], auth: str = "usrpwd",
         "listen": {"endpoints": list(listen)},
         "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
         "adminspace": {"enabled": True},
-        "access_control": access_control(fleet, robots, auth),
+        "access_control": access_control(fleet, robots, auth, sim),
     }
     if auth == "usrpwd":
         if not dictionary_file:
@@ -184,6 +202,24 @@ def json5_text(conf: dict, header: str) -> str:
     return comments + _compact(conf) + "\n"
 
 
+@contextlib.contextmanager
+def private_files() -> Iterator[None]:
+    """Files created meanwhile (also by child processes: openssl) are mode 0600 or stricter."""
+    old = os.umask(0o077)
+    try:
+        yield
+    finally:
+        os.umask(old)
+
+
+def write_secret(path: Path, text: str) -> None:
+    """Write ``text`` to ``path``, mode 0600 from the moment it exists (also if it existed)."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w") as f:
+        os.fchmod(fd, 0o600)
+        f.write(text)
+
+
 def _openssl(*args: str) -> None:
     out = subprocess.run(["openssl", *args], capture_output=True, text=True)
     if out.returncode != 0:
@@ -193,30 +229,35 @@ def _openssl(*args: str) -> None:
 def make_certs(pki: Path, router_hosts: list[str], names: tuple[str, ...], days: int = 825) -> None:
     """A CA (kept if present) and one EC key pair per name, CN = name; the router's carries SANs.
 
-    Needs the openssl CLI. ``router_hosts`` are the names/addresses clients dial.
+    The router's certificate is for TLS servers only (extendedKeyUsage serverAuth), every
+    other one for TLS clients only (clientAuth). Keys are created mode 0600. Needs the
+    openssl CLI. ``router_hosts`` are the names/addresses clients dial.
     """
     if shutil.which("openssl") is None:
         raise DeployError("mtls needs the openssl command-line tool to make certificates")
     pki.mkdir(parents=True, exist_ok=True)
     ec = ["-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes"]
     ca, ca_key = pki / "ca.pem", pki / "ca.key"
-    if not ca.exists():
-        _openssl("req", "-x509", *ec, "-days", str(days), "-subj", "/CN=vsfleet-ca",
-                 "-keyout", str(ca_key), "-out", str(ca))
-    for name in ("router", *names):
-        sans = [f"IP:{h}" if h.replace(".", "").isdigit() or ":" in h else f"DNS:{h}"
-                for h in (router_hosts if name == "router" else [])] or [f"DNS:{name}"]
-        ext = pki / f"{name}.ext"
-        ext.write_text(f"subjectAltName={','.join(sans)}\nbasicConstraints=CA:FALSE\n"
-                       "keyUsage=digitalSignature\nextendedKeyUsage=serverAuth,clientAuth\n")
-        _openssl("req", *ec, "-subj", f"/CN={name}", "-keyout", str(pki / f"{name}.key"),
-                 "-out", str(pki / f"{name}.csr"))
-        _openssl("x509", "-req", "-in", str(pki / f"{name}.csr"), "-CA", str(ca), "-CAkey", str(ca_key),
-                 "-CAcreateserial", "-days", str(days), "-extfile", str(ext), "-out", str(pki / f"{name}.pem"))
-        (pki / f"{name}.csr").unlink()
-        ext.unlink()
-        os.chmod(pki / f"{name}.key", 0o600)
-    os.chmod(ca_key, 0o600)
+    with private_files():
+        if not ca.exists():
+            _openssl("req", "-x509", *ec, "-days", str(days), "-subj", "/CN=vsfleet-ca",
+                     "-keyout", str(ca_key), "-out", str(ca))
+        for name in ("router", *names):
+            sans = [f"IP:{h}" if h.replace(".", "").isdigit() or ":" in h else f"DNS:{h}"
+                    for h in (router_hosts if name == "router" else [])] or [f"DNS:{name}"]
+            usage = "serverAuth" if name == "router" else "clientAuth"
+            ext = pki / f"{name}.ext"
+            ext.write_text(f"subjectAltName={','.join(sans)}\nbasicConstraints=CA:FALSE\n"
+                           f"keyUsage=digitalSignature\nextendedKeyUsage={usage}\n")
+            _openssl("req", *ec, "-subj", f"/CN={name}", "-keyout", str(pki / f"{name}.key"),
+                     "-out", str(pki / f"{name}.csr"))
+            _openssl("x509", "-req", "-in", str(pki / f"{name}.csr"), "-CA", str(ca), "-CAkey", str(ca_key),
+                     "-CAcreateserial", "-days", str(days), "-extfile", str(ext),
+                     "-out", str(pki / f"{name}.pem"))
+            (pki / f"{name}.csr").unlink()
+            ext.unlink()
+    for public in ca, *(pki / f"{n}.pem" for n in ("router", *names)):
+        os.chmod(public, 0o644)  # certificates are public
 
 
 def _host_of(endpoint: str) -> str:
@@ -237,17 +278,27 @@ def env_text(fleet: str, ttl_s: float = 0.3, tracker_args: str = "sim") -> str:
             f"VSFLEET_TRACKER_ARGS={tracker_args}\n")
 
 
+def _copy_private(src: Path, dst: Path) -> None:
+    """Copy a private key: the copy is mode 0600 from the moment it exists."""
+    dst.unlink(missing_ok=True)
+    with private_files():
+        shutil.copy2(src, dst)
+    os.chmod(dst, 0o600)
+
+
 def write_deploy(out: Path, fleet: str, robots, router_endpoint: str, auth: str = "usrpwd",
                  conf_dir: str = "/etc/vsfleet", listen: list[str] | None = None,
-                 passwords: dict[str, str] | None = None, fleet_file: Path | None = None) -> dict[str, Path]:
+                 passwords: dict[str, str] | None = None, fleet_file: Path | None = None,
+                 sim: bool = False) -> dict[str, Path]:
     """Write OUT/<host role>/ for the router and every identity; returns {identity: client config path}.
 
     OUT/router holds router.json5 plus the password dictionary (or its certificates);
     OUT/<identity> holds <identity>.json5, its certificates, vsfleet.env and (sim, operator)
     the fleet file. Copy each directory to that host's ``conf_dir``. Passwords are random
-    unless given.
+    unless given. The ``sim`` login (simulated robots, which may put truth) only if asked for.
+    Files with credentials are created mode 0600 (never readable by others, not even for a moment).
     """
-    ids = identities(tuple(robots))
+    ids = identities(tuple(robots), sim)
     proto = "tls" if auth == "mtls" else "tcp"
     if not router_endpoint.startswith(f"{proto}/"):
         raise DeployError(f"with auth {auth} the router endpoint must start with {proto}/, "
@@ -256,7 +307,8 @@ def write_deploy(out: Path, fleet: str, robots, router_endpoint: str, auth: str 
     listen = listen or [f"{proto}/0.0.0.0:{port}"]
     out.mkdir(parents=True, exist_ok=True)
     header = (f"vsfleet fleet {fleet!r}: generated by `vsfleet deploy config`; auth {auth}.\n"
-              f"Install into {conf_dir}/ on the host (mode 0600: it holds credentials).")
+              f"It holds credentials: install into {conf_dir}/ on the host as root:vsfleet, mode 0640\n"
+              f"(the operator's own copy: mode 0600), as deploy/README.md says.")
     paths: dict[str, Path] = {}
     (out / "router").mkdir(exist_ok=True)
     if auth == "usrpwd":
@@ -266,21 +318,19 @@ def write_deploy(out: Path, fleet: str, robots, router_endpoint: str, auth: str 
         bad = [i for i, pw in passwords.items() if not pw or ":" in pw or "\n" in pw]
         if bad:
             raise DeployError(f"passwords must be non-empty without ':' or newlines: {bad}")
-        dictionary = out / "router" / "passwords"
-        dictionary.write_text("".join(f"{i}:{passwords[i]}\n" for i in ids))
-        os.chmod(dictionary, 0o600)
-        router = router_config(fleet, robots, listen, auth, dictionary_file=f"{conf_dir}/passwords")
+        write_secret(out / "router" / "passwords", "".join(f"{i}:{passwords[i]}\n" for i in ids))
+        router = router_config(fleet, robots, listen, auth, dictionary_file=f"{conf_dir}/passwords", sim=sim)
     else:
         pki = out / "pki"
         make_certs(pki, [_host_of(router_endpoint)], ids)
         router_tls = Tls(f"{conf_dir}/ca.pem", f"{conf_dir}/router.pem", f"{conf_dir}/router.key")
         for name in ("router", *ids):
             (out / name).mkdir(exist_ok=True)
-            for f in ("ca.pem", f"{name}.pem", f"{name}.key"):
+            for f in ("ca.pem", f"{name}.pem"):
                 shutil.copy2(pki / f, out / name / f)
-        router = router_config(fleet, robots, listen, auth, tls=router_tls)
-    (out / "router" / "router.json5").write_text(json5_text(router, header))
-    os.chmod(out / "router" / "router.json5", 0o600)
+            _copy_private(pki / f"{name}.key", out / name / f"{name}.key")
+        router = router_config(fleet, robots, listen, auth, tls=router_tls, sim=sim)
+    write_secret(out / "router" / "router.json5", json5_text(router, header))
     for i in ids:
         (out / i).mkdir(exist_ok=True)
         if auth == "usrpwd":
@@ -289,8 +339,7 @@ def write_deploy(out: Path, fleet: str, robots, router_endpoint: str, auth: str 
             conf = client_config(i, [router_endpoint], auth,
                                  tls=Tls(f"{conf_dir}/ca.pem", f"{conf_dir}/{i}.pem", f"{conf_dir}/{i}.key"))
         path = out / i / f"{i}.json5"
-        path.write_text(json5_text(conf, header))
-        os.chmod(path, 0o600)
+        write_secret(path, json5_text(conf, header))
         (out / i / "vsfleet.env").write_text(env_text(fleet))
         if fleet_file is not None and i in ("sim", "operator"):
             shutil.copy2(fleet_file, out / i / "fleet.toml")
@@ -311,6 +360,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--conf-dir", default="/etc/vsfleet", help="where the files live on the hosts")
     p.add_argument("--listen", action="append", default=[], metavar="ENDPOINT",
                    help="router listen endpoint (default: 0.0.0.0 on the --router port)")
+    p.add_argument("--sim", action="store_true",
+                   help="also make the `sim` login, which may publish truth (simulated robots, "
+                        "vsfleet-sim.service); not for a lab with real robots")
     return p
 
 
@@ -321,7 +373,7 @@ def main(argv: list[str] | None = None) -> int:
         scenario = load_scenario(args.fleet_file, args.fleet)
         paths = write_deploy(Path(args.out), scenario.fleet, [r.robot for r in scenario.robots],
                              args.router, args.auth, args.conf_dir, args.listen or None,
-                             fleet_file=Path(args.fleet_file))
+                             fleet_file=Path(args.fleet_file), sim=args.sim)
     except (OSError, ValueError) as exc:
         print(f"vsfleet deploy config: {exc}", file=sys.stderr)
         return 2

@@ -2,7 +2,9 @@
 
 The mission's ``version`` defaults to the current UNIX time in milliseconds (so
 it increases), and ``effective_t`` to now + --delay seconds. Agents answer
-mission queries themselves, so late joiners get it without this process.
+mission queries themselves (each under ``vs/<fleet>/peer/<robot>/mission``; a late
+joiner takes the answer of a majority of them), so late joiners get it without
+this process.
 
 Before publishing it checks the mission's robots against the fleet's live agents
 (their liveliness tokens) and refuses a mismatch with a clear message; --force

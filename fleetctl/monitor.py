@@ -6,7 +6,7 @@ deviation from the structure (the agent's ``err``), whether its agent is alive
 messages the agent rejected. For the fleet: the fitted structure pose and the
 mission version the agents use, their agreement (the largest difference
 between agents' structure poses on the newest frame that every live agent
-reported), and the latest events (``vs/<fleet>/event`` maps, and faults).
+reported), and the latest events (``vs/<fleet>/event/<robot>`` maps, and faults).
 
 :class:`FleetModel` holds the state; it ingests (receive time, key, payload)
 and produces plain rows (:class:`FleetView`), so it runs as well on a
@@ -38,6 +38,7 @@ from vsfleet.wire import (
 )
 
 from .lifecycle import StopFlag
+from .peers import current_missions
 from .record import split_key
 from .zconf import add_zenoh_args, init_logging, zenoh_config
 
@@ -157,8 +158,8 @@ class FleetModel:
                 f = decode_fault(payload)
                 self.events.append((t_recv_s, f"fault/{rid}",
                                     {"kind": f.kind, "factor": f.factor, "duration": f.duration}))
-            elif kind == "event" and rid is None:
-                self.events.append((t_recv_s, "event", unpack_map(payload)))
+            elif kind == "event" and rid:  # event/<robot>: a decision by that robot's agent
+                self.events.append((t_recv_s, f"event/{check_name(rid, 'robot')}", unpack_map(payload)))
         except WireError:
             self.bad += 1
 
@@ -307,10 +308,9 @@ def main(argv: list[str] | None = None) -> int:
     with zenoh.open(zenoh_config(args)) as session:
         session.declare_subscriber(key_expr, on_sample)
         session.liveliness().declare_subscriber(key_expr, on_token, history=True)
-        for reply in session.get(key_expr.rsplit("/", 1)[0] + "/mission" if fleet else "vs/*/mission",
-                                 timeout=2.0):
-            if reply.ok is not None:
-                on_sample(reply.ok)
+        for key, payload in current_missions(session, fleet, timeout_s=2.0):
+            with lock:
+                model.ingest(time.time(), key, payload)
         with Live(current(), refresh_per_second=args.refresh, get_renderable=current, screen=False):
             while not stop.wait(min(0.25, max(0.0, t_end - time.monotonic()))):
                 if time.monotonic() >= t_end:

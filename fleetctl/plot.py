@@ -140,7 +140,7 @@ def extract(records: Iterable[LogRecord], fleet: str | None = None) -> RunData:
                 f = decode_fault(rec.payload)
                 if f.kind != "none":
                     data.faults.append(FaultMark(rec.publish_time_ns * 1e-9, robot, f.kind, "fault message"))
-            elif kind == "event" and robot is None:
+            elif kind == "event" and robot:  # event/<deciding agent's robot>
                 mark = fault_from_event(msgpack.unpackb(rec.payload, raw=False, strict_map_key=False),
                                         rec.publish_time_ns * 1e-9)
                 if mark is not None:

@@ -22,8 +22,10 @@ Layout of the file (one channel per key and role; channel metadata
   foxglove.PoseInFrame and ``/foxglove/vs/<fleet>/path`` foxglove.PosesInFrame
   from the mission.
 
-At start the recorder also queries the mission (agents and ``vsfleet run``
-answer), so a recording started after the mission was published still has it.
+At start the recorder also queries the mission (``vsfleet run`` answers as the
+operator on ``vs/<fleet>/mission``; agents answer under ``vs/<fleet>/peer/<robot>/mission``,
+and their majority answer is taken, see fleetctl.peers), so a recording started
+after the mission was published still has it, on ``vs/<fleet>/mission``.
 """
 
 from __future__ import annotations
@@ -56,6 +58,7 @@ from vsfleet.wire import (
 )
 
 from .lifecycle import StopFlag
+from .peers import current_missions
 from .zcli_codec import jsonable
 from .zconf import add_zenoh_args, init_logging, zenoh_config
 
@@ -391,6 +394,10 @@ class LiveRecorder:
         self._queue.put((False, str(sample.key_expr), sample.payload.to_bytes(), time.time_ns(),
                          sample_time_ns(sample)))
 
+    def on_payload(self, key: str, payload: bytes) -> None:
+        """A message that did not come as a sample (a query's answer), recorded as received now."""
+        self._queue.put((False, key, payload, time.time_ns(), None))
+
     def on_liveliness(self, sample: zenoh.Sample) -> None:
         self._queue.put((True, str(sample.key_expr), sample.kind == zenoh.SampleKind.PUT, time.time_ns(), None))
 
@@ -455,17 +462,13 @@ class Recording:
             raise
 
     def _query_mission(self) -> None:
+        """Record the mission the fleet holds now (the operator's answer, else the agents' majority)."""
         want = zenoh.KeyExpr(self.key_expr)
-        missions = zenoh.KeyExpr("vs/*/mission")
-        if not want.intersects(missions):
+        if not want.intersects(zenoh.KeyExpr("vs/*/mission")):
             return
-        seen = set()  # every agent answers: keep one copy of each mission
-        for reply in self.session.get(missions, timeout=2.0):
-            if reply.ok is not None and want.intersects(reply.ok.key_expr):
-                ident = (str(reply.ok.key_expr), reply.ok.payload.to_bytes())
-                if ident not in seen:
-                    seen.add(ident)
-                    self.recorder.on_sample(reply.ok)
+        for key, payload in current_missions(self.session, None, timeout_s=2.0):
+            if want.intersects(zenoh.KeyExpr(key)):
+                self.recorder.on_payload(key, payload)
 
     @property
     def count(self) -> int:

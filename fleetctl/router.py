@@ -50,22 +50,53 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+class RouterModeError(ValueError):
+    """The flags or the config file ask for another mode than router."""
+
+
+def router_config(args: argparse.Namespace) -> zenoh.Config:
+    """The config from the flags and the --config file, always in router mode.
+
+    A file that sets no ``mode`` would make zenoh open a peer, which neither routes
+    for clients nor is what the access control was written for: router mode is set.
+    A file or flag that asks for another mode is refused (RouterModeError).
+    """
+    if args.mode not in (None, "router"):
+        raise RouterModeError(f"--mode {args.mode}: `vsfleet router` runs a router; drop the flag")
+    if not args.config:
+        args = argparse.Namespace(**{**vars(args), "mode": "router"})
+    conf = zenoh_config(args)
+    mode = json.loads(conf.get_json("mode"))
+    if mode is None:
+        conf.insert_json5("mode", '"router"')
+    elif mode != "router":
+        raise RouterModeError(f"{args.config} sets mode {mode!r}: `vsfleet router` runs a router; "
+                              f"set \"mode\": \"router\" in it or leave mode out")
+    conf.insert_json5("adminspace/enabled", "true")
+    return conf
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     init_logging(args.verbose)
-    if args.mode is None and not args.config:
-        args.mode = "router"
     try:
-        conf = zenoh_config(args)
-        conf.insert_json5("adminspace/enabled", "true")
+        conf = router_config(args)
+    except RouterModeError as exc:
+        log.error("%s", exc)
+        return 2
+    except zenoh.ZError as exc:  # a config file zenoh cannot read
+        log.error("cannot start the router: %s", exc)
+        return 1
+    try:
         session = zenoh.open(conf)
-    except zenoh.ZError as exc:  # a bad config file, a missing password dictionary or certificate
+    except zenoh.ZError as exc:  # a missing password dictionary or certificate
         log.error("cannot start the router: %s", exc)
         return 1
     stop = StopFlag()
     with session:
         acl = conf.get_json("access_control/enabled") == "true"
-        log.info("router up, zid %s, access control %s", session.info.zid(), "on" if acl else "off")
+        log.info("router up, zid %s, mode %s, access control %s", session.info.zid(),
+                 json.loads(conf.get_json("mode")), "on" if acl else "off")
         while not stop.wait(1.0):
             pass
     return 0

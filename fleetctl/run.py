@@ -2,8 +2,9 @@
 
 Starts an embedded zenoh router (router-mode session on a free loopback port,
 multicast off), then simfleet, the simulated tracker and one agent process per
-robot, all as clients of that router. Publishes the mission and answers
-mission queries. Shows progress, stops everything cleanly (also on Ctrl-C or
+robot, all as clients of that router. Publishes the mission and, as the
+operator, answers mission queries on ``vs/<fleet>/mission`` (agents that start
+after the put ask there as well as their peers). Shows progress, stops everything cleanly (also on Ctrl-C or
 when a child dies), prints a summary and writes the run to runs/<timestamp>/:
 ``run.mcap`` (every message and liveliness token, as ``vsfleet record`` writes
 it), ``log.msgpack``, ``summary.json``, the scenario and the plots of

@@ -1,12 +1,26 @@
 """The agent's reaction to messages, without transport: nothing a peer sends ends it or moves a robot."""
 
+import dataclasses
+
 import msgpack
 import pytest
 
 import agent.main as agent_main
 from agent.main import Agent
 from vsfleet.failure import Health
-from vsfleet.wire import Keys, Mission, PoseMsg, RobotSpec, decode_cmd, decode_health, decode_state, encode, encode_mission
+from vsfleet.wire import (
+    HealthMsg,
+    Keys,
+    Mission,
+    PoseMsg,
+    RobotSpec,
+    decode_cmd,
+    decode_health,
+    decode_state,
+    encode,
+    encode_health,
+    encode_mission,
+)
 
 KEYS = Keys("demo")
 MISSION = Mission(1, "linf", (("r1", RobotSpec((0.3, 0.0), 0.12, 0.3, 0.8)),
@@ -82,16 +96,16 @@ def test_a_restarted_agent_adopts_its_peers_failure_state_once():
     frame(peer, peer_clock, 1, 100.0, POSES)
     assert peer.health_payload is not None
     fresh, cmds, states, clock = make_agent()
-    fresh.on_message("health", KEYS.health, peer.health_payload)
+    assert fresh.on_query_replies("health", [(KEYS.peer_health("r2"), peer.health_payload)])  # the only peer
     assert fresh.health.dropped == {"r2"} and fresh.health.failed == {"r2"}
     sent = decode_health(peer.health_payload)
     assert fresh.health.since_t == dict(sent.since) and sent.seq == 1 and sent.mission == 1
     # a later reply does not overwrite what was adopted; a bad one is counted
     other, _, _, other_clock = make_agent()
     frame(other, other_clock, 2, 100.03, POSES)
-    fresh.on_message("health", KEYS.health, other.health_payload)
+    assert not fresh.on_query_replies("health", [(KEYS.peer_health("r3"), other.health_payload)])
     assert fresh.health.dropped == {"r2"}
-    fresh.on_message("health", KEYS.health, b"\x93\x01")
+    fresh.on_message("health-replies", KEYS.peer_health(), [(KEYS.peer_health("r3"), b"\x93\x01")])
     assert fresh.rejections.count == 1
     # with r2 dropped, both agents now fit the same robots
     frame(fresh, clock, 3, 100.06, POSES)
@@ -104,7 +118,7 @@ def test_health_of_an_unknown_mission_is_not_adopted():
     peer.health = Health(failed=frozenset({"r2"}), dropped=frozenset({"r2"}))
     frame(peer, peer_clock, 1, 100.0, POSES)
     fresh = Agent("r1", KEYS, lambda b: None, lambda b: None, clock=Clock(100.0))
-    fresh.on_message("health", KEYS.health, peer.health_payload)   # no mission yet
+    fresh.on_query_replies("health", [(KEYS.peer_health("r2"), peer.health_payload)])   # no mission yet
     assert not fresh.health_adopted and fresh.health.dropped == frozenset()
 
 
@@ -181,6 +195,119 @@ def test_after_a_long_gap_the_agent_restarts_its_timers_and_adopts_only_its_peer
     peer, _, _, peer_clock = make_agent()
     peer.health = Health(since_t={"r1": 104.0}, failed=frozenset({"r1"}), dropped=frozenset({"r1"}))
     frame(peer, peer_clock, 2, 105.0, {**POSES, "r1": (0.0, 0.0, 0.0)})
-    agent.on_message("health", KEYS.health, peer.health_payload)
+    agent.on_query_replies("health", [(KEYS.peer_health("r2"), peer.health_payload)])
     assert agent.health.dropped == {"r1"}                       # the decision it missed
     assert "r1" not in agent.health.since_t                     # but its own timers
+
+
+# ---------------------------------------------------------------- answers from peers: a majority or nothing
+
+FORGED = dataclasses.replace(MISSION, version=10**12, goal=(-5.0, -5.0, 0.0))  # newer than any real one
+
+
+def fresh_agent(robot="r1"):
+    return Agent(robot, KEYS, lambda b: None, lambda b: None, clock=Clock(100.0))
+
+
+def peer_missions(**by_peer):
+    return [(KEYS.peer_mission(r), encode_mission(m)) for r, m in by_peer.items()]
+
+
+def test_a_mission_is_taken_from_a_strict_majority_of_the_peers_that_replied():
+    for replies in (peer_missions(r2=MISSION),                      # the only peer: a majority of 1
+                    peer_missions(r2=MISSION, r3=MISSION),
+                    peer_missions(r2=MISSION, r3=MISSION, r4=FORGED)):
+        agent = fresh_agent()
+        assert agent.on_query_replies("mission", replies)
+        assert agent.missions.latest() == MISSION
+
+
+def test_a_forged_mission_without_a_majority_is_not_taken_and_the_agent_says_why(caplog):
+    for replies in (peer_missions(r2=MISSION, r3=FORGED), peer_missions(r2=FORGED, r3=MISSION),
+                    peer_missions(r2=MISSION, r3=FORGED, r4=dataclasses.replace(MISSION, version=2))):
+        agent = fresh_agent()
+        caplog.clear()
+        assert not agent.on_query_replies("mission", replies)
+        assert agent.missions.latest() is None and agent.mission_payload is None
+        assert agent.no_quorum == 1
+        assert "no answer has a strict majority" in caplog.text and "asking again" in caplog.text
+    # the next query (a second later) with the forger gone: taken
+    assert agent.on_query_replies("mission", peer_missions(r2=MISSION))
+    assert agent.missions.latest() == MISSION
+
+
+def test_two_sessions_with_one_robots_login_cannot_outvote_the_others():
+    """r3's real agent and a rogue with r3's login both answer under r3's key: r3 counts once."""
+    agent = fresh_agent()
+    replies = peer_missions(r2=MISSION) + peer_missions(r3=MISSION) + peer_missions(r3=FORGED)
+    assert agent.on_query_replies("mission", replies)
+    assert agent.missions.latest() == MISSION
+    agent = fresh_agent()  # the rogue alone against one honest peer: nothing
+    assert not agent.on_query_replies("mission", peer_missions(r2=MISSION) + [
+        (KEYS.peer_mission("r3"), encode_mission(FORGED)), (KEYS.peer_mission("r3"), encode_mission(FORGED))])
+    assert agent.missions.latest() is None
+
+
+def test_the_operators_answer_is_taken_as_its_put_is_and_the_agents_own_answer_never_counts():
+    agent = fresh_agent()
+    assert agent.on_query_replies("mission", [(KEYS.mission, encode_mission(MISSION))]
+                                  + peer_missions(r2=FORGED, r3=dataclasses.replace(FORGED, version=7)))
+    assert agent.missions.latest() == MISSION
+    agent = fresh_agent()
+    # its own queryable (r1's key) cannot make up a majority for it
+    assert not agent.on_query_replies("mission", peer_missions(r1=FORGED, r2=MISSION, r3=FORGED))
+    assert agent.missions.latest() is None
+
+
+def test_replies_under_keys_that_name_no_peer_are_rejected_and_never_counted():
+    agent = fresh_agent()
+    payload = encode_mission(FORGED)
+    bad = [(f"{KEYS.prefix}/peer/a/b/mission", payload), (f"{KEYS.prefix}/peer//mission", payload),
+           (f"{KEYS.prefix}/health", payload), (KEYS.peer_health("r2"), payload)]
+    assert agent.on_query_replies("mission", bad + peer_missions(r3=MISSION))
+    assert agent.missions.latest() == MISSION and agent.rejections.count == len(bad)
+
+
+def health_of(robot, seq, t, failed=(), dropped=(), since=(), mission=1):
+    """Peer ``robot``'s answer to a health query, sent after frame ``seq`` (tracker time t)."""
+    return KEYS.peer_health(robot), encode_health(HealthMsg(t=t, seq=seq, mission=mission, failed=tuple(failed),
+                                                            dropped=tuple(dropped), since=tuple(since)))
+
+
+def test_a_forged_health_answer_without_a_majority_is_not_adopted_and_the_agent_keeps_its_own(caplog):
+    agent, _, _, _ = make_agent()
+    honest = health_of("r2", 7, 100.2)
+    forged = health_of("r3", 7, 100.2, failed=("r1", "r2"), dropped=("r1", "r2"))
+    assert not agent.on_query_replies("health", [honest, forged])
+    assert agent.health == Health() and not agent.health_adopted
+    assert "keeping this agent's own failure state" in caplog.text
+    # with a second honest peer (a frame further on: t and seq differ) the honest state wins
+    other = health_of("r4", 8, 100.233)
+    assert decode_health(other[1]).seq != decode_health(honest[1]).seq
+    assert agent.on_query_replies("health", [honest, forged, other])
+    assert agent.health_adopted and agent.health.dropped == frozenset() and agent.health.failed == frozenset()
+
+
+def test_peers_that_disagree_on_the_failure_timers_give_their_decisions_but_not_their_timers(caplog):
+    """r3 forges a timer that would fail r2 at its first bad frame: the decisions, which both
+    peers agree on, are adopted; the timers are this agent's own."""
+    a = health_of("r2", 7, 100.2, failed=("r3",), dropped=("r3",), since=(("r3", 100.1),))
+    b = health_of("r3", 7, 100.2, failed=("r3",), dropped=("r3",), since=(("r2", 0.0), ("r3", 100.1)))
+    caplog.set_level("INFO", "vsfleet.agent")
+    agent, _, _, _ = make_agent()
+    agent.health = Health(since_t={"r1": 100.0})
+    assert agent.on_query_replies("health", [a, b])
+    assert agent.health.dropped == {"r3"} and agent.health.failed == {"r3"}
+    assert agent.health.since_t == {"r1": 100.0}
+    assert "not on the failure timers" in caplog.text
+    agent, _, _, _ = make_agent()   # when they agree on the timers too, the timers are adopted
+    assert agent.on_query_replies("health", [a, health_of("r3", 8, 100.233, failed=("r3",), dropped=("r3",),
+                                                          since=(("r3", 100.1),))])
+    assert agent.health.since_t == {"r3": 100.1}
+
+
+def test_health_for_a_mission_the_agent_does_not_hold_is_not_adopted_even_by_a_majority(caplog):
+    agent, _, _, _ = make_agent()
+    assert not agent.on_query_replies("health", [health_of("r2", 7, 100.2, dropped=("r3",), mission=5),
+                                                 health_of("r3", 7, 100.2, dropped=("r3",), mission=5)])
+    assert not agent.health_adopted and "does not hold" in caplog.text

@@ -90,11 +90,12 @@ def test_rejections_come_from_the_agents_state():
 def test_events_and_faults_keep_the_latest_few_in_order():
     m = fed()
     for i in range(7):
-        m.ingest(T0 + 3 + i, "vs/demo/event", msgpack.packb({"kind": "note", "i": i}))
+        m.ingest(T0 + 3 + i, "vs/demo/event/r1", msgpack.packb({"kind": "note", "i": i}))
     m.ingest(T0 + 11, "vs/demo/fault/r2", encode(FaultMsg("stop", 0.0, 0.0)))
     events = m.view().events
     assert len(events) == 5
     assert [e[2].get("i") for e in events[:4]] == [3, 4, 5, 6]
+    assert events[0][1] == "event/r1"  # the deciding agent, from the key
     assert events[-1][1:] == ("fault/r2", {"kind": "stop", "factor": 0.0, "duration": 0.0})
 
 
@@ -102,7 +103,7 @@ def test_bad_messages_are_counted_and_never_break_the_view():
     m = fed()
     m.ingest(T0 + 2, "vs/demo/pose/r1", b"\xc1")
     m.ingest(T0 + 2, "vs/demo/state/r2", msgpack.packb({"seq": "x"}))
-    m.ingest(T0 + 2, "vs/demo/event", msgpack.packb([1, 2]))
+    m.ingest(T0 + 2, "vs/demo/event/r1", msgpack.packb([1, 2]))
     view = m.view()
     assert view.bad_messages == 3 and len(view.robots) == 3
 

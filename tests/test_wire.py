@@ -146,3 +146,16 @@ def test_keys_follow_the_contract_and_refuse_bad_names():
     for bad in ("a/b", "", "*", "x y", "r$"):
         with pytest.raises(WireError):
             Keys(bad)
+
+
+def test_each_agent_answers_and_decides_under_its_own_key():
+    k = Keys("lab")
+    assert k.event("r2") == "vs/lab/event/r2" and k.event() == "vs/lab/event/*"
+    assert k.peer_mission("r1") == "vs/lab/peer/r1/mission" and k.peer_mission() == "vs/lab/peer/*/mission"
+    assert k.peer_health("r3") == "vs/lab/peer/r3/health" and k.peer("r3") == "vs/lab/peer/r3"
+    assert k.peer_of("vs/lab/peer/r3/health", "health") == "r3"
+    assert k.robot_of(k.event("r2"), "event") == "r2"
+    for bad in ("vs/lab/peer/r3/mission", "vs/lab/peer/a/b/health", "vs/lab/peer//health", "vs/lab/health",
+                "vs/other/peer/r3/health", "vs/lab/peer/*/health"):
+        with pytest.raises(WireError):
+            k.peer_of(bad, "health")

@@ -75,14 +75,21 @@ class Keys:
     def mission(self) -> str:
         return f"{self.prefix}/mission"
 
-    @property
-    def event(self) -> str:
-        return f"{self.prefix}/event"
+    def event(self, robot: str = "*") -> str:
+        """Failure-policy decisions of robot ``robot``'s agent (only that login may put here)."""
+        return f"{self.prefix}/event/{robot}"
 
-    @property
-    def health(self) -> str:
-        """Queryable of every agent: its failure-policy state, for an agent that (re)starts."""
-        return f"{self.prefix}/health"
+    def peer(self, robot: str = "*") -> str:
+        """Everything agent ``robot`` answers queries on: ``vs/<fleet>/peer/<robot>``."""
+        return f"{self.prefix}/peer/{robot}"
+
+    def peer_mission(self, robot: str = "*") -> str:
+        """Queryable of agent ``robot``: the newest mission it holds, for late joiners."""
+        return f"{self.peer(robot)}/mission"
+
+    def peer_health(self, robot: str = "*") -> str:
+        """Queryable of agent ``robot``: its failure-policy state, for an agent that (re)starts."""
+        return f"{self.peer(robot)}/health"
 
     def alive(self, role: str = "*", ident: str = "*") -> str:
         return f"{self.prefix}/alive/{role}/{ident}"
@@ -97,6 +104,13 @@ class Keys:
         if not key.startswith(head):
             raise WireError(f"key {key!r} is not under {head}")
         return check_name(key[len(head):], "robot")
+
+    def peer_of(self, key: str, what: str) -> str:
+        """The robot id in a concrete key ``vs/<fleet>/peer/<robot>/<what>``; WireError otherwise."""
+        head, tail = f"{self.prefix}/peer/", f"/{what}"
+        if not (key.startswith(head) and key.endswith(tail)):
+            raise WireError(f"key {key!r} is not {head}<robot>{tail}")
+        return check_name(key[len(head):-len(tail)], "robot")
 
 
 # ---------------------------------------------------------------- field checks

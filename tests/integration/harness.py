@@ -33,7 +33,7 @@ class Observed:
         self.truth: list[tuple[float, str, object]] = []
         self.state: list[tuple[float, str, object]] = []
         self.cmd: list[tuple[float, str, object]] = []
-        self.event: list[tuple[float, str, object]] = []  # (arrival, deciding agent, EventMsg)
+        self.event: list[tuple[float, str, object]] = []  # (arrival, deciding agent, EventMsg) from event/<agent>
         self.alive: set[str] = set()
         self.alive_t: dict[str, float] = {}  # when each token last appeared [s, this host]
 
@@ -50,13 +50,16 @@ class Observed:
     def on_sample(self, sample: zenoh.Sample) -> None:
         key = str(sample.key_expr)
         now = time.time()
-        if key == self.keys.event:
-            try:
+        if key.startswith(f"{self.keys.prefix}/event/"):
+            try:  # the key names the deciding agent (only its login may put there)
+                by = self.keys.robot_of(key, "event")
                 msg = decode_event(sample.payload.to_bytes())
             except WireError:
                 return
+            if msg.by != by:
+                return  # not the agent the key says it is from
             with self.cond:
-                self.event.append((now, msg.by, msg))
+                self.event.append((now, by, msg))
                 self.cond.notify_all()
             return
         for kind, decode, store in (("truth", decode_truth, self.truth), ("state", decode_state, self.state),

@@ -39,7 +39,7 @@ def install_deploy(out: Path, fleet: str, robots, router_endpoint: str, auth: st
     """Generate the deploy files and install every host's share into one etc directory."""
     etc = out / "etc"
     write_deploy(out / "generated", fleet, robots, router_endpoint, auth, conf_dir=str(etc),
-                 listen=[router_endpoint])
+                 listen=[router_endpoint], sim=True)  # simulated robots: the sim login
     etc.mkdir(parents=True, exist_ok=True)
     for host in (out / "generated").iterdir():
         if host.name != "pki":
