@@ -33,6 +33,7 @@ class Frame:
     t: float
     poses: dict[str, tuple[float, float, float]]
     complete: bool
+    fresh: frozenset[str] = frozenset()  # robots whose pose is of this very frame (same src and seq)
 
 
 class FrameAssembler:
@@ -83,8 +84,9 @@ class FrameAssembler:
             self.deadline_at = None
             return None
         held = {r: self.latest.get(r) for r in robots}
-        complete = all(m is not None and m.seq == newest.seq and m.src == newest.src
-                       for m in held.values())
+        fresh = frozenset(r for r, m in held.items()
+                          if m is not None and m.seq == newest.seq and m.src == newest.src)
+        complete = len(fresh) == len(held)
         if not complete and (self.deadline_at is None or now < self.deadline_at):
             return None
         if newest.t < now - self.max_stale_s:
@@ -96,7 +98,7 @@ class FrameAssembler:
                  if m is not None and newest.t - self.max_age_s <= m.t}
         self.done = key
         self.deadline_at = None
-        return Frame(seq=newest.seq, t=newest.t, poses=poses, complete=complete)
+        return Frame(seq=newest.seq, t=newest.t, poses=poses, complete=complete, fresh=fresh)
 
 
 class MissionBook:

@@ -317,8 +317,13 @@ class Agent:
                 rejected=self.rejections.count, complete=frame.complete, mission=mission.version)))
         policy = FailurePolicy(mission.on_failure)
         self.predicted = dict(result.commands)
-        self.motion, progress = update_motion(policy, self.motion, poses,
-                                              expected_steps(mission, poses, result.commands, self.dt_s),
+        # the motion test takes only poses of this very frame: a pose held over from an earlier
+        # frame (run on the deadline) would count as "did not move" here and double next frame,
+        # and agents that got that pose in time would disagree on the frame of a decision
+        moved = {r: p for r, p in poses.items() if r in frame.fresh}
+        self.motion, progress = update_motion(policy, self.motion, moved,
+                                              expected_steps(mission, moved, {r: c for r, c in result.commands.items()
+                                                                              if r in moved}, self.dt_s),
                                               frame.t, step_s=self.dt_s, max_gap_s=self.ttl_s)
         self.health, decisions = update_health(policy, self.health, result.deviations_m,
                                                mission.robot_ids, frame.t, progress)

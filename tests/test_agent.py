@@ -311,3 +311,17 @@ def test_health_for_a_mission_the_agent_does_not_hold_is_not_adopted_even_by_a_m
     assert not agent.on_query_replies("health", [health_of("r2", 7, 100.2, dropped=("r3",), mission=5),
                                                  health_of("r3", 7, 100.2, dropped=("r3",), mission=5)])
     assert not agent.health_adopted and "does not hold" in caplog.text
+
+
+def test_a_frame_run_on_its_deadline_feeds_the_motion_test_only_the_poses_of_that_frame():
+    agent, cmds, states, clock = make_agent()
+    frame(agent, clock, 1, 100.0, POSES)
+    clock.t = 100.033
+    for r in ("r1", "r2"):                                   # r3's pose of frame 2 is late
+        agent.on_message("pose", KEYS.pose(r), encode(PoseMsg(100.033, 2, *POSES[r], "sim")))
+    clock.t = 100.08                                         # past the deadline: runs incomplete
+    ran = agent.poll()
+    assert ran is not None and not ran.complete and ran.fresh == {"r1", "r2"}
+    assert "r3" in ran.poses                                 # still in the fit (held pose)
+    assert agent.motion.last["r3"][0] == 100.0               # but the motion test waits for a fresh one
+    assert agent.motion.last["r1"][0] == 100.033

@@ -80,6 +80,22 @@ def max_state_err_m(obs, after_t: float = 0.0) -> float:
     return max((m.err for t, _, m in obs.state if m.t > after_t), default=0.0)
 
 
+def assert_same_frame(obs, decided: dict[str, int], window_frames: int = 75) -> None:
+    """Every agent decided on the same frame, unless an agent's inputs differed: an agent that
+    did not run every frame of the decision window whole (a missed frame, or one run on its
+    deadline without every pose) may decide one frame apart. That case is printed."""
+    if len(set(decided.values())) == 1:
+        return
+    lo, hi = min(decided.values()) - window_frames, max(decided.values())
+    ran_whole = {by: {m.seq for _, r, m in obs.state if r == by and m.complete and lo <= m.seq <= hi}
+                 for by in decided}
+    differed = {by for by, seqs in ran_whole.items() if len(seqs) < hi - lo + 1}
+    print(f"decisions on frames {decided}; agents whose inputs differed in frames {lo}..{hi}: "
+          f"{sorted(differed)}")
+    assert differed, f"agents with the same inputs decided on different frames: {decided}"
+    assert max(decided.values()) - min(decided.values()) <= 1, decided
+
+
 @pytest.fixture
 def fleet(tmp_path):
     f = LoopbackFleet(E2E, tmp_path)
@@ -183,7 +199,7 @@ def test_a_stopped_robot_is_dropped_by_every_agent_on_the_same_frame_and_the_res
     drops = fleet.observed.wait_for(
         lambda o: {by: e for _, by, e in o.event if e.kind == "drop" and e.robot == "r2"}
         if len({by for _, by, e in o.event if e.kind == "drop"}) == 3 else None, timeout_s=20)
-    assert len({e.seq for e in drops.values()}) == 1, drops
+    assert_same_frame(fleet.observed, {by: e.seq for by, e in drops.items()})
     t_drop = next(iter(drops.values())).t
     fleet.observed.wait_for(
         lambda o: {r for _, r, m in o.state if m.t > t_drop + 0.5 and m.used == ("r1", "r3")} >= {"r1", "r3"},
@@ -209,7 +225,7 @@ def test_a_killed_agent_restarted_takes_its_peers_decisions_and_agrees_within_a_
     drops = fleet.observed.wait_for(
         lambda o: {by: e.seq for _, by, e in o.event if e.kind == "drop" and e.robot == "r1"}
         if {"r2", "r3"} <= {by for _, by, e in o.event if e.kind == "drop"} else None, timeout_s=20)
-    assert len(set(drops.values())) == 1, drops
+    assert_same_frame(fleet.observed, drops)
     t_restart = time.time()
     fleet.start_agent("r1", "--ttl", str(TTL_S))
     key = fleet.keys.alive("agent", "r1")
@@ -237,7 +253,7 @@ def test_a_killed_agent_restarted_takes_its_peers_decisions_and_agrees_within_a_
           f"{t_up - t_restart:.2f} s after launch, agreeing {t_agree - t_up:.3f} s after it was up; "
           f"rejoined by all on frame {set(rejoins.values())}")
     assert t_agree - t_up <= 1.0
-    assert len(set(rejoins.values())) == 1, rejoins
+    assert_same_frame(fleet.observed, rejoins)
     fleet.observed.wait_for(at_goal(fleet), timeout_s=40)
     after = [(r, m) for t, r, m in fleet.observed.state if m.seq > max(rejoins.values())]
     a = agreement(after, min_agents=3, complete_only=True)
