@@ -5,13 +5,20 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 cv2 = pytest.importorskip("cv2")
 
+from camera_support import (  # noqa: E402, F401 - the fixtures calibration, config, renderer
+    CONFIG,
+    calibrate_rendered,
+    calibration_fixture,
+    config_fixture,
+    renderer_for,
+    renderer_fixture,
+)
 from tracker.calib import CalibrationError, FloorCalibration, Intrinsics, PinholeCamera, Reference  # noqa: E402
 from tracker.calibrate import calibrate_frames  # noqa: E402
 from tracker.markers import (  # noqa: E402
@@ -31,30 +38,12 @@ from tracker.render import (  # noqa: E402
 )
 from vsfleet.geometry import angle_diff  # noqa: E402
 
-ROOT = Path(__file__).parent.parent
-CONFIG = ROOT / "deploy" / "camera" / "overhead.toml"
 # Measured with bench/camera.py (900 poses, 1280x720 over 3 x 2 m): position error max 0.62 mm,
 # mean 0.17 mm; heading error max 10.7 mrad, mean 2.6 mrad. Bounds below carry a margin of about 3x.
 POS_MAX_M = 0.002
 POS_MEAN_M = 0.0006
 TH_MAX_RAD = 0.03
 TH_MEAN_RAD = 0.008
-
-
-@pytest.fixture(scope="module")
-def config():
-    return load_config(CONFIG)
-
-
-@pytest.fixture(scope="module")
-def renderer(config):
-    return Renderer(sim_camera_from_dict(config.sim_camera), config.dictionary)
-
-
-@pytest.fixture(scope="module")
-def calibration(config, renderer):
-    frame = renderer.render(reference_scene(config), 0.0)
-    return calibrate_frames([frame], config, renderer.camera.intrinsics)
 
 
 def random_poses(rng, robots):
@@ -160,8 +149,7 @@ def test_two_cameras_each_publish_their_own_src_and_seq_and_agree_on_the_overlap
     seen = {}
     for src, spec in (("camL", left), ("camR", right)):
         cfg = dataclasses.replace(config, src=src, sim_camera=dataclasses.asdict(spec))
-        ren = Renderer(spec, cfg.dictionary)
-        cal = calibrate_frames([ren.render(reference_scene(cfg), 0.0)], cfg, ren.camera.intrinsics)
+        cal = calibrate_rendered(cfg, Renderer(spec, cfg.dictionary))
         tracker = CameraTracker(cfg, cal)
         tracker.seq = {"camL": 100, "camR": 7}[src]  # trackers count frames independently
         seen[src] = dict(tracker.process(render_frame(cfg, truth, 0.0, spec), 50.0))
@@ -178,8 +166,7 @@ def test_the_two_deploy_cameras_calibrate_on_their_own_and_agree_in_their_overla
     seen = {}
     for path in (CONFIG, CONFIG.with_name("overhead-2.toml")):
         cfg = load_config(path)
-        ren = Renderer(sim_camera_from_dict(cfg.sim_camera), cfg.dictionary)
-        cal = calibrate_frames([ren.render(reference_scene(cfg), 0.0)], cfg, ren.camera.intrinsics)
+        cal = calibrate_rendered(cfg, renderer_for(cfg))
         assert cal.error_mm["max"] < 3.0
         seen[cfg.src] = dict(CameraTracker(cfg, cal).process(render_frame(cfg, truth, 0.0), 1.0))
     assert set(seen) == {"cam1", "cam2"}

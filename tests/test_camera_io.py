@@ -4,16 +4,21 @@ from __future__ import annotations
 
 import json
 import logging
-import subprocess
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 cv2 = pytest.importorskip("cv2")
 
+from camera_support import (  # noqa: E402, F401 - the fixtures calibration, config, renderer
+    CONFIG,
+    TRUTH,
+    calibration_fixture,
+    config_fixture,
+    renderer_fixture,
+    run_cli,
+)
 from fleetctl.lifecycle import StopFlag  # noqa: E402
-from fleetctl.run import child_command  # noqa: E402
 from tracker import calibrate as calibrate_cmd  # noqa: E402
 from tracker import render as render_cmd  # noqa: E402
 from tracker.calib import FloorCalibration  # noqa: E402
@@ -25,29 +30,8 @@ from tracker.camera import (  # noqa: E402
     run_loop,
     video_t0,
 )
-from tracker.markers import CameraTracker, load_config  # noqa: E402
-from tracker.render import Renderer, reference_scene, robot_scene, sim_camera_from_dict, write_video  # noqa: E402
-
-ROOT = Path(__file__).parent.parent
-CONFIG = ROOT / "deploy" / "camera" / "overhead.toml"
-TRUTH = {"r1": (0.3, 0.02, 0.0), "r2": (-0.16, 0.25, 0.2), "r3": (-0.13, -0.27, -0.1)}
-
-
-@pytest.fixture(scope="module")
-def config():
-    return load_config(CONFIG)
-
-
-@pytest.fixture(scope="module")
-def renderer(config):
-    return Renderer(sim_camera_from_dict(config.sim_camera), config.dictionary)
-
-
-@pytest.fixture(scope="module")
-def calibration(config, renderer):
-    from tracker.calibrate import calibrate_frames
-
-    return calibrate_frames([renderer.render(reference_scene(config), 0.0)], config, renderer.camera.intrinsics)
+from tracker.markers import CameraTracker  # noqa: E402
+from tracker.render import robot_scene, write_video  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -185,11 +169,6 @@ def test_calibrate_command_writes_a_calibration_and_reports_mm(tmp_path, capsys)
     assert "reprojection error on the floor: mean" in text and " mm" in text
     cal = FloorCalibration.load(out)
     assert cal.model == "pinhole" and cal.error_mm["max"] < 3.0
-
-
-def run_cli(*args, timeout=60):
-    return subprocess.run(child_command(*args), capture_output=True, text=True, timeout=timeout,
-                          stdin=subprocess.DEVNULL)
 
 
 def test_camera_command_refuses_a_missing_or_malformed_calibration_without_a_trace(tmp_path):

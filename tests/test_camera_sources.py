@@ -4,18 +4,22 @@
 from __future__ import annotations
 
 import logging
-import subprocess
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 cv2 = pytest.importorskip("cv2")
 
+from camera_support import (  # noqa: E402, F401 - the fixtures calibration, config, renderer
+    CONFIG,
+    TRUTH,
+    calibration_fixture,
+    config_fixture,
+    renderer_fixture,
+    run_cli,
+)
 from fleetctl.lifecycle import StopFlag  # noqa: E402
-from fleetctl.run import child_command  # noqa: E402
 from tracker import camera as camera_cmd  # noqa: E402
-from tracker.calibrate import calibrate_frames  # noqa: E402
 from tracker.camera import (  # noqa: E402
     BrokenVideo,
     CameraOpenError,
@@ -29,35 +33,9 @@ from tracker.camera import (  # noqa: E402
     run_loop,
     source_kind,
 )
-from tracker.markers import CameraTracker, ConfigError, load_config  # noqa: E402
-from tracker.render import (  # noqa: E402
-    Renderer,
-    TruthBook,
-    reference_scene,
-    robot_scene,
-    sim_camera_from_dict,
-    write_video,
-)
+from tracker.markers import CameraTracker, ConfigError  # noqa: E402
+from tracker.render import TruthBook, robot_scene, write_video  # noqa: E402
 from vsfleet.wire import TruthMsg  # noqa: E402
-
-ROOT = Path(__file__).parent.parent
-CONFIG = ROOT / "deploy" / "camera" / "overhead.toml"
-TRUTH = {"r1": (0.3, 0.02, 0.0), "r2": (-0.16, 0.25, 0.2), "r3": (-0.13, -0.27, -0.1)}
-
-
-@pytest.fixture(scope="module")
-def config():
-    return load_config(CONFIG)
-
-
-@pytest.fixture(scope="module")
-def renderer(config):
-    return Renderer(sim_camera_from_dict(config.sim_camera), config.dictionary)
-
-
-@pytest.fixture(scope="module")
-def calibration(config, renderer):
-    return calibrate_frames([renderer.render(reference_scene(config), 0.0)], config, renderer.camera.intrinsics)
 
 
 @pytest.fixture(scope="module")
@@ -250,11 +228,6 @@ def test_a_video_file_that_cannot_be_opened_is_not_retried(config, calibration, 
                      StopFlag(install_signals=False), retries=2, first_backoff_s=0.001)
     assert calls == [1] and stats.exit_code == 2 and stats.retries == 0 and not stats.gave_up
     assert "retry" not in caplog.text
-
-
-def run_cli(*args, timeout=60):
-    return subprocess.run(child_command(*args), capture_output=True, text=True, timeout=timeout,
-                          stdin=subprocess.DEVNULL)
 
 
 def test_the_command_refuses_an_unreadable_video_at_once_and_fails_a_truncated_one(tmp_path, clip, calibration):

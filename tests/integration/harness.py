@@ -82,17 +82,17 @@ class Observed:
         return result
 
 
-def wait_port(port: int, timeout_s: float) -> None:
-    """Wait until something accepts TCP connections on 127.0.0.1:port."""
+def wait_port(port: int, timeout_s: float, host: str = "127.0.0.1") -> None:
+    """Wait until something accepts TCP connections on host:port (or raise TimeoutError)."""
     deadline = time.monotonic() + timeout_s
     retry = threading.Event()
     while True:
         try:
-            socket.create_connection(("127.0.0.1", port), timeout=1.0).close()
+            socket.create_connection((host, port), timeout=1.0).close()
             return
         except OSError:
             if time.monotonic() > deadline:
-                raise TimeoutError(f"nothing listens on 127.0.0.1:{port} after {timeout_s} s") from None
+                raise TimeoutError(f"nothing listens on {host}:{port} after {timeout_s} s") from None
             retry.wait(0.05)
 
 

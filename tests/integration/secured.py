@@ -7,10 +7,7 @@ directory; every child logs in with its own identity, the observer as operator.
 from __future__ import annotations
 
 import shutil
-import socket
 import subprocess
-import threading
-import time
 from pathlib import Path
 
 import zenoh
@@ -18,21 +15,7 @@ import zenoh
 from fleetctl.deploy import write_deploy
 from fleetctl.run import child_command
 
-from .harness import LoopbackFleet
-
-
-def wait_tcp(host: str, port: int, timeout_s: float) -> None:
-    """Wait until something accepts TCP connections on host:port (or raise TimeoutError)."""
-    deadline = time.monotonic() + timeout_s
-    retry = threading.Event()
-    while True:
-        try:
-            socket.create_connection((host, port), timeout=1.0).close()
-            return
-        except OSError:
-            if time.monotonic() > deadline:
-                raise TimeoutError(f"nothing listens on {host}:{port} after {timeout_s} s") from None
-            retry.wait(0.05)
+from .harness import LoopbackFleet, wait_port
 
 
 def install_deploy(out: Path, fleet: str, robots, router_endpoint: str, auth: str) -> Path:
@@ -105,7 +88,7 @@ class SecuredFleet(LoopbackFleet):
                                       self.router_endpoint(), self.auth)
         self.endpoint = self.router_endpoint()
         p = self.start("router", "router", "--config", str(self.etc / "router.json5"))
-        wait_tcp(self.router_host(), self.router_listen_port(), 20.0)
+        wait_port(self.router_listen_port(), 20.0, host=self.router_host())
         return p
 
     def open_observer(self) -> zenoh.Session:

@@ -15,9 +15,7 @@ import pytest
 
 cv2 = pytest.importorskip("cv2")
 
-from tracker.calibrate import calibrate_frames  # noqa: E402
-from tracker.markers import load_config  # noqa: E402
-from tracker.render import Renderer, reference_scene, sim_camera_from_dict  # noqa: E402
+from camera_support import save_calibration  # noqa: E402
 from vsfleet.analysis import deviation_stats, fitted_truth, goal_distance, truth_frames  # noqa: E402
 from vsfleet.geometry import angle_diff  # noqa: E402
 from vsfleet.wire import decode_pose  # noqa: E402
@@ -56,13 +54,49 @@ def settled(mission):
     return pred
 
 
+def drive_to_goal(fleet: LoopbackFleet, scenario: Path, trackers, on_pose):
+    """Start the sim, the render-source camera trackers ((name, camera config, calibration file, src)
+    each) and the agents, send the mission and wait until the fleet is settled at the goal, with
+    ``on_pose`` subscribed to every pose; fails the test if it does not settle. Closes the fleet.
+    Returns the pose at the goal and the observed states."""
+    pose_sub = fleet.router.declare_subscriber(fleet.keys.pose(), on_pose)
+    robots = fleet.mission.robot_ids
+    try:
+        fleet.start("sim", "sim", str(scenario))
+        for name, camera, cal_path, _ in trackers:
+            fleet.start(name, "tracker", "camera", "--camera", str(camera), "--calibration", str(cal_path),
+                        "--source", "render", "--rate", str(fleet.scenario.tracker.rate_hz),
+                        "--fleet", fleet.scenario.fleet)
+        for r in robots:
+            fleet.start_agent(r)
+        fleet.wait_alive("agent", robots)
+        fleet.wait_alive("tracker", [src for *_, src in trackers])
+        fleet.publish_mission()
+        at_goal = fleet.observed.wait_for(settled(fleet.mission), timeout_s=fleet.scenario.duration_s)
+        states = list(fleet.observed.state)
+    except TimeoutError:
+        pytest.fail("fleet did not settle at the goal\n" + fleet.logs())
+    finally:
+        pose_sub.undeclare()
+        fleet.close()
+    return at_goal, states
+
+
+def formation_deviation(fleet: LoopbackFleet, states):
+    """The observed truth and the structure's deviation per robot in it (printed), judged from when the
+    agents first commanded (before that the robots sit at their starts)."""
+    truth = [(r, m) for _, r, m in fleet.observed.truth]
+    fitted = fitted_truth(fleet.mission, truth_frames(truth))
+    t_first = min(s.t for _, _, s in states)
+    stats = deviation_stats([f for f in fitted if f[0] >= t_first])
+    for d in stats:
+        print(f"{d.robot}: deviation mean {100 * d.mean_m:.2f} cm, max {100 * d.max_m:.2f} cm over {d.samples}")
+    return truth, stats
+
+
 def test_the_fleet_keeps_formation_and_reaches_the_goal_on_camera_poses(tmp_path):
-    config = load_config(CAMERA)
-    renderer = Renderer(sim_camera_from_dict(config.sim_camera), config.dictionary)
-    calibration = calibrate_frames([renderer.render(reference_scene(config), 0.0)], config,
-                                   renderer.camera.intrinsics)
     cal_path = tmp_path / "calibration.json"
-    calibration.save(cal_path)
+    config = save_calibration(CAMERA, cal_path)
 
     fleet = LoopbackFleet(PAPER, tmp_path)
     poses, lock = [], threading.Lock()
@@ -72,33 +106,8 @@ def test_the_fleet_keeps_formation_and_reaches_the_goal_on_camera_poses(tmp_path
         with lock:
             poses.append(msg)
 
-    pose_sub = fleet.router.declare_subscriber(fleet.keys.pose(), on_pose)
-    robots = fleet.mission.robot_ids
-    try:
-        fleet.start("sim", "sim", str(PAPER))
-        fleet.start("tracker", "tracker", "camera", "--camera", str(CAMERA), "--calibration", str(cal_path),
-                    "--source", "render", "--rate", str(fleet.scenario.tracker.rate_hz),
-                    "--fleet", fleet.scenario.fleet)
-        for r in robots:
-            fleet.start_agent(r)
-        fleet.wait_alive("agent", robots)
-        fleet.wait_alive("tracker", [config.src])
-        fleet.publish_mission()
-        at_goal = fleet.observed.wait_for(settled(fleet.mission), timeout_s=fleet.scenario.duration_s)
-        states = list(fleet.observed.state)
-    except TimeoutError:
-        pytest.fail("fleet did not settle at the goal\n" + fleet.logs())
-    finally:
-        pose_sub.undeclare()
-        fleet.close()
-
-    truth = [(r, m) for _, r, m in fleet.observed.truth]
-    fitted = fitted_truth(fleet.mission, truth_frames(truth))
-    # formation is judged from when the agents first commanded (before that the robots sit at their starts)
-    t_first = min(s.t for _, _, s in states)
-    stats = deviation_stats([f for f in fitted if f[0] >= t_first])
-    for d in stats:
-        print(f"{d.robot}: deviation mean {100 * d.mean_m:.2f} cm, max {100 * d.max_m:.2f} cm over {d.samples}")
+    at_goal, states = drive_to_goal(fleet, PAPER, [("tracker", CAMERA, cal_path, config.src)], on_pose)
+    truth, stats = formation_deviation(fleet, states)
     assert len(stats) == 3
     assert all(d.max_m < MAX_DEVIATION_M for d in stats), fleet.logs()
     assert goal_distance(fleet.mission, at_goal) <= GOAL_TOL_M

@@ -13,14 +13,12 @@ import pytest
 
 cv2 = pytest.importorskip("cv2")
 
-from tracker.calibrate import calibrate_frames  # noqa: E402
-from tracker.markers import load_config  # noqa: E402
-from tracker.render import Renderer, reference_scene, sim_camera_from_dict  # noqa: E402
-from vsfleet.analysis import deviation_stats, fitted_truth, goal_distance, truth_frames  # noqa: E402
+from camera_support import save_calibration  # noqa: E402
+from vsfleet.analysis import goal_distance  # noqa: E402
 from vsfleet.wire import decode_pose  # noqa: E402
 
 from .harness import LoopbackFleet  # noqa: E402
-from .test_camera_loop import GOAL_TOL_M, MAX_DEVIATION_M, settled  # noqa: E402
+from .test_camera_loop import GOAL_TOL_M, MAX_DEVIATION_M, drive_to_goal, formation_deviation  # noqa: E402
 
 pytestmark = pytest.mark.integration
 
@@ -29,16 +27,8 @@ E2E = ROOT / "tests" / "data" / "e2e-triangle.toml"
 CAMERAS = [ROOT / "deploy" / "camera" / "overhead.toml", ROOT / "deploy" / "camera" / "overhead-2.toml"]
 
 
-def calibrate(path: Path, out: Path):
-    config = load_config(path)
-    renderer = Renderer(sim_camera_from_dict(config.sim_camera), config.dictionary)
-    calibrate_frames([renderer.render(reference_scene(config), 0.0)], config,
-                     renderer.camera.intrinsics).save(out)
-    return config
-
-
 def test_two_cameras_with_their_own_src_drive_the_fleet_in_formation_to_its_goal(tmp_path):
-    configs = [calibrate(p, tmp_path / f"cal-{p.stem}.json") for p in CAMERAS]
+    configs = [save_calibration(p, tmp_path / f"cal-{p.stem}.json") for p in CAMERAS]
     srcs = [c.src for c in configs]
     assert len(set(srcs)) == 2
 
@@ -51,33 +41,12 @@ def test_two_cameras_with_their_own_src_drive_the_fleet_in_formation_to_its_goal
         with lock:
             poses.append((robot, msg))
 
-    pose_sub = fleet.router.declare_subscriber(fleet.keys.pose(), on_pose)
+    trackers = [(f"tracker-{config.src}", path, tmp_path / f"cal-{path.stem}.json", config.src)
+                for path, config in zip(CAMERAS, configs)]
+    at_goal, observed = drive_to_goal(fleet, E2E, trackers, on_pose)
     robots = fleet.mission.robot_ids
-    try:
-        fleet.start("sim", "sim", str(E2E))
-        for path, config in zip(CAMERAS, configs):
-            fleet.start(f"tracker-{config.src}", "tracker", "camera", "--camera", str(path),
-                        "--calibration", str(tmp_path / f"cal-{path.stem}.json"), "--source", "render",
-                        "--rate", str(fleet.scenario.tracker.rate_hz), "--fleet", fleet.scenario.fleet)
-        for r in robots:
-            fleet.start_agent(r)
-        fleet.wait_alive("agent", robots)
-        fleet.wait_alive("tracker", srcs)
-        fleet.publish_mission()
-        at_goal = fleet.observed.wait_for(settled(fleet.mission), timeout_s=fleet.scenario.duration_s)
-        states = [s for _, _, s in fleet.observed.state]
-    except TimeoutError:
-        pytest.fail("fleet did not settle at the goal\n" + fleet.logs())
-    finally:
-        pose_sub.undeclare()
-        fleet.close()
-
-    truth = [(r, m) for _, r, m in fleet.observed.truth]
-    fitted = fitted_truth(fleet.mission, truth_frames(truth))
-    t_first = min(s.t for s in states)
-    stats = deviation_stats([f for f in fitted if f[0] >= t_first])
-    for d in stats:
-        print(f"{d.robot}: deviation mean {100 * d.mean_m:.2f} cm, max {100 * d.max_m:.2f} cm over {d.samples}")
+    states = [s for _, _, s in observed]
+    truth, stats = formation_deviation(fleet, observed)
     assert len(stats) == 3
     assert all(d.max_m < MAX_DEVIATION_M for d in stats), fleet.logs()
     assert goal_distance(fleet.mission, at_goal) <= GOAL_TOL_M
