@@ -362,7 +362,8 @@ def fetch(session: zenoh.Session, selectors: tuple[str, ...], kind: str, inbox: 
 
 
 def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFlag | None = None,
-              dt_s: float = DEFAULT_DT_S, ttl_s: float = DEFAULT_TTL_S) -> Agent:
+              dt_s: float = DEFAULT_DT_S, ttl_s: float = DEFAULT_TTL_S,
+              deadline_s: float | None = None) -> Agent:
     """Run one agent until ``stop`` is set; always ends with a zero command."""
     stop = stop or StopFlag()
     keys = Keys(fleet)
@@ -383,7 +384,7 @@ def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFla
         state_pub = session.declare_publisher(keys.state(robot), **TELEMETRY_QOS)
         event_pub = session.declare_publisher(keys.event(robot), **RELIABLE_QOS)
         agent = Agent(robot, keys, cmd_pub.put, state_pub.put, dt_s=dt_s, ttl_s=ttl_s,
-                      put_event=event_pub.put)
+                      deadline_s=deadline_s, put_event=event_pub.put)
         token = session.liveliness().declare_token(keys.alive("agent", robot))  # keep referenced
 
         own_mission, own_health = keys.peer_mission(robot), keys.peer_health(robot)
@@ -458,6 +459,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--dt", type=float, default=DEFAULT_DT_S,
                    help="control step [s]: the structure is advanced by one dt per frame")
     p.add_argument("--ttl", type=float, default=DEFAULT_TTL_S, help="command time-to-live [s]")
+    p.add_argument("--deadline", type=float, default=None,
+                   help="run an incomplete frame this long [s] after its first pose (default: --dt)")
     p.add_argument("--verbose", "-v", action="store_true")
     add_zenoh_args(p)
     return p
@@ -472,7 +475,11 @@ def main(argv: list[str] | None = None) -> int:
     except WireError as exc:
         log.error("%s", exc)
         return 2
-    run_agent(zenoh_config(args), args.robot, args.fleet, dt_s=args.dt, ttl_s=args.ttl)
+    if args.deadline is not None and not 0.0 < args.deadline <= 1.0:
+        log.error("--deadline must be in (0, 1] s")
+        return 2
+    run_agent(zenoh_config(args), args.robot, args.fleet, dt_s=args.dt, ttl_s=args.ttl,
+              deadline_s=args.deadline)
     return 0
 
 

@@ -28,6 +28,7 @@ import math
 import os
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
@@ -41,7 +42,7 @@ import numpy as np
 import zenoh
 
 from fleetctl.mission_cmd import stamp
-from fleetctl.router import open_loopback_router
+from fleetctl.router import free_loopback_port, open_loopback_router
 from fleetctl.run import child_command
 from fleetctl.zconf import RELIABLE_QOS, STREAM_QOS, add_zenoh_args, zenoh_config, zenoh_flags
 from vsfleet.geometry import Pose2
@@ -211,16 +212,43 @@ def _pace_until(t: float) -> None:
         time.sleep(dt)
 
 
+def _router_child(log_dir: Path) -> tuple[subprocess.Popen, str]:
+    """A `vsfleet router` process on a free loopback port (as on a deployment); waits until it listens."""
+    port = free_loopback_port()
+    with (log_dir / "router.log").open("wb") as out:
+        proc = subprocess.Popen(child_command("router", "--listen", f"tcp/127.0.0.1:{port}",
+                                              "--no-multicast-scouting"), stdout=out, stderr=subprocess.STDOUT,
+                                stdin=subprocess.DEVNULL, cwd=ROOT, start_new_session=True)
+    deadline = time.monotonic() + 30.0
+    while True:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=1.0).close()
+            return proc, f"tcp/127.0.0.1:{port}"
+        except OSError:
+            if time.monotonic() > deadline or proc.poll() is not None:
+                proc.kill()
+                raise RuntimeError(f"router did not start; log in {log_dir}") from None
+            time.sleep(0.05)
+
+
 def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2.0, seed: int = 0,
-             label: str = "loop") -> LoopRun:
-    """Start n agents, warm up, then measure `frames` frames at rate_hz."""
+             label: str = "loop", router_process: bool = True, deadline_s: float | None = None) -> LoopRun:
+    """Start n agents, warm up, then measure `frames` frames at rate_hz.
+
+    The router is its own `vsfleet router` process, as on a deployment (or, with router_process=False,
+    embedded in this process's session, whose Python callbacks then share zenoh's threads with routing)."""
     fleet = "bench"
     keys = Keys(fleet)
     period = 1.0 / rate_hz
     rng = np.random.default_rng(seed)
-    router, endpoint = open_loopback_router()
     procs: dict[str, subprocess.Popen] = {}
     log_dir = Path(tempfile.mkdtemp(prefix=f"vsfleet-bench-{n}-"))
+    router_proc = None
+    if router_process:
+        router_proc, endpoint = _router_child(log_dir)
+        router = zenoh.open(_client_config(endpoint))
+    else:
+        router, endpoint = open_loopback_router()
     sessions = []
     alive: set[str] = set()
 
@@ -246,6 +274,7 @@ def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2
             with (log_dir / f"agent-{r}.log").open("wb") as out:
                 procs[r] = subprocess.Popen(
                     child_command("agent", "--robot", r, "--fleet", fleet, "--dt", repr(period),
+                                  *(["--deadline", repr(deadline_s)] if deadline_s else []),
                                   *zenoh_flags(endpoint)),
                     stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env, cwd=ROOT,
                     start_new_session=True)
@@ -335,6 +364,13 @@ def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2
         for s in sessions:
             s.close()
         router.close()
+        if router_proc is not None:
+            router_proc.terminate()
+            try:
+                router_proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                router_proc.kill()
+                router_proc.wait()
 
     shutil.rmtree(log_dir, ignore_errors=True)  # kept only when the run failed
 

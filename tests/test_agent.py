@@ -325,3 +325,8 @@ def test_a_frame_run_on_its_deadline_feeds_the_motion_test_only_the_poses_of_tha
     assert "r3" in ran.poses                                 # still in the fit (held pose)
     assert agent.motion.last["r3"][0] == 100.0               # but the motion test waits for a fresh one
     assert agent.motion.last["r1"][0] == 100.033
+
+
+def test_the_agent_refuses_a_deadline_outside_its_range():
+    assert agent_main.main(["--robot", "r1", "--deadline", "0"]) == 2
+    assert agent_main.main(["--robot", "r1", "--deadline", "2"]) == 2
