@@ -20,7 +20,7 @@ twist from its wheel odometry (what a real leader would broadcast) at the
 frame's observation; like every command, theirs take effect one frame later.
 
 Everything here is pure except the simulation loops, which run the same
-physics (simfleet.physics.step_robot, its Fault model, the scenario's fault
+physics (simfleet.physics.step_fleet, its Fault model, the scenario's fault
 timeline), tracker noise and command latency as simfleet.offline.run_offline,
 which drives the virtual structure's real Agent objects.
 """
@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from simfleet.offline import run_offline
-from simfleet.physics import Fault, RobotState, step_robot
+from simfleet.physics import Fault, RobotState, step_fleet
 from vsfleet.analysis import goal_distance
 from vsfleet.envelope import Envelope
 from vsfleet.fit import fit_structure
@@ -214,13 +214,7 @@ def run_leader_follower(scenario: Scenario, duration_s: float, leader: str | Non
         pending.append(prev)
         if len(pending) > latency_frames:
             cmds = pending.pop(0)
-        for _ in range(substeps):
-            while timeline and timeline[0].at_s <= t:
-                ev = timeline.pop(0)
-                faults[ev.robot] = Fault(ev.kind, ev.factor, t + ev.duration if ev.duration > 0 else float("inf"))
-            for r in robots:
-                states[r] = step_robot(states[r], robots[r], *cmds[r], True, faults[r], t, dt_phys)
-            t += dt_phys
+        t = step_fleet(states, robots, cmds, faults, timeline, t, dt_phys, substeps)
         pos = np.array([[states[r].pose.x, states[r].pose.y] for r in ids])
         fit = fit_structure(template, pos, metric=ERROR_METRIC)
         ts.append(t)

@@ -27,8 +27,6 @@ import argparse
 import math
 import os
 import shutil
-import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -42,8 +40,8 @@ import numpy as np
 import zenoh
 
 from fleetctl.mission_cmd import stamp
-from fleetctl.router import free_loopback_port, open_loopback_router
-from fleetctl.run import child_command
+from fleetctl.router import free_loopback_port, open_loopback_router, wait_listening
+from fleetctl.run import Children, child_command
 from fleetctl.zconf import RELIABLE_QOS, STREAM_QOS, add_zenoh_args, zenoh_config, zenoh_flags
 from vsfleet.geometry import Pose2
 from vsfleet.kinematics import integrate_arc
@@ -212,23 +210,13 @@ def _pace_until(t: float) -> None:
         time.sleep(dt)
 
 
-def _router_child(log_dir: Path) -> tuple[subprocess.Popen, str]:
+def _router_child(children: Children) -> str:
     """A `vsfleet router` process on a free loopback port (as on a deployment); waits until it listens."""
     port = free_loopback_port()
-    with (log_dir / "router.log").open("wb") as out:
-        proc = subprocess.Popen(child_command("router", "--listen", f"tcp/127.0.0.1:{port}",
-                                              "--no-multicast-scouting"), stdout=out, stderr=subprocess.STDOUT,
-                                stdin=subprocess.DEVNULL, cwd=ROOT, start_new_session=True)
-    deadline = time.monotonic() + 30.0
-    while True:
-        try:
-            socket.create_connection(("127.0.0.1", port), timeout=1.0).close()
-            return proc, f"tcp/127.0.0.1:{port}"
-        except OSError:
-            if time.monotonic() > deadline or proc.poll() is not None:
-                proc.kill()
-                raise RuntimeError(f"router did not start; log in {log_dir}") from None
-            time.sleep(0.05)
+    children.start("router", child_command("router", "--listen", f"tcp/127.0.0.1:{port}",
+                                           "--no-multicast-scouting"), cwd=ROOT)
+    wait_listening(port, 30.0)
+    return f"tcp/127.0.0.1:{port}"
 
 
 def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2.0, seed: int = 0,
@@ -241,11 +229,11 @@ def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2
     keys = Keys(fleet)
     period = 1.0 / rate_hz
     rng = np.random.default_rng(seed)
-    procs: dict[str, subprocess.Popen] = {}
+    procs: dict[str, subprocess.Popen] = {}  # the agents, by robot
     log_dir = Path(tempfile.mkdtemp(prefix=f"vsfleet-bench-{n}-"))
-    router_proc = None
+    children = Children(log_dir)
     if router_process:
-        router_proc, endpoint = _router_child(log_dir)
+        endpoint = _router_child(children)
         router = zenoh.open(_client_config(endpoint))
     else:
         router, endpoint = open_loopback_router()
@@ -269,15 +257,10 @@ def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2
                 sim_s.declare_subscriber(keys.state(), sink.on_state)]
         ids = mission.robot_ids
         pubs = {r: tracker_s.declare_publisher(keys.pose(r), **STREAM_QOS) for r in ids}
-        env = dict(os.environ, PYTHONUNBUFFERED="1")
         for r in ids:
-            with (log_dir / f"agent-{r}.log").open("wb") as out:
-                procs[r] = subprocess.Popen(
-                    child_command("agent", "--robot", r, "--fleet", fleet, "--dt", repr(period),
-                                  *(["--deadline", repr(deadline_s)] if deadline_s else []),
-                                  *zenoh_flags(endpoint)),
-                    stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env, cwd=ROOT,
-                    start_new_session=True)
+            procs[r] = children.start(f"agent-{r}", child_command(
+                "agent", "--robot", r, "--fleet", fleet, "--dt", repr(period),
+                *(["--deadline", repr(deadline_s)] if deadline_s else []), *zenoh_flags(endpoint)), cwd=ROOT)
         t_start = time.monotonic()
         want = {keys.alive("agent", r) for r in ids}
         _wait(lambda: want <= alive or any(p.poll() is not None for p in procs.values()),
@@ -352,25 +335,11 @@ def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2
         queryable.undeclare()
         alive_sub.undeclare()
     finally:
-        for p in procs.values():
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-        for p in procs.values():
-            try:
-                p.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+        children.stop([f"agent-{r}" for r in procs], grace_s=10.0)  # the agents first, then the router
         for s in sessions:
             s.close()
         router.close()
-        if router_proc is not None:
-            router_proc.terminate()
-            try:
-                router_proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                router_proc.kill()
-                router_proc.wait()
+        children.stop(grace_s=10.0)
 
     shutil.rmtree(log_dir, ignore_errors=True)  # kept only when the run failed
 
@@ -435,13 +404,12 @@ def run_floor(plans: list[tuple[str, float | None, int]], log=print) -> list[Flo
     router, endpoint = open_loopback_router()
     alive: set[str] = set()
     sessions, out = [], []
-    pong = None
+    children = Children(Path(tempfile.mkdtemp(prefix="vsfleet-bench-floor-")))
     try:
         router.liveliness().declare_subscriber(keys.alive("pong"), lambda s: alive.add(str(s.key_expr)),
                                                history=True)
-        pong = subprocess.Popen([sys.executable, "-m", "bench.zenoh_pong", "--fleet", fleet, *zenoh_flags(endpoint)],
-                                cwd=ROOT, stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
-                                stderr=subprocess.DEVNULL, start_new_session=True)
+        children.start("pong", [sys.executable, "-m", "bench.zenoh_pong", "--fleet", fleet,
+                                *zenoh_flags(endpoint)], cwd=ROOT)
         _wait(lambda: alive, 60.0, "pong process alive")
         sess = zenoh.open(_client_config(endpoint))
         sessions.append(sess)
@@ -479,13 +447,8 @@ def run_floor(plans: list[tuple[str, float | None, int]], log=print) -> list[Flo
                     log(f"[floor {label}] {i + 1}/{count}, ETA {el / (i + 1) * (count - i - 1):.0f} s")
             out.append(FloorRun(label, rate, np.array(rtt), lost))
     finally:
-        if pong is not None:
-            pong.send_signal(signal.SIGTERM)
-            try:
-                pong.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                pong.kill()
-                pong.wait()
+        children.stop(grace_s=10.0)
+        shutil.rmtree(children.log_dir, ignore_errors=True)
         for s in sessions:
             s.close()
         router.close()

@@ -10,6 +10,8 @@ import argparse
 import json
 import logging
 import socket
+import threading
+import time
 
 import zenoh
 
@@ -24,6 +26,20 @@ def free_loopback_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def wait_listening(port: int, timeout_s: float, host: str = "127.0.0.1") -> None:
+    """Wait until something accepts TCP connections on host:port (or raise TimeoutError)."""
+    deadline = time.monotonic() + timeout_s
+    retry = threading.Event()
+    while True:
+        try:
+            socket.create_connection((host, port), timeout=1.0).close()
+            return
+        except OSError:
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"nothing listens on {host}:{port} after {timeout_s} s") from None
+            retry.wait(0.05)
 
 
 def loopback_router_config(port: int) -> zenoh.Config:

@@ -144,11 +144,11 @@ class Children:
         self.procs: dict[str, subprocess.Popen] = {}
         self.log_dir = log_dir
 
-    def start(self, name: str, cmd: list[str]) -> subprocess.Popen:
+    def start(self, name: str, cmd: list[str], cwd: Path | None = None) -> subprocess.Popen:
         env = dict(os.environ, PYTHONUNBUFFERED="1")
         with (self.log_dir / f"{name}.log").open("wb") as out:  # the child keeps its own handle
             proc = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-                                    env=env, start_new_session=True)
+                                    env=env, cwd=cwd, start_new_session=True)
         self.procs[name] = proc
         return proc
 

@@ -25,7 +25,7 @@ from vsfleet.wire import Keys, PoseMsg, decode_cmd, encode, encode_mission
 
 from agent.main import Agent
 
-from .physics import Fault, RobotState, step_robot
+from .physics import Fault, RobotState, step_fleet
 
 
 @dataclass(frozen=True)
@@ -98,13 +98,7 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
             if t_goal is None:
                 tv += sum(abs(applied[r][0] - cmds[r][0]) + abs(applied[r][1] - cmds[r][1]) for r in robots)
             cmds = applied
-        for _ in range(substeps):
-            while timeline and timeline[0].at_s <= t:
-                ev = timeline.pop(0)
-                faults[ev.robot] = Fault(ev.kind, ev.factor, t + ev.duration if ev.duration > 0 else float("inf"))
-            for r in robots:
-                states[r] = step_robot(states[r], robots[r], *cmds[r], True, faults[r], t, dt_phys)
-            t += dt_phys
+        t = step_fleet(states, robots, cmds, faults, timeline, t, dt_phys, substeps)
         xy = np.array([[states[r].pose.x, states[r].pose.y] for r in ids])
         positions.append(xy)
         fit = fit_structure(template, xy, metric=mission.metric)

@@ -63,3 +63,19 @@ def step_robot(state: RobotState, robot: SimRobot, cmd_vl: float, cmd_vr: float,
     vl, vr = _slew(state.vl, vl, dv), _slew(state.vr, vr, dv)
     pose = integrate_arc(state.pose, vl, vr, dt_s, robot.wheel_base)
     return RobotState(pose, vl, vr)
+
+
+def step_fleet(states: dict[str, RobotState], robots: dict[str, SimRobot],
+               cmds: dict[str, tuple[float, float]], faults: dict[str, Fault], timeline: list,
+               t: float, dt_s: float, substeps: int) -> float:
+    """Advance every robot by ``substeps`` physics steps of ``dt_s`` from sim time ``t`` [s],
+    starting the timeline's faults (FaultEvent, ordered by at_s) when they are due; returns the
+    new time. ``states``, ``faults`` and ``timeline`` are updated in place; commands are fresh."""
+    for _ in range(substeps):
+        while timeline and timeline[0].at_s <= t:
+            ev = timeline.pop(0)
+            faults[ev.robot] = Fault(ev.kind, ev.factor, t + ev.duration if ev.duration > 0 else float("inf"))
+        for r in robots:
+            states[r] = step_robot(states[r], robots[r], *cmds[r], True, faults[r], t, dt_s)
+        t += dt_s
+    return t

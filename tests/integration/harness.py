@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import signal
-import socket
 import subprocess
 import threading
 import time
@@ -18,6 +17,7 @@ import zenoh
 
 from fleetctl.mission_cmd import stamp
 from fleetctl.router import free_loopback_port, open_loopback_router
+from fleetctl.router import wait_listening as wait_port
 from fleetctl.run import child_command
 from fleetctl.scenario_file import load_scenario
 from fleetctl.zconf import RELIABLE_QOS, zenoh_flags
@@ -80,20 +80,6 @@ class Observed:
         if not result:
             raise TimeoutError(f"condition not met within {timeout_s} s")
         return result
-
-
-def wait_port(port: int, timeout_s: float, host: str = "127.0.0.1") -> None:
-    """Wait until something accepts TCP connections on host:port (or raise TimeoutError)."""
-    deadline = time.monotonic() + timeout_s
-    retry = threading.Event()
-    while True:
-        try:
-            socket.create_connection((host, port), timeout=1.0).close()
-            return
-        except OSError:
-            if time.monotonic() > deadline:
-                raise TimeoutError(f"nothing listens on {host}:{port} after {timeout_s} s") from None
-            retry.wait(0.05)
 
 
 def open_client(endpoint: str) -> zenoh.Session:
