@@ -9,8 +9,6 @@ the router stops the fleet, which then resumes. Needs root; skips otherwise.
 
 from __future__ import annotations
 
-import re
-import threading
 import time
 from pathlib import Path
 
@@ -19,6 +17,7 @@ import pytest
 from vsfleet.analysis import agreement, deviation_stats, fitted_truth, goal_distance, truth_frames
 
 from .netns import Lab, NetnsFleet, netns_unavailable
+from .simlog import wait_halts
 
 pytestmark = pytest.mark.integration
 
@@ -90,26 +89,6 @@ def first_cmd(fleet: NetnsFleet, robot: str, after_s: float):
     return pred
 
 
-EXPIRED = re.compile(r"(\w+): command expired at t=([0-9.]+) \(last seq \d+, arrived ([0-9.]+)")
-
-
-def wait_expiries(log: Path, after_t: float, robots, timeout_s: float) -> dict[str, tuple[float, float]]:
-    """Wait until simfleet's log says every robot's command expired after ``after_t``:
-    {robot: (expiry t, last arrival t)} (simfleet's own clock, the same host's)."""
-    deadline = time.monotonic() + timeout_s
-    retry = threading.Event()
-    while True:
-        found = {}
-        for m in EXPIRED.finditer(log.read_text(errors="replace")):
-            if float(m.group(2)) > after_t:
-                found.setdefault(m.group(1), (float(m.group(2)), float(m.group(3))))
-        if set(robots) <= set(found):
-            return found
-        if time.monotonic() > deadline:
-            raise TimeoutError(f"simfleet did not halt {sorted(set(robots) - set(found))} within {timeout_s} s")
-        retry.wait(0.05)
-
-
 def halt_bound_s(fleet: NetnsFleet, robot: str) -> float:
     """ttl, then braking from full speed at the wheel acceleration limit, plus one truth period."""
     spec = next(s for s in fleet.scenario.robots if s.robot == robot)
@@ -162,7 +141,7 @@ def test_a_cut_link_halts_its_robot_within_ttl_and_the_agent_rejoins_when_restor
     bound = halt_bound_s(fleet, "r1")
     # simfleet's own account: r1's last command ran out ttl after the cut (a command already in
     # flight when the link went down may still arrive: 50 ms slack, as for the router kill)
-    expired_t, _ = wait_expiries(fleet.log_dir / "sim.log", t_cut, ["r1"], timeout_s=5)["r1"]
+    expired_t = wait_halts(fleet.log_dir / "sim.log", t_cut, ["r1"], timeout_s=5)["r1"]
     expired_s = expired_t - t_cut
     # the others follow on_failure = "rejoin": both drop r1 and carry on without it
     fleet.observed.wait_for(lambda o: set(events(fleet, "r1", "drop", t_cut)) >= {"r2", "r3"}, timeout_s=15)
@@ -193,10 +172,10 @@ def test_the_fleet_resumes_after_the_router_is_killed_and_restarted(circle):
     t_kill = fleet.kill("router")  # SIGKILL: no goodbye to the clients
     fleet.procs["router"].wait(timeout=10)
     # no commands reach simfleet: every robot halts ttl after its last command arrived
-    expiries = wait_expiries(fleet.log_dir / "sim.log", t_kill, ROBOTS, timeout_s=5)
-    halt_after_kill_s = {r: round(t - t_kill, 3) for r, (t, _) in expiries.items()}
+    expiries = wait_halts(fleet.log_dir / "sim.log", t_kill, ROBOTS, timeout_s=5)
+    halt_after_kill_s = {r: round(t - t_kill, 3) for r, t in expiries.items()}
     # (a message already in flight may still be delivered while the router dies: 50 ms slack)
-    assert all(t - t_kill <= TTL_S + 0.05 for t, _ in expiries.values()), halt_after_kill_s
+    assert all(t - t_kill <= TTL_S + 0.05 for t in expiries.values()), halt_after_kill_s
     t_restart = time.time()
     firsts = {r: first_cmd(fleet, r, t_restart) for r in ROBOTS}
     fleet.start_router()  # waits until it listens
