@@ -73,7 +73,8 @@ class FleetView:
     structure: tuple[float, float, float] | None   # fitted (x [m], y [m], th [rad])
     structure_seq: int | None
     mission_version: int | None
-    agreement_seq: int | None        # newest frame every live agent reported
+    agreement_seq: int | None        # newest frame every live agent ran whole, else newest they reported
+    agreement_complete: bool | None  # every agent ran agreement_seq with every pose of the frame
     agreement_pos_m: float | None
     agreement_th_rad: float | None
     agents_compared: int
@@ -92,6 +93,7 @@ class _Robot:
     state_seq: int | None = None
     mission: int | None = None
     frames: OrderedDict = field(default_factory=OrderedDict)  # seq -> (x, y, th)
+    whole: set = field(default_factory=set)                   # seqs of frames the agent ran complete
 
 
 class FleetModel:
@@ -148,8 +150,10 @@ class FleetModel:
                 r.state_t_recv_s, r.err_m, r.rejected, r.state_seq = t_recv_s, m.err, m.rejected, m.seq
                 r.mission = m.mission if m.mission >= 0 else None
                 r.frames[m.seq] = (m.x, m.y, m.th)
+                if m.complete:
+                    r.whole.add(m.seq)
                 while len(r.frames) > SEQ_HISTORY:
-                    r.frames.popitem(last=False)
+                    r.whole.discard(r.frames.popitem(last=False)[0])
             elif kind == "mission" and rid is None:
                 mission = decode_mission(payload)
                 self.mission_robots = mission.robot_ids
@@ -176,20 +180,23 @@ class FleetModel:
     # ------------------------------------------------------------ view
 
     def _agreement(self, now_s: float):
+        """(seq, position spread [m], heading spread [rad], complete, agents compared).
+
+        Agents agree bit for bit only on frames they all ran complete (docs/protocol.md), so the
+        newest such frame is compared; failing that, the newest frame they all reported."""
         live = [rid for rid, r in sorted(self.robots.items())
                 if r.state_t_recv_s is not None and now_s - r.state_t_recv_s <= self.stale_s
                 and self.alive.get(rid, True)]
         if len(live) < 2:
-            return None, None, None, len(live)
-        common = set(self.robots[live[0]].frames)
-        for rid in live[1:]:
-            common &= set(self.robots[rid].frames)
+            return None, None, None, None, len(live)
+        common = set.intersection(*(set(self.robots[rid].frames) for rid in live))
         if not common:
-            return None, None, None, len(live)
-        seq = max(common)
+            return None, None, None, None, len(live)
+        whole = common.intersection(*(self.robots[rid].whole for rid in live))
+        seq = max(whole or common)
         poses = [self.robots[rid].frames[seq] for rid in live]
         pos, th = pose_spread(poses)
-        return seq, pos, th, len(live)
+        return seq, pos, th, bool(whole), len(live)
 
     def view(self, now_s: float | None = None) -> FleetView:
         """The table as plain data; ``now_s`` defaults to the latest receive time ingested."""
@@ -205,7 +212,7 @@ class FleetModel:
                 pose_rate_hz=n / self.rate_window_s,
                 vl_m_s=r.cmd[0] if r.cmd else None, vr_m_s=r.cmd[1] if r.cmd else None,
                 err_m=r.err_m, alive=self.alive.get(rid), rejected=r.rejected, state_seq=r.state_seq))
-        seq, pos, th, n = self._agreement(now)
+        seq, pos, th, complete, n = self._agreement(now)
         newest = max((r for r in self.robots.values() if r.state_seq is not None),
                      key=lambda r: r.state_seq, default=None)
         structure = structure_seq = None
@@ -217,6 +224,7 @@ class FleetModel:
         version = newest.mission if newest is not None and newest.mission is not None else self.mission_version
         return FleetView(now_s=now, fleet=self.fleet, robots=rows, structure=structure,
                          structure_seq=structure_seq, mission_version=version, agreement_seq=seq,
+                         agreement_complete=complete,
                          agreement_pos_m=pos, agreement_th_rad=th, agents_compared=n,
                          events=list(self.events), bad_messages=self.bad)
 
@@ -255,7 +263,8 @@ def render(view: FleetView):
         lines.append("structure: no agent state yet")
     lines.append(f"mission version: {view.mission_version if view.mission_version is not None else '-'}")
     if view.agreement_seq is not None:
-        lines.append(f"agreement on frame {view.agreement_seq} over {view.agents_compared} agents: "
+        ran = "run complete" if view.agreement_complete else "none run complete by every agent"
+        lines.append(f"agreement on frame {view.agreement_seq} ({ran}) over {view.agents_compared} agents: "
                      f"{view.agreement_pos_m:.3g} m, {view.agreement_th_rad:.3g} rad")
     else:
         lines.append(f"agreement: no frame reported by every live agent ({view.agents_compared} live)")

@@ -13,9 +13,10 @@ T0 = 1795378500.0
 ROBOTS = ("r1", "r2", "r3")
 
 
-def state(seq: int, x: float = 0.1, th: float = 0.0, rejected: int = 0, mission: int = 4, err: float = 0.002):
+def state(seq: int, x: float = 0.1, th: float = 0.0, rejected: int = 0, mission: int = 4, err: float = 0.002,
+          complete: bool = True):
     return encode(StateMsg(t=T0 + seq / 30, seq=seq, x=x, y=0.2, th=th, gx=x, gy=0.2, gth=th, cost=0.001,
-                           err=err, used=ROBOTS, rejected=rejected, mission=mission))
+                           err=err, used=ROBOTS, rejected=rejected, mission=mission, complete=complete))
 
 
 def fed(fleet: str = "demo", seconds: float = 2.0) -> FleetModel:
@@ -67,8 +68,31 @@ def test_agreement_uses_the_newest_frame_every_agent_reported_and_measures_the_d
     assert view.agreement_seq == 59 and view.agreement_pos_m == 0.0
     m.ingest(t + 0.01, "vs/demo/state/r3", state(60, x=0.1))
     view = m.view()
-    assert view.agreement_seq == 60
+    assert view.agreement_seq == 60 and view.agreement_complete is True
     assert view.agreement_pos_m == pytest.approx(0.03) and view.agreement_th_rad == pytest.approx(0.05)
+
+
+def test_agreement_is_taken_on_the_newest_frame_every_agent_ran_complete():
+    m = fed()
+    t = T0 + 2.0
+    # frame 60: r2 ran it on its deadline without every pose, and so differs: not compared
+    m.ingest(t, "vs/demo/state/r1", state(60, x=0.1))
+    m.ingest(t, "vs/demo/state/r2", state(60, x=0.13, complete=False))
+    m.ingest(t, "vs/demo/state/r3", state(60, x=0.1))
+    view = m.view()
+    assert view.agreement_seq == 59 and view.agreement_complete is True and view.agreement_pos_m == 0.0
+    text = _text(view)
+    assert "agreement on frame 59 (run complete) over 3 agents" in text
+
+
+def test_with_no_frame_every_agent_ran_complete_the_newest_common_frame_is_compared_and_flagged():
+    m = FleetModel("demo")
+    for r in ROBOTS:
+        m.ingest(T0, f"vs/demo/state/{r}", state(7, x=0.1 if r != "r2" else 0.12, complete=r != "r2"))
+    view = m.view()
+    assert view.agreement_seq == 7 and view.agreement_complete is False
+    assert view.agreement_pos_m == pytest.approx(0.02)
+    assert "agreement on frame 7 (none run complete by every agent)" in _text(view)
 
 
 def test_a_dead_agent_shows_gone_and_is_left_out_of_the_agreement():
@@ -123,10 +147,14 @@ def test_without_a_fleet_the_model_follows_the_first_fleet_it_sees():
     assert view.fleet == "lab" and [r.robot for r in view.robots] == ["r1"]
 
 
-def test_the_rendered_table_names_every_robot_with_units_in_the_headers():
+def _text(view) -> str:
     console = Console(record=True, width=160)
-    console.print(render(fed().view()))
-    text = console.export_text()
+    console.print(render(view))
+    return console.export_text()
+
+
+def test_the_rendered_table_names_every_robot_with_units_in_the_headers():
+    text = _text(fed().view())
     for needle in ("r1", "r2", "r3", "alive", "pose age [s]", "pose rate [Hz]", "vl [m/s]", "err [cm]",
-                   "rejected", "mission version: 4", "agreement on frame 59 over 3 agents: 0 m"):
+                   "rejected", "mission version: 4", "agreement on frame 59 (run complete) over 3 agents: 0 m"):
         assert needle in text

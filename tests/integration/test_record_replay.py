@@ -112,6 +112,6 @@ def test_the_monitor_model_on_the_recorded_run_shows_three_live_agents_that_agre
         assert 20.0 <= row.pose_rate_hz <= 40.0        # the tracker runs at 30 Hz
         assert row.pose_age_s < 0.5 and row.err_m < 0.025
         assert row.vl_m_s is not None and row.vr_m_s is not None
-    assert view.agents_compared == 3 and view.agreement_seq is not None
+    assert view.agents_compared == 3 and view.agreement_seq is not None and view.agreement_complete
     assert view.agreement_pos_m == 0.0 and view.agreement_th_rad == 0.0
     assert view.mission_version == 1 and view.bad_messages == 0
