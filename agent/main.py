@@ -297,7 +297,8 @@ class Agent:
                                   self.wheels_prev, self.controller_for(mission),
                                   excluded=self.health.dropped,
                                   drive_excluded=mission.on_failure == "rejoin",
-                                  others_wheels_prev=self.predicted)
+                                  others_wheels_prev=self.predicted,
+                                  judged_apart=self.health.failed - self.health.dropped)
         except (VsfleetValueError, ArithmeticError, ValueError, MemoryError) as exc:
             self.rejections.reject(self.keys.pose(), f"frame {frame.seq} unusable: {exc!r}")
             return

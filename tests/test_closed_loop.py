@@ -3,6 +3,7 @@
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from fleetctl.scenario_file import load_scenario
 from simfleet.offline import run_offline
@@ -109,3 +110,39 @@ def test_a_robot_with_a_dead_wheel_is_declared_failed_and_with_hold_the_structur
     end, before_end = hold.trace[-1][1], hold.trace[-30][1]
     assert np.hypot(end.x - before_end.x, end.y - before_end.y) < 0.005   # the structure waits
     assert hold.t_goal_s is None
+
+
+def test_under_hold_the_healthy_robots_a_failed_robot_bends_are_judged_without_it():
+    mission = E2E.mission
+    ctrl = make_controller(DEFAULT_CONTROLLER)
+    # r1 and r3 exactly on a structure at the origin; r2 8 cm off its point
+    poses = {"r1": (0.3, 0.0, 0.0), "r2": (-0.15 - 0.08, 0.26, 0.0), "r3": (-0.15, -0.26, 0.0)}
+    plain = control_step(mission, poses, "r1", 2.5, 1 / 30, (0.0, 0.0), ctrl, others_wheels_prev={})
+    apart = control_step(mission, poses, "r1", 2.5, 1 / 30, (0.0, 0.0), ctrl, others_wheels_prev={},
+                         judged_apart=frozenset({"r2"}))
+    # what the robots follow is unchanged: r2 still bends the structure they follow
+    assert (apart.fit_pose, apart.goal_pose, apart.commands, apart.err_m) == \
+        (plain.fit_pose, plain.goal_pose, plain.commands, plain.err_m)
+    assert plain.deviations_m["r1"] > 0.01 and plain.deviations_m["r3"] > 0.01  # bent by r2
+    # judged on the structure fitted to r1 and r3, the healthy robots are on their points
+    assert apart.deviations_m["r1"] < 1e-9 and apart.deviations_m["r3"] < 1e-9
+    assert apart.deviations_m["r2"] == pytest.approx(0.08, abs=1e-9)
+
+
+def test_with_one_robot_left_to_judge_by_the_deviations_stay_those_of_the_fit_followed():
+    mission = E2E.mission
+    ctrl = make_controller(DEFAULT_CONTROLLER)
+    poses = {"r1": (0.3, 0.0, 0.0), "r2": (-0.23, 0.26, 0.0), "r3": (-0.15, -0.30, 0.0)}
+    plain = control_step(mission, poses, "r1", 2.5, 1 / 30, (0.0, 0.0), ctrl)
+    apart = control_step(mission, poses, "r1", 2.5, 1 / 30, (0.0, 0.0), ctrl,
+                         judged_apart=frozenset({"r2", "r3"}))
+    assert apart.deviations_m == plain.deviations_m
+
+
+def test_under_hold_a_stopped_robot_never_gets_a_healthy_robot_flagged():
+    run = failure_run("hold", "stop", 0.0, 0.0, seconds=60.0)
+    made = run.decisions["r1"]
+    print("hold, r2 stopped, 60 s:", [(d.robot, d.kind, round(d.t, 2)) for d in made])
+    assert all(v == made for v in run.decisions.values())
+    assert [(d.robot, d.kind) for d in made][:1] == [("r2", "fail")]
+    assert not [d for d in made if d.robot != "r2"]

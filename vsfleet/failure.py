@@ -22,8 +22,11 @@ same frame. The rule is:
   tracker time (measured from the first such frame) has **failed**. A frame in
   which the robot is missing counts as non-compliant.
 - What follows depends on the mission's ``on_failure``:
-  - ``hold`` (the paper's behaviour): the failure is reported and nothing else
-    changes. The structure waits for the robot.
+  - ``hold`` (the paper's behaviour): the failure is reported and the robot
+    stays in the fit, so the structure waits for it. From then on every robot's
+    deviation is measured on the structure fitted without the failed robots
+    (when two or more others remain; ``vsfleet.step.control_step(judged_apart=)``):
+    the healthy robots a failed robot bends are not flagged for it.
   - ``drop``: the robot is taken out of the fit and its own agent stops it.
   - ``rejoin``: as ``drop``, but a dropped robot that has been within
     ``rejoin_deviation_m`` of its point for ``rejoin_after_s`` is taken back.

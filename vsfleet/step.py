@@ -72,7 +72,7 @@ class StepResult:
     vl_m_s: float
     vr_m_s: float
     at_goal: bool
-    deviations_m: dict[str, float]  # every seen robot's distance to its fitted point [m]
+    deviations_m: dict[str, float]  # every seen robot's distance to its point [m] (see judged_apart)
     commands: dict[str, tuple[float, float]]  # (vl, vr) [m/s] of own robot, and of others if predicted
 
 
@@ -80,7 +80,8 @@ def control_step(mission: Mission, poses: Mapping[str, tuple[float, float, float
                  frame_t: float, dt_s: float, wheels_prev_m_s: tuple[float, float],
                  controller: Controller, excluded: frozenset[str] = frozenset(),
                  drive_excluded: bool = False,
-                 others_wheels_prev: Mapping[str, tuple[float, float]] | None = None) -> StepResult | None:
+                 others_wheels_prev: Mapping[str, tuple[float, float]] | None = None,
+                 judged_apart: frozenset[str] = frozenset()) -> StepResult | None:
     """Fit, advance and control one robot for one frame at tracker time ``frame_t`` [s].
 
     The structure poses depend only on (mission, poses, frame_t, dt_s, excluded): the
@@ -95,6 +96,12 @@ def control_step(mission: Mission, poses: Mapping[str, tuple[float, float, float
     With others_wheels_prev (every robot's previous command, as this agent predicted
     it), the commands every other robot's agent computes are predicted too, into
     ``commands``: the failure rule compares them with how the robots moved.
+
+    ``deviations_m`` (what the failure rule judges) are distances to the fitted structure's
+    points. Robots in ``judged_apart`` stay in the fit the robots follow, but the deviations
+    are measured on the structure fitted without them (when two or more others remain): under
+    on_failure = hold a failed robot bends the structure, and the healthy robots it bends
+    must not look non-compliant for it.
     """
     ids = mission.robot_ids
     used = tuple(r for r in ids if r in poses and r not in excluded)
@@ -110,11 +117,21 @@ def control_step(mission: Mission, poses: Mapping[str, tuple[float, float, float
                             mission_envelopes(mission), elapsed_s=frame_t - mission.effective_t,
                             headings_rad=[poses[r][2] if r in used else None for r in ids])
 
-    deviations = {r: float(np.hypot(poses[r][0] - q[0], poses[r][1] - q[1]))
-                  for r, q in zip(ids, fit.pose.apply(template)) if r in poses}
-    err = deviations.get(robot, math.nan)
-    envelopes = mission_envelopes(mission)
     now_pts, next_pts = fit.pose.apply(template), adv.pose.apply(template)
+    judged_pts = now_pts
+    judges = [r for r in used if r not in judged_apart]
+    if 2 <= len(judges) < len(used):  # a rigid fit needs two points to fix the heading
+        judge_rows = [index[r] for r in judges]
+        judge_fit = fit_structure(template[judge_rows], positions[[used.index(r) for r in judges]],
+                                  metric=mission.metric)
+        judged_pts = judge_fit.pose.apply(template)
+    deviations = {r: float(np.hypot(poses[r][0] - q[0], poses[r][1] - q[1]))
+                  for r, q in zip(ids, judged_pts) if r in poses}
+    err = math.nan
+    if robot in poses and robot in index:
+        own = now_pts[index[robot]]
+        err = float(np.hypot(poses[robot][0] - own[0], poses[robot][1] - own[1]))
+    envelopes = mission_envelopes(mission)
     targets = [robot] + (list(ids) if others_wheels_prev is not None else [])
     commands: dict[str, tuple[float, float]] = {}
     for r in targets:
