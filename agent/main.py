@@ -298,7 +298,8 @@ class Agent:
                                   excluded=self.health.dropped,
                                   drive_excluded=mission.on_failure == "rejoin",
                                   others_wheels_prev=self.predicted,
-                                  judged_apart=self.health.failed - self.health.dropped)
+                                  judged_apart=(self.health.failed - self.health.dropped
+                                                if mission.on_failure == "hold" else frozenset()))
         except (VsfleetValueError, ArithmeticError, ValueError, MemoryError) as exc:
             self.rejections.reject(self.keys.pose(), f"frame {frame.seq} unusable: {exc!r}")
             return

@@ -6,7 +6,8 @@ deviation from the structure (the agent's ``err``), whether its agent is alive
 messages the agent rejected. For the fleet: the fitted structure pose and the
 mission version the agents use, their agreement (the largest difference
 between agents' structure poses on the newest frame that every live agent
-reported), and the latest events (``vs/<fleet>/event/<robot>`` maps, and faults).
+ran complete, as agents agree bit for bit only there; failing that, the newest
+frame they all reported, flagged), and the latest events (``vs/<fleet>/event/<robot>`` maps, and faults).
 
 :class:`FleetModel` holds the state; it ingests (receive time, key, payload)
 and produces plain rows (:class:`FleetView`), so it runs as well on a
@@ -152,6 +153,8 @@ class FleetModel:
                 r.frames[m.seq] = (m.x, m.y, m.th)
                 if m.complete:
                     r.whole.add(m.seq)
+                else:
+                    r.whole.discard(m.seq)
                 while len(r.frames) > SEQ_HISTORY:
                     r.whole.discard(r.frames.popitem(last=False)[0])
             elif kind == "mission" and rid is None:

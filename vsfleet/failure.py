@@ -26,7 +26,10 @@ same frame. The rule is:
     stays in the fit, so the structure waits for it. From then on every robot's
     deviation is measured on the structure fitted without the failed robots
     (when two or more others remain; ``vsfleet.step.control_step(judged_apart=)``):
-    the healthy robots a failed robot bends are not flagged for it.
+    the healthy robots a failed robot bends are not flagged for it. With only
+    two robots left to judge by, a rigid fit gives both the same deviation (half
+    the error in their separation), so the deviation test cannot single out one
+    of them; the progress test still judges each.
   - ``drop``: the robot is taken out of the fit and its own agent stops it.
   - ``rejoin``: as ``drop``, but a dropped robot that has been within
     ``rejoin_deviation_m`` of its point for ``rejoin_after_s`` is taken back.

@@ -11,7 +11,7 @@ import threading
 import time
 from pathlib import Path
 
-EVENT = re.compile(r"(\w+): (command expired|commanded again) at t=([0-9.]+)")
+EVENT = re.compile(r"([A-Za-z0-9_-]+): (command expired|commanded again) at t=(\d+\.\d{3}) \(")
 
 
 def command_events(log_text: str) -> dict[str, list[tuple[float, bool]]]:
@@ -22,19 +22,20 @@ def command_events(log_text: str) -> dict[str, list[tuple[float, bool]]]:
     return out
 
 
-def halts(log_text: str, after_t: float) -> dict[str, float]:
+def halts(log_text: str, after_t: float, ttl_s: float) -> dict[str, float]:
     """Each robot's halt in force after ``after_t``: the expiry of the command it was running on.
 
     A robot still commanded at ``after_t`` halts at its first expiry after it. A robot whose
-    command had already expired (its agent missed frames just before, say) and which was not
-    commanded again halted at that earlier expiry, which is returned as it is (t <= after_t).
-    Robots with no such expiry are absent.
+    command had expired at most ``ttl_s`` before (its agent missed the frames just before, say)
+    and which was not commanded again halted at that expiry, returned as it is (t <= after_t).
+    Robots with neither are absent: one halted longer before was not moving at ``after_t``.
     """
     out: dict[str, float] = {}
     for robot, evs in command_events(log_text).items():
         before = [(t, commanded) for t, commanded in evs if t <= after_t]
         if before and not before[-1][1]:
-            out[robot] = before[-1][0]
+            if before[-1][0] >= after_t - ttl_s:
+                out[robot] = before[-1][0]
             continue
         first = next((t for t, commanded in evs if t > after_t and not commanded), None)
         if first is not None:
@@ -42,12 +43,12 @@ def halts(log_text: str, after_t: float) -> dict[str, float]:
     return out
 
 
-def wait_halts(log: Path, after_t: float, robots, timeout_s: float) -> dict[str, float]:
+def wait_halts(log: Path, after_t: float, ttl_s: float, robots, timeout_s: float) -> dict[str, float]:
     """Wait until :func:`halts` covers every one of ``robots``; TimeoutError names the rest."""
     deadline = time.monotonic() + timeout_s
     retry = threading.Event()
     while True:
-        found = halts(log.read_text(errors="replace"), after_t)
+        found = halts(log.read_text(errors="replace"), after_t, ttl_s)
         if set(robots) <= set(found):
             return found
         if time.monotonic() > deadline:

@@ -127,7 +127,7 @@ def test_router_killed_and_restarted_robots_halt_during_the_outage_and_the_fleet
     t_back = min(t for t, _, _ in fleet.observed.state if t > t_restart)
     fleet.observed.wait_for(at_goal(fleet), timeout_s=40)
     sim_log = (fleet.log_dir / "sim.log").read_text()
-    halted = halts(sim_log, t_kill)
+    halted = halts(sim_log, t_kill, TTL_S)
     print(f"router down {t_restart - t_kill:.2f} s; robots halted "
           f"{ {r: round(t - t_kill, 3) for r, t in halted.items()} } s after the kill; "
           f"state again {t_back - t_restart:.2f} s after the restart; max error after it "
@@ -153,7 +153,7 @@ def test_a_silent_tracker_halts_the_robots_within_ttl_and_the_fleet_resumes_clea
                     and abs(m.vl) + abs(m.vr) > 0.02)
     fleet.observed.wait_for(at_goal(fleet), timeout_s=40)
     sim_log = (fleet.log_dir / "sim.log").read_text()
-    halted = halts(sim_log, t_stop)
+    halted = halts(sim_log, t_stop, TTL_S)
     print(f"tracker stopped: commands expired after {({r: round(t - t_stop, 3) for r, t in halted.items()})} s, "
           f"all wheels at rest {halted_at - t_stop:.3f} s after the stop; moving again "
           f"{t_moving - t_cont:.3f} s after the tracker resumed; "

@@ -141,7 +141,7 @@ def test_a_cut_link_halts_its_robot_within_ttl_and_the_agent_rejoins_when_restor
     bound = halt_bound_s(fleet, "r1")
     # simfleet's own account: r1's last command ran out ttl after the cut (a command already in
     # flight when the link went down may still arrive: 50 ms slack, as for the router kill)
-    expired_t = wait_halts(fleet.log_dir / "sim.log", t_cut, ["r1"], timeout_s=5)["r1"]
+    expired_t = wait_halts(fleet.log_dir / "sim.log", t_cut, TTL_S, ["r1"], timeout_s=5)["r1"]
     expired_s = expired_t - t_cut
     # the others follow on_failure = "rejoin": both drop r1 and carry on without it
     fleet.observed.wait_for(lambda o: set(events(fleet, "r1", "drop", t_cut)) >= {"r2", "r3"}, timeout_s=15)
@@ -172,7 +172,7 @@ def test_the_fleet_resumes_after_the_router_is_killed_and_restarted(circle):
     t_kill = fleet.kill("router")  # SIGKILL: no goodbye to the clients
     fleet.procs["router"].wait(timeout=10)
     # no commands reach simfleet: every robot halts ttl after its last command arrived
-    expiries = wait_halts(fleet.log_dir / "sim.log", t_kill, ROBOTS, timeout_s=5)
+    expiries = wait_halts(fleet.log_dir / "sim.log", t_kill, TTL_S, ROBOTS, timeout_s=5)
     halt_after_kill_s = {r: round(t - t_kill, 3) for r, t in expiries.items()}
     # (a message already in flight may still be delivered while the router dies: 50 ms slack)
     assert all(t - t_kill <= TTL_S + 0.05 for t in expiries.values()), halt_after_kill_s
