@@ -330,3 +330,21 @@ def test_a_frame_run_on_its_deadline_feeds_the_motion_test_only_the_poses_of_tha
 def test_the_agent_refuses_a_deadline_outside_its_range():
     assert agent_main.main(["--robot", "r1", "--deadline", "0"]) == 2
     assert agent_main.main(["--robot", "r1", "--deadline", "2"]) == 2
+
+
+@pytest.mark.parametrize("on_failure, judged", [("hold", {"r2"}), ("drop", set()), ("rejoin", set())])
+def test_only_under_hold_are_failed_robots_judged_apart(monkeypatch, on_failure, judged):
+    seen = []
+    real = agent_main.control_step
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs["judged_apart"])
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(agent_main, "control_step", spy)
+    agent, cmds, states, clock = make_agent()
+    agent.on_message("mission", KEYS.mission, encode_mission(dataclasses.replace(MISSION, version=2,
+                                                                                 on_failure=on_failure)))
+    agent.health = Health(failed=frozenset({"r2"}))   # failed (under hold, say), not dropped
+    frame(agent, clock, 1, 100.0, POSES)
+    assert seen == [frozenset(judged)]
