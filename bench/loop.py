@@ -1,7 +1,7 @@
 """Loop latency and scale: real `vsfleet agent` processes against a scripted tracker and fleet.
 
-This process plays the tracker and simfleet's receiving side: it opens an
-embedded loopback router (fleetctl.router, as `vsfleet run` does), connects two
+This process plays the tracker and simfleet's receiving side: it starts a
+`vsfleet router` process on a free loopback port (as on a deployment), connects
 client sessions to it (a "tracker" that publishes vs/<fleet>/pose/<robot> and a
 "sim" that subscribes to vs/<fleet>/cmd/** and state/**), and starts N real
 agent processes (fleetctl.run.child_command) as clients of that router. So a
@@ -143,7 +143,7 @@ class LoopRun:
     agent_cpu_s_per_tick: np.ndarray   # per agent: CPU time / measured frames
     agent_cpu_s_per_answer: np.ndarray # per agent: CPU time / frames it answered
     agent_rss_mib: np.ndarray          # per agent, at the end
-    bench_cpu_s_per_frame: float       # this process (router, tracker, sim side)
+    bench_cpu_s_per_frame: float       # this process (tracker, sim side) and the router process
     others_cores: float                # CPU cores busy with other processes of the machine meanwhile
     wall_s: float
 
@@ -312,7 +312,8 @@ def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2
         first = seq + 1
         publish.clear()
         cpu0 = {r: proc_cpu_s(p.pid) for r, p in procs.items()}
-        bench0 = time.process_time()
+        router_pid = children.procs["router"].pid if router_process else None
+        bench0 = time.process_time() + (proc_cpu_s(router_pid) if router_pid else 0.0)
         busy0, tot0 = machine_busy_s()
         w0 = time.perf_counter()
         report_every = max(1, int(10 * rate_hz))
@@ -325,7 +326,7 @@ def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2
         _pace_until(next_t + 0.5)  # stragglers
         wall = time.perf_counter() - w0
         cpu1 = {r: proc_cpu_s(p.pid) for r, p in procs.items()}
-        bench_cpu = time.process_time() - bench0
+        bench_cpu = time.process_time() + (proc_cpu_s(router_pid) if router_pid else 0.0) - bench0
         busy1, tot1 = machine_busy_s()
         rss = np.array([proc_rss_mib(p.pid) for p in procs.values()])
         last = seq
@@ -397,15 +398,24 @@ class FloorRun:
     lost: int
 
 
-def run_floor(plans: list[tuple[str, float | None, int]], log=print) -> list[FloorRun]:
-    """Ping-pong through an embedded loopback router, one plan (label, rate or None, count) at a time."""
+def run_floor(plans: list[tuple[str, float | None, int]], log=print, router_process: bool = True
+              ) -> list[FloorRun]:
+    """Ping-pong through a router, one plan (label, rate or None, count) at a time.
+
+    The router is its own `vsfleet router` process, as in run_loop (or, with router_process=False,
+    embedded in this process's session)."""
     fleet = "bench"
     keys = Keys(fleet)
-    router, endpoint = open_loopback_router()
     alive: set[str] = set()
     sessions, out = [], []
     children = Children(Path(tempfile.mkdtemp(prefix="vsfleet-bench-floor-")))
+    router = None
     try:
+        if router_process:
+            endpoint = _router_child(children)
+            router = zenoh.open(_client_config(endpoint))
+        else:
+            router, endpoint = open_loopback_router()
         router.liveliness().declare_subscriber(keys.alive("pong"), lambda s: alive.add(str(s.key_expr)),
                                                history=True)
         children.start("pong", [sys.executable, "-m", "bench.zenoh_pong", "--fleet", fleet,
@@ -447,11 +457,13 @@ def run_floor(plans: list[tuple[str, float | None, int]], log=print) -> list[Flo
                     log(f"[floor {label}] {i + 1}/{count}, ETA {el / (i + 1) * (count - i - 1):.0f} s")
             out.append(FloorRun(label, rate, np.array(rtt), lost))
     finally:
-        children.stop(grace_s=10.0)
-        shutil.rmtree(children.log_dir, ignore_errors=True)
+        children.stop([n for n in ("pong",) if n in children.procs], grace_s=10.0)
         for s in sessions:
             s.close()
-        router.close()
+        if router is not None:
+            router.close()
+        children.stop(grace_s=10.0)  # the router last
+        shutil.rmtree(children.log_dir, ignore_errors=True)
     return out
 
 

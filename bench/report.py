@@ -92,10 +92,10 @@ def latency_section(loops, floors, frames_asked: int) -> str:
         "## 2. Loop latency",
         "",
         "From the tracker's publish of a frame to the receipt of the resulting command for the same `seq`. "
-        "`bench/loop.py` plays the tracker and simfleet's receiving side in one process: an embedded "
-        "loopback router (`fleetctl.router.open_loopback_router`, as `vsfleet run` opens it), a *tracker* "
-        "client session that publishes `vs/bench/pose/<robot>` for every robot with one shared `seq`, and a "
-        "*sim* client session subscribed to `vs/bench/cmd/**` and `vs/bench/state/**`. N real "
+        "`bench/loop.py` plays the tracker and simfleet's receiving side in one process. The router is "
+        "its own `vsfleet router` process on a free loopback port, as on a deployment. Two client "
+        "sessions connect to it: a *tracker* that publishes `vs/bench/pose/<robot>` for every robot with "
+        "one shared `seq`, and a *sim* subscribed to `vs/bench/cmd/**` and `vs/bench/state/**`. N real "
         "`vsfleet agent` processes (`fleetctl.run.child_command`, `--dt` = one period) are clients of the "
         "same router, so a frame travels tracker → router → N agents → router → sim, as in `vsfleet run`. "
         "The mission: robots r1..rN on a circle (neighbours ≥ 0.3 m apart), metric l2, the default "
@@ -118,8 +118,8 @@ def latency_section(loops, floors, frames_asked: int) -> str:
         "### The Zenoh floor",
         "",
         "Round trip of a plain message (a pose-sized msgpack payload, the agents' QoS: express, drop, "
-        "real-time priority) from a client session in the bench process through the same kind of embedded "
-        "router to a separate Python client process (`bench/zenoh_pong.py`) that puts it back from its "
+        "real-time priority) from a client session in the bench process through the same kind of "
+        "`vsfleet router` process to a separate Python client process (`bench/zenoh_pong.py`) that puts it back from its "
         "subscriber callback, and back to the bench process: the same hops and processes as the loop, "
         "without decoding, queueing or the control step.",
         "",
@@ -172,8 +172,8 @@ def scale_section(runs_30hz, rate_hz: float = 30.0, pose_bytes: int = 63) -> str
         f"agents' `state` messages of measured frames with `complete: false` (the agent ran on its deadline "
         f"without every pose of the frame). CPU = an agent's user + system time (/proc/<pid>/stat, all its "
         f"threads) over the measurement, *per frame* published and *per tick* it answered (they differ when "
-        f"it skips frames). RSS = /proc/<pid>/status VmRSS at the end. *Bench* = this process per frame: the "
-        f"router, the tracker and the sim side. *Used* = cores the agents and the bench used; *needed* = "
+        f"it skips frames). RSS = /proc/<pid>/status VmRSS at the end. *Bench* = per frame, the bench process "
+        f"(the tracker and the sim side) plus the router process. *Used* = cores the agents and the bench used; *needed* = "
         f"cores to answer every frame if each cost what an answered tick did. The machine has "
         f"{os.cpu_count()} cores, shared with *others*.",
         "",
