@@ -122,3 +122,22 @@ def test_when_every_robot_in_the_fit_is_off_the_structure_is_blamed_not_a_robot(
         made += d
     assert [(x.robot, x.kind) for x in made] == [("r2", "fail"), ("r2", "drop")]
     assert abs(made[0].t - (100.0 + 100 / 30 + 2.0)) < 0.05
+
+
+def test_under_hold_a_failed_robot_recovers_only_after_complying_for_recover_after_s():
+    policy = FailurePolicy("hold", fail_deviation_m=0.05, fail_after_s=1.0, recover_after_s=0.5)
+
+    def r2(t):
+        if t < 2.0 - 1e-9:
+            return 0.2                                   # off: fails at t = 1.0
+        if t < 3.0 - 1e-9:
+            return 0.06 if round(t * 10) % 2 else 0.04   # at the threshold: complies every other frame
+        return 0.0                                       # back on its point
+    health, made = feed(policy, frames(r2, t_end=5.0))
+    assert [(round(d.t, 6), d.robot, d.kind) for d in made] == [(1.0, "r2", "fail"), (3.5, "r2", "recover")]
+    assert health.failed == frozenset()
+
+
+def test_recover_after_s_must_be_finite_and_not_negative():
+    with pytest.raises(ValueError, match="recover_after_s"):
+        FailurePolicy("hold", recover_after_s=-1.0)

@@ -26,7 +26,9 @@ same frame. The rule is:
     stays in the fit, so the structure waits for it. From then on every robot's
     deviation is measured on the structure fitted without the failed robots
     (when two or more others remain; ``vsfleet.step.control_step(judged_apart=)``):
-    the healthy robots a failed robot bends are not flagged for it. With only
+    the healthy robots a failed robot bends are not flagged for it. A failed
+    robot that has complied for ``recover_after_s`` is healthy again
+    (``recover``); the wait keeps the flag from flapping at the threshold. With only
     two robots left to judge by, a rigid fit gives both the same deviation (half
     the error in their separation), so the deviation test cannot single out one
     of them; the progress test still judges each.
@@ -56,6 +58,7 @@ class FailurePolicy:
     fail_after_s: float = 2.0
     rejoin_deviation_m: float = 0.02
     rejoin_after_s: float = 1.0
+    recover_after_s: float = 0.5
     min_progress_ratio: float = 0.3
     min_expected_m: float = 0.05
 
@@ -63,7 +66,7 @@ class FailurePolicy:
         if self.mode not in ("hold", "drop", "rejoin"):
             raise VsfleetValueError(f"on_failure must be hold, drop or rejoin, got {self.mode!r}")
         for name in ("fail_deviation_m", "fail_after_s", "rejoin_deviation_m", "rejoin_after_s",
-                     "min_progress_ratio", "min_expected_m"):
+                     "recover_after_s", "min_progress_ratio", "min_expected_m"):
             v = getattr(self, name)
             if not math.isfinite(v) or v < 0.0:
                 raise VsfleetValueError(f"{name} must be finite and >= 0, got {v!r}")
@@ -71,7 +74,7 @@ class FailurePolicy:
 
 @dataclass(frozen=True)
 class Health:
-    """Per robot: since when [s] it has been non-compliant (or compliant, once dropped), and its status."""
+    """Per robot: since when [s] it has been non-compliant (or compliant, once failed), and its status."""
 
     since_t: dict[str, float] = field(default_factory=dict)
     failed: frozenset[str] = frozenset()
@@ -168,18 +171,24 @@ def update_health(policy: FailurePolicy, health: Health, deviations_m: Mapping[s
                 since.pop(r, None)
             continue
         stuck = progress.get(r, 1.0) < policy.min_progress_ratio
-        if (d > policy.fail_deviation_m and not (structure_off and math.isfinite(d))) or stuck:
+        complies = not ((d > policy.fail_deviation_m and not (structure_off and math.isfinite(d))) or stuck)
+        if r in failed:  # hold: healthy again once it has complied for recover_after_s
+            if not complies:
+                since.pop(r, None)
+            elif t - since.setdefault(r, t) >= policy.recover_after_s:
+                failed.discard(r)
+                since.pop(r, None)
+                decisions.append(Decision(t, r, "recover", d))
+            continue
+        if not complies:
             start = since.setdefault(r, t - (policy.fail_after_s if stuck else 0.0))
-            if r not in failed and t - start >= policy.fail_after_s:
+            if t - start >= policy.fail_after_s:
                 failed.add(r)
+                since.pop(r, None)  # from now on: since when it complies (recover, rejoin)
                 decisions.append(Decision(t, r, "fail", d))
                 if policy.mode in ("drop", "rejoin"):
                     dropped.add(r)
-                    since.pop(r, None)
                     decisions.append(Decision(t, r, "drop", d))
         else:
             since.pop(r, None)
-            if r in failed:  # hold: a robot that complies again is healthy again
-                failed.discard(r)
-                decisions.append(Decision(t, r, "recover", d))
     return Health(since, frozenset(failed), frozenset(dropped)), decisions
