@@ -325,6 +325,23 @@ class ForgedAnswers:
 # ---------------------------------------------------------------- the test
 
 
+def fits_by_seq(states) -> dict[int, set[tuple[str, ...]]]:
+    """{seq: the distinct ``used`` sets the agents' states of that frame report}."""
+    out: dict[int, set[tuple[str, ...]]] = {}
+    for _, m in states:
+        out.setdefault(m.seq, set()).add(m.used)
+    return out
+
+
+def differing(states) -> dict[int, dict[str, tuple]]:
+    """The frames whose agents' fitted or advanced poses differ: {seq: {agent: (used, complete, pose)}}."""
+    by_seq: dict[int, dict[str, object]] = {}
+    for r, m in states:
+        by_seq.setdefault(m.seq, {})[r] = m
+    return {seq: {r: (m.used, m.complete, (m.x, m.y, m.th, m.gx, m.gy, m.gth)) for r, m in g.items()}
+            for seq, g in sorted(by_seq.items())
+            if len({(m.x, m.y, m.th, m.gx, m.gy, m.gth) for m in g.values()}) > 1}
+
 @pytest.fixture(params=["usrpwd", "mtls"])
 def fleet(request, tmp_path):
     if request.param == "mtls" and shutil.which("openssl") is None:
@@ -451,8 +468,15 @@ def test_rogue_clients_cannot_move_a_robot_change_the_mission_or_inject_poses(fl
                                           for a in ("r1", "r2", "r3")), timeout_s=20)
     late = [(r, m) for t, r, m in fleet.observed.state if t > t_attack]
     assert late and all(m.mission == version and m.rejected == 0 for _, m in late)
-    a = agreement([(r, m) for t, r, m in fleet.observed.state if t > back], min_agents=3)
-    print(f"auth {fleet.auth}: agreement on {a.identical}/{a.frames} frames all three agents ran whole")
-    assert a.identical == a.frames
+    # agents agree bit for bit on the frames they all ran whole with the same robots in the fit; a
+    # failure decision (here r3's rejoin after its late start) may fall a frame apart on a busy host
+    after = [(r, m) for t, r, m in fleet.observed.state if t > back]
+    same_fit = {seq for seq, used in fits_by_seq(after).items() if len(used) == 1}
+    a = agreement([(r, m) for r, m in after if m.seq in same_fit], min_agents=3)
+    print(f"auth {fleet.auth}: agreement on {a.identical}/{a.frames} frames all three agents ran whole "
+          f"with the same fit; {len(fits_by_seq(after)) - len(same_fit)} frames with different fits")
+    if a.identical != a.frames:
+        print("disagreeing frames:", differing(after))
+    assert a.frames >= 10 and a.identical == a.frames
     watch.undeclare()
     watch_tokens.undeclare()
