@@ -110,8 +110,9 @@ def test_a_mission_change_is_adopted_by_every_agent_on_the_same_frame(fleet):
     fleet.wait_alive("agent", ("r1", "r2", "r3"))
     fleet.publish_mission()
     fleet.observed.wait_for(lambda o: sum(1 for _, r, m in o.state if r == "r3") > 30, timeout_s=20)
+    # effective 2 s ahead: every agent holds v2 before its frame comes, even on a busy host
     v2 = dataclasses.replace(fleet.mission, version=2, goal=(-0.3, 0.3, -0.4), metric="l2",
-                             effective_t=time.time() + 0.5)
+                             effective_t=time.time() + 2.0)
     fleet.mission = v2
     fleet.publish_mission()
 
@@ -122,12 +123,15 @@ def test_a_mission_change_is_adopted_by_every_agent_on_the_same_frame(fleet):
                 firsts[r] = m.seq
         return firsts if len(firsts) == 3 else None
 
-    firsts = fleet.observed.wait_for(first_v2, timeout_s=10)
-    assert len(set(firsts.values())) == 1, firsts
-    # every agent used v1 before that frame and v2 from it on
-    switch = next(iter(firsts.values()))
+    firsts = fleet.observed.wait_for(first_v2, timeout_s=15)
+    # every agent used v1 on every frame before v2's effective time and v2 on every frame from it
     for _, r, m in fleet.observed.state:
-        assert m.mission == (2 if m.seq >= switch else 1)
+        assert m.mission == (2 if m.t >= v2.effective_t else 1), (r, m.seq, m.t, m.mission)
+    # so all switched on the same frame; an agent may only have switched later by missing that frame
+    switch = min(firsts.values())
+    ran_switch = {r for _, r, m in fleet.observed.state if m.seq == switch}
+    print(f"first v2 frame per agent: {firsts}; agents that ran frame {switch}: {sorted(ran_switch)}")
+    assert all(seq == switch for r, seq in firsts.items() if r in ran_switch), firsts
     fleet.observed.wait_for(lambda o: sum(1 for _, r, m in o.state if m.mission == 2) > 90, timeout_s=10)
     a = agreement([(r, m) for _, r, m in fleet.observed.state])
     assert a.frames > 50 and a.identical == a.frames
