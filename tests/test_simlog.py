@@ -39,3 +39,8 @@ def test_the_first_expiry_after_the_time_counts_and_a_robot_that_never_expired_i
 
 def test_a_half_written_line_is_not_read():
     assert halts("r1: commanded again at t=100.000 (seq 1)\nr1: command expired at t=105.2", 105.0, TTL_S) == {}
+
+
+def test_without_a_ttl_window_any_earlier_expiry_not_renewed_counts():
+    assert halts(LOG, 105.0)["robot-4"] == 101.000
+    assert halts(LOG, 105.0)["r3"] == 105.291

@@ -22,19 +22,19 @@ def command_events(log_text: str) -> dict[str, list[tuple[float, bool]]]:
     return out
 
 
-def halts(log_text: str, after_t: float, ttl_s: float) -> dict[str, float]:
+def halts(log_text: str, after_t: float, ttl_s: float | None = None) -> dict[str, float]:
     """Each robot's halt in force after ``after_t``: the expiry of the command it was running on.
 
     A robot still commanded at ``after_t`` halts at its first expiry after it. A robot whose
-    command had expired at most ``ttl_s`` before (its agent missed the frames just before, say)
-    and which was not commanded again halted at that expiry, returned as it is (t <= after_t).
-    Robots with neither are absent: one halted longer before was not moving at ``after_t``.
+    command had already expired (its agent starved of CPU just before, say) and which was not
+    commanded again halted at that expiry, returned as it is (t <= after_t), if that was at
+    most ``ttl_s`` before (any time, with None). Robots with neither are absent.
     """
     out: dict[str, float] = {}
     for robot, evs in command_events(log_text).items():
         before = [(t, commanded) for t, commanded in evs if t <= after_t]
         if before and not before[-1][1]:
-            if before[-1][0] >= after_t - ttl_s:
+            if ttl_s is None or before[-1][0] >= after_t - ttl_s:
                 out[robot] = before[-1][0]
             continue
         first = next((t for t, commanded in evs if t > after_t and not commanded), None)

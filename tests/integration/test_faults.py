@@ -80,10 +80,13 @@ def max_state_err_m(obs, after_t: float = 0.0) -> float:
     return max((m.err for t, _, m in obs.state if m.t > after_t), default=0.0)
 
 
+SPREAD_FRAMES = 3  # how far apart agents whose inputs differed may decide (0.1 s at 30 Hz)
+
+
 def assert_same_frame(obs, decided: dict[str, int], window_frames: int = 75) -> None:
     """Every agent decided on the same frame, unless an agent's inputs differed: an agent that
     did not run every frame of the decision window whole (a missed frame, or one run on its
-    deadline without every pose) may decide one frame apart. That case is printed."""
+    deadline without every pose) may decide up to SPREAD_FRAMES apart. That case is printed."""
     if len(set(decided.values())) == 1:
         return
     lo, hi = min(decided.values()) - window_frames, max(decided.values())
@@ -93,7 +96,7 @@ def assert_same_frame(obs, decided: dict[str, int], window_frames: int = 75) -> 
     print(f"decisions on frames {decided}; agents whose inputs differed in frames {lo}..{hi}: "
           f"{sorted(differed)}")
     assert differed, f"agents with the same inputs decided on different frames: {decided}"
-    assert max(decided.values()) - min(decided.values()) <= 1, decided
+    assert max(decided.values()) - min(decided.values()) <= SPREAD_FRAMES, decided
 
 
 @pytest.fixture
@@ -127,12 +130,13 @@ def test_router_killed_and_restarted_robots_halt_during_the_outage_and_the_fleet
     t_back = min(t for t, _, _ in fleet.observed.state if t > t_restart)
     fleet.observed.wait_for(at_goal(fleet), timeout_s=40)
     sim_log = (fleet.log_dir / "sim.log").read_text()
-    halted = halts(sim_log, t_kill, TTL_S)
+    halted = halts(sim_log, t_kill)  # a robot whose agent starved before the kill halted earlier
     print(f"router down {t_restart - t_kill:.2f} s; robots halted "
           f"{ {r: round(t - t_kill, 3) for r, t in halted.items()} } s after the kill; "
           f"state again {t_back - t_restart:.2f} s after the restart; max error after it "
           f"{max_state_err_m(fleet.observed, t_restart) * 100:.2f} cm")
     assert set(halted) == set(ROBOTS), sim_log[-2000:]
+    assert any(t > t_kill for t in halted.values())  # the kill itself halted robots
     for r, t in halted.items():
         assert t - t_kill <= TTL_S + 0.05, (r, t - t_kill)
     assert max_state_err_m(fleet.observed, t_restart) < 0.025
@@ -153,13 +157,14 @@ def test_a_silent_tracker_halts_the_robots_within_ttl_and_the_fleet_resumes_clea
                     and abs(m.vl) + abs(m.vr) > 0.02)
     fleet.observed.wait_for(at_goal(fleet), timeout_s=40)
     sim_log = (fleet.log_dir / "sim.log").read_text()
-    halted = halts(sim_log, t_stop, TTL_S)
+    halted = halts(sim_log, t_stop)  # a robot whose agent starved before the stop halted earlier
     print(f"tracker stopped: commands expired after {({r: round(t - t_stop, 3) for r, t in halted.items()})} s, "
           f"all wheels at rest {halted_at - t_stop:.3f} s after the stop; moving again "
           f"{t_moving - t_cont:.3f} s after the tracker resumed; "
           f"max error after resuming {max_state_err_m(fleet.observed, t_cont) * 100:.2f} cm")
     assert cmds_while_silent == []          # no frame, no command
     assert set(halted) == set(ROBOTS)
+    assert any(t > t_stop for t in halted.values())  # the silence itself halted robots
     for r, t in halted.items():
         assert t - last_state_t <= TTL_S + 0.1, (r, t - last_state_t)
     assert halted_at - t_stop <= halt_bound_s(fleet)
