@@ -119,11 +119,9 @@ def control_step(mission: Mission, poses: Mapping[str, tuple[float, float, float
 
     now_pts, next_pts = fit.pose.apply(template), adv.pose.apply(template)
     judged_pts = now_pts
-    judges = [r for r in used if r not in judged_apart]
+    judges = [i for i, r in enumerate(used) if r not in judged_apart]  # indices into used
     if 2 <= len(judges) < len(used):  # a rigid fit needs two points to fix the heading
-        judge_rows = [index[r] for r in judges]
-        judge_fit = fit_structure(template[judge_rows], positions[[used.index(r) for r in judges]],
-                                  metric=mission.metric)
+        judge_fit = fit_structure(template[[rows[i] for i in judges]], positions[judges], metric=mission.metric)
         judged_pts = judge_fit.pose.apply(template)
     deviations = {r: float(np.hypot(poses[r][0] - q[0], poses[r][1] - q[1]))
                   for r, q in zip(ids, judged_pts) if r in poses}
