@@ -20,6 +20,7 @@ from .errors import VsfleetValueError
 NAME_RE = re.compile(r"^[A-Za-z0-9_-]+$")
 MAX_PAYLOAD_BYTES = 4096          # pose, cmd, state, truth, fault, event
 MAX_MISSION_BYTES = 1 << 20       # a mission lists every robot
+MAX_FRAME_BYTES = 1 << 16         # a frame lists every robot a tracker sees (1000 robots fit)
 MAX_ROBOTS = 1000
 MAX_ABS = 1e6           # any number field: |v| <= 1e6 (metres, seconds apart from t, m/s, rad)
 MAX_TTL_S = 5.0         # a command may keep a robot moving for at most this long
@@ -58,6 +59,10 @@ class Keys:
 
     def pose(self, robot: str = "*") -> str:
         return f"{self.prefix}/pose/{robot}"
+
+    def frame(self, src: str = "*") -> str:
+        """One message per tracker frame from source ``src``: every robot it saw."""
+        return f"{self.prefix}/frame/{src}"
 
     def cmd(self, robot: str = "*") -> str:
         return f"{self.prefix}/cmd/{robot}"
@@ -218,6 +223,20 @@ class PoseMsg:
 
 
 @dataclass(frozen=True)
+class FrameMsg:
+    """One tracker frame: every robot seen at observation time t [s, tracker clock].
+
+    poses: robot id -> (x, y, th) [m, rad; world], in the order sent. src is the
+    tracker's id (the key's last chunk), seq its frame counter.
+    """
+
+    t: float
+    seq: int
+    src: str
+    poses: Mapping[str, tuple[float, float, float]]
+
+
+@dataclass(frozen=True)
 class CmdMsg:
     """Wheel ground speeds [m/s] for one robot, answering frame ``seq``; valid for ttl [s]."""
 
@@ -363,6 +382,44 @@ def decode_pose(payload: bytes) -> PoseMsg:
     m = unpack_map(payload)
     return PoseMsg(t=_num(m, "t"), seq=_int(m, "seq"), x=_num(m, "x"), y=_num(m, "y"),
                    th=_num(m, "th"), src=_str(m, "src"))
+
+
+def encode_frame(msg: FrameMsg) -> bytes:
+    """msgpack map {t, seq, src, poses: {robot: [x, y, th]}} (floats as float64)."""
+    return _pack({"t": float(msg.t), "seq": int(msg.seq), "src": msg.src,
+                  "poses": {r: [float(p[0]), float(p[1]), float(p[2])] for r, p in msg.poses.items()}})
+
+
+def decode_frame(payload: bytes) -> FrameMsg:
+    """A frame, every field checked (docs/protocol.md, "Frames"); WireError otherwise.
+
+    Refused: a payload over MAX_FRAME_BYTES, a missing or mistyped field, an unknown
+    field, more than MAX_ROBOTS robots, a robot id that is not a key chunk or that is
+    listed twice, a pose that is not three finite numbers within MAX_ABS.
+    """
+    m = unpack_map(payload, MAX_FRAME_BYTES)
+    extra = set(m) - {"t", "seq", "src", "poses"}
+    if extra:
+        raise WireError(f"unknown field(s) {sorted(extra)} in a frame")
+    t, seq, src = _num(m, "t"), _int(m, "seq"), check_name(_str(m, "src"), "src")
+    poses = m.get("poses")
+    if not isinstance(poses, dict):
+        raise WireError("field 'poses' must be a map {robot: [x, y, th]}")
+    if len(poses) > MAX_ROBOTS:
+        raise WireError(f"a frame lists {len(poses)} robots, more than {MAX_ROBOTS}")
+    out: dict[str, tuple[float, float, float]] = {}
+    for robot, p in poses.items():
+        if not isinstance(robot, str) or not NAME_RE.match(robot):
+            raise WireError(f"robot id must match [A-Za-z0-9_-]+, got {robot!r}")
+        if not isinstance(p, list) or len(p) != 3:
+            raise WireError(f"pose of {robot!r} must be [x, y, th]")
+        for v in p:
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                raise WireError(f"pose of {robot!r} must hold numbers, got {type(v).__name__}")
+            if not math.isfinite(v) or abs(v) > MAX_ABS:
+                raise WireError(f"pose of {robot!r} holds {v!r}: not finite or beyond {MAX_ABS:g}")
+        out[robot] = (float(p[0]), float(p[1]), float(p[2]))
+    return FrameMsg(t=t, seq=seq, src=src, poses=out)
 
 
 def decode_cmd(payload: bytes) -> CmdMsg:
