@@ -1,7 +1,9 @@
 """The whole fleet in one process, with no transport: agents, tracker and physics on a counted clock.
 
-Each frame is observed with Gaussian noise and handed to one real ``Agent``
-per robot (the agent process's logic, with transport and clock injected);
+Each frame is observed with Gaussian noise, encoded once as the tracker's frame
+message, and handed to one real ``Agent`` per robot (the agent process's slot,
+frame merger and pure step, vsfleet.step.agent_step, with transport and clock
+injected);
 their commands take effect
 ``latency_frames`` frames later. Used by the tests (controller choice, faults)
 and by the benchmarks. It does the same job as the multi-process fleet, minus
@@ -21,7 +23,7 @@ from vsfleet.fit import fit_structure
 from vsfleet.geometry import Pose2
 from vsfleet.scenario import Scenario
 from vsfleet.step import mission_template
-from vsfleet.wire import Keys, PoseMsg, decode_cmd, encode, encode_mission
+from vsfleet.wire import FrameMsg, Keys, decode_cmd, encode_frame, encode_mission
 
 from agent.main import Agent
 
@@ -87,9 +89,9 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
         poses = {r: (s.pose.x + rng.normal(0.0, nxy), s.pose.y + rng.normal(0.0, nxy),
                      s.pose.th + rng.normal(0.0, nth)) for r, s in states.items()}
         sent.clear()
-        for agent in agents.values():  # through the agent's frame rule (future / stale frames)
-            for r, (x, y, th) in poses.items():
-                agent.on_pose(keys.pose(r), encode(PoseMsg(t, k + 1, x, y, th, "offline")))
+        frame = encode_frame(FrameMsg(t=t, seq=k + 1, src="offline", poses=poses))
+        for agent in agents.values():  # through the agent's slot, merger and step, as in the process
+            agent.on_frame(keys.frame("offline"), frame)
             agent.poll()
         new = {r: sent.get(r, (0.0, 0.0)) for r in robots}
         pending.append(new)

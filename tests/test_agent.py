@@ -6,18 +6,21 @@ import msgpack
 import pytest
 
 import agent.main as agent_main
+import vsfleet.step as step_mod
 from agent.main import Agent
 from vsfleet.failure import Health
+from vsfleet.step import SyncPhase
 from vsfleet.wire import (
     HealthMsg,
     Keys,
     Mission,
-    PoseMsg,
+    FrameMsg,
     RobotSpec,
     decode_cmd,
     decode_health,
     decode_state,
     encode,
+    encode_frame,
     encode_health,
     encode_mission,
 )
@@ -45,11 +48,14 @@ def make_agent():
     return agent, cmds, states, clock
 
 
-def frame(agent, clock, seq, t, poses):
+def frame(agent, clock, seq, t, poses, src="sim"):
     clock.t = t
-    for r, (x, y, th) in poses.items():
-        agent.on_message("pose", KEYS.pose(r), encode(PoseMsg(t, seq, x, y, th, "sim")))
+    agent.on_frame(KEYS.frame(src), encode_frame(FrameMsg(t, seq, src, poses)))
     return agent.poll()
+
+
+def set_health(agent, health):
+    agent.state = dataclasses.replace(agent.state, health=health)
 
 
 POSES = {"r1": (0.3, 0.0, 0.0), "r2": (-0.15, 0.26, 0.0), "r3": (-0.15, -0.26, 0.0)}
@@ -68,14 +74,18 @@ def test_hostile_messages_are_counted_and_never_raise_or_command_motion():
         ("mission", KEYS.mission, msgpack.packb({**MISSION.to_dict(),
                                                  "robots": {b"r1": {}, "r2": {}}})),  # bytes keys
         ("mission", KEYS.mission, b"\x81\xa1"),                                       # truncated
-        ("pose", KEYS.pose("r1"), msgpack.packb({"t": 100.0, "seq": 2**62, "x": 1e300, "y": 0.0,
-                                                  "th": 0.0, "src": "x"})),            # out of range
-        ("pose", KEYS.pose("r1"), msgpack.packb({"t": float("nan")})),
-        ("pose", "vs/demo/pose/a/b", encode(PoseMsg(100.0, 1, 0.0, 0.0, 0.0, "s"))),  # bad key
-        ("pose", KEYS.pose("r1"), b"\x00" * 100000),                                  # oversized
+        ("frame", KEYS.frame("x"), msgpack.packb({"t": 100.0, "seq": 2**62, "src": "x",
+                                                   "poses": {"r1": [1e300, 0.0, 0.0]}})),  # out of range
+        ("frame", KEYS.frame("x"), msgpack.packb({"t": float("nan")})),
+        ("frame", KEYS.frame("y"), encode_frame(FrameMsg(100.0, 1, "s", POSES))),        # src is not the key's
+        ("frame", KEYS.frame("s"), b"\x00" * 100000),                                    # oversized
     ]
     for kind, key, payload in bad:
-        agent.on_message(kind, key, payload)
+        if kind == "frame":
+            agent.on_frame(key, payload)
+            assert agent.poll() is None
+        else:
+            agent.on_message(kind, key, payload)
     assert agent.rejections.count == len(bad)
     assert agent.poll() is None and cmds == []
     # a valid but huge frame number, then a restarted tracker: the agent keeps working
@@ -86,25 +96,25 @@ def test_hostile_messages_are_counted_and_never_raise_or_command_motion():
 
 def test_a_robot_that_no_mission_names_is_ignored_not_rejected():
     agent, cmds, states, clock = make_agent()
-    agent.on_message("pose", KEYS.pose("forklift"), encode(PoseMsg(100.0, 1, 0.0, 0.0, 0.0, "s")))
-    assert agent.rejections.count == 0 and agent.ignored == 1
+    frame(agent, clock, 1, 100.0, {**POSES, "forklift": (0.0, 0.0, 0.0)})
+    assert agent.rejections.count == 0 and agent.merger.ignored == 1 and len(cmds) == 1
 
 
 def test_a_restarted_agent_adopts_its_peers_failure_state_once():
     peer, _, _, peer_clock = make_agent()
-    peer.health = Health(since_t={"r3": 99.0}, failed=frozenset({"r2"}), dropped=frozenset({"r2"}))
+    set_health(peer, Health(since_t={"r3": 99.0}, failed=frozenset({"r2"}), dropped=frozenset({"r2"})))
     frame(peer, peer_clock, 1, 100.0, POSES)
     assert peer.health_payload is not None
     fresh, cmds, states, clock = make_agent()
     assert fresh.on_query_replies("health", [(KEYS.peer_health("r2"), peer.health_payload)])  # the only peer
-    assert fresh.health.dropped == {"r2"} and fresh.health.failed == {"r2"}
+    assert fresh.state.health.dropped == {"r2"} and fresh.state.health.failed == {"r2"}
     sent = decode_health(peer.health_payload)
-    assert fresh.health.since_t == dict(sent.since) and sent.seq == 1 and sent.mission == 1
+    assert fresh.state.health.since_t == dict(sent.since) and sent.seq == 1 and sent.mission == 1
     # a later reply does not overwrite what was adopted; a bad one is counted
     other, _, _, other_clock = make_agent()
     frame(other, other_clock, 2, 100.03, POSES)
     assert not fresh.on_query_replies("health", [(KEYS.peer_health("r3"), other.health_payload)])
-    assert fresh.health.dropped == {"r2"}
+    assert fresh.state.health.dropped == {"r2"}
     fresh.on_message("health-replies", KEYS.peer_health(), [(KEYS.peer_health("r3"), b"\x93\x01")])
     assert fresh.rejections.count == 1
     # with r2 dropped, both agents now fit the same robots
@@ -115,11 +125,11 @@ def test_a_restarted_agent_adopts_its_peers_failure_state_once():
 
 def test_health_of_an_unknown_mission_is_not_adopted():
     peer, _, _, peer_clock = make_agent()
-    peer.health = Health(failed=frozenset({"r2"}), dropped=frozenset({"r2"}))
+    set_health(peer, Health(failed=frozenset({"r2"}), dropped=frozenset({"r2"})))
     frame(peer, peer_clock, 1, 100.0, POSES)
     fresh = Agent("r1", KEYS, lambda b: None, lambda b: None, clock=Clock(100.0))
     fresh.on_query_replies("health", [(KEYS.peer_health("r2"), peer.health_payload)])   # no mission yet
-    assert not fresh.health_adopted and fresh.health.dropped == frozenset()
+    assert fresh.state.phase is SyncPhase.JOINING and fresh.state.health.dropped == frozenset()
 
 
 def test_after_a_frame_gap_longer_than_ttl_the_predicted_commands_start_from_rest():
@@ -127,28 +137,27 @@ def test_after_a_frame_gap_longer_than_ttl_the_predicted_commands_start_from_res
     far = {"r1": (0.0, 0.0, 0.0), "r2": (-0.45, 0.26, 0.0), "r3": (-0.45, -0.26, 0.0)}
     frame(agent, clock, 1, 100.0, far)
     frame(agent, clock, 2, 100.033, far)
-    assert any(vl or vr for vl, vr in agent.predicted.values())
+    assert any(vl or vr for vl, vr in agent.state.predicted_m_s.values())
     seen = {}
-    real_step = agent_main.control_step
+    real_step = step_mod.control_step
 
     def spy(*args, **kwargs):
         seen["others"] = dict(kwargs["others_wheels_prev"])
         return real_step(*args, **kwargs)
 
-    agent_main.control_step = spy
+    step_mod.control_step = spy
     try:
         frame(agent, clock, 3, 101.5, far)                      # 1.5 s of tracker silence
     finally:
-        agent_main.control_step = real_step
+        step_mod.control_step = real_step
     assert seen["others"] == {}
 
 
 def test_a_stale_frame_commands_nothing():
     agent, cmds, states, clock = make_agent()
     clock.t = 101.0
-    for r, (x, y, th) in POSES.items():
-        agent.on_message("pose", KEYS.pose(r), encode(PoseMsg(100.0, 1, x, y, th, "sim")))
-    assert agent.poll() is None and cmds == [] and agent.frames.stale == 1
+    agent.on_frame(KEYS.frame("sim"), encode_frame(FrameMsg(100.0, 1, "sim", POSES)))
+    assert agent.poll() is not None and cmds == [] and agent.state.stale == 1
 
 
 @pytest.mark.parametrize("change, words", [
@@ -187,17 +196,19 @@ def test_a_mission_with_a_robot_listed_twice_is_rejected():
 def test_after_a_long_gap_the_agent_restarts_its_timers_and_adopts_only_its_peers_decisions():
     agent, cmds, states, clock = make_agent()
     frame(agent, clock, 1, 100.0, POSES)
-    agent.want_health = False                                   # the start-up query was made
-    agent.health = Health(since_t={"r3": 99.5})
+    agent.health_replies([])                                    # the start-up query: no peer answered
+    assert agent.state.phase is SyncPhase.SYNCED
+    set_health(agent, Health(since_t={"r3": 99.5}))
     frame(agent, clock, 2, 105.0, POSES)                        # 5 s without a frame (a partition)
-    assert agent.want_health and agent.resyncing and not agent.health_adopted
-    assert "r3" not in agent.health.since_t
+    assert agent.state.phase is SyncPhase.RESYNCING
+    assert "r3" not in agent.state.health.since_t
     peer, _, _, peer_clock = make_agent()
-    peer.health = Health(since_t={"r1": 104.0}, failed=frozenset({"r1"}), dropped=frozenset({"r1"}))
+    set_health(peer, Health(since_t={"r1": 104.0}, failed=frozenset({"r1"}), dropped=frozenset({"r1"})))
     frame(peer, peer_clock, 2, 105.0, {**POSES, "r1": (0.0, 0.0, 0.0)})
     agent.on_query_replies("health", [(KEYS.peer_health("r2"), peer.health_payload)])
-    assert agent.health.dropped == {"r1"}                       # the decision it missed
-    assert "r1" not in agent.health.since_t                     # but its own timers
+    assert agent.state.health.dropped == {"r1"}                 # the decision it missed
+    assert "r1" not in agent.state.health.since_t               # but its own timers
+    assert agent.state.phase is SyncPhase.SYNCED
 
 
 # ---------------------------------------------------------------- answers from peers: a majority or nothing
@@ -279,13 +290,14 @@ def test_a_forged_health_answer_without_a_majority_is_not_adopted_and_the_agent_
     honest = health_of("r2", 7, 100.2)
     forged = health_of("r3", 7, 100.2, failed=("r1", "r2"), dropped=("r1", "r2"))
     assert not agent.on_query_replies("health", [honest, forged])
-    assert agent.health == Health() and not agent.health_adopted
+    assert agent.state.health == Health() and agent.state.phase is SyncPhase.JOINING
     assert "keeping this agent's own failure state" in caplog.text
     # with a second honest peer (a frame further on: t and seq differ) the honest state wins
     other = health_of("r4", 8, 100.233)
     assert decode_health(other[1]).seq != decode_health(honest[1]).seq
     assert agent.on_query_replies("health", [honest, forged, other])
-    assert agent.health_adopted and agent.health.dropped == frozenset() and agent.health.failed == frozenset()
+    assert agent.state.phase is SyncPhase.SYNCED
+    assert agent.state.health.dropped == frozenset() and agent.state.health.failed == frozenset()
 
 
 def test_peers_that_disagree_on_the_failure_timers_give_their_decisions_but_not_their_timers(caplog):
@@ -295,36 +307,33 @@ def test_peers_that_disagree_on_the_failure_timers_give_their_decisions_but_not_
     b = health_of("r3", 7, 100.2, failed=("r3",), dropped=("r3",), since=(("r2", 0.0), ("r3", 100.1)))
     caplog.set_level("INFO", "vsfleet.agent")
     agent, _, _, _ = make_agent()
-    agent.health = Health(since_t={"r1": 100.0})
+    set_health(agent, Health(since_t={"r1": 100.0}))
     assert agent.on_query_replies("health", [a, b])
-    assert agent.health.dropped == {"r3"} and agent.health.failed == {"r3"}
-    assert agent.health.since_t == {"r1": 100.0}
+    assert agent.state.health.dropped == {"r3"} and agent.state.health.failed == {"r3"}
+    assert agent.state.health.since_t == {"r1": 100.0}
     assert "not on the failure timers" in caplog.text
     agent, _, _, _ = make_agent()   # when they agree on the timers too, the timers are adopted
     assert agent.on_query_replies("health", [a, health_of("r3", 8, 100.233, failed=("r3",), dropped=("r3",),
                                                           since=(("r3", 100.1),))])
-    assert agent.health.since_t == {"r3": 100.1}
+    assert agent.state.health.since_t == {"r3": 100.1}
 
 
 def test_health_for_a_mission_the_agent_does_not_hold_is_not_adopted_even_by_a_majority(caplog):
     agent, _, _, _ = make_agent()
     assert not agent.on_query_replies("health", [health_of("r2", 7, 100.2, dropped=("r3",), mission=5),
                                                  health_of("r3", 7, 100.2, dropped=("r3",), mission=5)])
-    assert not agent.health_adopted and "does not hold" in caplog.text
+    assert agent.state.phase is SyncPhase.JOINING and "does not hold" in caplog.text
 
 
-def test_a_frame_run_on_its_deadline_feeds_the_motion_test_only_the_poses_of_that_frame():
+def test_a_frame_missing_a_robot_feeds_the_motion_test_only_the_poses_of_that_frame():
     agent, cmds, states, clock = make_agent()
     frame(agent, clock, 1, 100.0, POSES)
-    clock.t = 100.033
-    for r in ("r1", "r2"):                                   # r3's pose of frame 2 is late
-        agent.on_message("pose", KEYS.pose(r), encode(PoseMsg(100.033, 2, *POSES[r], "sim")))
-    clock.t = 100.08                                         # past the deadline: runs incomplete
-    ran = agent.poll()
+    clock.t = 100.033                                        # r3 is missing from frame 2
+    ran = frame(agent, clock, 2, 100.033, {r: POSES[r] for r in ("r1", "r2")})
     assert ran is not None and not ran.complete and ran.fresh == {"r1", "r2"}
     assert "r3" in ran.poses                                 # still in the fit (held pose)
-    assert agent.motion.last["r3"][0] == 100.0               # but the motion test waits for a fresh one
-    assert agent.motion.last["r1"][0] == 100.033
+    assert agent.state.motion.last["r3"][0] == 100.0         # but the motion test waits for a fresh one
+    assert agent.state.motion.last["r1"][0] == 100.033
 
 
 def test_the_agent_refuses_a_deadline_outside_its_range():
@@ -335,16 +344,16 @@ def test_the_agent_refuses_a_deadline_outside_its_range():
 @pytest.mark.parametrize("on_failure, judged", [("hold", {"r2"}), ("drop", set()), ("rejoin", set())])
 def test_only_under_hold_are_failed_robots_judged_apart(monkeypatch, on_failure, judged):
     seen = []
-    real = agent_main.control_step
+    real = step_mod.control_step
 
     def spy(*args, **kwargs):
         seen.append(kwargs["judged_apart"])
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(agent_main, "control_step", spy)
+    monkeypatch.setattr(step_mod, "control_step", spy)
     agent, cmds, states, clock = make_agent()
     agent.on_message("mission", KEYS.mission, encode_mission(dataclasses.replace(MISSION, version=2,
                                                                                  on_failure=on_failure)))
-    agent.health = Health(failed=frozenset({"r2"}))   # failed (under hold, say), not dropped
+    set_health(agent, Health(failed=frozenset({"r2"})))   # failed (under hold, say), not dropped
     frame(agent, clock, 1, 100.0, POSES)
     assert seen == [frozenset(judged)]

@@ -1,95 +1,102 @@
-"""Frame assembly and mission selection in the agent (no transport; the clock is passed in)."""
+"""Merging frames and choosing the mission (vsfleet.frames: no transport; the clock is passed in)."""
 
-from agent.frames import FrameAssembler, MissionBook
-from vsfleet.wire import Mission, PoseMsg, RobotSpec
-
-
-def pose(seq, t, x=0.0):
-    return PoseMsg(t=t, seq=seq, x=x, y=0.0, th=0.0, src="sim")
+from vsfleet.frames import FrameMerger, MissionBook
+from vsfleet.wire import FrameMsg, Mission, RobotSpec
 
 
-def test_a_complete_frame_is_processed_at_once_and_only_once():
-    fa = FrameAssembler(("r1", "r2"), deadline_s=0.02)
-    fa.offer("r1", pose(1, 10.0), now=10.0)
-    assert fa.ready(now=10.0) is None
-    fa.offer("r2", pose(1, 10.0), now=10.001)
-    frame = fa.ready(now=10.001)
-    assert frame is not None and frame.complete and frame.seq == 1
-    assert set(frame.poses) == {"r1", "r2"}
-    assert fa.ready(now=11.0) is None
+def frame(seq, t, robots=("r1", "r2"), x=0.0, src="sim"):
+    return FrameMsg(t=t, seq=seq, src=src, poses={r: (x, 0.0, 0.0) for r in robots})
 
 
-def test_an_incomplete_frame_runs_after_the_deadline_with_the_freshest_poses():
-    fa = FrameAssembler(("r1", "r2"), deadline_s=0.02, max_age_s=0.25)
-    fa.offer("r1", pose(1, 10.0), 10.0)
-    fa.offer("r2", pose(1, 10.0), 10.0)
-    fa.ready(10.0)
-    fa.offer("r1", pose(2, 10.033, x=1.0), 10.05)
-    assert fa.ready(10.069) is None
-    frame = fa.ready(10.071)
-    assert frame is not None and not frame.complete and frame.seq == 2
-    assert frame.poses["r1"][0] == 1.0
-    assert "r2" in frame.poses  # 33 ms old: still within max_age
+def test_a_frame_listing_every_robot_runs_at_once_and_only_once():
+    fm = FrameMerger(("r1", "r2"), deadline_s=0.02)
+    assert fm.offer(frame(1, 10.0), now=10.0)
+    out = fm.ready(now=10.0)
+    assert out is not None and out.complete and out.seq == 1 and out.fresh == {"r1", "r2"}
+    assert set(out.poses) == {"r1", "r2"}
+    assert fm.ready(now=11.0) is None
 
 
-def test_poses_older_than_the_age_limit_are_left_out_of_the_frame():
-    fa = FrameAssembler(("r1", "r2"), deadline_s=0.02, max_age_s=0.25)
-    fa.offer("r2", pose(1, 10.0), 10.3)
-    fa.offer("r1", pose(9, 10.3), 10.3)
-    frame = fa.ready(10.35)
-    assert set(frame.poses) == {"r1"}
+def test_a_frame_missing_a_robot_from_the_only_source_runs_at_once_and_the_robot_is_left_out_when_old():
+    fm = FrameMerger(("r1", "r2"), deadline_s=0.02, max_age_s=0.25)
+    fm.offer(frame(1, 10.0), 10.0)
+    fm.ready(10.0)
+    fm.offer(frame(2, 10.033, robots=("r1",), x=1.0), 10.05)
+    out = fm.ready(10.05)                               # one source: nothing else to wait for
+    assert out is not None and out.seq == 2 and out.poses["r1"][0] == 1.0
+    assert "r2" in out.poses and out.fresh == {"r1"}    # 33 ms old: held over, not fresh
+    fm.offer(frame(3, 10.3, robots=("r1",)), 10.3)
+    out = fm.ready(10.3)
+    assert set(out.poses) == {"r1"} and not out.complete  # r2's pose is 0.3 s old: missing
 
 
-def test_duplicate_and_out_of_order_poses_are_dropped_and_counted():
-    fa = FrameAssembler(("r1",), deadline_s=0.02)
-    assert fa.offer("r1", pose(5, 10.0), 10.0)
-    assert not fa.offer("r1", pose(5, 10.0), 10.0)      # duplicate
-    assert not fa.offer("r1", pose(4, 9.9), 10.0)       # out of order
-    assert fa.dropped_old == 2
-    assert fa.ready(10.0).seq == 5
-    # an older frame is never processed after a newer one
-    fa.offer("r1", pose(6, 10.1), 10.1)
-    assert fa.ready(10.1).seq == 6
+def test_duplicate_and_out_of_order_frames_are_dropped_and_counted():
+    fm = FrameMerger(("r1",), deadline_s=0.02)
+    assert fm.offer(frame(5, 10.0, ("r1",)), 10.0)
+    assert fm.ready(10.0).seq == 5
+    assert not fm.offer(frame(5, 10.0, ("r1",)), 10.0)   # duplicate
+    assert not fm.offer(frame(4, 9.9, ("r1",)), 10.0)    # out of order
+    assert fm.dropped_old == 2 and fm.ready(10.0) is None
+    fm.offer(frame(6, 10.1, ("r1",)), 10.1)
+    assert fm.ready(10.1).seq == 6
+
+
+def test_a_newer_frame_replaces_one_not_yet_run():
+    fm = FrameMerger(("r1", "r2"), deadline_s=0.02)
+    fm.offer(frame(1, 10.0, x=1.0), 10.0)
+    fm.offer(frame(2, 10.033, x=2.0), 10.033)
+    out = fm.ready(10.04)
+    assert out.seq == 2 and out.poses["r1"][0] == 2.0 and fm.ready(10.04) is None
 
 
 def test_a_tracker_that_restarts_its_seq_is_followed_at_once_and_a_huge_seq_does_no_harm():
-    fa = FrameAssembler(("r1", "r2"), deadline_s=0.02)
-    fa.offer("r1", pose(2**62, 10.0), 10.0)           # a bogus frame number
-    fa.offer("r2", pose(1, 10.01), 10.01)              # newer by time, small seq
-    assert fa.ready(10.01) is None                     # not complete: waits for its deadline
-    frame = fa.ready(10.04)
-    assert frame.seq == 1 and frame.t == 10.01 and not frame.complete
-    for r in ("r1", "r2"):                             # the restarted tracker's next frame
-        fa.offer(r, pose(2, 10.05), 10.05)
-    assert fa.ready(10.05).seq == 2
+    fm = FrameMerger(("r1", "r2"), deadline_s=0.02)
+    fm.offer(frame(2**62, 10.0), 10.0)                 # a bogus frame number
+    assert fm.ready(10.0).seq == 2**62
+    fm.offer(frame(1, 10.01), 10.01)                   # newer by time, small seq
+    assert fm.ready(10.01).seq == 1
 
 
-def test_a_pose_from_the_future_is_refused():
-    fa = FrameAssembler(("r1",), deadline_s=0.02, max_future_s=1.0)
-    assert not fa.offer("r1", pose(1, 1e9), now=10.0)
-    assert fa.refused_future == 1 and fa.ready(10.0) is None
-    assert fa.offer("r1", pose(2, 10.5), now=10.0)
+def test_a_frame_from_the_future_is_refused_and_does_not_block_the_next():
+    fm = FrameMerger(("r1",), deadline_s=0.02, max_future_s=1.0)
+    assert not fm.offer(frame(1, 1e9, ("r1",)), now=10.0)
+    assert fm.refused_future == 1 and fm.ready(10.0) is None
+    assert fm.offer(frame(2, 10.5, ("r1",)), now=10.0)
+    assert fm.ready(10.0).seq == 2
 
 
-def test_a_stale_frame_is_not_run_and_is_counted():
-    fa = FrameAssembler(("r1",), deadline_s=0.02, max_stale_s=0.5)
-    fa.offer("r1", pose(1, 10.0), now=10.6)            # 0.6 s old on arrival (clock skew or a stalled link)
-    assert fa.ready(10.6) is None
-    assert fa.stale == 1
-    fa.offer("r1", pose(2, 10.2), now=10.6)            # 0.4 s old: run
-    assert fa.ready(10.6).seq == 2 and fa.stale == 1
+def test_objects_no_mission_names_are_ignored_not_held():
+    fm = FrameMerger(("r1",), deadline_s=0.02)
+    fm.offer(FrameMsg(10.0, 1, "sim", {"r1": (0.0, 0.0, 0.0), "forklift": (1.0, 1.0, 0.0)}), 10.0)
+    assert fm.ignored == 1 and set(fm.ready(10.0).poses) == {"r1"} and "forklift" not in fm.held
 
 
-def test_frames_from_two_cameras_are_complete_only_within_one_source():
-    fa = FrameAssembler(("r1", "r2"), deadline_s=0.02)
-    fa.offer("r1", PoseMsg(t=10.0, seq=7, x=0.0, y=0.0, th=0.0, src="cam1"), 10.0)
-    fa.offer("r2", PoseMsg(t=10.001, seq=7, x=1.0, y=0.0, th=0.0, src="cam2"), 10.001)
-    assert fa.ready(10.002) is None                    # same seq, other source: not complete
-    frame = fa.ready(10.03)                            # the deadline: freshest pose of each robot
-    assert not frame.complete and set(frame.poses) == {"r1", "r2"}
-    for r in ("r1", "r2"):
-        fa.offer(r, PoseMsg(t=10.04, seq=8, x=0.0, y=0.0, th=0.0, src="cam1"), 10.04)
-    assert fa.ready(10.04).complete
+def test_two_cameras_merge_the_freshest_pose_of_each_robot_whatever_the_arrival_order():
+    a = FrameMsg(t=10.0, seq=7, src="cam1", poses={"r1": (0.0, 0.0, 0.0), "r2": (5.0, 0.0, 0.0)})
+    b = FrameMsg(t=10.001, seq=7, src="cam2", poses={"r2": (1.0, 0.0, 0.0)})
+    runs = []
+    for order in ((a, b), (b, a)):
+        fm = FrameMerger(("r1", "r2"), deadline_s=0.02)
+        for m in order:
+            fm.offer(m, 10.002)
+        runs.append(fm.ready(10.002))                 # every robot seen at this instant: at once
+    assert runs[0] == runs[1]                          # the same frame, bit for bit
+    assert runs[0].poses == {"r1": (0.0, 0.0, 0.0), "r2": (1.0, 0.0, 0.0)} and runs[0].src == "cam2"
+    assert runs[0].fresh == {"r2"}
+
+
+def test_with_two_cameras_a_frame_missing_robots_waits_for_its_deadline():
+    fm = FrameMerger(("r1", "r2"), deadline_s=0.02)
+    fm.offer(FrameMsg(10.0, 1, "cam1", {"r1": (0.0, 0.0, 0.0)}), 10.0)
+    fm.offer(FrameMsg(10.0, 1, "cam2", {"r2": (1.0, 0.0, 0.0)}), 10.0)
+    assert fm.ready(10.0).complete                     # the same instant from both: every robot held
+    fm.offer(FrameMsg(10.033, 2, "cam1", {"r1": (0.1, 0.0, 0.0)}), 10.034)
+    assert fm.ready(10.04) is None                     # cam2's frame of this instant may still come
+    fm.offer(FrameMsg(10.034, 2, "cam2", {"r2": (1.1, 0.0, 0.0)}), 10.045)
+    out = fm.ready(10.045)
+    assert out.poses == {"r1": (0.1, 0.0, 0.0), "r2": (1.1, 0.0, 0.0)} and out.src == "cam2"
+    fm.offer(FrameMsg(10.066, 3, "cam1", {"r1": (0.2, 0.0, 0.0)}), 10.067)
+    assert fm.ready(10.08) is None and fm.ready(10.088).seq == 3   # cam2 silent: run on the deadline
 
 
 def mission(version, effective_t):

@@ -101,18 +101,19 @@ def test_a_scenario_fault_timeline_fires_at_its_time():
     assert fleet.faults["r2"].kind == "stop"
 
 
-def test_the_tracker_shares_one_seq_per_frame_adds_noise_and_drops_frames():
+def test_the_tracker_sends_one_frame_of_every_robot_adds_noise_and_drops_frames():
     keys = Keys("demo")
     tr = SimTracker(TrackerParams(noise_xy_m=0.01, noise_th_rad=0.02, drop_prob=0.0), src="cam", seed=3)
     for r, x in (("r1", 1.0), ("r2", 2.0)):
         tr.on_truth(keys, keys.truth(r), encode(TruthMsg(100.0, x, 0.0, 3.1, 0.0, 0.0)))
     frames = [tr.frame(now=100.01) for _ in range(400)]
-    assert all(len(f) == 2 and f[0][1].seq == f[1][1].seq for f in frames)
-    xs = np.array([f[0][1].x for f in frames])
+    assert all(sorted(f.poses) == ["r1", "r2"] for f in frames)
+    assert [f.seq for f in frames] == list(range(1, 401))
+    xs = np.array([f.poses["r1"][0] for f in frames])
     assert abs(xs.mean() - 1.0) < 0.003 and 0.008 < xs.std() < 0.012
-    assert all(-math.pi <= f[0][1].th < math.pi and f[0][1].t == 100.0 and f[0][1].src == "cam" for f in frames)
+    assert all(-math.pi <= f.poses["r1"][2] < math.pi and f.t == 100.0 and f.src == "cam" for f in frames)
     # stale truth is not observed
-    assert tr.frame(now=100.5) == []
+    assert tr.frame(now=100.5) is None
     dropper = SimTracker(TrackerParams(drop_prob=0.3), seed=4)
     dropper.on_truth(keys, keys.truth("r1"), encode(TruthMsg(100.0, 0.0, 0.0, 0.0, 0.0, 0.0)))
     empty = sum(1 for _ in range(1000) if not dropper.frame(now=100.0))

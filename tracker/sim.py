@@ -1,9 +1,11 @@
-"""vsfleet tracker sim: the paper's VGPS, simulated. Reads truth, publishes noisy poses.
+"""vsfleet tracker sim: the paper's VGPS, simulated. Reads truth, publishes noisy frames.
 
 Each frame (30 Hz by default) samples the latest truth of every robot, adds
-Gaussian position and heading noise, and publishes all robots' poses with one
-shared ``seq`` after ``latency_s``; a whole frame is dropped with probability
-``drop_prob``. ``t`` is the observation time (the truth sample's time).
+Gaussian position and heading noise (drawn for all robots at once), and after
+``latency_s`` publishes one message with every robot's pose on
+``vs/<fleet>/frame/<src>``, and each pose on ``pose/<robot>`` for key-expression
+tools (``--no-poses`` leaves those out); a whole frame is dropped with
+probability ``drop_prob``. ``t`` is the observation time (the truth sample's time).
 """
 
 from __future__ import annotations
@@ -19,9 +21,9 @@ import zenoh
 
 from fleetctl.lifecycle import Rejections, StopFlag, pace, wall_clock
 from fleetctl.zconf import STREAM_QOS, add_zenoh_args, init_logging, zenoh_config
-from vsfleet.geometry import wrap_angle
+from vsfleet.geometry import wrap_angles
 from vsfleet.scenario import TrackerParams
-from vsfleet.wire import Keys, PoseMsg, TruthMsg, decode_truth, encode
+from vsfleet.wire import FrameMsg, Keys, PoseMsg, TruthMsg, decode_truth, encode, encode_frame
 
 log = logging.getLogger("vsfleet.tracker")
 
@@ -55,34 +57,41 @@ class SimTracker:
             if held is None or msg.t > held.t:
                 self.truth[robot] = msg
 
-    def frame(self, now: float) -> list[tuple[str, PoseMsg]]:
-        """Observe every robot with fresh truth; empty when the frame is dropped."""
+    def frame(self, now: float) -> FrameMsg | None:
+        """Observe every robot with fresh truth; None when the frame is dropped or nothing is fresh."""
         self.seq += 1
         with self.lock:
             truth = {r: m for r, m in self.truth.items() if now - m.t <= TRUTH_MAX_AGE_S}
         if not truth or self.rng.random() < self.params.drop_prob:
             self.dropped += bool(truth)
-            return []
-        out = []
-        for robot in sorted(truth):
-            m = truth[robot]
-            nx, ny = self.rng.normal(0.0, self.params.noise_xy_m, 2) if self.params.noise_xy_m > 0 else (0.0, 0.0)
-            nth = self.rng.normal(0.0, self.params.noise_th_rad) if self.params.noise_th_rad > 0 else 0.0
-            out.append((robot, PoseMsg(t=m.t + self.clock_offset_s, seq=self.seq, x=m.x + nx, y=m.y + ny,
-                                       th=wrap_angle(m.th + nth), src=self.src)))
-        return out
+            return None
+        robots = sorted(truth)
+        xyth = np.array([[truth[r].x, truth[r].y, truth[r].th] for r in robots])
+        noise = np.zeros_like(xyth)
+        if self.params.noise_xy_m > 0:
+            noise[:, :2] = self.rng.normal(0.0, self.params.noise_xy_m, (len(robots), 2))
+        if self.params.noise_th_rad > 0:
+            noise[:, 2] = self.rng.normal(0.0, self.params.noise_th_rad, len(robots))
+        xyth += noise
+        xyth[:, 2] = wrap_angles(xyth[:, 2])
+        # the observation time: the newest truth sample's (all robots are sampled together)
+        t = max(truth[r].t for r in robots) + self.clock_offset_s
+        return FrameMsg(t=t, seq=self.seq, src=self.src,
+                        poses={r: (float(p[0]), float(p[1]), float(p[2])) for r, p in zip(robots, xyth)})
 
 
 def run_tracker(conf: zenoh.Config, params: TrackerParams, fleet: str = "demo", src: str = "sim",
                 seed: int = 0, stop: StopFlag | None = None,
-                clock: Callable[[], float] = wall_clock, clock_offset_s: float = 0.0) -> SimTracker:
+                clock: Callable[[], float] = wall_clock, clock_offset_s: float = 0.0,
+                poses: bool = True) -> SimTracker:
     stop = stop or StopFlag()
     keys = Keys(fleet)
     tracker = SimTracker(params, src, seed, clock_offset_s)
     period = 1.0 / params.rate_hz
-    pending: deque[tuple[float, list[tuple[str, PoseMsg]]]] = deque()
+    pending: deque[tuple[float, FrameMsg | None]] = deque()
     with zenoh.open(conf) as session:
         pubs: dict[str, zenoh.Publisher] = {}
+        frame_pub = session.declare_publisher(keys.frame(src), **STREAM_QOS)
         token = session.liveliness().declare_token(keys.alive("tracker", src))
         sub = session.declare_subscriber(keys.truth(), lambda s: tracker.on_truth(
             keys, str(s.key_expr), s.payload.to_bytes()))
@@ -97,10 +106,14 @@ def run_tracker(conf: zenoh.Config, params: TrackerParams, fleet: str = "demo", 
                     if next_frame < now:  # fell behind: skip frames rather than burst
                         next_frame = now + period
                 while pending and pending[0][0] <= clock():
-                    for robot, msg in pending.popleft()[1]:
+                    msg = pending.popleft()[1]
+                    if msg is None:
+                        continue
+                    frame_pub.put(encode_frame(msg))
+                    for robot, (x, y, th) in msg.poses.items() if poses else ():
                         if robot not in pubs:
                             pubs[robot] = session.declare_publisher(keys.pose(robot), **STREAM_QOS)
-                        pubs[robot].put(encode(msg))
+                        pubs[robot].put(encode(PoseMsg(t=msg.t, seq=msg.seq, x=x, y=y, th=th, src=msg.src)))
                 pace(min(next_frame, pending[0][0]) if pending else next_frame, stop, clock)
         finally:
             log.info("tracker stopping after %d frames (%d dropped), %d rejected",
@@ -122,6 +135,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--clock-offset", type=float, default=0.0,
                    help="add this to every published t [s]: simulates a tracker host with a skewed clock")
+    p.add_argument("--no-poses", action="store_true",
+                   help="publish frames only, not also pose/<robot> for key-expression tools")
     p.add_argument("--verbose", "-v", action="store_true")
     add_zenoh_args(p)
     return p
@@ -143,7 +158,7 @@ def main(argv: list[str] | None = None) -> int:
         log.error("--clock-offset must be within an hour")
         return 2
     run_tracker(zenoh_config(args), params, args.fleet, args.src, args.seed,
-                clock_offset_s=args.clock_offset)
+                clock_offset_s=args.clock_offset, poses=not args.no_poses)
     return 0
 
 

@@ -1,0 +1,165 @@
+"""Merging tracker frames and choosing the active mission: pure, the clock is passed in.
+
+Frame rule (docs/protocol.md, "Frames"):
+- Every source publishes one message per frame on ``vs/<fleet>/frame/<src>``.
+  Each robot's freshest pose, by ``(t, seq)``, is held, whichever source it
+  came from; an older or equal pose is dropped (counted).
+- A frame is run when it arrives if every mission robot has a pose held from
+  the same instant (at most half of ``deadline_s`` older than the frame, from
+  any source; then the frame is "complete"), or if its source is the only one heard from within ``max_age_s``.
+  Otherwise the agent waits ``deadline_s`` (for the other cameras' frames of
+  the same instant), then runs the newest frame with the freshest poses held.
+- A frame runs with each robot's freshest pose, left out if it is older than
+  ``max_age_s`` before the frame's ``t``. A mission robot with no such pose is
+  missing: left out of the fit, still bounding the advance; an agent whose own
+  robot is missing commands it to stop.
+- A frame whose ``t`` is more than ``max_future_s`` ahead of the local clock is
+  refused (counted): a skewed tracker must not block the frames after it.
+- A frame runs at most once, and never one older (by ``(t, seq)``) than the
+  last frame run; so a tracker that restarts its ``seq`` is followed at once.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .wire import FrameMsg, Mission
+
+
+@dataclass(frozen=True)
+class Frame:
+    """Merged poses (x, y, th) [m, rad; world] for frame ``seq`` of ``src`` at tracker time ``t`` [s].
+
+    fresh: the robots whose pose comes from this very frame (the failure rule's motion test
+    takes only those); complete: every robot asked for is in ``poses``.
+    """
+
+    seq: int
+    t: float
+    poses: dict[str, tuple[float, float, float]]
+    complete: bool
+    fresh: frozenset[str] = frozenset()
+    src: str = ""
+
+
+class FrameMerger:
+    """The freshest pose per robot across sources, and the rule for when a frame runs."""
+
+    MAX_SOURCES = 16
+
+    def __init__(self, robots: tuple[str, ...] = (), deadline_s: float = 0.02, max_age_s: float = 0.25,
+                 max_future_s: float = 1.0) -> None:
+        self.robots = tuple(robots)
+        self.known = frozenset(robots)
+        self.deadline_s = deadline_s
+        self.max_age_s = max_age_s
+        self.max_future_s = max_future_s
+        self.held: dict[str, tuple[float, int, str, tuple[float, float, float]]] = {}
+        self.heard: dict[str, float] = {}       # source -> t of its newest frame
+        self.pending: FrameMsg | None = None
+        self.deadline_at: float | None = None
+        self.done: tuple[float, int] = (float("-inf"), -1)
+        self.dropped_old = 0      # poses older than the one held
+        self.refused_sources = 0  # frames from a source beyond MAX_SOURCES
+        self.refused_future = 0   # frames stamped more than max_future_s ahead of the local clock
+        self.ignored = 0          # poses of objects that no mission names (not an error)
+
+    def set_robots(self, robots: tuple[str, ...], known: tuple[str, ...] | None = None) -> None:
+        """The robots a frame must list (the newest mission's), and every robot whose pose is kept."""
+        self.robots = tuple(robots)
+        self.known = frozenset(robots if known is None else known)
+        self.held = {r: h for r, h in self.held.items() if r in self.known}
+
+    def offer(self, msg: FrameMsg, now: float) -> bool:
+        """Take a frame's poses; False if it is refused or no newer than the last frame run."""
+        if msg.t > now + self.max_future_s:
+            self.refused_future += 1
+            return False
+        if msg.src not in self.heard and len(self.heard) >= self.MAX_SOURCES:
+            self.heard = {s: t for s, t in self.heard.items() if t >= msg.t - self.max_age_s}
+            if len(self.heard) >= self.MAX_SOURCES:
+                self.refused_sources += 1
+                return False
+        self.heard[msg.src] = max(msg.t, self.heard.get(msg.src, float("-inf")))
+        key = (msg.t, msg.seq)
+        for robot, pose in msg.poses.items():
+            if robot not in self.known:
+                self.ignored += 1
+                continue
+            held = self.held.get(robot)
+            if held is not None and key <= (held[0], held[1]):
+                self.dropped_old += 1
+                continue
+            self.held[robot] = (msg.t, msg.seq, msg.src, pose)
+        if key <= self.done:
+            return False
+        if self.pending is None or key > (self.pending.t, self.pending.seq):
+            if self.pending is None:
+                self.deadline_at = now + self.deadline_s
+            self.pending = msg
+        return True
+
+    def time_to_deadline(self, now: float) -> float | None:
+        return None if self.deadline_at is None else max(0.0, self.deadline_at - now)
+
+    def ready(self, now: float) -> Frame | None:
+        """The frame to run now, if any."""
+        msg = self.pending
+        if msg is None or not self.robots:
+            return None
+        listed = self._instant(msg.t)
+        alone = all(s == msg.src or t < msg.t - self.max_age_s for s, t in self.heard.items())
+        if not (listed or alone) and self.deadline_at is not None and now < self.deadline_at:
+            return None
+        self.pending, self.deadline_at = None, None
+        self.done = (msg.t, msg.seq)
+        oldest = msg.t - self.max_age_s
+        poses, fresh = {}, []
+        for r in self.robots:
+            held = self.held.get(r)
+            if held is None or held[0] < oldest:
+                continue
+            poses[r] = held[3]
+            if held[1] == msg.seq and held[2] == msg.src and held[0] == msg.t:
+                fresh.append(r)
+        return Frame(seq=msg.seq, t=msg.t, poses=poses, complete=listed, fresh=frozenset(fresh), src=msg.src)
+
+    def _instant(self, t: float) -> bool:
+        """Every robot has a pose of the instant t: at most half the deadline older, from any camera."""
+        since = t - 0.5 * self.deadline_s
+        return all(r in self.held and self.held[r][0] >= since for r in self.robots)
+
+
+class MissionBook:
+    """Every mission version seen; the active one at tracker time t is the newest effective one.
+
+    Versions older than the active one are forgotten; at most MAX_PENDING versions are held.
+    """
+
+    MAX_PENDING = 64
+
+    def __init__(self) -> None:
+        self.by_version: dict[int, Mission] = {}
+
+    def add(self, mission: Mission) -> bool:
+        """Record a mission; False if that version is known or too many are pending."""
+        if mission.version in self.by_version or len(self.by_version) >= self.MAX_PENDING:
+            return False
+        self.by_version[mission.version] = mission
+        return True
+
+    def latest(self) -> Mission | None:
+        return self.by_version[max(self.by_version)] if self.by_version else None
+
+    def active(self, t: float) -> Mission | None:
+        eligible = [m for m in self.by_version.values() if m.effective_t <= t]
+        if not eligible:
+            return None
+        best = max(eligible, key=lambda m: m.version)
+        for v in [v for v in self.by_version if v < best.version]:
+            del self.by_version[v]
+        return best
+
+    def robots(self) -> tuple[str, ...]:
+        """Every robot any held mission names, sorted (the merger keeps their poses)."""
+        return tuple(sorted({r for m in self.by_version.values() for r in m.robot_ids}))
