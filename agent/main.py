@@ -40,6 +40,7 @@ from vsfleet.step import (
 )
 from vsfleet.wire import (
     HealthMsg,
+    FrameMsg,
     Keys,
     WireError,
     check_name,
@@ -87,7 +88,7 @@ class Agent:
         self.no_quorum = 0        # queries whose replies had no majority answer
         self.waiting = 0          # frames that came before any mission
         self.frames_replaced = 0  # frames replaced in the slot before they were run (a flood, or a slow host)
-        self._slot: dict[str, tuple[str, bytes]] = {}  # src key -> (key, payload) of the newest frame not yet run
+        self._slot: dict[str, FrameMsg] = {}  # src -> the newest frame not yet run
         self._slot_lock = threading.Lock()
         self.wake = threading.Event()  # set when a frame lands in the slot
 
@@ -113,33 +114,31 @@ class Agent:
         return False
 
     def on_frame(self, key: str, payload: bytes) -> None:
-        """Put a frame in the latest-frame slot (any thread); a newer one replaces one not yet run."""
-        if len(payload) > 1 << 17:
-            self.rejections.reject(key, f"frame of {len(payload)} bytes is oversize")
+        """Decode a frame (any thread) into the latest-frame slot of its source: a newer one replaces
+        one not yet run (counted in frames_replaced); an invalid one is rejected (counted, logged)."""
+        try:
+            msg = decode_frame(payload)
+            if key != self.keys.frame(msg.src):
+                raise WireError(f"src {msg.src!r} is not the key's last chunk")
+        except WireError as exc:
+            self.rejections.reject(key, str(exc))
             return
         with self._slot_lock:
-            if key not in self._slot and len(self._slot) >= FrameMerger.MAX_SOURCES:
+            if msg.src not in self._slot and len(self._slot) >= FrameMerger.MAX_SOURCES:
                 self.rejections.reject(key, "too many frame sources")
                 return
-            if key in self._slot:
+            if msg.src in self._slot:
                 self.frames_replaced += 1
-            self._slot[key] = (key, payload)
+            self._slot[msg.src] = msg
         self.wake.set()
 
     def take_frames(self) -> None:
-        """Decode what the slot holds and hand it to the merger (the main thread)."""
+        """Hand what the slot holds to the merger (the main thread)."""
         with self._slot_lock:
             items, self._slot = list(self._slot.values()), {}
             self.wake.clear()
         now = self.clock()
-        for key, payload in items:
-            try:
-                msg = decode_frame(payload)
-                if key != self.keys.frame(msg.src):
-                    raise WireError(f"src {msg.src!r} does not match the key")
-            except WireError as exc:
-                self.rejections.reject(key, str(exc))
-                continue
+        for msg in items:
             if self.missions.latest() is None:
                 self.waiting += 1  # no mission yet: nothing to do with frames
                 continue

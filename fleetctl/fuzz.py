@@ -21,6 +21,7 @@ import msgpack
 import zenoh
 
 from vsfleet.wire import (
+    MAX_FRAME_BYTES,
     MAX_MISSION_BYTES,
     MAX_PAYLOAD_BYTES,
     CmdMsg,
@@ -39,9 +40,9 @@ from .zconf import RELIABLE_QOS, add_zenoh_args, init_logging, zenoh_config
 
 log = logging.getLogger("vsfleet.fuzz")
 
-KINDS = ("pose", "mission", "fault", "cmd")
+KINDS = ("frame", "pose", "mission", "fault", "cmd")
 # the fields a decoder requires (an optional field may be absent, so deleting it proves nothing)
-REQUIRED = {"pose": ("t", "seq", "x", "y", "th", "src"), "cmd": ("t", "seq", "vl", "vr", "ttl"),
+REQUIRED = {"frame": ("t", "seq", "src", "poses"), "pose": ("t", "seq", "x", "y", "th", "src"), "cmd": ("t", "seq", "vl", "vr", "ttl"),
             "fault": ("kind", "factor", "duration"), "mission": ("version", "metric", "robots", "goal", "speed_max",
                                             "turn_rate_max", "effective_t")}
 CATEGORIES = ("random_bytes", "truncated", "wrong_type", "non_finite", "huge", "unknown_robot",
@@ -52,6 +53,9 @@ UNKNOWN_ROBOT = "zz-fuzz"  # no mission names it; simfleet has no such robot
 def _valid(kind: str, now_s: float, rng: random.Random) -> dict:
     """A valid message of ``kind`` as a dict (the fuzzer breaks it before sending)."""
     x, y = rng.uniform(-2, 2), rng.uniform(-2, 2)
+    if kind == "frame":
+        return {"t": now_s, "seq": rng.randrange(1 << 20), "src": "fuzz",
+                "poses": {"r1": [x, y, 0.0], "r2": [y, x, 0.0]}}
     if kind == "pose":
         msg = PoseMsg(now_s, rng.randrange(1 << 20), x, y, 0.0, "fuzz")
     elif kind == "cmd":
@@ -86,7 +90,11 @@ def bad_payload(kind: str, category: str, now_s: float, rng: random.Random) -> b
         d[field] = rng.choice([[1, 2], {"a": 1}, b"\x00", True] + ([] if isinstance(d[field], str) else ["x"]))
         return pack(d)
     if category == "non_finite":
-        d[rng.choice(_number_fields(kind, d))] = rng.choice([float("nan"), float("inf"), -float("inf")])
+        value = rng.choice([float("nan"), float("inf"), -float("inf")])
+        if kind == "frame":
+            d["poses"]["r1"][rng.randrange(3)] = value
+            return pack(d)
+        d[rng.choice(_number_fields(kind, d))] = value
         if kind == "mission":
             d["goal"]["x"] = float("nan")
         return pack(d)
@@ -94,15 +102,19 @@ def bad_payload(kind: str, category: str, now_s: float, rng: random.Random) -> b
         value = rng.choice([1e300, -1e300, 1e12, 2.0**80])
         if kind == "mission":
             d["goal"]["y"] = value
+        elif kind == "frame":
+            d["poses"]["r2"][rng.randrange(3)] = value
         else:
             d[rng.choice(_number_fields(kind, d))] = value
         return pack(d)
     if category == "unknown_robot":
         if kind == "mission":  # a robot id that is not a key chunk
             d["robots"]["bad/id"] = d["robots"].pop("r1")
+        if kind == "frame":    # a robot id that is not a key chunk
+            d["poses"]["bad/id"] = d["poses"].pop("r1")
         return pack(d)
     if category == "oversized":
-        limit = MAX_MISSION_BYTES if kind == "mission" else MAX_PAYLOAD_BYTES
+        limit = {"mission": MAX_MISSION_BYTES, "frame": MAX_FRAME_BYTES}.get(kind, MAX_PAYLOAD_BYTES)
         d["pad"] = "x" * (limit + 1)
         return pack(d)
     if category == "not_a_map":
@@ -116,6 +128,8 @@ def bad_payload(kind: str, category: str, now_s: float, rng: random.Random) -> b
 def target_key(keys: Keys, kind: str, category: str, robots: list[str], rng: random.Random) -> str:
     if kind == "mission":
         return keys.mission
+    if kind == "frame":
+        return keys.frame("fuzz")
     robot = UNKNOWN_ROBOT if category == "unknown_robot" else rng.choice(robots)
     return getattr(keys, kind)(robot)
 
