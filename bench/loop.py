@@ -2,23 +2,24 @@
 
 This process plays the tracker and simfleet's receiving side: it starts a
 `vsfleet router` process on a free loopback port (as on a deployment), connects
-client sessions to it (a "tracker" that publishes vs/<fleet>/pose/<robot> and a
-"sim" that subscribes to vs/<fleet>/cmd/** and state/**), and starts N real
+client sessions to it (a "tracker" that publishes one message per frame on
+vs/<fleet>/frame/bench and a "sim" that subscribes to vs/<fleet>/cmd/** and state/**), and starts N real
 agent processes (fleetctl.run.child_command) as clients of that router. So a
 frame goes tracker client -> router -> N agents -> router -> sim client, the
 same path as in `vsfleet run`.
 
-Each frame publishes every robot's pose with one shared ``seq``; the robots
+Each frame is one message with every robot's pose; the robots
 move by a kinematic model (each robot integrates its latest fresh command
 exactly, vsfleet.kinematics.integrate_arc, over one frame period), observed
 with 1 mm / 5 mrad Gaussian noise. The mission: robots on a circle, metric l2,
 the default controller, goal 1 km ahead, so every robot keeps moving.
 
 Latency of a (frame, robot) = receipt of that robot's cmd with the frame's
-``seq`` - the moment just before the frame's first pose is put (one clock,
+``seq`` - the moment just before the frame is put (one clock,
 time.perf_counter, in this process). A (frame, robot) with no cmd for that
 ``seq`` is missed. Agents' ``state`` messages say whether they ran the frame
-complete or on their deadline.
+complete, and whether their copies of the structure (fitted and advanced
+poses) agree bit for bit on the frames every agent ran.
 """
 
 from __future__ import annotations
@@ -46,6 +47,7 @@ from fleetctl.zconf import RELIABLE_QOS, STREAM_QOS, add_zenoh_args, zenoh_confi
 from vsfleet.geometry import Pose2
 from vsfleet.kinematics import integrate_arc
 from vsfleet.wire import (
+    FrameMsg,
     Keys,
     Mission,
     PoseMsg,
@@ -54,6 +56,7 @@ from vsfleet.wire import (
     decode_cmd,
     decode_state,
     encode,
+    encode_frame,
     encode_mission,
 )
 
@@ -93,11 +96,11 @@ def percentiles_s(x: np.ndarray) -> dict[str, float]:
 def messages_per_frame(n: int, state_subscribed: bool = True) -> dict[str, int]:
     """Messages per tracker frame for n robots: published, and delivered by the router.
 
-    Every agent subscribes to every pose (fan-out n^2); cmd goes to the fleet (simfleet),
+    One frame message goes to every agent (fan-out n); cmd goes to the fleet (simfleet),
     state to whoever records or monitors.
     """
-    published = 3 * n  # n poses, n cmds, n states
-    delivered = n * n + n + (n if state_subscribed else 0)
+    published = 1 + 2 * n  # one frame, n cmds, n states
+    delivered = n + n + (n if state_subscribed else 0)
     return {"published": published, "delivered": delivered}
 
 
@@ -140,6 +143,8 @@ class LoopRun:
     late: int                      # answered pairs with latency > one period
     incomplete: int                # agent states of measured frames run on the deadline (complete false)
     states: int
+    agreed_frames: int             # measured frames every agent ran whose structure copies agree bit for bit
+    all_ran_frames: int            # measured frames every agent published a state for
     agent_cpu_s_per_tick: np.ndarray   # per agent: CPU time / measured frames
     agent_cpu_s_per_answer: np.ndarray # per agent: CPU time / frames it answered
     agent_rss_mib: np.ndarray          # per agent, at the end
@@ -256,7 +261,7 @@ def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2
         subs = [sim_s.declare_subscriber(keys.cmd(), sink.on_cmd),
                 sim_s.declare_subscriber(keys.state(), sink.on_state)]
         ids = mission.robot_ids
-        pubs = {r: tracker_s.declare_publisher(keys.pose(r), **STREAM_QOS) for r in ids}
+        frame_pub = tracker_s.declare_publisher(keys.frame("bench"), **STREAM_QOS)
         for r in ids:
             procs[r] = children.start(f"agent-{r}", child_command(
                 "agent", "--robot", r, "--fleet", fleet, "--dt", repr(period),
@@ -288,10 +293,9 @@ def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2
             noise = rng.normal(0.0, 1.0, (len(ids), 3)) * (NOISE_XY_M, NOISE_XY_M, NOISE_TH_RAD)
             tw = time.time()
             t0 = time.perf_counter()
-            for i, r in enumerate(ids):
-                p = poses[r]
-                pubs[r].put(encode(PoseMsg(t=tw, seq=seq, x=p.x + noise[i, 0], y=p.y + noise[i, 1],
-                                           th=p.th + noise[i, 2], src="bench")))
+            frame_pub.put(encode_frame(FrameMsg(t=tw, seq=seq, src="bench", poses={
+                r: (poses[r].x + noise[i, 0], poses[r].y + noise[i, 1], poses[r].th + noise[i, 2])
+                for i, r in enumerate(ids)})))
             t1 = time.perf_counter()
             t_pub[seq] = t0
             publish.append(t1 - t0)
@@ -365,6 +369,7 @@ def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2
     frame_lat = np.array([max(v) for v in per_frame.values() if len(v) == n])
     measured = last - first + 1
     incomplete = n_states = 0
+    copies: dict[int, dict[str, tuple]] = {}  # seq -> agent -> its structure poses
     for key, payload in states:
         try:
             st = decode_state(payload)
@@ -373,13 +378,16 @@ def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2
         if first <= st.seq <= last:
             n_states += 1
             incomplete += not st.complete
+            copies.setdefault(st.seq, {})[key] = (st.x, st.y, st.th, st.gx, st.gy, st.gth, st.used)
+    all_ran = [c for c in copies.values() if len(c) == n]
+    agreed = sum(1 for c in all_ran if len(set(c.values())) == 1)
     wall_cores = (tot1 - tot0) / os.cpu_count() if tot1 > tot0 else wall
     own = sum(cpu1[r] - cpu0[r] for r in procs) + bench_cpu
     return LoopRun(
         robots=n, rate_hz=rate_hz, frames=measured, latency_s=lat, frame_latency_s=frame_lat,
         publish_s=np.array(publish), missed=measured * n - len(answered),
         frames_missed=measured - len(frame_lat), late=int((lat > period).sum()), incomplete=incomplete,
-        states=n_states, agent_cpu_s_per_tick=np.array([(cpu1[r] - cpu0[r]) / measured for r in procs]),
+        states=n_states, agreed_frames=agreed, all_ran_frames=len(all_ran), agent_cpu_s_per_tick=np.array([(cpu1[r] - cpu0[r]) / measured for r in procs]),
         agent_cpu_s_per_answer=np.array([(cpu1[r] - cpu0[r]) / max(1, per_robot[r]) for r in procs]),
         agent_rss_mib=rss, bench_cpu_s_per_frame=bench_cpu / measured,
         others_cores=max(0.0, (busy1 - busy0) - own) / max(wall_cores, 1e-9), wall_s=wall)
@@ -482,7 +490,7 @@ def main(argv: list[str] | None = None) -> int:
           "late", r.late, "incomplete", r.incomplete, "/", r.states, "cpu/tick ms",
           round(1e3 * float(r.agent_cpu_s_per_tick.mean()), 3), "rss MiB", round(float(r.agent_rss_mib.mean()), 1),
           "bench cpu/frame ms", round(1e3 * r.bench_cpu_s_per_frame, 3), "others cores", round(r.others_cores, 2),
-          "holds", r.holds)
+          "agree", f"{r.agreed_frames}/{r.all_ran_frames} of {r.frames}", "holds", r.holds)
     return 0
 
 

@@ -1,0 +1,77 @@
+"""The agent step alone: CPU time per call of vsfleet.step.agent_step, and of decoding its frame.
+
+For N robots on a circle (bench.loop's mission), one agent's step is run on a
+sequence of noisy frames of robots that follow their structure points (so the
+failure rule, the fit, the advance and every robot's predicted command all do
+their normal work). Reported: the median and p90 over repeats of the time per
+step [us], and the frame decode time [us]. No zenoh, no process: this is the
+floor of an agent's CPU per tick.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from vsfleet.frames import Frame
+from vsfleet.step import AgentState, StepConfig, agent_step
+from vsfleet.wire import FrameMsg, decode_frame, encode_frame
+
+from .loop import bench_mission
+
+SIZES = (3, 10, 100, 1000)
+
+
+def frames_for(n: int, count: int, rate_hz: float = 30.0, seed: int = 0) -> tuple[list[Frame], list[bytes]]:
+    """Frames of n robots translating together at 0.05 m/s (+ 1 mm noise), and their encoded messages."""
+    mission = bench_mission(n, 0.0)
+    rng = np.random.default_rng(seed)
+    ids = mission.robot_ids
+    base = np.array([mission.spec(r).p for r in ids])
+    frames, payloads = [], []
+    for k in range(count):
+        t = 10.0 + k / rate_hz
+        xy = base + (0.05 * (t - 10.0), 0.0) + rng.normal(0.0, 0.001, base.shape)
+        poses = {r: (float(x), float(y), float(rng.normal(0.0, 0.005))) for r, (x, y) in zip(ids, xy)}
+        frames.append(Frame(seq=k + 1, t=t, poses=poses, complete=True, fresh=frozenset(ids), src="bench"))
+        payloads.append(encode_frame(FrameMsg(t=t, seq=k + 1, src="bench", poses=poses)))
+    return frames, payloads
+
+
+def time_step(n: int, count: int, rate_hz: float = 30.0) -> dict[str, float]:
+    """Per-call CPU time [us] of agent_step (median, p90 over count frames) and of decode_frame."""
+    mission = bench_mission(n, 0.0)
+    frames, payloads = frames_for(n, count, rate_hz)
+    config = StepConfig(dt_s=1.0 / rate_hz)
+    state = AgentState(mission.robot_ids[0])
+    step_us, decode_us = [], []
+    for f, p in zip(frames, payloads):
+        t0 = time.process_time_ns()
+        decode_frame(p)
+        t1 = time.process_time_ns()
+        state, _ = agent_step(state, mission, f, f.t + 0.01, config)
+        t2 = time.process_time_ns()
+        decode_us.append((t1 - t0) / 1e3)
+        step_us.append((t2 - t1) / 1e3)
+    warm = slice(min(len(step_us) // 4, 60), None)  # after the failure rule's window has filled
+    s, d = np.array(step_us[warm]), np.array(decode_us[warm])
+    return {"n": n, "step_p50_us": float(np.median(s)), "step_p90_us": float(np.percentile(s, 90)),
+            "decode_p50_us": float(np.median(d)), "frames": int(s.size)}
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--sizes", default=",".join(map(str, SIZES)))
+    p.add_argument("--frames", type=int, default=300)
+    a = p.parse_args(argv)
+    for n in (int(x) for x in a.sizes.split(",")):
+        r = time_step(n, a.frames if n < 1000 else max(100, a.frames // 3))
+        print(f"N={n:5d}: step p50 {r['step_p50_us']:9.1f} us, p90 {r['step_p90_us']:9.1f} us; "
+              f"decode p50 {r['decode_p50_us']:7.1f} us ({r['frames']} frames)", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
