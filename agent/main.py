@@ -26,7 +26,10 @@ from fleetctl.lifecycle import Rejections, StopFlag, wall_clock
 from fleetctl.zconf import RELIABLE_QOS, STREAM_QOS, TELEMETRY_QOS, add_zenoh_args, init_logging, zenoh_config
 from vsfleet.control import DEFAULT_CONTROLLER, make_controller
 from vsfleet.errors import VsfleetValueError
-from vsfleet.failure import Decision, FailurePolicy, Health, Motion, update_health, update_motion
+import numpy as np
+
+from vsfleet.failure import (Decision, FailurePolicy, FailureState, Health, failure_step, restart_timers,
+                             to_health, with_health)
 from vsfleet.quorum import majority
 from vsfleet.step import Controller, control_step, expected_steps
 from vsfleet.wire import (
@@ -66,13 +69,16 @@ class Agent:
                  ttl_s: float = DEFAULT_TTL_S, deadline_s: float | None = None, max_age_s: float = 0.25,
                  clock: Callable[[], float] = wall_clock,
                  put_event: Callable[[bytes], None] = lambda payload: None,
-                 controller: Controller | None = None) -> None:
+                 controller: Controller | None = None, command_age_s: float | None = None) -> None:
         self.robot = check_name(robot, "robot")
         self.put_event = put_event
         self.controller = controller  # overrides the mission's controller (offline runs, tests)
         self.decisions: list[Decision] = []  # every failure-policy decision, in order
         self.health = Health()
-        self.motion = Motion()
+        self.failure: FailureState | None = None  # the rule's arrays (motion window), rows = mission robots
+        self.control_state = None  # the controller's state for every robot (None: start afresh)
+        # observation -> command in effect [s]: tracker latency + transport (offline: latency frames)
+        self.command_age_s = 0.5 * dt_s if command_age_s is None else command_age_s
         self.predicted: dict[str, tuple[float, float]] = {}  # every robot's last command, predicted
         self.keys = keys
         self.put_cmd = put_cmd
@@ -278,16 +284,20 @@ class Agent:
         if mission.version != self.mission_version:
             log.info("frame %d: switching to mission v%d", frame.seq, mission.version)
             self.mission_version = mission.version
+            self.control_state = None
+            self.failure = None
         if frame.t - self.last_cmd_t > self.ttl_s:
             # a gap longer than ttl: every robot has halted since the last commands
             self.wheels_prev = (0.0, 0.0)
             self.predicted = {}
+            self.control_state = None
         if frame.t - self.last_frame_t > RESYNC_GAP_S and self.last_frame_t > float("-inf"):
             # this agent (or the whole fleet) saw no frame for a while: restart the failure
             # timers and the motion window, and ask the peers which robots they failed or dropped
             log.warning("frame %d: no frame for %.2f s; restarting failure timers and asking peers "
                         "for their failure state", frame.seq, frame.t - self.last_frame_t)
-            self.motion = Motion()
+            if self.failure is not None:
+                self.failure = restart_timers(self.failure)
             self.health = Health(failed=self.health.failed, dropped=self.health.dropped)
             self.health_adopted, self.want_health, self.resyncing = False, True, True
         self.last_frame_t = frame.t
@@ -299,13 +309,15 @@ class Agent:
                                   drive_excluded=mission.on_failure == "rejoin",
                                   others_wheels_prev=self.predicted,
                                   judged_apart=(self.health.failed - self.health.dropped
-                                                if mission.on_failure == "hold" else frozenset()))
+                                                if mission.on_failure == "hold" else frozenset()),
+                                  controller_state=self.control_state, age_s=self.command_age_s)
         except (VsfleetValueError, ArithmeticError, ValueError, MemoryError) as exc:
             self.rejections.reject(self.keys.pose(), f"frame {frame.seq} unusable: {exc!r}")
             return
         if result is None:
             return
         self.wheels_prev = (result.vl_m_s, result.vr_m_s)
+        self.control_state = result.controller_state
         self.last_seq = frame.seq
         self.last_cmd_t = frame.t
         self.ticks += 1
@@ -322,13 +334,20 @@ class Agent:
         # the motion test takes only poses of this very frame: a pose held over from an earlier
         # frame (run on the deadline) would count as "did not move" here and double next frame,
         # and agents that got that pose in time would disagree on the frame of a decision
+        ids = mission.robot_ids
         moved = {r: p for r, p in poses.items() if r in frame.fresh}
-        self.motion, progress = update_motion(policy, self.motion, moved,
-                                              expected_steps(mission, moved, {r: c for r, c in result.commands.items()
-                                                                              if r in moved}, self.dt_s),
-                                              frame.t, step_s=self.dt_s, max_gap_s=self.ttl_s)
-        self.health, decisions = update_health(policy, self.health, result.deviations_m,
-                                               mission.robot_ids, frame.t, progress)
+        steps = expected_steps(mission, moved, {r: c for r, c in result.commands.items() if r in moved}, self.dt_s)
+        if self.failure is None:
+            self.failure = FailureState.initial(len(ids), policy, self.dt_s)
+        self.failure = with_health(self.failure, self.health, ids)  # adopted from peers, or our own
+        self.failure, decisions = failure_step(
+            policy, self.failure, ids, frame.t,
+            seen=np.array([r in result.deviations_m for r in ids]), fresh=np.array([r in moved for r in ids]),
+            xy_world=np.array([poses[r][:2] if r in poses else (0.0, 0.0) for r in ids], dtype=float),
+            deviations_m=np.array([result.deviations_m.get(r, np.inf) for r in ids], dtype=float),
+            expected_step_m=np.array([steps.get(r, (0.0, 0.0)) for r in ids], dtype=float),
+            step_s=self.dt_s, max_gap_s=self.ttl_s)
+        self.health = to_health(self.failure, ids)
         self.decisions.extend(decisions)
         h = self.health
         self.health_payload = encode_health(HealthMsg(
