@@ -72,12 +72,12 @@ class Agent:
                  ttl_s: float = DEFAULT_TTL_S, deadline_s: float | None = None, max_age_s: float = 0.25,
                  clock: Callable[[], float] = wall_clock,
                  put_event: Callable[[bytes], None] = lambda payload: None,
-                 controller: Controller | None = None) -> None:
+                 controller: Controller | None = None, command_age_s: float | None = None) -> None:
         self.robot = check_name(robot, "robot")
         self.keys = keys
         self.put_cmd, self.put_state, self.put_event = put_cmd, put_state, put_event
         self.clock = clock
-        self.config = StepConfig(dt_s=dt_s, ttl_s=ttl_s, controller=controller)
+        self.config = StepConfig(dt_s=dt_s, ttl_s=ttl_s, controller=controller, command_age_s=command_age_s)
         self.state = AgentState(robot)
         self.missions = MissionBook()
         self.merger = FrameMerger((), dt_s if deadline_s is None else deadline_s, max_age_s)
@@ -160,7 +160,7 @@ class Agent:
             return False
         if self.state.phase is SyncPhase.SYNCED or msg.mission not in self.missions.by_version:
             return False
-        self.state = adopt_health(self.state, msg, timers)
+        self.state = adopt_health(self.state, msg, timers, self.missions.by_version[msg.mission], self.config)
         log.info("adopted peers' failure state at frame %d: failed %s, dropped %s", msg.seq,
                  sorted(msg.failed), sorted(msg.dropped))
         return True

@@ -83,7 +83,8 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
     for r in robots:  # one agent per robot, each with its own state, as in the fleet
         agents[r] = Agent(r, keys, put_cmd=lambda b, r=r: sent.__setitem__(r, _wheels(b)),
                           put_state=lambda b: None, dt_s=dt,
-                          clock=lambda: t - tracker_clock_ahead_s, controller=ctrl)
+                          clock=lambda: t - tracker_clock_ahead_s, controller=ctrl,
+                          command_age_s=latency_frames * dt)
         agents[r].on_mission(keys.mission, encode_mission(mission))
     for k in range(int(round(duration_s / dt))):
         poses = {r: (s.pose.x + rng.normal(0.0, nxy), s.pose.y + rng.normal(0.0, nxy),

@@ -8,6 +8,7 @@ import pytest
 import agent.main as agent_main
 import vsfleet.step as step_mod
 from agent.main import Agent
+from vsfleet.control import DEFAULT_CONTROLLER, make_controller
 from vsfleet.failure import Health
 from vsfleet.step import SyncPhase
 from vsfleet.wire import (
@@ -132,25 +133,34 @@ def test_health_of_an_unknown_mission_is_not_adopted():
     assert fresh.state.phase is SyncPhase.JOINING and fresh.state.health.dropped == frozenset()
 
 
+class SpyController:
+    """The default controller, recording the previous commands it is given."""
+
+    def __init__(self):
+        self.inner = make_controller(DEFAULT_CONTROLLER)
+        self.prev = []
+
+    def initial(self, n):
+        return self.inner.initial(n)
+
+    def __call__(self, state, inp):
+        self.prev.append(inp.wheels_prev_m_s.copy())
+        return self.inner(state, inp)
+
+
 def test_after_a_frame_gap_longer_than_ttl_the_predicted_commands_start_from_rest():
-    agent, cmds, states, clock = make_agent()
+    spy = SpyController()
+    cmds = []
+    clock = Clock(100.0)
+    agent = Agent("r1", KEYS, cmds.append, lambda b: None, clock=clock, controller=spy)
+    agent.on_message("mission", KEYS.mission, encode_mission(MISSION))
     far = {"r1": (0.0, 0.0, 0.0), "r2": (-0.45, 0.26, 0.0), "r3": (-0.45, -0.26, 0.0)}
     frame(agent, clock, 1, 100.0, far)
     frame(agent, clock, 2, 100.033, far)
     assert any(vl or vr for vl, vr in agent.state.predicted_m_s.values())
-    seen = {}
-    real_step = step_mod.control_step
-
-    def spy(*args, **kwargs):
-        seen["others"] = dict(kwargs["others_wheels_prev"])
-        return real_step(*args, **kwargs)
-
-    step_mod.control_step = spy
-    try:
-        frame(agent, clock, 3, 101.5, far)                      # 1.5 s of tracker silence
-    finally:
-        step_mod.control_step = real_step
-    assert seen["others"] == {}
+    assert spy.prev[-1].any()                                   # frame 2 started from frame 1's commands
+    frame(agent, clock, 3, 101.5, far)                          # 1.5 s of tracker silence
+    assert not spy.prev[-1].any()
 
 
 def test_a_stale_frame_commands_nothing():
@@ -332,8 +342,9 @@ def test_a_frame_missing_a_robot_feeds_the_motion_test_only_the_poses_of_that_fr
     ran = frame(agent, clock, 2, 100.033, {r: POSES[r] for r in ("r1", "r2")})
     assert ran is not None and not ran.complete and ran.fresh == {"r1", "r2"}
     assert "r3" in ran.poses                                 # still in the fit (held pose)
-    assert agent.state.motion.last["r3"][0] == 100.0         # but the motion test waits for a fresh one
-    assert agent.state.motion.last["r1"][0] == 100.033
+    last_t = dict(zip(agent.state.ids, agent.state.failure.last_t))
+    assert last_t["r3"] == 100.0                             # but the motion test waits for a fresh one
+    assert last_t["r1"] == 100.033
 
 
 def test_the_agent_refuses_a_deadline_outside_its_range():
@@ -344,13 +355,13 @@ def test_the_agent_refuses_a_deadline_outside_its_range():
 @pytest.mark.parametrize("on_failure, judged", [("hold", {"r2"}), ("drop", set()), ("rejoin", set())])
 def test_only_under_hold_are_failed_robots_judged_apart(monkeypatch, on_failure, judged):
     seen = []
-    real = step_mod.control_step
+    real = step_mod.structure_step
 
-    def spy(*args, **kwargs):
-        seen.append(kwargs["judged_apart"])
-        return real(*args, **kwargs)
+    def spy(arrays, metric, pose, seen_rows, excluded, judged_apart, *args):
+        seen.append(frozenset(r for r, j in zip(arrays.ids, judged_apart) if j))
+        return real(arrays, metric, pose, seen_rows, excluded, judged_apart, *args)
 
-    monkeypatch.setattr(step_mod, "control_step", spy)
+    monkeypatch.setattr(step_mod, "structure_step", spy)
     agent, cmds, states, clock = make_agent()
     agent.on_message("mission", KEYS.mission, encode_mission(dataclasses.replace(MISSION, version=2,
                                                                                  on_failure=on_failure)))

@@ -7,8 +7,8 @@ import pytest
 
 from fleetctl.scenario_file import load_scenario
 from simfleet.offline import run_offline
-from vsfleet.control import CONTROLLERS, DEFAULT_CONTROLLER, make_controller
-from vsfleet.step import control_step
+from vsfleet.control import CONTROLLERS, DEFAULT_CONTROLLER
+from vsfleet.step import frame_arrays, mission_arrays, structure_step
 
 ROOT = Path(__file__).parent.parent
 E2E = load_scenario(ROOT / "tests" / "data" / "e2e-triangle.toml")
@@ -29,17 +29,23 @@ def test_the_default_controller_measures_best_in_the_closed_loop():
         assert best.wheel_tv_m_s2 <= 1.1 * r.wheel_tv_m_s2, table
 
 
+def structure(mission, poses, judged_apart=(), excluded=()):
+    arrays = mission_arrays(mission)
+    pose, seen, _ = frame_arrays(arrays.ids, poses)
+    rows = lambda names: np.array([r in names for r in arrays.ids])  # noqa: E731
+    return structure_step(arrays, mission.metric, pose, seen, rows(excluded), rows(judged_apart), 2.5, 1 / 30)
+
+
 def test_the_structure_part_of_a_step_is_a_pure_function_of_mission_and_frame():
     mission = E2E.mission
     poses = {"r1": (0.31, 0.01, 0.1), "r2": (-0.14, 0.26, 0.3), "r3": (-0.16, -0.25, 0.0)}
-    ctrl = make_controller(DEFAULT_CONTROLLER)
-    a = control_step(mission, poses, "r1", 2.5, 1 / 30, (0.0, 0.0), ctrl)
-    b = control_step(mission, poses, "r2", 2.5, 1 / 30, (0.1, -0.1), ctrl)
-    assert (a.fit_pose, a.goal_pose) == (b.fit_pose, b.goal_pose)  # other robot, other history
-    c = control_step(mission, dict(reversed(list(poses.items()))), "r3", 2.5, 1 / 30, (0.0, 0.0), ctrl)
+    a = structure(mission, poses)
+    c = structure(mission, dict(reversed(list(poses.items()))))
     assert (c.fit_pose, c.goal_pose) == (a.fit_pose, a.goal_pose)  # arrival order does not matter
-    d = control_step(mission, {**poses, "r2": (-0.14, 0.2601, 0.3)}, "r1", 2.5, 1 / 30, (0.0, 0.0), ctrl)
+    d = structure(mission, {**poses, "r2": (-0.14, 0.2601, 0.3)})
     assert d.fit_pose != a.fit_pose
+    e = structure(mission, poses, excluded=("r2",))
+    assert e.fit_pose != a.fit_pose and list(e.used) == [True, False, True]
 
 
 def test_a_halted_robot_bends_the_structure_which_halts_instead_of_leaving_it_behind():
@@ -114,29 +120,25 @@ def test_a_robot_with_a_dead_wheel_is_declared_failed_and_with_hold_the_structur
 
 def test_under_hold_the_healthy_robots_a_failed_robot_bends_are_judged_without_it():
     mission = E2E.mission
-    ctrl = make_controller(DEFAULT_CONTROLLER)
     # r1 and r3 exactly on a structure at the origin; r2 8 cm off its point
     poses = {"r1": (0.3, 0.0, 0.0), "r2": (-0.15 - 0.08, 0.26, 0.0), "r3": (-0.15, -0.26, 0.0)}
-    plain = control_step(mission, poses, "r1", 2.5, 1 / 30, (0.0, 0.0), ctrl, others_wheels_prev={})
-    apart = control_step(mission, poses, "r1", 2.5, 1 / 30, (0.0, 0.0), ctrl, others_wheels_prev={},
-                         judged_apart=frozenset({"r2"}))
+    plain = structure(mission, poses)
+    apart = structure(mission, poses, judged_apart=("r2",))
     # what the robots follow is unchanged: r2 still bends the structure they follow
-    assert (apart.fit_pose, apart.goal_pose, apart.commands, apart.err_m) == \
-        (plain.fit_pose, plain.goal_pose, plain.commands, plain.err_m)
-    assert plain.deviations_m["r1"] > 0.01 and plain.deviations_m["r3"] > 0.01  # bent by r2
+    assert (apart.fit_pose, apart.goal_pose) == (plain.fit_pose, plain.goal_pose)
+    assert np.array_equal(apart.points_next, plain.points_next)
+    assert plain.deviations_m[0] > 0.01 and plain.deviations_m[2] > 0.01  # bent by r2
     # judged on the structure fitted to r1 and r3, the healthy robots are on their points
-    assert apart.deviations_m["r1"] < 1e-9 and apart.deviations_m["r3"] < 1e-9
-    assert apart.deviations_m["r2"] == pytest.approx(0.08, abs=1e-9)
+    assert apart.deviations_m[0] < 1e-9 and apart.deviations_m[2] < 1e-9
+    assert apart.deviations_m[1] == pytest.approx(0.08, abs=1e-9)
 
 
 def test_with_one_robot_left_to_judge_by_the_deviations_stay_those_of_the_fit_followed():
     mission = E2E.mission
-    ctrl = make_controller(DEFAULT_CONTROLLER)
     poses = {"r1": (0.3, 0.0, 0.0), "r2": (-0.23, 0.26, 0.0), "r3": (-0.15, -0.30, 0.0)}
-    plain = control_step(mission, poses, "r1", 2.5, 1 / 30, (0.0, 0.0), ctrl)
-    apart = control_step(mission, poses, "r1", 2.5, 1 / 30, (0.0, 0.0), ctrl,
-                         judged_apart=frozenset({"r2", "r3"}))
-    assert apart.deviations_m == plain.deviations_m
+    plain = structure(mission, poses)
+    apart = structure(mission, poses, judged_apart=("r2", "r3"))
+    assert np.array_equal(apart.deviations_m, plain.deviations_m)
 
 
 def test_under_hold_a_stopped_robot_never_gets_a_healthy_robot_flagged():

@@ -21,7 +21,7 @@ import zenoh
 
 from fleetctl.lifecycle import Rejections, StopFlag, pace, wall_clock
 from fleetctl.zconf import STREAM_QOS, add_zenoh_args, init_logging, zenoh_config
-from vsfleet.geometry import wrap_angles
+from vsfleet.kinematics import wrap_angles
 from vsfleet.scenario import TrackerParams
 from vsfleet.wire import FrameMsg, Keys, PoseMsg, TruthMsg, decode_truth, encode, encode_frame
 

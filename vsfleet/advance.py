@@ -22,7 +22,7 @@ from typing import Sequence, Union
 
 import numpy as np
 
-from .envelope import Envelope
+from .envelope import Envelope, Envelopes
 from .errors import ShapeError, VsfleetValueError
 from .geometry import Pose2, angle_diff
 
@@ -86,6 +86,9 @@ class StructureLimits:
     position_tolerance_m / heading_tolerance_rad: within these of a pose or path goal the
     structure counts as arrived and stops being pushed; set them above the tracker's
     noise so that a fleet at rest does not chase it.
+    comply_full_m / comply_stop_m: the compliance throttle (see :func:`compliance_scale`): the
+    structure moves at full speed while every robot seen is within comply_full_m of its point,
+    and halts once one is comply_stop_m away (linear in between).
     """
 
     speed_max_m_s: float
@@ -93,13 +96,17 @@ class StructureLimits:
     position_tolerance_m: float = 3e-3
     heading_tolerance_rad: float = 0.01
     path_lookahead_m: float = 0.15
+    comply_full_m: float = 0.005
+    comply_stop_m: float = 0.009
 
     def __post_init__(self) -> None:
         for name in ("speed_max_m_s", "turn_rate_max_rad_s", "position_tolerance_m",
-                     "heading_tolerance_rad", "path_lookahead_m"):
+                     "heading_tolerance_rad", "path_lookahead_m", "comply_full_m", "comply_stop_m"):
             v = getattr(self, name)
             if not math.isfinite(v) or v < 0.0:
                 raise VsfleetValueError(f"{name} must be finite and >= 0, got {v!r}")
+        if self.comply_stop_m <= self.comply_full_m:
+            raise VsfleetValueError("comply_stop_m must be greater than comply_full_m")
 
 
 @dataclass(frozen=True)
@@ -190,8 +197,12 @@ def _wheel_demand(twist: np.ndarray, rho: np.ndarray, half_base: np.ndarray) -> 
     return np.hypot(ux, uy) + abs(twist[2]) * half_base
 
 
+def _as_envelopes(envelopes) -> Envelopes:
+    return envelopes if isinstance(envelopes, Envelopes) else Envelopes.of(envelopes)
+
+
 def envelope_scale(twist: Twist2, twist_prev: Twist2 | None, rho_world: np.ndarray,
-                   envelopes: Sequence[Envelope], dt_s: float) -> float:
+                   envelopes: Envelopes | Sequence[Envelope], dt_s: float) -> float:
     """Largest s in [0, 1] such that every robot's wheels stay in their envelope.
 
     Speed: |u_i(s xi)| + |s w| b_i/2 <= v_max_i.  Acceleration: the change from
@@ -202,9 +213,10 @@ def envelope_scale(twist: Twist2, twist_prev: Twist2 | None, rho_world: np.ndarr
     twist_prev only the speed bound applies.
     """
     xi = np.array([twist.vx_m_s, twist.vy_m_s, twist.w_rad_s])
-    half_base = np.array([e.wheel_base_m for e in envelopes]) / 2.0
-    v_max = np.array([e.wheel_speed_max_m_s for e in envelopes])
-    dv_max = np.array([e.wheel_accel_max_m_s2 for e in envelopes]) * dt_s
+    env = _as_envelopes(envelopes)
+    half_base = env.wheel_base_m / 2.0
+    v_max = env.wheel_speed_max_m_s
+    dv_max = env.wheel_accel_max_m_s2 * dt_s
 
     demand = _wheel_demand(xi, rho_world, half_base)
     with np.errstate(divide="ignore"):
@@ -241,7 +253,16 @@ def envelope_scale(twist: Twist2, twist_prev: Twist2 | None, rho_world: np.ndarr
     return lo
 
 
-def alignment_scale(twist: Twist2, rho_world: np.ndarray, headings_rad: Sequence[float | None],
+def _headings(headings_rad, n: int) -> np.ndarray:
+    """Headings (n,) [rad] with NaN for robots not seen (None entries of a sequence become NaN)."""
+    h = np.array([math.nan if v is None else v for v in headings_rad] if not isinstance(headings_rad, np.ndarray)
+                 else headings_rad, dtype=float)
+    if h.shape != (n,):
+        raise ShapeError(f"headings_rad must have shape ({n},), got {h.shape}")
+    return h
+
+
+def alignment_scale(twist: Twist2, rho_world: np.ndarray, headings_rad,
                     floor: float | None = None, power: float | None = None) -> float:
     """The paper's cost-aware push (3.3.3): slow the structure while robots face across their path.
 
@@ -249,29 +270,43 @@ def alignment_scale(twist: Twist2, rho_world: np.ndarray, headings_rad: Sequence
     velocity across it becomes error. Per robot the factor is max(floor, |cos d|**power), with d
     the angle between its heading and its point's velocity (either way: robots may reverse).
     The structure moves at the smallest factor; the floor keeps it creeping so robots turn.
-    None headings (robots not seen) are skipped. floor and power default to ALIGN_FLOOR
-    and ALIGN_POWER.
+    headings_rad (n,) [rad], NaN (or None) for robots not seen, which are skipped.
     """
     floor = ALIGN_FLOOR if floor is None else floor
     power = ALIGN_POWER if power is None else power
-    out = 1.0
-    for i, h in enumerate(headings_rad):
-        if h is None:
-            continue
-        ux = twist.vx_m_s - twist.w_rad_s * rho_world[i, 1]
-        uy = twist.vy_m_s + twist.w_rad_s * rho_world[i, 0]
-        u = math.hypot(ux, uy)
-        if u == 0.0:
-            continue
-        cos_d = abs(ux * math.cos(h) + uy * math.sin(h)) / u
-        out = min(out, max(floor, cos_d ** power))
-    return out
+    h = _headings(headings_rad, rho_world.shape[0])
+    ux = twist.vx_m_s - twist.w_rad_s * rho_world[:, 1]
+    uy = twist.vy_m_s + twist.w_rad_s * rho_world[:, 0]
+    u = np.hypot(ux, uy)
+    use = np.isfinite(h) & (u > 0.0)
+    if not np.any(use):
+        return 1.0
+    hs = np.where(use, h, 0.0)
+    cos_d = np.abs(ux * np.cos(hs) + uy * np.sin(hs)) / np.where(use, u, 1.0)
+    k = np.maximum(floor, cos_d ** power)
+    return float(min(1.0, np.min(np.where(use, k, 1.0))))
+
+
+def compliance_scale(deviations_m, limits: StructureLimits) -> float:
+    """Throttle in [0, 1] from how well the robots comply: 1 while the largest deviation [m] of a
+    robot seen (NaN = not seen) is within comply_full_m, 0 from comply_stop_m, linear between.
+
+    Graceful degradation (the paper's Fig. 12): a robot that halts or slows holds the structure
+    back instead of being left behind, so the formation bends within comply_stop_m.
+    """
+    d = np.asarray(deviations_m, dtype=float)
+    seen = d[np.isfinite(d)]
+    if seen.size == 0:
+        return 1.0
+    worst = float(np.max(seen))
+    span = limits.comply_stop_m - limits.comply_full_m
+    return min(1.0, max(0.0, (limits.comply_stop_m - worst) / span))
 
 
 def advance_structure(pose_fit: Pose2, goal: Goal, dt_s: float, limits: StructureLimits,
-                      template_xy: np.ndarray, envelopes: Sequence[Envelope],
+                      template_xy: np.ndarray, envelopes: Envelopes | Sequence[Envelope],
                       twist_prev: Twist2 | None = None, elapsed_s: float | None = None,
-                      headings_rad: Sequence[float | None] | None = None) -> AdvanceResult:
+                      headings_rad=None, deviations_m=None) -> AdvanceResult:
     """Next desired structure pose, one ``dt_s`` after the fitted pose (paper eq 7).
 
     template_xy (n, 2) are the robots' points [m; structure frame], envelopes their limits
@@ -282,12 +317,16 @@ def advance_structure(pose_fit: Pose2, goal: Goal, dt_s: float, limits: Structur
       structure's acceleration, and ramp down by the stopping profile. The result is
       then a pure function of this call's inputs, which is what duplicated agents use
       so that their copies agree bit for bit.
-    headings_rad (robot headings [rad], template order, None if unseen) turns on the
-    cost-aware push: see :func:`alignment_scale`.
+    headings_rad ((n,) robot headings [rad], template order, NaN if unseen) turns on the
+    cost-aware push: see :func:`alignment_scale`. deviations_m ((n,) each robot's distance [m] to
+    its point on the fitted structure, NaN if unseen) turns on the compliance throttle: see
+    :func:`compliance_scale`. Every input is an array over all robots; the cost does not grow
+    with a Python loop over them.
     """
     tpl = np.asarray(template_xy, dtype=float)
     if tpl.ndim != 2 or tpl.shape[1] != 2 or tpl.shape[0] == 0:
         raise ShapeError(f"template_xy must have shape (n, 2) with n >= 1, got {tpl.shape}")
+    envelopes = _as_envelopes(envelopes)
     if len(envelopes) != tpl.shape[0]:
         raise ShapeError(f"{len(envelopes)} envelopes for {tpl.shape[0]} template points")
     if not (math.isfinite(dt_s) and dt_s > 0.0):
@@ -296,8 +335,8 @@ def advance_structure(pose_fit: Pose2, goal: Goal, dt_s: float, limits: Structur
         raise VsfleetValueError(f"pose_fit must be finite, got {pose_fit}")
 
     rho = structure_points(Pose2(0.0, 0.0, pose_fit.th), tpl)  # offsets [m; world frame]
-    accel = 0.5 * min(e.wheel_accel_max_m_s2 for e in envelopes)
-    reach = float(np.max(np.hypot(rho[:, 0], rho[:, 1]) + [e.wheel_base_m / 2.0 for e in envelopes]))
+    accel = 0.5 * float(np.min(envelopes.wheel_accel_max_m_s2))
+    reach = float(np.max(np.hypot(rho[:, 0], rho[:, 1]) + envelopes.wheel_base_m / 2.0))
     alpha = accel / reach
 
     at_goal = False
@@ -330,6 +369,12 @@ def advance_structure(pose_fit: Pose2, goal: Goal, dt_s: float, limits: Structur
         desired = Twist2(k_v * desired.vx_m_s, k_v * desired.vy_m_s, k_w * desired.w_rad_s)
     if headings_rad is not None:
         k = alignment_scale(desired, rho, headings_rad)
+        desired = Twist2(k * desired.vx_m_s, k * desired.vy_m_s, k * desired.w_rad_s)
+    if deviations_m is not None:
+        d = np.asarray(deviations_m, dtype=float)
+        if d.shape != (tpl.shape[0],):
+            raise ShapeError(f"deviations_m must have shape ({tpl.shape[0]},), got {d.shape}")
+        k = compliance_scale(d, limits)
         desired = Twist2(k * desired.vx_m_s, k * desired.vy_m_s, k * desired.w_rad_s)
     scale = envelope_scale(desired, twist_prev, rho, envelopes, dt_s)
     twist = Twist2(scale * desired.vx_m_s, scale * desired.vy_m_s, scale * desired.w_rad_s)

@@ -1,32 +1,33 @@
-"""Per-robot trajectory controllers: structure point -> wheel speeds (Tan & Lewis 1996, 3.3.3).
+"""Trajectory controllers for every robot at once: structure points -> wheel speeds.
 
-Every controller is built by a ``make_*`` factory that fixes its gains and returns
-a pure function with one signature::
+Robots are rows of (n, ...) arrays in the mission's sorted id order. A controller is
+an object with gains fixed by :func:`make_controller`::
 
-    controller(pose_world, point_now_world, point_next_world, dt_s, envelope,
-               wheels_prev_m_s) -> (vl_m_s, vr_m_s)
+    state = controller.initial(n)
+    state, wheels_m_s = controller(state, ControlInput(...))   # wheels (n, 2): (vl, vr) [m/s]
 
-``point_now_world`` is the robot's desired structure point [m; world frame] at this
-tick and ``point_next_world`` the one a tick (dt_s [s]) later, so their difference
-over dt_s is the point's feed-forward velocity. The result is a pair of wheel ground
-speeds [m/s] that has already passed through :func:`~vsfleet.kinematics.limit_wheels`
-(the envelope's speed and acceleration limits, curvature kept).
+It is a pure function of (state, input): every agent that runs it on the same frames
+and commands gets bit-identical states and commands, for its own robot and for the
+predictions of every other robot. Rows not ``active`` get zero wheels and keep their
+state. The result has passed :func:`~vsfleet.kinematics.limit_wheels_v`.
+
+Controllers: ``turn_then_go`` (paper eqs 9-11), ``arc`` (paper eqs 12-16),
+``tracking`` (Kanayama 1990) and ``precision`` (the default: feed-forward of the point's
+velocity, an own-pose filter over the commands sent, frame-age compensation and online
+wheel-gain estimation; see :class:`Precision`).
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, fields
 from typing import Callable
 
-from .envelope import Envelope
-from .errors import VsfleetValueError
-from .geometry import Pose2
-from .kinematics import inverse_arc, limit_wheels, wheels_from_twist
+import numpy as np
 
-Controller = Callable[
-    [Pose2, tuple[float, float], tuple[float, float], float, Envelope, tuple[float, float]],
-    tuple[float, float],
-]
+from .envelope import Envelopes
+from .errors import ShapeError, VsfleetValueError
+from .kinematics import integrate_arcs, limit_wheels_v, sinc_v, wrap_angles
 
 
 class UnknownControllerError(VsfleetValueError):
@@ -37,209 +38,424 @@ class ControllerGainError(VsfleetValueError):
     """A controller gain is not a finite number in its allowed range."""
 
 
-def _gain(name: str, value: float, *, allow_zero: bool = False) -> float:
-    """A gain as float, checked finite and > 0 (or >= 0 with allow_zero)."""
+@dataclass(frozen=True)
+class ControlInput:
+    """What a controller needs for one frame, every robot a row (mission's sorted id order).
+
+    pose_world (n, 3): observed poses [m, m, rad; world]; point_now_world (n, 2): each robot's
+    structure point at the frame's time; point_next_world (n, 2): the same one dt_s later (the
+    advance: their difference / dt_s is the feed-forward velocity); wheels_prev_m_s (n, 2): the
+    last commands sent; age_s: time from the observation to when this command takes effect [s];
+    active (n,): rows to command.
+    """
+
+    pose_world: np.ndarray
+    point_now_world: np.ndarray
+    point_next_world: np.ndarray
+    wheels_prev_m_s: np.ndarray
+    dt_s: float
+    age_s: float
+    envelopes: Envelopes
+    active: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = len(self.envelopes)
+        for name, cols in (("pose_world", 3), ("point_now_world", 2), ("point_next_world", 2),
+                           ("wheels_prev_m_s", 2)):
+            a = np.asarray(getattr(self, name), dtype=float)
+            if a.shape != (n, cols):
+                raise ShapeError(f"{name} must have shape ({n}, {cols}), got {a.shape}")
+            object.__setattr__(self, name, a)
+        act = np.asarray(self.active, dtype=bool)
+        if act.shape != (n,):
+            raise ShapeError(f"active must have shape ({n},), got {act.shape}")
+        object.__setattr__(self, "active", act)
+        if not (math.isfinite(self.dt_s) and self.dt_s > 0.0):
+            raise VsfleetValueError(f"dt_s must be finite and > 0, got {self.dt_s!r}")
+        if not (math.isfinite(self.age_s) and self.age_s >= 0.0):
+            raise VsfleetValueError(f"age_s must be finite and >= 0, got {self.age_s!r}")
+
+
+@dataclass(frozen=True)
+class Stateless:
+    """The state of a controller that keeps none."""
+
+
+def _gain(name: str, value, *, allow_zero: bool = False, at_most: float = math.inf) -> float:
+    """A gain as float, checked finite and > 0 (or >= 0 with allow_zero), and <= at_most."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ControllerGainError(f"{name} must be a number, got {type(value).__name__}")
     value = float(value)
-    if not math.isfinite(value) or value < 0.0 or (value == 0.0 and not allow_zero):
-        raise ControllerGainError(f"{name} must be finite and {'>=' if allow_zero else '>'} 0, got {value!r}")
+    if not math.isfinite(value) or value < 0.0 or (value == 0.0 and not allow_zero) or value > at_most:
+        raise ControllerGainError(
+            f"{name} must be finite, {'>=' if allow_zero else '>'} 0 and <= {at_most}, got {value!r}")
     return value
 
 
-def _robot_frame(pose: Pose2, point_world) -> tuple[float, float]:
-    """A world point [m] in the robot frame [m; +x ahead, +y to the left]."""
-    wx, wy = float(point_world[0]) - pose.x, float(point_world[1]) - pose.y
-    c, s = math.cos(pose.th), math.sin(pose.th)
-    return (c * wx + s * wy, -s * wx + c * wy)
+def _check_gains(obj) -> None:
+    """Check every float field of a controller dataclass (> 0; _allow_zero fields may be 0)."""
+    allow = getattr(obj, "_allow_zero", ())
+    limits = getattr(obj, "_at_most", {})
+    for f in fields(obj):
+        v = getattr(obj, f.name)
+        if f.type in ("bool", bool):
+            if not isinstance(v, bool):
+                raise ControllerGainError(f"{f.name} must be a bool, got {type(v).__name__}")
+            continue
+        object.__setattr__(obj, f.name, _gain(f.name, v, allow_zero=f.name in allow,
+                                              at_most=limits.get(f.name, math.inf)))
 
 
-def _ahead(point_now_world, point_next_world, ticks: float) -> tuple[float, float]:
-    """The point extrapolated ``ticks`` ticks ahead: now + ticks (next - now) [m; world]."""
-    nx, ny = float(point_now_world[0]), float(point_now_world[1])
-    return (nx + ticks * (float(point_next_world[0]) - nx), ny + ticks * (float(point_next_world[1]) - ny))
+def _robot_frame(pose: np.ndarray, point: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """World points (n, 2) [m] in each robot's frame [m; +x ahead, +y to the left]."""
+    wx, wy = point[:, 0] - pose[:, 0], point[:, 1] - pose[:, 1]
+    c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+    return c * wx + s * wy, -s * wx + c * wy
 
 
-def _horizon_ticks(horizon_s: float, dt_s: float) -> float:
-    """A look-ahead time [s] in ticks of dt_s [s], never less than one tick."""
-    return max(1.0, horizon_s / dt_s)
+def _ahead(now: np.ndarray, nxt: np.ndarray, ticks: float) -> np.ndarray:
+    """Points extrapolated ``ticks`` ticks ahead: now + ticks (next - now) [m; world]."""
+    return now + ticks * (nxt - now)
+
+
+def _half_plane_angle(y: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """atan(y / x) in [-pi/2, pi/2], defined at x = 0 (then +-pi/2 by the sign of y, 0 at y = 0)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = np.arctan(y / x)
+    at_zero = np.where(y != 0.0, np.copysign(0.5 * math.pi, y), 0.0)
+    return np.where(x == 0.0, at_zero, a)
 
 
 # Share of a wheel's acceleration limit that a turn may plan to brake with.
 _TURN_BRAKE_SHARE = 0.5
 
 
-def _braked_turn(turn_m_s: float, angle_rad: float, envelope: Envelope) -> float:
-    """Cap a turning wheel speed [m/s] so the wheels can still brake to rest within angle_rad.
+def _braked_turn(turn_m_s: np.ndarray, angle_rad: np.ndarray, env: Envelopes) -> np.ndarray:
+    """Cap turning wheel speeds [m/s] so the wheels can still brake to rest within angle_rad.
 
     Each wheel has (b/2)|angle| [m] left to roll; stopping from speed u takes u^2 / (2 a).
-    Without the cap a rate-limited turn overshoots and can cycle around the target direction.
     """
-    reach_m = 0.5 * envelope.wheel_base_m * abs(angle_rad)
-    cap_m_s = math.sqrt(2.0 * _TURN_BRAKE_SHARE * envelope.wheel_accel_max_m_s2 * reach_m)
-    return max(-cap_m_s, min(cap_m_s, turn_m_s))
+    reach_m = 0.5 * env.wheel_base_m * np.abs(angle_rad)
+    cap = np.sqrt(2.0 * _TURN_BRAKE_SHARE * env.wheel_accel_max_m_s2 * reach_m)
+    return np.maximum(-cap, np.minimum(cap, turn_m_s))
 
 
-def _half_plane_angle(y: float, x: float) -> float:
-    """atan(y / x) in [-pi/2, pi/2], defined at x = 0 (then +-pi/2 by the sign of y)."""
-    if x == 0.0:
-        return math.copysign(0.5 * math.pi, y) if y != 0.0 else 0.0
-    return math.atan(y / x)
+def _finish(wheels: np.ndarray, inp: ControlInput) -> np.ndarray:
+    """Envelope-limited wheels (n, 2) [m/s]; inactive rows zero."""
+    w = np.where(inp.active[:, None] & np.isfinite(wheels), wheels, 0.0)
+    env = inp.envelopes
+    out = limit_wheels_v(w, inp.wheels_prev_m_s, inp.dt_s, env.wheel_speed_max_m_s, env.wheel_accel_max_m_s2)
+    return np.where(inp.active[:, None], out, 0.0)
 
 
-# Defaults: d_max_m / horizon_s = 0.3 m/s, the speed cap; a 0.25 s look-ahead damps the
-# heading loop (horizon 0, the paper's, oscillates around the path; see tests/test_control.py).
-def make_turn_then_go(
-    turn_gain_m_s_per_rad: float = 1.0,
-    d_max_m: float = 0.075,
-    horizon_s: float = 0.25,
-    turn_fade_radius_m: float = 0.001,
-    allow_reverse: bool = True,
-) -> Controller:
+def _wheels(v: np.ndarray, w: np.ndarray, base: np.ndarray) -> np.ndarray:
+    half = 0.5 * w * base
+    return np.stack([v - half, v + half], axis=1)
+
+
+# --------------------------------------------------------------------------- the paper's two
+
+
+@dataclass(frozen=True)
+class TurnThenGo:
     """Paper eqs 9-11, CCW: vl = v - K th_err, vr = v + K th_err [m/s], K in m/s per rad.
 
     Aims at the point extrapolated horizon_s [s] ahead (>= 1 tick; 0 is the paper's point_next):
     v = min(d_max_m, dist) / horizon * (Hc . Hd); th_err = atan(Hc x Hd / Hc . Hd) (reverse when
     the target is behind), or atan2 if not allow_reverse. The turn is capped to brake in time.
     """
-    turn_gain = _gain("turn_gain_m_s_per_rad", turn_gain_m_s_per_rad)
-    d_max = _gain("d_max_m", d_max_m)
-    horizon = _gain("horizon_s", horizon_s, allow_zero=True)
-    fade = _gain("turn_fade_radius_m", turn_fade_radius_m)
 
-    def turn_then_go(pose_world, point_now_world, point_next_world, dt_s, envelope, wheels_prev_m_s):
-        h = _horizon_ticks(horizon, dt_s)
-        dx, dy = _robot_frame(pose_world, _ahead(point_now_world, point_next_world, h))
-        dist_m = math.hypot(dx, dy)
-        if dist_m == 0.0:
-            vl, vr = 0.0, 0.0
-        else:
-            # In the robot frame Hc = (1, 0), so Hc x Hd = dy / dist and Hc . Hd = dx / dist.
-            th_err = _half_plane_angle(dy, dx) if allow_reverse else math.atan2(dy, dx)
-            v = min(d_max, dist_m) / (h * dt_s) * (dx / dist_m)
-            # Within turn_fade_radius_m of the target its direction is noise: fade the turn out.
-            turn = _braked_turn(turn_gain * th_err, th_err, envelope) * min(1.0, dist_m / fade)
-            vl, vr = v - turn, v + turn
-        return limit_wheels(vl, vr, wheels_prev_m_s, dt_s, envelope)
+    turn_gain_m_s_per_rad: float = 1.0
+    d_max_m: float = 0.075
+    horizon_s: float = 0.25
+    turn_fade_radius_m: float = 0.001
+    allow_reverse: bool = True
+    _allow_zero = ("horizon_s",)
 
-    return turn_then_go
+    def __post_init__(self) -> None:
+        _check_gains(self)
+
+    def initial(self, n: int) -> Stateless:
+        return Stateless()
+
+    def __call__(self, state: Stateless, inp: ControlInput) -> tuple[Stateless, np.ndarray]:
+        h = max(1.0, self.horizon_s / inp.dt_s)
+        dx, dy = _robot_frame(inp.pose_world, _ahead(inp.point_now_world, inp.point_next_world, h))
+        dist = np.hypot(dx, dy)
+        th_err = _half_plane_angle(dy, dx) if self.allow_reverse else np.arctan2(dy, dx)
+        safe = np.where(dist == 0.0, 1.0, dist)
+        v = np.minimum(self.d_max_m, dist) / (h * inp.dt_s) * (dx / safe)
+        turn = (_braked_turn(self.turn_gain_m_s_per_rad * th_err, th_err, inp.envelopes)
+                * np.minimum(1.0, dist / self.turn_fade_radius_m))
+        wheels = np.where((dist == 0.0)[:, None], 0.0, np.stack([v - turn, v + turn], axis=1))
+        return state, _finish(wheels, inp)
 
 
-def make_arc(horizon_s: float = 1.0) -> Controller:
+@dataclass(frozen=True)
+class Arc:
     """Paper eqs 12-16: wheel speeds [m/s] of the arc that reaches the point in time.
 
     Target: the point extrapolated horizon_s [s] ahead (>= 1 tick; 0 is the paper's point_next
     in dt_s, whose heading error flips sign every tick). See :func:`~vsfleet.kinematics.inverse_arc`.
     """
-    horizon = _gain("horizon_s", horizon_s, allow_zero=True)
 
-    def arc(pose_world, point_now_world, point_next_world, dt_s, envelope, wheels_prev_m_s):
-        h = _horizon_ticks(horizon, dt_s)
-        target = _ahead(point_now_world, point_next_world, h)
-        vl, vr = inverse_arc(pose_world, target, h * dt_s, envelope.wheel_base_m)
-        return limit_wheels(vl, vr, wheels_prev_m_s, dt_s, envelope)
+    horizon_s: float = 1.0
+    _allow_zero = ("horizon_s",)
 
-    return arc
+    def __post_init__(self) -> None:
+        _check_gains(self)
+
+    def initial(self, n: int) -> Stateless:
+        return Stateless()
+
+    def __call__(self, state: Stateless, inp: ControlInput) -> tuple[Stateless, np.ndarray]:
+        h = max(1.0, self.horizon_s / inp.dt_s)
+        t_s = h * inp.dt_s
+        dx, dy = _robot_frame(inp.pose_world, _ahead(inp.point_now_world, inp.point_next_world, h))
+        dist = np.hypot(dx, dy)
+        forward = dx >= 0.0
+        beta = np.where(forward, np.arctan2(dy, dx), np.arctan2(-dy, -dx))
+        v = np.where(forward, 1.0, -1.0) * dist / (t_s * sinc_v(beta))
+        w = 2.0 * beta / t_s
+        wheels = np.where((dist == 0.0)[:, None], 0.0, _wheels(v, w, inp.envelopes.wheel_base_m))
+        return state, _finish(wheels, inp)
 
 
 # Defaults: lateral error dynamics s^2 + v_r kth s + v_r^2 ky, so at v_r = 0.1 m/s the natural
 # frequency is v_r sqrt(ky) = 5 rad/s with damping kth / (2 sqrt(ky)) = 1; kx = 2 /s along.
-def make_tracking(
-    along_gain_per_s: float = 2.0,
-    lateral_gain_per_m2: float = 2500.0,
-    heading_gain_per_m: float = 100.0,
-    regulate_gain_per_s: float = 5.0,
-    regulate_radius_m: float = 0.005,
-    moving_speed_m_s: float = 0.02,
-) -> Controller:
+@dataclass(frozen=True)
+class Tracking:
     """Kanayama et al. (1990) tracking with feed-forward, blended into point regulation at rest.
 
     Reference: point_now [m; world], heading and speed v_r of f = (next - now) / dt_s; e is the
     error in the robot frame. v = f.Hc + kx e_x; w = lam v_r (ky e_y + kth 2 sin(e_th/2)) +
     (1 - lam) w_reg, lam = min(1, v_r / moving_speed_m_s); w_reg turns either end toward f + kx e.
     """
-    kx = _gain("along_gain_per_s", along_gain_per_s)
-    ky = _gain("lateral_gain_per_m2", lateral_gain_per_m2)
-    kth = _gain("heading_gain_per_m", heading_gain_per_m)
-    k_reg = _gain("regulate_gain_per_s", regulate_gain_per_s)
-    u_fade = kx * _gain("regulate_radius_m", regulate_radius_m)
-    v_moving = _gain("moving_speed_m_s", moving_speed_m_s)
 
-    def tracking(pose_world, point_now_world, point_next_world, dt_s, envelope, wheels_prev_m_s):
-        ex, ey = _robot_frame(pose_world, point_now_world)
-        c, s = math.cos(pose_world.th), math.sin(pose_world.th)
-        fwx = (float(point_next_world[0]) - float(point_now_world[0])) / dt_s
-        fwy = (float(point_next_world[1]) - float(point_now_world[1])) / dt_s
-        fx, fy = c * fwx + s * fwy, -s * fwx + c * fwy  # feed-forward velocity, robot frame
-        v_ref = math.hypot(fx, fy)
-        lam = min(1.0, v_ref / v_moving)
-        # Identical in both laws: Kanayama's v_r cos(e_th) is the feed-forward along the heading.
+    along_gain_per_s: float = 2.0
+    lateral_gain_per_m2: float = 2500.0
+    heading_gain_per_m: float = 100.0
+    regulate_gain_per_s: float = 5.0
+    regulate_radius_m: float = 0.005
+    moving_speed_m_s: float = 0.02
+
+    def __post_init__(self) -> None:
+        _check_gains(self)
+
+    def initial(self, n: int) -> Stateless:
+        return Stateless()
+
+    def __call__(self, state: Stateless, inp: ControlInput) -> tuple[Stateless, np.ndarray]:
+        pose, env = inp.pose_world, inp.envelopes
+        kx = self.along_gain_per_s
+        ex, ey = _robot_frame(pose, inp.point_now_world)
+        c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+        fw = (inp.point_next_world - inp.point_now_world) / inp.dt_s
+        fx, fy = c * fw[:, 0] + s * fw[:, 1], -s * fw[:, 0] + c * fw[:, 1]
+        v_ref = np.hypot(fx, fy)
+        lam = np.minimum(1.0, v_ref / self.moving_speed_m_s)
         v = fx + kx * ex
-        w = 0.0
-        if lam > 0.0:
-            e_th = math.atan2(fy, fx)  # reference heading minus robot heading
-            # 2 sin(e_th / 2) for Kanayama's sin(e_th): the same near 0, but a robot facing
-            # backwards turns round instead of resting at sin(pi) = 0. At low speed it is blended
-            # back toward sin(e_th), which is continuous at pi, so that the regulation term
-            # (which may drive in reverse) and this one do not fight across the +-pi jump.
-            sin_e = math.sin(e_th)
-            heading = sin_e + lam**4 * (2.0 * math.sin(0.5 * e_th) - sin_e)
-            w += lam * v_ref * (ky * ey + kth * heading)
-        if lam < 1.0:
-            ux, uy = v, fy + kx * ey  # the velocity a holonomic robot would command
-            u = math.hypot(ux, uy)
-            if u > 0.0:
-                alpha = _half_plane_angle(uy, ux)
-                half_b = 0.5 * envelope.wheel_base_m
-                turn = _braked_turn(k_reg * alpha * half_b, alpha, envelope) / half_b
-                w += (1.0 - lam) * turn * min(1.0, u / u_fade)
-        vl, vr = wheels_from_twist(v, w, envelope.wheel_base_m)
-        return limit_wheels(vl, vr, wheels_prev_m_s, dt_s, envelope)
-
-    return tracking
+        e_th = np.arctan2(fy, fx)
+        sin_e = np.sin(e_th)
+        heading = sin_e + lam**4 * (2.0 * np.sin(0.5 * e_th) - sin_e)
+        w = np.where(lam > 0.0, lam * v_ref * (self.lateral_gain_per_m2 * ey
+                                               + self.heading_gain_per_m * heading), 0.0)
+        ux, uy = v, fy + kx * ey
+        u = np.hypot(ux, uy)
+        alpha = _half_plane_angle(uy, ux)
+        half_b = 0.5 * env.wheel_base_m
+        turn = (_braked_turn(self.regulate_gain_per_s * alpha * half_b, alpha, env) / half_b
+                * np.minimum(1.0, u / (kx * self.regulate_radius_m)))
+        w = w + np.where((lam < 1.0) & (u > 0.0), (1.0 - lam) * turn, 0.0)
+        return state, _finish(_wheels(v, w, env.wheel_base_m), inp)
 
 
-CONTROLLERS: dict[str, Callable[..., Controller]] = {
-    "turn_then_go": make_turn_then_go,
-    "arc": make_arc,
-    "tracking": make_tracking,
+# --------------------------------------------------------------------------- precision
+
+
+@dataclass(frozen=True)
+class PrecisionState:
+    """Per robot (rows): the filtered pose at the last observation [m, m, rad; world], the wheel
+    gains estimated (actual / commanded, left and right), the commands sent before the last one
+    (n, H, 2) [m/s], the filtered target point [m; world], the last feed-forward velocity
+    [m/s; world] and whether the row has been initialised."""
+
+    pose_world: np.ndarray
+    gains: np.ndarray
+    history_m_s: np.ndarray
+    target_world: np.ndarray
+    feed_m_s: np.ndarray
+    ready: np.ndarray
+
+
+# Commands kept besides the last one sent: an age of up to this many ticks is compensated.
+_HISTORY = 3
+
+
+@dataclass(frozen=True)
+class Precision:
+    """Offset-point tracking with feed-forward, an own-pose filter and wheel-gain estimation.
+
+    1. Filter: the last filtered pose is driven forward over one tick by the commands that were
+       in effect (the gains estimated applied), then pulled toward the observation by
+       pose_gain / heading_gain. The innovation in wheel travel adapts the gains (normalised
+       LMS, rate gain_rate, kept within [gain_min, gain_max]).
+    2. Age: the filtered pose is driven forward by age_s [s] over the commands already sent.
+    3. Target: the structure point at that time (point_now + age f, f = (next - now) / dt_s),
+       smoothed by target_gain around its own prediction.
+    4. Law: a point offset_m [m] ahead of the axle follows the target's offset point at the
+       feed-forward velocity plus position_gain_per_s [1/s] times its error; wheels divided by
+       the gains estimated, then the envelope (no windup: only commands sent enter the filter).
+    """
+
+    position_gain_per_s: float = 1.5
+    offset_m: float = 0.04
+    pose_gain: float = 0.15
+    heading_gain: float = 0.1
+    target_gain: float = 0.2
+    gain_rate: float = 0.002
+    gain_min: float = 0.3
+    gain_max: float = 2.0
+    moving_speed_m_s: float = 0.01
+    travel_floor_m: float = 0.0005
+    _allow_zero = ("gain_rate",)
+    _at_most = {"pose_gain": 1.0, "heading_gain": 1.0, "target_gain": 1.0}
+
+    def __post_init__(self) -> None:
+        _check_gains(self)
+        if not self.gain_min <= 1.0 <= self.gain_max:
+            raise ControllerGainError("gain_min <= 1 <= gain_max is required")
+
+    def initial(self, n: int) -> PrecisionState:
+        z2 = np.zeros((n, 2))
+        return PrecisionState(np.zeros((n, 3)), np.ones((n, 2)), np.zeros((n, _HISTORY, 2)),
+                              z2, z2, np.zeros(n, dtype=bool))
+
+    def __call__(self, state: PrecisionState, inp: ControlInput) -> tuple[PrecisionState, np.ndarray]:
+        dt, env, act = inp.dt_s, inp.envelopes, inp.active
+        base = env.wheel_base_m
+        z = inp.pose_world
+        # commands in effect, newest first: seq[j] was sent j + 1 frames before this one
+        seq = np.concatenate([inp.wheels_prev_m_s[:, None, :], state.history_m_s], axis=1)
+        m = min(int(inp.age_s // dt), _HISTORY - 1)
+        frac = min(max(inp.age_s - m * dt, 0.0), dt) if m < _HISTORY - 1 else 0.0
+        g = state.gains
+
+        # 1. filter, previous observation -> this one: seq[m + 1] for frac, then seq[m]
+        pred = integrate_arcs(state.pose_world, g * seq[:, m + 1], frac, base) if frac > 0.0 else state.pose_world
+        pred = integrate_arcs(pred, g * seq[:, m], dt - frac, base)
+        travel = g * (seq[:, m] * (dt - frac) + seq[:, m + 1] * frac)
+        nx, ny = z[:, 0] - pred[:, 0], z[:, 1] - pred[:, 1]
+        nth = wrap_angles(z[:, 2] - pred[:, 2])
+        c, s = np.cos(pred[:, 2]), np.sin(pred[:, 2])
+        along = c * nx + s * ny
+        d_wheel = np.stack([along - 0.5 * base * nth, along + 0.5 * base * nth], axis=1)
+        g_new = g + self.gain_rate * d_wheel * travel / (travel * travel + self.travel_floor_m ** 2) * g
+        g_new = np.clip(g_new, self.gain_min, self.gain_max)
+        est = np.stack([pred[:, 0] + self.pose_gain * nx, pred[:, 1] + self.pose_gain * ny,
+                        wrap_angles(pred[:, 2] + self.heading_gain * nth)], axis=1)
+        fresh = ~state.ready
+        est = np.where(fresh[:, None], z, est)
+        g_new = np.where(fresh[:, None], g, g_new)
+
+        # 2. frame age, this observation -> the command's start: seq[m] for frac, then seq[m-1..0]
+        p = integrate_arcs(est, g_new * seq[:, m], frac, base) if frac > 0.0 else est
+        for j in range(m - 1, -1, -1):
+            p = integrate_arcs(p, g_new * seq[:, j], dt, base)
+
+        # 3. target at the command's start, smoothed around its prediction
+        f = (inp.point_next_world - inp.point_now_world) / dt
+        raw = inp.point_now_world + inp.age_s * f
+        guess = state.target_world + state.feed_m_s * dt
+        target = np.where(fresh[:, None], raw, guess + self.target_gain * (raw - guess))
+
+        # 4. offset-point law
+        speed = np.hypot(f[:, 0], f[:, 1])
+        lam = np.minimum(1.0, speed / self.moving_speed_m_s)
+        hc = np.stack([np.cos(p[:, 2]), np.sin(p[:, 2])], axis=1)
+        safe = np.where(speed > 0.0, speed, 1.0)[:, None]
+        hr = np.where((speed > 0.0)[:, None], f / safe, hc)
+        hb = lam[:, None] * hr + (1.0 - lam[:, None]) * hc
+        hb_n = np.hypot(hb[:, 0], hb[:, 1])[:, None]
+        hb = np.where(hb_n > 1e-9, hb / np.where(hb_n > 1e-9, hb_n, 1.0), hc)
+        prev_speed = np.hypot(state.feed_m_s[:, 0], state.feed_m_s[:, 1])
+        turn_ref = np.where((speed > 0.0) & (prev_speed > 0.0) & state.ready,
+                            wrap_angles(np.arctan2(f[:, 1], f[:, 0])
+                                        - np.arctan2(state.feed_m_s[:, 1], state.feed_m_s[:, 0])) / dt, 0.0)
+        nr = np.stack([-hb[:, 1], hb[:, 0]], axis=1)
+        l = self.offset_m
+        feed = f + (lam * l * turn_ref)[:, None] * nr
+        err = (target - p[:, :2]) + l * (hb - hc)
+        u = feed + self.position_gain_per_s * err
+        v = u[:, 0] * hc[:, 0] + u[:, 1] * hc[:, 1]
+        w = (-u[:, 0] * hc[:, 1] + u[:, 1] * hc[:, 0]) / l
+        wheels = _wheels(v, w, base) / g_new
+        out = _finish(wheels, inp)
+
+        keep = ~act[:, None]
+        new = PrecisionState(
+            pose_world=np.where(keep, state.pose_world, est),
+            gains=np.where(keep, state.gains, g_new),
+            history_m_s=np.where(keep[:, :, None], state.history_m_s, seq[:, :_HISTORY]),
+            target_world=np.where(keep, state.target_world, target),
+            feed_m_s=np.where(keep, state.feed_m_s, f),
+            ready=state.ready | act)
+        return new, out
+
+
+# --------------------------------------------------------------------------- deadband, factory
+
+
+@dataclass(frozen=True)
+class Held:
+    """A controller that holds still while the point rests and the robot is within deadband_m.
+
+    A robot at rest on its point would otherwise chase the tracker's noise. "Rests" means the
+    point moves slower than still_speed_m_s [m/s]; the command then brakes to zero within the
+    envelope. The inner controller's state is updated as usual.
+    """
+
+    inner: object
+    deadband_m: float = 0.004
+    still_speed_m_s: float = 0.003
+
+    def __post_init__(self) -> None:
+        for name in ("deadband_m", "still_speed_m_s"):
+            _gain(name, getattr(self, name), allow_zero=True)
+
+    def initial(self, n: int):
+        return self.inner.initial(n)
+
+    def __call__(self, state, inp: ControlInput):
+        state, wheels = self.inner(state, inp)
+        step = np.hypot(*(inp.point_next_world - inp.point_now_world).T)
+        dist = np.hypot(*(inp.point_now_world - inp.pose_world[:, :2]).T)
+        held = (step <= self.still_speed_m_s * inp.dt_s) & (dist <= self.deadband_m)
+        if np.any(held):
+            env = inp.envelopes
+            stop = limit_wheels_v(np.zeros_like(wheels), inp.wheels_prev_m_s, inp.dt_s,
+                                  env.wheel_speed_max_m_s, env.wheel_accel_max_m_s2)
+            wheels = np.where((held & inp.active)[:, None], stop, wheels)
+        return state, wheels
+
+
+CONTROLLERS: dict[str, Callable[..., object]] = {
+    "turn_then_go": TurnThenGo,
+    "arc": Arc,
+    "tracking": Tracking,
+    "precision": Precision,
 }
 
-# Measured in tests/test_control.py (see test_default_controller_converges_fastest):
-# fastest worst-case convergence over the start grid, sub-millimetre steady error.
-DEFAULT_CONTROLLER = "arc"
+# Measured in bench/precision.py and tests/test_closed_loop.py: lowest deviation and jitter.
+DEFAULT_CONTROLLER = "precision"
 
 
-def with_deadband(controller: Controller, deadband_m: float = 0.004,
-                  still_speed_m_s: float = 0.003) -> Controller:
-    """Hold still while the point rests and the robot is within deadband_m [m] of it.
+def make_controller(name: str, deadband_m: float = 0.004, **gains: float):
+    """Build the controller registered as ``name`` with keyword gains (see its class).
 
-    A robot at rest on its point would otherwise chase the tracker's noise (a few mm
-    sideways means a turn on the spot). "Rests" means the point moves slower than
-    still_speed_m_s [m/s]. The command then brakes to zero within the envelope.
-    """
-    deadband = float(deadband_m)
-    still = float(still_speed_m_s)
-    if not (math.isfinite(deadband) and deadband >= 0.0 and math.isfinite(still) and still >= 0.0):
-        raise ControllerGainError("deadband_m and still_speed_m_s must be finite and >= 0")
-
-    def held(pose_world, point_now_world, point_next_world, dt_s, envelope, wheels_prev_m_s):
-        step_m = math.hypot(float(point_next_world[0]) - float(point_now_world[0]),
-                            float(point_next_world[1]) - float(point_now_world[1]))
-        dist_m = math.hypot(float(point_now_world[0]) - pose_world.x, float(point_now_world[1]) - pose_world.y)
-        if step_m <= still * dt_s and dist_m <= deadband:
-            return limit_wheels(0.0, 0.0, wheels_prev_m_s, dt_s, envelope)
-        return controller(pose_world, point_now_world, point_next_world, dt_s, envelope, wheels_prev_m_s)
-
-    return held
-
-
-def make_controller(name: str, deadband_m: float = 0.004, **gains: float) -> Controller:
-    """Build the controller registered as ``name`` with keyword gains (see its factory).
-
-    The result holds still within ``deadband_m`` [m] of a resting point (see with_deadband);
+    The result holds still within ``deadband_m`` [m] of a resting point (see :class:`Held`);
     deadband_m = 0 gives the bare controller. Raises UnknownControllerError for an unknown
-    name and TypeError for an unknown gain.
+    name, TypeError for an unknown gain and ControllerGainError for a bad value.
     """
     try:
         factory = CONTROLLERS[name]
@@ -247,5 +463,14 @@ def make_controller(name: str, deadband_m: float = 0.004, **gains: float) -> Con
         raise UnknownControllerError(
             f"unknown controller {name!r}; known: {', '.join(sorted(CONTROLLERS))}"
         ) from None
+    known = {f.name for f in fields(factory)}
+    unknown = sorted(set(gains) - known)
+    if unknown:
+        raise TypeError(f"{name} has no gain {', '.join(unknown)}; known: {', '.join(sorted(known))}")
     controller = factory(**gains)
-    return with_deadband(controller, deadband_m) if deadband_m > 0.0 else controller
+    return Held(controller, deadband_m) if deadband_m > 0.0 else controller
+
+
+__all__ = ["ControlInput", "Envelopes", "Stateless", "PrecisionState", "TurnThenGo", "Arc", "Tracking",
+           "Precision", "Held", "CONTROLLERS", "DEFAULT_CONTROLLER", "make_controller",
+           "UnknownControllerError", "ControllerGainError"]

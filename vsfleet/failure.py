@@ -37,14 +37,19 @@ same frame. The rule is:
     ``rejoin_deviation_m`` of its point for ``rejoin_after_s`` is taken back.
 
 Agents that saw different frames can decide one frame apart. An agent that joins
-late starts from "all healthy".
+late starts from "all healthy", or from its peers' state (:func:`with_health`).
+
+Everything runs on arrays of all robots (rows in the mission's sorted id order):
+:class:`FailureState` and :func:`failure_step`.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Mapping
+from typing import Mapping, Sequence
+
+import numpy as np
 
 from .errors import VsfleetValueError
 
@@ -91,104 +96,162 @@ class Decision:
     deviation_m: float
 
 
+# The motion window of FailureState: (t, expected dx, expected dy, observed dx, observed dy) per slot.
+_T, _EX, _EY, _OX, _OY = range(5)
+
+
 @dataclass(frozen=True)
-class Motion:
-    """Per robot: the last frame's (t, x, y, expected dx, expected dy) and a window of
-    (t, expected dx, expected dy, observed dx, observed dy) [s, m; world] per frame."""
+class FailureState:
+    """The failure rule's state over n robots (rows), arrays only.
 
-    last: dict[str, tuple[float, float, float, float, float]] = field(default_factory=dict)
-    window: dict[str, tuple[tuple[float, float, float, float, float], ...]] = field(default_factory=dict)
-
-
-def update_motion(policy: FailurePolicy, motion: Motion, poses: Mapping[str, tuple[float, float, float]],
-                  expected_next_m: Mapping[str, tuple[float, float]], t: float,
-                  step_s: float | None = None, max_gap_s: float = math.inf
-                  ) -> tuple[Motion, dict[str, float]]:
-    """Record this frame's observed motion; return each robot's progress ratio where known.
-
-    poses: robot -> (x, y, th) [m, rad] in this frame; expected_next_m: robot -> the
-    displacement [m; world] its predicted command should produce by the next frame.
-    Over the window the net expected displacement E (vector sum) is compared with the
-    net observed one projected on it: ratio = (sum observed . E) / |E|^2. Net sums make
-    the test blind to dithering and to a frame of command latency. A ratio is reported
-    once the window spans 80% of fail_after_s and |E| reaches min_expected_m.
-
-    With step_s (the time [s] expected_next_m is for), each expected step is scaled to
-    the time that actually passed to the next frame, capped at max_gap_s (a command's
-    ttl: after it the robot halts). An agent that missed a frame then sums nearly the
-    same expectation as one that saw it, so their decisions fall on the same frame.
+    since_t (n,) [s]: since when the robot has been non-compliant (compliant, once failed);
+    NaN = not counting. failed, dropped (n,) bool. Motion: last_t (n,) [s] (NaN = never seen
+    fresh), last_xy (n, 2) [m; world], last_expected (n, 2) [m] (the step its command should
+    make), window (n, W, 5) of (t, expected dx, dy, observed dx, dy), oldest first, t NaN = empty.
     """
-    last, window, ratios = dict(motion.last), dict(motion.window), {}
-    for r, (x, y, _th) in poses.items():
-        if r in last:
-            t0, x0, y0, ex, ey = last[r]
-            if step_s is not None:
-                scale = min(t - t0, max_gap_s) / step_s
-                ex, ey = ex * scale, ey * scale
-            w = tuple(item for item in window.get(r, ()) if item[0] > t - policy.fail_after_s)
-            w += ((t, ex, ey, x - x0, y - y0),)
-            window[r] = w
-            sx = math.fsum(item[1] for item in w)
-            sy = math.fsum(item[2] for item in w)
-            e2 = sx * sx + sy * sy
-            if t - w[0][0] >= 0.8 * policy.fail_after_s and e2 >= policy.min_expected_m ** 2:
-                ox = math.fsum(item[3] for item in w)
-                oy = math.fsum(item[4] for item in w)
-                ratios[r] = (ox * sx + oy * sy) / e2
-        ex, ey = expected_next_m.get(r, (0.0, 0.0))
-        last[r] = (t, x, y, ex, ey)
-    return Motion(last, window), ratios
+
+    since_t: np.ndarray
+    failed: np.ndarray
+    dropped: np.ndarray
+    last_t: np.ndarray
+    last_xy: np.ndarray
+    last_expected: np.ndarray
+    window: np.ndarray
+
+    @classmethod
+    def initial(cls, n: int, policy: FailurePolicy, step_s: float) -> "FailureState":
+        """All healthy, nothing seen; the window holds fail_after_s of frames at step_s [s] (+ margin)."""
+        if not (math.isfinite(step_s) and step_s > 0.0):
+            raise VsfleetValueError(f"step_s must be finite and > 0, got {step_s!r}")
+        slots = int(math.ceil(policy.fail_after_s / step_s)) + 4
+        window = np.full((n, slots, 5), np.nan)
+        return cls(np.full(n, np.nan), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool),
+                   np.full(n, np.nan), np.zeros((n, 2)), np.zeros((n, 2)), window)
 
 
-def update_health(policy: FailurePolicy, health: Health, deviations_m: Mapping[str, float],
-                  robots: tuple[str, ...], t: float,
-                  progress: Mapping[str, float] | None = None) -> tuple[Health, list[Decision]]:
-    """Advance the failure state by one frame at tracker time t [s].
+def with_health(state: FailureState, health: Health, robots: Sequence[str],
+                timers: bool = True) -> FailureState:
+    """The state with a peer's health (dict form, as on the wire) adopted: failed, dropped and,
+    with ``timers``, since_t. Robots not in ``robots`` are ignored."""
+    failed = np.array([r in health.failed for r in robots], dtype=bool)
+    dropped = np.array([r in health.dropped for r in robots], dtype=bool)
+    since = (np.array([health.since_t.get(r, math.nan) for r in robots], dtype=float) if timers
+             else state.since_t)
+    return FailureState(since, failed, dropped, state.last_t, state.last_xy, state.last_expected, state.window)
 
-    deviations_m: each seen robot's distance [m] to its structure point; robots of
-    ``robots`` absent from it were not seen in this frame. progress: each robot's
-    progress ratio from :func:`update_motion`, where known.
+
+def to_health(state: FailureState, robots: Sequence[str]) -> Health:
+    """The dict form of the health part (what HealthMsg carries): since {robot: t}, failed, dropped."""
+    return Health(since_t={r: float(t) for r, t in zip(robots, state.since_t) if not math.isnan(t)},
+                  failed=frozenset(r for r, f in zip(robots, state.failed) if f),
+                  dropped=frozenset(r for r, d in zip(robots, state.dropped) if d))
+
+
+def restart_timers(state: FailureState) -> FailureState:
+    """After a gap: keep who failed or dropped, forget the timers and the motion window."""
+    fresh = FailureState.initial(state.since_t.shape[0], FailurePolicy(), 1.0)
+    return FailureState(np.full_like(state.since_t, np.nan), state.failed, state.dropped,
+                        fresh.last_t, fresh.last_xy, fresh.last_expected, np.full_like(state.window, np.nan))
+
+
+def _motion(policy: FailurePolicy, state: FailureState, t: float, fresh: np.ndarray, xy: np.ndarray,
+            expected_step_m: np.ndarray, step_s: float | None, max_gap_s: float):
+    """The motion test on fresh rows: the new (last_*, window) and each row's progress ratio
+    (NaN where unknown). See :func:`update_motion` of the docs: net sums over fail_after_s."""
+    had = fresh & np.isfinite(state.last_t)
+    ex, ey = state.last_expected[:, 0], state.last_expected[:, 1]
+    if step_s is not None:
+        scale = np.minimum(t - np.where(had, state.last_t, t), max_gap_s) / step_s
+        ex, ey = ex * scale, ey * scale
+    w = state.window
+    keep = w[:, :, _T] > t - policy.fail_after_s           # NaN compares False: empty slots go
+    keep = np.where(had[:, None], keep, np.isfinite(w[:, :, _T]))
+    # keep the kept items in order, oldest first, then append the new one at the end (fresh rows)
+    item = np.stack([np.full_like(ex, t), ex, ey, xy[:, 0] - state.last_xy[:, 0],
+                     xy[:, 1] - state.last_xy[:, 1]], axis=1)
+    slots = w.shape[1]
+    order = np.argsort(~keep, axis=1, kind="stable")     # kept first, in their order
+    packed = np.take_along_axis(w, order[:, :, None], axis=1)
+    count = keep.sum(axis=1)
+    packed = np.where((np.arange(slots)[None, :] < count[:, None])[:, :, None], packed, np.nan)
+    # a row whose window is full drops its oldest item to make room (more frames than planned)
+    full = had & (count >= slots)
+    packed = np.where(full[:, None, None], np.concatenate([packed[:, 1:], packed[:, :1] * np.nan], axis=1), packed)
+    count = np.where(full, slots - 1, count)
+    put = had[:, None] & (np.arange(slots)[None, :] == count[:, None])
+    packed = np.where(put[:, :, None], item[:, None, :], packed)
+    window = np.where(had[:, None, None], packed, w)
+    valid = np.isfinite(window[:, :, _T])
+    sums = np.where(valid[:, :, None], window, 0.0).sum(axis=1)
+    sx, sy, ox, oy = sums[:, _EX], sums[:, _EY], sums[:, _OX], sums[:, _OY]
+    e2 = sx * sx + sy * sy
+    first_t = np.where(valid.any(axis=1), np.nanmin(np.where(valid, window[:, :, _T], np.inf), axis=1), np.inf)
+    known = had & (t - first_t >= 0.8 * policy.fail_after_s) & (e2 >= policy.min_expected_m ** 2)
+    ratio = np.where(known, (ox * sx + oy * sy) / np.where(known, e2, 1.0), np.nan)
+    last_t = np.where(fresh, t, state.last_t)
+    last_xy = np.where(fresh[:, None], xy, state.last_xy)
+    last_expected = np.where(fresh[:, None], expected_step_m, state.last_expected)
+    return last_t, last_xy, last_expected, window, ratio
+
+
+def failure_step(policy: FailurePolicy, state: FailureState, robots: Sequence[str], t: float,
+                 seen: np.ndarray, fresh: np.ndarray, xy_world: np.ndarray, deviations_m: np.ndarray,
+                 expected_step_m: np.ndarray, step_s: float | None = None,
+                 max_gap_s: float = math.inf) -> tuple[FailureState, list[Decision]]:
+    """Advance the failure rule by one frame at tracker time t [s], for every robot at once.
+
+    seen (n,): in the frame; fresh (n,): its pose is of this very frame (only those enter the
+    motion test); xy_world (n, 2) [m]; deviations_m (n,) [m]: distance to the point it is judged
+    on (inf when unseen); expected_step_m (n, 2) [m; world]: the displacement its predicted
+    command should make in step_s [s] (zero when not commanded). A step of a robot missed for a
+    while is scaled to the time that passed, capped at max_gap_s (the command ttl).
     """
-    progress = progress or {}
-    since = dict(health.since_t)
-    failed, dropped = set(health.failed), set(health.dropped)
+    n = len(robots)
+    seen = np.asarray(seen, dtype=bool)
+    fresh = np.asarray(fresh, dtype=bool) & seen
+    xy = np.asarray(xy_world, dtype=float)
+    dev = np.where(seen, np.asarray(deviations_m, dtype=float), np.inf)
+    exp_m = np.asarray(expected_step_m, dtype=float)
+    if seen.shape != (n,) or xy.shape != (n, 2) or dev.shape != (n,) or exp_m.shape != (n, 2):
+        raise VsfleetValueError("failure_step: arrays must have n rows, one per robot")
+    last_t, last_xy, last_exp, window, ratio = _motion(policy, state, t, fresh, np.where(fresh[:, None], xy, 0.0),
+                                                       exp_m, step_s, max_gap_s)
+    since, failed, dropped = state.since_t.copy(), state.failed.copy(), state.dropped.copy()
+    in_fit = seen & ~dropped
+    structure_off = int(in_fit.sum()) >= 2 and float(np.min(dev[in_fit])) > policy.fail_deviation_m
+    stuck = np.isfinite(ratio) & (ratio < policy.min_progress_ratio)
+    off = (dev > policy.fail_deviation_m) & ~(structure_off & np.isfinite(dev))
+    complies = ~(off | stuck)
     decisions: list[Decision] = []
-    in_fit = [deviations_m[r] for r in robots if r not in dropped and r in deviations_m]
-    structure_off = len(in_fit) >= 2 and min(in_fit) > policy.fail_deviation_m
-    for r in robots:
-        d = deviations_m.get(r, math.inf)
-        if r in dropped:
-            if policy.mode != "rejoin":
-                continue
-            if d <= policy.rejoin_deviation_m:
-                start = since.setdefault(r, t)
-                if t - start >= policy.rejoin_after_s:
-                    dropped.discard(r)
-                    failed.discard(r)
-                    since.pop(r, None)
-                    decisions.append(Decision(t, r, "rejoin", d))
-            else:
-                since.pop(r, None)
-            continue
-        stuck = progress.get(r, 1.0) < policy.min_progress_ratio
-        complies = not ((d > policy.fail_deviation_m and not (structure_off and math.isfinite(d))) or stuck)
-        if r in failed:  # hold: healthy again once it has complied for recover_after_s
-            if not complies:
-                since.pop(r, None)
-            elif t - since.setdefault(r, t) >= policy.recover_after_s:
-                failed.discard(r)
-                since.pop(r, None)
-                decisions.append(Decision(t, r, "recover", d))
-            continue
-        if not complies:
-            start = since.setdefault(r, t - (policy.fail_after_s if stuck else 0.0))
-            if t - start >= policy.fail_after_s:
-                failed.add(r)
-                since.pop(r, None)  # from now on: since when it complies (recover, rejoin)
-                decisions.append(Decision(t, r, "fail", d))
-                if policy.mode in ("drop", "rejoin"):
-                    dropped.add(r)
-                    decisions.append(Decision(t, r, "drop", d))
+    mode = policy.mode
+    # dropped robots: rejoin only (their since_t counts compliant time)
+    near = dev <= policy.rejoin_deviation_m
+    if mode == "rejoin":
+        start = np.where(dropped & near & np.isnan(since), t, since)
+        back = dropped & near & (t - start >= policy.rejoin_after_s)
+        since = np.where(dropped, np.where(near, np.where(back, np.nan, start), np.nan), since)
+    else:
+        back = np.zeros(n, dtype=bool)
+    # failed (hold): healthy again after complying for recover_after_s
+    hold_failed = failed & ~dropped
+    start = np.where(hold_failed & complies & np.isnan(since), t, since)
+    recover = hold_failed & complies & (t - start >= policy.recover_after_s)
+    since = np.where(hold_failed, np.where(complies & ~recover, start, np.nan), since)
+    # healthy: fail after fail_after_s of non-compliance (stuck counts from a whole window back)
+    healthy = ~failed & ~dropped
+    start = np.where(healthy & ~complies & np.isnan(since), t - np.where(stuck, policy.fail_after_s, 0.0), since)
+    fail = healthy & ~complies & (t - start >= policy.fail_after_s)
+    since = np.where(healthy, np.where(~complies & ~fail, start, np.nan), since)
+    for i in np.flatnonzero(back | recover | fail):    # decisions only: rare, never per frame
+        r, d = robots[i], float(dev[i])
+        if back[i]:
+            decisions.append(Decision(t, r, "rejoin", d))
+        elif recover[i]:
+            decisions.append(Decision(t, r, "recover", d))
         else:
-            since.pop(r, None)
-    return Health(since, frozenset(failed), frozenset(dropped)), decisions
+            decisions.append(Decision(t, r, "fail", d))
+            if mode in ("drop", "rejoin"):
+                decisions.append(Decision(t, r, "drop", d))
+    failed = (failed | fail) & ~back & ~recover
+    dropped = (dropped | (fail if mode in ("drop", "rejoin") else False)) & ~back
+    return FailureState(since, failed, dropped, last_t, last_xy, last_exp, window), decisions

@@ -23,12 +23,6 @@ def wrap_angle(th_rad: float) -> float:
     return w - math.pi
 
 
-def wrap_angles(th_rad: np.ndarray) -> np.ndarray:
-    """wrap_angle over an array: each angle [rad] to [-pi, pi), the same rule element by element."""
-    w = np.fmod(np.asarray(th_rad, dtype=float) + math.pi, TWO_PI)
-    return np.where(w < 0.0, w + TWO_PI, w) - math.pi
-
-
 def rotation(th_rad: float) -> np.ndarray:
     """2x2 rotation matrix R(th) [counter-clockwise]."""
     c, s = math.cos(th_rad), math.sin(th_rad)

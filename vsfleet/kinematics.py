@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from .envelope import Envelope
 from .errors import NonFiniteError, VsfleetValueError
 from .geometry import Pose2
@@ -185,3 +187,92 @@ def _reachable_toward(u: tuple[float, float], box) -> tuple[float, float]:
     if u != (0.0, 0.0) and angle_to_u(best) < 0.5 * math.pi:
         return best
     return (min(max(0.0, box[0][0]), box[0][1]), min(max(0.0, box[1][0]), box[1][1]))
+
+
+# --- vectorised over robots: rows of (n, ...) arrays in the mission's sorted id order ---------
+
+
+def wrap_angles(th_rad: np.ndarray) -> np.ndarray:
+    """Wrap angles (any shape) to [-pi, pi), elementwise, as :func:`vsfleet.geometry.wrap_angle`."""
+    w = np.fmod(np.asarray(th_rad, dtype=float) + math.pi, 2.0 * math.pi)
+    w = np.where(w < 0.0, w + 2.0 * math.pi, w)
+    return w - math.pi
+
+
+def sinc_v(x: np.ndarray) -> np.ndarray:
+    """sin(x)/x elementwise, smooth through 0 (the series of :func:`_sinc` below 1e-4)."""
+    x = np.asarray(x, dtype=float)
+    x2 = x * x
+    series = 1.0 - x2 / 6.0 * (1.0 - x2 / 20.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        direct = np.sin(x) / x
+    return np.where(np.abs(x) < _SINC_SERIES_BELOW, series, direct)
+
+
+def integrate_arcs(pose_world: np.ndarray, wheels_m_s: np.ndarray, dt_s: float | np.ndarray,
+                   wheel_base_m: np.ndarray) -> np.ndarray:
+    """Poses (n, 3) [m, m, rad; world] after driving wheels (n, 2) (vl, vr) [m/s] for dt_s [s].
+
+    The exact arc of :func:`integrate_arc` for every row (heading not wrapped).
+    """
+    p = np.asarray(pose_world, dtype=float)
+    u = np.asarray(wheels_m_s, dtype=float)
+    v = 0.5 * (u[:, 0] + u[:, 1])
+    w = (u[:, 1] - u[:, 0]) / wheel_base_m
+    half = 0.5 * w * dt_s
+    chord = v * dt_s * sinc_v(half)
+    direction = p[:, 2] + half
+    return np.stack([p[:, 0] + chord * np.cos(direction), p[:, 1] + chord * np.sin(direction),
+                     p[:, 2] + w * dt_s], axis=1)
+
+
+def limit_wheels_v(wheels_m_s: np.ndarray, wheels_prev_m_s: np.ndarray, dt_s: float,
+                   speed_max_m_s: np.ndarray, accel_max_m_s2: np.ndarray) -> np.ndarray:
+    """:func:`limit_wheels` for every row: commands (n, 2) [m/s] clipped to each robot's envelope.
+
+    Same rule (the ray s u with the largest s <= 1, else the smallest s > 1; else the box corner
+    nearest in angle within 90 deg; else the point nearest zero), checked equal in the tests.
+    """
+    dt_s = _check_dt(dt_s)
+    u = np.asarray(wheels_m_s, dtype=float)
+    p = np.asarray(wheels_prev_m_s, dtype=float)
+    if not (np.all(np.isfinite(u)) and np.all(np.isfinite(p))):
+        raise NonFiniteError("wheel commands must be finite")
+    vmax = np.asarray(speed_max_m_s, dtype=float)[:, None]
+    step = (np.asarray(accel_max_m_s2, dtype=float) * dt_s)[:, None]
+    feasible = np.all((np.abs(u) <= vmax) & (np.abs(u - p) <= step), axis=1)
+    lo = np.maximum(p - step, -vmax)
+    hi = np.minimum(p + step, vmax)
+    pinned = lo > hi
+    edge = np.copysign(np.broadcast_to(vmax, u.shape), p)
+    lo = np.where(pinned, edge, lo)
+    hi = np.where(pinned, edge, hi)
+    # 1. the ray {s u}: per wheel the interval of s that lands in [lo, hi]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a, b = lo / u, hi / u
+    s_lo_w = np.where(u > 0.0, a, np.where(u < 0.0, b, np.where((lo <= 0.0) & (0.0 <= hi), 0.0, np.inf)))
+    s_hi_w = np.where(u > 0.0, b, np.where(u < 0.0, a, np.where((lo <= 0.0) & (0.0 <= hi), np.inf, 0.0)))
+    s_lo = np.maximum(0.0, np.max(s_lo_w, axis=1))
+    s_hi = np.min(s_hi_w, axis=1)
+    on_ray = s_lo <= s_hi
+    s = np.where(s_lo <= 1.0, np.minimum(s_hi, 1.0), s_lo)
+    with np.errstate(invalid="ignore"):
+        ray = np.where(on_ray[:, None], np.where(np.isfinite(s), s, 0.0)[:, None] * u, 0.0)
+    # 2. the corner at the smallest angle to u (ties: nearest to u), if within 90 deg
+    cx = np.stack([lo[:, 0], lo[:, 0], hi[:, 0], hi[:, 0]], axis=1)
+    cy = np.stack([lo[:, 1], hi[:, 1], lo[:, 1], hi[:, 1]], axis=1)
+    ang = np.abs(np.arctan2(u[:, :1] * cy - u[:, 1:] * cx, u[:, :1] * cx + u[:, 1:] * cy))
+    dist = np.hypot(cx - u[:, :1], cy - u[:, 1:])
+    best = np.zeros(len(u), dtype=int)
+    for j in range(1, 4):  # first minimum by (angle, distance), as min() over the corners
+        better = (ang[:, j] < ang[np.arange(len(u)), best]) | (
+            (ang[:, j] == ang[np.arange(len(u)), best]) & (dist[:, j] < dist[np.arange(len(u)), best]))
+        best = np.where(better, j, best)
+    rows = np.arange(len(u))
+    corner = np.stack([cx[rows, best], cy[rows, best]], axis=1)
+    corner_ok = np.any(u != 0.0, axis=1) & (ang[rows, best] < 0.5 * math.pi)
+    # 3. the point nearest zero
+    zero = np.minimum(np.maximum(0.0, lo), hi)
+    out = np.where(on_ray[:, None], ray, np.where(corner_ok[:, None], corner, zero))
+    out = np.minimum(np.maximum(out, lo), hi)
+    return np.where(feasible[:, None], u, out)

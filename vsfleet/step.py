@@ -1,13 +1,19 @@
 """The agent's decision at one frame, as one pure function: ``agent_step``.
 
 ``agent_step(state, mission, frame, now_s, config) -> (state, StepOutput)`` is
-everything an agent decides per frame: the frame's age (stale frames are not
-run), gaps and resynchronisation, the fit and the advance (``control_step``),
-its own command and every robot's predicted command, and the failure rule. The
-agent process (agent/main.py), the offline fleet (simfleet.offline), the benches
-and the tests all drive this same function. The structure part depends only on
-(mission, frame), so duplicated agents that saw the same frames compute
-bit-identical structure poses: the paper's "distributed duplication".
+everything an agent decides per frame: the frame's age (a stale frame is not
+run), gaps and resynchronisation, the fit and the advance, its own command and
+every robot's predicted command, and the failure rule. The agent process
+(agent/main.py), the offline fleet (simfleet.offline), the benches and the
+tests drive this same function.
+
+Robots are rows of numpy arrays in the mission's sorted id order; a robot's id
+turns into its row once, when the frame's poses are read (``frame_arrays``).
+The structure part (``structure_step``) depends only on (mission, frame, the
+robots dropped), so duplicated agents that saw the same frames compute
+bit-identical structure poses: the paper's "distributed duplication". The
+controller runs on every robot at once, so the predicted commands the failure
+rule judges by are the very commands each robot's own agent sends.
 """
 
 from __future__ import annotations
@@ -29,17 +35,16 @@ from .advance import (
     Twist2,
     advance_structure,
 )
-from .control import DEFAULT_CONTROLLER, make_controller
-from .envelope import Envelope
-from .failure import FailurePolicy, Health, Motion, update_health, update_motion
+from .control import DEFAULT_CONTROLLER, ControlInput, make_controller
+from .envelope import Envelope, Envelopes
+from .failure import FailurePolicy, FailureState, Health, failure_step, restart_timers, with_health
 from .fit import fit_structure
 from .frames import Frame
 from .geometry import Pose2
-from .kinematics import integrate_arc
+from .kinematics import integrate_arcs
 from .wire import CmdMsg, EventMsg, HealthMsg, Mission, StateMsg
 
-Controller = Callable[[Pose2, np.ndarray, np.ndarray, float, Envelope, tuple[float, float]],
-                      tuple[float, float]]
+Controller = Callable  # vsfleet.control: controller(state, ControlInput) -> (state, wheels (n, 2))
 
 
 def mission_goal(mission: Mission) -> Goal:
@@ -56,111 +61,107 @@ def mission_envelopes(mission: Mission) -> list[Envelope]:
     return [Envelope(s.wheel_base, s.wheel_speed_max, s.wheel_accel_max) for _, s in mission.robots]
 
 
+def mission_envelope_arrays(mission: Mission) -> Envelopes:
+    """The mission's envelopes as (n,) arrays, in its sorted robot order."""
+    return Envelopes.of(mission_envelopes(mission))
+
+
 def mission_template(mission: Mission) -> np.ndarray:
     """Template points (n, 2) [m; structure frame], in the mission's sorted robot order."""
     return np.array([s.p for _, s in mission.robots], dtype=float)
 
 
 @dataclass(frozen=True)
-class StepResult:
-    """Result of one tick.
+class MissionArrays:
+    """What a mission fixes for every frame, as arrays over its robots (sorted id order)."""
 
-    fit_pose / goal_pose: fitted and advanced structure poses [m, rad; world].
-    cost [m]: the fit's cost; err_m: own robot's distance to its fitted point (NaN if unseen).
-    used: robot ids in the fit; vl/vr [m/s]: own wheel speeds (0 when own robot unseen).
-    """
+    ids: tuple[str, ...]
+    index: Mapping[str, int]
+    template: np.ndarray          # (n, 2) [m; structure frame]
+    envelopes: Envelopes
+    goal: Goal
+    limits: StructureLimits
+
+
+_ARRAYS: dict[int, tuple[Mission, MissionArrays]] = {}
+
+
+def mission_arrays(mission: Mission) -> MissionArrays:
+    """The arrays of a mission, built once per mission object (memoised: a pure function)."""
+    hit = _ARRAYS.get(id(mission))
+    if hit is not None and hit[0] is mission:
+        return hit[1]
+    ids = mission.robot_ids
+    arrays = MissionArrays(ids=ids, index={r: i for i, r in enumerate(ids)}, template=mission_template(mission),
+                           envelopes=mission_envelope_arrays(mission), goal=mission_goal(mission),
+                           limits=StructureLimits(speed_max_m_s=mission.speed_max,
+                                                  turn_rate_max_rad_s=mission.turn_rate_max))
+    if len(_ARRAYS) >= 16:
+        _ARRAYS.clear()
+    _ARRAYS[id(mission)] = (mission, arrays)
+    return arrays
+
+
+_UNSEEN = (math.nan, math.nan, math.nan)
+
+
+def frame_arrays(ids: tuple[str, ...], poses: Mapping[str, tuple[float, float, float]],
+                 fresh: frozenset[str] = frozenset()) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(pose_world (n, 3) [m, m, rad], seen (n,), fresh (n,)) of a frame's poses; NaN rows unseen."""
+    pose = np.array([poses.get(r, _UNSEEN) for r in ids], dtype=float).reshape(len(ids), 3)
+    seen = ~np.isnan(pose[:, 0])
+    return pose, seen, seen & np.array([r in fresh for r in ids], dtype=bool)
+
+
+@dataclass(frozen=True)
+class Structure:
+    """The structure at one frame. fit_pose / goal_pose [m, rad; world]: fitted and advanced;
+    points_now / points_next (n, 2) [m; world]: every robot's point on them; deviations_m (n,):
+    each robot's distance to the point it is judged on (inf when unseen); cost [m]: the fit's."""
 
     fit_pose: Pose2
     goal_pose: Pose2
     twist: Twist2
     cost: float
-    err_m: float
-    used: tuple[str, ...]
-    vl_m_s: float
-    vr_m_s: float
     at_goal: bool
-    deviations_m: dict[str, float]  # every seen robot's distance to its point [m] (see judged_apart)
-    commands: dict[str, tuple[float, float]]  # (vl, vr) [m/s] of own robot, and of others if predicted
+    used: np.ndarray
+    points_now: np.ndarray
+    points_next: np.ndarray
+    deviations_m: np.ndarray
 
 
-def control_step(mission: Mission, poses: Mapping[str, tuple[float, float, float]], robot: str,
-                 frame_t: float, dt_s: float, wheels_prev_m_s: tuple[float, float],
-                 controller: Controller, excluded: frozenset[str] = frozenset(),
-                 drive_excluded: bool = False,
-                 others_wheels_prev: Mapping[str, tuple[float, float]] | None = None,
-                 judged_apart: frozenset[str] = frozenset()) -> StepResult | None:
-    """Fit, advance and control one robot for one frame at tracker time ``frame_t`` [s].
+def structure_step(arrays: MissionArrays, metric: str, pose_world: np.ndarray, seen: np.ndarray,
+                   excluded: np.ndarray, judged_apart: np.ndarray, elapsed_s: float, dt_s: float) -> Structure | None:
+    """Fit the structure to the robots seen and not excluded, advance it one dt_s toward the goal.
 
-    The structure poses depend only on (mission, poses, frame_t, dt_s, excluded): the
-    advance ramps on the time since the mission's effective_t, not on past ticks.
-
-    poses maps robot id -> (x, y, th) [m, rad; world] for the robots in this frame;
-    robots of the mission that are absent or in ``excluded`` are left out of the fit
-    but still bound the advance (they must be able to follow). An excluded own robot
-    is stopped, unless drive_excluded (on_failure = rejoin: it keeps chasing its
-    point so that it can rejoin). Returns None when no mission robot is in the frame.
-
-    With others_wheels_prev (every robot's previous command, as this agent predicted
-    it), the commands every other robot's agent computes are predicted too, into
-    ``commands``: the failure rule compares them with how the robots moved.
-
-    ``deviations_m`` (what the failure rule judges) are distances to the fitted structure's
-    points. Robots in ``judged_apart`` stay in the fit the robots follow, but the deviations
-    are measured on the structure fitted without them (when two or more others remain): under
-    on_failure = hold a failed robot bends the structure, and the healthy robots it bends
-    must not look non-compliant for it.
+    Robots absent or excluded are left out of the fit but still bound the advance. The
+    deviations are measured on the structure fitted without the ``judged_apart`` robots (when two
+    or more others remain): under hold a failed robot bends the structure the robots follow, and
+    the healthy robots it bends must not look non-compliant for it. None if no robot is usable.
     """
-    ids = mission.robot_ids
-    used = tuple(r for r in ids if r in poses and r not in excluded)
-    if not used:
+    used = seen & ~excluded
+    if not used.any():
         return None
-    template = mission_template(mission)
-    index = {r: i for i, r in enumerate(ids)}
-    rows = [index[r] for r in used]
-    positions = np.array([[poses[r][0], poses[r][1]] for r in used], dtype=float)
-    fit = fit_structure(template[rows], positions, metric=mission.metric)
-    limits = StructureLimits(speed_max_m_s=mission.speed_max, turn_rate_max_rad_s=mission.turn_rate_max)
-    adv = advance_structure(fit.pose, mission_goal(mission), dt_s, limits, template,
-                            mission_envelopes(mission), elapsed_s=frame_t - mission.effective_t,
-                            headings_rad=[poses[r][2] if r in used else None for r in ids])
-
-    now_pts, next_pts = fit.pose.apply(template), adv.pose.apply(template)
-    judged_pts = now_pts
-    judges = [i for i, r in enumerate(used) if r not in judged_apart]  # indices into used
-    if 2 <= len(judges) < len(used):  # a rigid fit needs two points to fix the heading
-        judge_fit = fit_structure(template[[rows[i] for i in judges]], positions[judges], metric=mission.metric)
-        judged_pts = judge_fit.pose.apply(template)
-    deviations = {r: float(np.hypot(poses[r][0] - q[0], poses[r][1] - q[1]))
-                  for r, q in zip(ids, judged_pts) if r in poses}
-    err = math.nan
-    if robot in poses and robot in index:
-        own = now_pts[index[robot]]
-        err = float(np.hypot(poses[robot][0] - own[0], poses[robot][1] - own[1]))
-    envelopes = mission_envelopes(mission)
-    targets = [robot] + (list(ids) if others_wheels_prev is not None else [])
-    commands: dict[str, tuple[float, float]] = {}
-    for r in targets:
-        if r in commands or r not in poses or (r in excluded and not drive_excluded):
-            continue
-        i = index[r]
-        prev = wheels_prev_m_s if r == robot else others_wheels_prev.get(r, (0.0, 0.0))
-        vl_r, vr_r = controller(Pose2(*poses[r]), now_pts[i], next_pts[i], dt_s, envelopes[i], prev)
-        commands[r] = (float(vl_r), float(vr_r))
-    vl, vr = commands.get(robot, (0.0, 0.0))
-    return StepResult(fit_pose=fit.pose, goal_pose=adv.pose, twist=adv.twist, cost=float(fit.cost),
-                      err_m=err, used=used, vl_m_s=float(vl), vr_m_s=float(vr), at_goal=adv.at_goal,
-                      deviations_m=deviations, commands=commands)
+    xy = pose_world[:, :2]
+    fit = fit_structure(arrays.template[used], xy[used], metric=metric)
+    now_pts = fit.pose.apply(arrays.template)
+    dist = np.hypot(xy[:, 0] - now_pts[:, 0], xy[:, 1] - now_pts[:, 1])
+    adv = advance_structure(fit.pose, arrays.goal, dt_s, arrays.limits, arrays.template, arrays.envelopes,
+                            elapsed_s=elapsed_s, headings_rad=np.where(used, pose_world[:, 2], np.nan),
+                            deviations_m=np.where(used, dist, np.nan))
+    judges = used & ~judged_apart
+    if 2 <= int(judges.sum()) < int(used.sum()):  # a rigid fit needs two points to fix the heading
+        judged = fit_structure(arrays.template[judges], xy[judges], metric=metric).pose.apply(arrays.template)
+        dist = np.hypot(xy[:, 0] - judged[:, 0], xy[:, 1] - judged[:, 1])
+    return Structure(fit_pose=fit.pose, goal_pose=adv.pose, twist=adv.twist, cost=float(fit.cost),
+                     at_goal=adv.at_goal, used=used, points_now=now_pts, points_next=adv.pose.apply(arrays.template),
+                     deviations_m=np.where(seen, dist, np.inf))
 
 
-def expected_steps(mission: Mission, poses: Mapping[str, tuple[float, float, float]],
-                   commands: Mapping[str, tuple[float, float]], dt_s: float) -> dict[str, tuple[float, float]]:
-    """Displacement [m; world] each commanded robot should make in dt_s at its command (eqs 17-18)."""
-    out = {}
-    for r, (vl, vr) in commands.items():
-        pose = Pose2(*poses[r])
-        nxt = integrate_arc(pose, vl, vr, dt_s, mission.spec(r).wheel_base)
-        out[r] = (nxt.x - pose.x, nxt.y - pose.y)
-    return out
+def expected_steps_m(pose_world: np.ndarray, wheels_m_s: np.ndarray, dt_s: float,
+                     wheel_base_m: np.ndarray) -> np.ndarray:
+    """Displacement (n, 2) [m; world] each robot makes in dt_s at its command (paper eqs 17-18)."""
+    return integrate_arcs(pose_world, wheels_m_s, dt_s, wheel_base_m)[:, :2] - pose_world[:, :2]
 
 
 # ---------------------------------------------------------------- the agent step
@@ -178,37 +179,63 @@ class SyncPhase(enum.Enum):
 class StepConfig:
     """What the agent process fixes at start: dt_s [s] (the structure's advance per frame), the
     command ttl_s [s], max_stale_s [s] (a frame further behind the local clock is not run),
-    resync_gap_s [s] (a longer gap between frames run restarts the failure timers), and a
-    controller that overrides the mission's (offline runs, tests; None = the mission's)."""
+    resync_gap_s [s] (a longer gap between frames run restarts the failure timers), command_age_s
+    [s] (the nominal time from observation to command in effect, which the controller compensates;
+    the same for every agent, so predictions agree) and a controller that overrides the mission's
+    (offline runs, tests; None = the mission's)."""
 
     dt_s: float = 1.0 / 30.0
     ttl_s: float = 0.3
     max_stale_s: float = 0.5
     resync_gap_s: float = 1.0
+    command_age_s: float | None = None   # None: half a dt_s
     controller: Controller | None = None
+
+    @property
+    def age_s(self) -> float:
+        return 0.5 * self.dt_s if self.command_age_s is None else self.command_age_s
 
 
 @dataclass(frozen=True)
 class AgentState:
     """Everything an agent carries from one frame to the next; replaced, never mutated.
 
-    predicted_m_s: every robot's last command (vl, vr) [m/s] as this agent predicted it;
-    wheels_prev_m_s: its own robot's last command. Times [s] are on the tracker's clock.
+    For the mission in force (``mission_version``), rows in its sorted id order: wheels_m_s (n, 2)
+    every robot's last command [m/s] (its own robot's as sent, the others' as predicted; zero rows
+    for robots not commanded), ctrl the controller's state, failure the failure rule's state.
+    health: the failure state in the peers' wire form (kept for health answers and adoption).
+    Times [s] are on the tracker's clock.
     """
 
     robot: str
     phase: SyncPhase = SyncPhase.JOINING
     mission_version: int = -1
+    ids: tuple[str, ...] = ()
     health: Health = field(default_factory=Health)
-    motion: Motion = field(default_factory=Motion)
-    predicted_m_s: Mapping[str, tuple[float, float]] = field(default_factory=dict)
-    wheels_prev_m_s: tuple[float, float] = (0.0, 0.0)
+    failure: FailureState | None = None
+    wheels_m_s: np.ndarray | None = None
+    ctrl: object = None
     last_frame_t: float = -math.inf
     last_cmd_t: float = -math.inf
     last_seq: int = 0
     ticks: int = 0
     stale: int = 0
     unnamed: frozenset[int] = frozenset()  # mission versions that do not name this robot (noted once)
+
+    @property
+    def predicted_m_s(self) -> dict[str, tuple[float, float]]:
+        """Every commanded robot's last command (vl, vr) [m/s], by id."""
+        if self.wheels_m_s is None:
+            return {}
+        return {r: (float(w[0]), float(w[1])) for r, w in zip(self.ids, self.wheels_m_s) if w[0] or w[1]}
+
+    @property
+    def wheels_prev_m_s(self) -> tuple[float, float]:
+        """Its own robot's last command (vl, vr) [m/s]."""
+        if self.wheels_m_s is None or self.robot not in self.ids:
+            return (0.0, 0.0)
+        w = self.wheels_m_s[self.ids.index(self.robot)]
+        return (float(w[0]), float(w[1]))
 
 
 @dataclass(frozen=True)
@@ -221,20 +248,43 @@ class Note:
 
 @dataclass(frozen=True)
 class StepOutput:
-    """What the agent publishes and logs for one frame (None / empty: nothing)."""
+    """What the agent publishes and logs for one frame (None / empty: nothing).
+
+    structure and wheels_m_s (n, 2): the frame's structure and every robot's command (own row sent,
+    others predicted), for offline runs, benches and tests.
+    """
 
     cmd: CmdMsg | None = None
     state: StateMsg | None = None        # its ``rejected`` count is the process's to fill in
     health: HealthMsg | None = None      # the answer to peers' health queries from now on
     events: tuple[EventMsg, ...] = ()
     notes: tuple[Note, ...] = ()
-    result: StepResult | None = None
+    structure: Structure | None = None
+    wheels_m_s: np.ndarray | None = None
 
 
 @lru_cache(maxsize=16)
-def mission_controller(name: str | None) -> Controller:
-    """The controller a mission names (the default if none): the same object for every frame."""
-    return make_controller(name or DEFAULT_CONTROLLER)
+def mission_controller(name: str | None, gains: tuple[tuple[str, float], ...] = ()) -> Controller:
+    """The controller a mission names (the default if none), with its gains: one object per kind."""
+    return make_controller(name or DEFAULT_CONTROLLER, **dict(gains))
+
+
+def mission_policy(mission: Mission) -> FailurePolicy:
+    """The mission's failure policy: its on_failure mode and thresholds."""
+    return FailurePolicy(mission.on_failure, **dict(getattr(mission, "failure", ()) or ()))
+
+
+def _enter_mission(state: AgentState, mission: Mission, policy: FailurePolicy, config: StepConfig) -> AgentState:
+    """The state re-rowed for a new mission: decisions and timers carried by robot id, motion and
+    commands afresh (the controller restarts)."""
+    ids = mission.robot_ids
+    health = _health(state.failure, state.ids) if state.failure is not None else state.health
+    health = Health(since_t={r: t for r, t in health.since_t.items() if r in ids},
+                    failed=frozenset(r for r in health.failed if r in ids),
+                    dropped=frozenset(r for r in health.dropped if r in ids))
+    failure = with_health(FailureState.initial(len(ids), policy, config.dt_s), health, ids)
+    return replace(state, mission_version=mission.version, ids=ids, health=health, failure=failure,
+                   wheels_m_s=np.zeros((len(ids), 2)), ctrl=None)
 
 
 def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: float,
@@ -255,76 +305,109 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
         return state, StepOutput()
     if state.robot not in mission.robot_ids:
         if mission.version in state.unnamed:
-            return replace(state, wheels_prev_m_s=(0.0, 0.0)), StepOutput()
-        return (replace(state, wheels_prev_m_s=(0.0, 0.0), unnamed=state.unnamed | {mission.version}),
+            return state, StepOutput()
+        return (replace(state, unnamed=state.unnamed | {mission.version}),
                 StepOutput(notes=(Note("warning", f"mission v{mission.version} does not name robot "
                                                   f"{state.robot}: it stays stopped"),)))
+    policy = mission_policy(mission)
+    controller = config.controller or mission_controller(mission.controller,
+                                                         tuple(getattr(mission, "controller_gains", ()) or ()))
     if mission.version != state.mission_version:
         notes.append(Note("info", f"frame {frame.seq}: switching to mission v{mission.version}"))
-        state = replace(state, mission_version=mission.version)
-    if frame.t - state.last_cmd_t > config.ttl_s:
+        state = _enter_mission(state, mission, policy, config)
+    arrays = mission_arrays(mission)
+    n = len(arrays.ids)
+    wheels_prev, ctrl = state.wheels_m_s, state.ctrl
+    if frame.t - state.last_cmd_t > config.ttl_s or ctrl is None:
         # a gap longer than ttl: every robot has halted since the last commands
-        state = replace(state, wheels_prev_m_s=(0.0, 0.0), predicted_m_s={})
+        wheels_prev, ctrl = np.zeros((n, 2)), controller.initial(n)
+    failure = state.failure
     if frame.t - state.last_frame_t > config.resync_gap_s and state.last_frame_t > -math.inf:
         # this agent (or the whole fleet) saw no frame for a while: restart the failure timers and
         # the motion window, and ask the peers which robots they failed or dropped
         notes.append(Note("warning", f"frame {frame.seq}: no frame for {frame.t - state.last_frame_t:.2f} s; "
                                      "restarting failure timers and asking peers for their failure state"))
-        state = replace(state, motion=Motion(), phase=SyncPhase.RESYNCING,
-                        health=Health(failed=state.health.failed, dropped=state.health.dropped))
-    state = replace(state, last_frame_t=frame.t)
-    poses = {r: p for r, p in frame.poses.items() if r in mission.robot_ids}
-    hold = mission.on_failure == "hold"
-    result = control_step(mission, poses, state.robot, frame.t, config.dt_s, state.wheels_prev_m_s,
-                          config.controller or mission_controller(mission.controller),
-                          excluded=state.health.dropped, drive_excluded=mission.on_failure == "rejoin",
-                          others_wheels_prev=state.predicted_m_s,
-                          judged_apart=state.health.failed - state.health.dropped if hold else frozenset())
-    if result is None:
+        failure = restart_timers(failure)
+        state = replace(state, phase=SyncPhase.RESYNCING)
+    state = replace(state, last_frame_t=frame.t, failure=failure)
+
+    pose, seen, fresh = frame_arrays(arrays.ids, frame.poses, frame.fresh)
+    own = arrays.index[state.robot]
+    hold = policy.mode == "hold"
+    s = structure_step(arrays, mission.metric, pose, seen, failure.dropped,
+                       failure.failed & ~failure.dropped if hold else np.zeros(n, dtype=bool),
+                       frame.t - mission.effective_t, config.dt_s)
+    if s is None:
         return state, StepOutput(notes=tuple(notes))
-    cmd = CmdMsg(t=frame.t, seq=frame.seq, vl=result.vl_m_s, vr=result.vr_m_s, ttl=config.ttl_s)
+    # every robot's command, as its own agent computes it: seen, and not dropped (rejoin: driven on)
+    active = seen & (~failure.dropped if policy.mode != "rejoin" else True)
+    ctrl, wheels = controller(ctrl, ControlInput(
+        pose_world=np.where(seen[:, None], pose, 0.0), point_now_world=s.points_now,
+        point_next_world=s.points_next, wheels_prev_m_s=wheels_prev, dt_s=config.dt_s, age_s=config.age_s,
+        envelopes=arrays.envelopes, active=active))
+    wheels = np.where(active[:, None], wheels, 0.0)
+    vl, vr = float(wheels[own, 0]), float(wheels[own, 1])
+    cmd = CmdMsg(t=frame.t, seq=frame.seq, vl=vl, vr=vr, ttl=config.ttl_s)
     state_msg = None
-    if not math.isnan(result.err_m):
-        f, g = result.fit_pose, result.goal_pose
+    if seen[own]:
+        f, g = s.fit_pose, s.goal_pose
+        err = float(math.hypot(pose[own, 0] - s.points_now[own, 0], pose[own, 1] - s.points_now[own, 1]))
         state_msg = StateMsg(t=frame.t, seq=frame.seq, x=f.x, y=f.y, th=f.th, gx=g.x, gy=g.y, gth=g.th,
-                             cost=result.cost, err=result.err_m, used=result.used, rejected=0,
-                             complete=frame.complete, mission=mission.version)
-    policy = FailurePolicy(mission.on_failure)
+                             cost=s.cost, err=err, used=tuple(r for r, u in zip(arrays.ids, s.used) if u),
+                             rejected=0, complete=frame.complete, mission=mission.version)
     # the motion test takes only poses of this very frame: a pose held over from an earlier frame
     # would count as "did not move" here and double next frame, and agents that got that pose in
     # time would disagree on the frame of a decision
-    moved = {r: p for r, p in poses.items() if r in frame.fresh}
-    expected = expected_steps(mission, moved, {r: c for r, c in result.commands.items() if r in moved},
-                              config.dt_s)
-    motion, progress = update_motion(policy, state.motion, moved, expected, frame.t,
-                                     step_s=config.dt_s, max_gap_s=config.ttl_s)
-    health, decisions = update_health(policy, state.health, result.deviations_m, mission.robot_ids,
-                                      frame.t, progress)
+    moved = fresh & active
+    expected = np.where(moved[:, None], expected_steps_m(np.where(seen[:, None], pose, 0.0), wheels, config.dt_s,
+                                                         arrays.envelopes.wheel_base_m), 0.0)
+    failure, decisions = failure_step(policy, failure, arrays.ids, frame.t, seen=seen, fresh=fresh,
+                                      xy_world=np.where(seen[:, None], pose[:, :2], 0.0),
+                                      deviations_m=s.deviations_m, expected_step_m=expected,
+                                      step_s=config.dt_s, max_gap_s=config.ttl_s)
+    health = _health(failure, arrays.ids)
     health_msg = HealthMsg(t=frame.t, seq=frame.seq, mission=mission.version, failed=tuple(sorted(health.failed)),
                            dropped=tuple(sorted(health.dropped)), since=tuple(sorted(health.since_t.items())))
     events = tuple(EventMsg(t=d.t, seq=frame.seq, robot=d.robot, kind=d.kind, dev=d.deviation_m, by=state.robot)
                    for d in decisions)
     notes.extend(Note("warning", f"frame {frame.seq}: robot {d.robot} {d.kind} (deviation {d.deviation_m:.3f} m, "
                                  f"on_failure={mission.on_failure})") for d in decisions)
-    state = replace(state, wheels_prev_m_s=(result.vl_m_s, result.vr_m_s), predicted_m_s=dict(result.commands),
-                    last_seq=frame.seq, last_cmd_t=frame.t, ticks=state.ticks + 1, motion=motion, health=health)
+    state = replace(state, wheels_m_s=wheels, ctrl=ctrl, failure=failure, health=health, last_seq=frame.seq,
+                    last_cmd_t=frame.t, ticks=state.ticks + 1)
     return state, StepOutput(cmd=cmd, state=state_msg, health=health_msg, events=events, notes=tuple(notes),
-                             result=result)
+                             structure=s, wheels_m_s=wheels)
 
 
-def adopt_health(state: AgentState, msg: HealthMsg | None, timers: bool = True) -> AgentState:
+def _health(failure: FailureState, ids: tuple[str, ...]) -> Health:
+    """The failure state in the peers' wire form (as failure.to_health; rows visited only where set)."""
+    since = failure.since_t
+    return Health(since_t={ids[i]: float(since[i]) for i in np.flatnonzero(~np.isnan(since))},
+                  failed=frozenset(ids[i] for i in np.flatnonzero(failure.failed)),
+                  dropped=frozenset(ids[i] for i in np.flatnonzero(failure.dropped)))
+
+
+def adopt_health(state: AgentState, msg: HealthMsg | None, timers: bool = True,
+                 mission: Mission | None = None, config: StepConfig = StepConfig()) -> AgentState:
     """Take the peers' agreed failure state (None: nothing agreed; keep this agent's own).
 
     Joining, with ``timers``, the failure timers are taken too; resyncing (or without timers) only
     which robots are failed or dropped. Either way the agent then decides on its own (SYNCED).
+    ``mission`` (the one msg is for) lets an agent that has run no frame of it yet take it now.
     """
     if state.phase is SyncPhase.SYNCED:
         return state
     if msg is None:
         return replace(state, phase=SyncPhase.SYNCED)
-    since = dict(msg.since) if timers and state.phase is SyncPhase.JOINING else dict(state.health.since_t)
-    return replace(state, phase=SyncPhase.SYNCED,
-                   health=Health(since_t=since, failed=frozenset(msg.failed), dropped=frozenset(msg.dropped)))
+    timers = timers and state.phase is SyncPhase.JOINING
+    current = _health(state.failure, state.ids) if state.failure is not None else state.health
+    health = Health(since_t=dict(msg.since) if timers else dict(current.since_t), failed=frozenset(msg.failed),
+                    dropped=frozenset(msg.dropped))
+    if mission is not None and mission.version != state.mission_version:
+        state = _enter_mission(state, mission, mission_policy(mission), config)
+    failure = state.failure
+    if failure is not None:
+        failure = with_health(failure, health, state.ids, timers=True)
+    return replace(state, phase=SyncPhase.SYNCED, health=health, failure=failure)
 
 
 def stop_command(state: AgentState, now_s: float, ttl_s: float) -> CmdMsg:

@@ -1,0 +1,194 @@
+"""Per-robot dict reference of the failure rule (the code vsfleet.failure's arrays replaced); tests only.
+
+Every agent runs the same rule on the same frames, so all of them decide on the
+same frame. The rule is:
+
+- A robot is **non-compliant** in a frame when either:
+  - its distance to its structure point exceeds ``fail_deviation_m`` (for a robot
+    already dropped from the fit, its point on the structure fitted to the
+    others), while at least one other robot in the fit is within it. When every
+    robot in the fit is off by more, the structure is off, not one robot (under
+    ``linf`` the residuals even out), and the test says nothing; or
+  - it does not move as commanded. Every agent predicts every robot's command
+    (the same deterministic function its own agent runs) and so the
+    displacement each command should produce in one frame. Over the last
+    ``fail_after_s``, the robot's net observed displacement along the net
+    predicted one must be at least ``min_progress_ratio`` of it, once the net
+    prediction reaches ``min_expected_m``. A halted robot, or one with a dead wheel, fails
+    this test. It fails it even when the structure has stopped for it, which the
+    deviation test cannot see under ``linf``, where the residuals even out. A
+    robot slowed to 50% passes.
+- A robot that has been non-compliant in every frame for ``fail_after_s`` of
+  tracker time (measured from the first such frame) has **failed**. A frame in
+  which the robot is missing counts as non-compliant.
+- What follows depends on the mission's ``on_failure``:
+  - ``hold`` (the paper's behaviour): the failure is reported and the robot
+    stays in the fit, so the structure waits for it. From then on every robot's
+    deviation is measured on the structure fitted without the failed robots
+    (when two or more others remain; ``vsfleet.step.control_step(judged_apart=)``):
+    the healthy robots a failed robot bends are not flagged for it. A failed
+    robot that has complied for ``recover_after_s`` is healthy again
+    (``recover``); the wait keeps the flag from flapping at the threshold. With only
+    two robots left to judge by, a rigid fit gives both the same deviation (half
+    the error in their separation), so the deviation test cannot single out one
+    of them; the progress test still judges each.
+  - ``drop``: the robot is taken out of the fit and its own agent stops it.
+  - ``rejoin``: as ``drop``, but a dropped robot that has been within
+    ``rejoin_deviation_m`` of its point for ``rejoin_after_s`` is taken back.
+
+Agents that saw different frames can decide one frame apart. An agent that joins
+late starts from "all healthy".
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Mapping
+
+from vsfleet.errors import VsfleetValueError
+
+
+@dataclass(frozen=True)
+class FailurePolicy:
+    """Thresholds [m, s on the tracker's clock] and the mode (hold, drop, rejoin)."""
+
+    mode: str = "hold"
+    fail_deviation_m: float = 0.05
+    fail_after_s: float = 2.0
+    rejoin_deviation_m: float = 0.02
+    rejoin_after_s: float = 1.0
+    recover_after_s: float = 0.5
+    min_progress_ratio: float = 0.3
+    min_expected_m: float = 0.05
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("hold", "drop", "rejoin"):
+            raise VsfleetValueError(f"on_failure must be hold, drop or rejoin, got {self.mode!r}")
+        for name in ("fail_deviation_m", "fail_after_s", "rejoin_deviation_m", "rejoin_after_s",
+                     "recover_after_s", "min_progress_ratio", "min_expected_m"):
+            v = getattr(self, name)
+            if not math.isfinite(v) or v < 0.0:
+                raise VsfleetValueError(f"{name} must be finite and >= 0, got {v!r}")
+
+
+@dataclass(frozen=True)
+class Health:
+    """Per robot: since when [s] it has been non-compliant (or compliant, once failed), and its status."""
+
+    since_t: dict[str, float] = field(default_factory=dict)
+    failed: frozenset[str] = frozenset()
+    dropped: frozenset[str] = frozenset()
+
+
+@dataclass(frozen=True)
+class Decision:
+    """A change of a robot's status at frame time t: 'fail', 'drop', 'rejoin' or 'recover' (hold)."""
+
+    t: float
+    robot: str
+    kind: str
+    deviation_m: float
+
+
+@dataclass(frozen=True)
+class Motion:
+    """Per robot: the last frame's (t, x, y, expected dx, expected dy) and a window of
+    (t, expected dx, expected dy, observed dx, observed dy) [s, m; world] per frame."""
+
+    last: dict[str, tuple[float, float, float, float, float]] = field(default_factory=dict)
+    window: dict[str, tuple[tuple[float, float, float, float, float], ...]] = field(default_factory=dict)
+
+
+def update_motion(policy: FailurePolicy, motion: Motion, poses: Mapping[str, tuple[float, float, float]],
+                  expected_next_m: Mapping[str, tuple[float, float]], t: float,
+                  step_s: float | None = None, max_gap_s: float = math.inf
+                  ) -> tuple[Motion, dict[str, float]]:
+    """Record this frame's observed motion; return each robot's progress ratio where known.
+
+    poses: robot -> (x, y, th) [m, rad] in this frame; expected_next_m: robot -> the
+    displacement [m; world] its predicted command should produce by the next frame.
+    Over the window the net expected displacement E (vector sum) is compared with the
+    net observed one projected on it: ratio = (sum observed . E) / |E|^2. Net sums make
+    the test blind to dithering and to a frame of command latency. A ratio is reported
+    once the window spans 80% of fail_after_s and |E| reaches min_expected_m.
+
+    With step_s (the time [s] expected_next_m is for), each expected step is scaled to
+    the time that actually passed to the next frame, capped at max_gap_s (a command's
+    ttl: after it the robot halts). An agent that missed a frame then sums nearly the
+    same expectation as one that saw it, so their decisions fall on the same frame.
+    """
+    last, window, ratios = dict(motion.last), dict(motion.window), {}
+    for r, (x, y, _th) in poses.items():
+        if r in last:
+            t0, x0, y0, ex, ey = last[r]
+            if step_s is not None:
+                scale = min(t - t0, max_gap_s) / step_s
+                ex, ey = ex * scale, ey * scale
+            w = tuple(item for item in window.get(r, ()) if item[0] > t - policy.fail_after_s)
+            w += ((t, ex, ey, x - x0, y - y0),)
+            window[r] = w
+            sx = math.fsum(item[1] for item in w)
+            sy = math.fsum(item[2] for item in w)
+            e2 = sx * sx + sy * sy
+            if t - w[0][0] >= 0.8 * policy.fail_after_s and e2 >= policy.min_expected_m ** 2:
+                ox = math.fsum(item[3] for item in w)
+                oy = math.fsum(item[4] for item in w)
+                ratios[r] = (ox * sx + oy * sy) / e2
+        ex, ey = expected_next_m.get(r, (0.0, 0.0))
+        last[r] = (t, x, y, ex, ey)
+    return Motion(last, window), ratios
+
+
+def update_health(policy: FailurePolicy, health: Health, deviations_m: Mapping[str, float],
+                  robots: tuple[str, ...], t: float,
+                  progress: Mapping[str, float] | None = None) -> tuple[Health, list[Decision]]:
+    """Advance the failure state by one frame at tracker time t [s].
+
+    deviations_m: each seen robot's distance [m] to its structure point; robots of
+    ``robots`` absent from it were not seen in this frame. progress: each robot's
+    progress ratio from :func:`update_motion`, where known.
+    """
+    progress = progress or {}
+    since = dict(health.since_t)
+    failed, dropped = set(health.failed), set(health.dropped)
+    decisions: list[Decision] = []
+    in_fit = [deviations_m[r] for r in robots if r not in dropped and r in deviations_m]
+    structure_off = len(in_fit) >= 2 and min(in_fit) > policy.fail_deviation_m
+    for r in robots:
+        d = deviations_m.get(r, math.inf)
+        if r in dropped:
+            if policy.mode != "rejoin":
+                continue
+            if d <= policy.rejoin_deviation_m:
+                start = since.setdefault(r, t)
+                if t - start >= policy.rejoin_after_s:
+                    dropped.discard(r)
+                    failed.discard(r)
+                    since.pop(r, None)
+                    decisions.append(Decision(t, r, "rejoin", d))
+            else:
+                since.pop(r, None)
+            continue
+        stuck = progress.get(r, 1.0) < policy.min_progress_ratio
+        complies = not ((d > policy.fail_deviation_m and not (structure_off and math.isfinite(d))) or stuck)
+        if r in failed:  # hold: healthy again once it has complied for recover_after_s
+            if not complies:
+                since.pop(r, None)
+            elif t - since.setdefault(r, t) >= policy.recover_after_s:
+                failed.discard(r)
+                since.pop(r, None)
+                decisions.append(Decision(t, r, "recover", d))
+            continue
+        if not complies:
+            start = since.setdefault(r, t - (policy.fail_after_s if stuck else 0.0))
+            if t - start >= policy.fail_after_s:
+                failed.add(r)
+                since.pop(r, None)  # from now on: since when it complies (recover, rejoin)
+                decisions.append(Decision(t, r, "fail", d))
+                if policy.mode in ("drop", "rejoin"):
+                    dropped.add(r)
+                    decisions.append(Decision(t, r, "drop", d))
+        else:
+            since.pop(r, None)
+    return Health(since, frozenset(failed), frozenset(dropped)), decisions
