@@ -18,7 +18,7 @@ import numpy as np
 import zenoh
 
 from fleetctl.lifecycle import Rejections, StopFlag, pace, wall_clock
-from fleetctl.zconf import STREAM_QOS, add_zenoh_args, init_logging, zenoh_config
+from fleetctl.zconf import STREAM_QOS, add_zenoh_args, init_logging, open_session, zenoh_config
 from vsfleet.geometry import wrap_angle
 from vsfleet.scenario import TrackerParams
 from vsfleet.wire import Keys, PoseMsg, TruthMsg, decode_truth, encode
@@ -81,7 +81,7 @@ def run_tracker(conf: zenoh.Config, params: TrackerParams, fleet: str = "demo", 
     tracker = SimTracker(params, src, seed, clock_offset_s)
     period = 1.0 / params.rate_hz
     pending: deque[tuple[float, list[tuple[str, PoseMsg]]]] = deque()
-    with zenoh.open(conf) as session:
+    with open_session(conf) as session:
         pubs: dict[str, zenoh.Publisher] = {}
         token = session.liveliness().declare_token(keys.alive("tracker", src))
         sub = session.declare_subscriber(keys.truth(), lambda s: tracker.on_truth(
