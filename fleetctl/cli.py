@@ -63,7 +63,7 @@ def run_command(name: str, module_name: str, args: list[str], verbose: bool) -> 
             _say(name, f"thread {hook_args.thread.name if hook_args.thread else '?'} failed: "
                        f"{_one_line(hook_args.exc_value)} (--verbose shows the traceback)")
 
-    threading.excepthook = thread_hook
+    previous_hook, threading.excepthook = threading.excepthook, thread_hook
     try:
         try:
             module = importlib.import_module(module_name)
@@ -95,6 +95,8 @@ def run_command(name: str, module_name: str, args: list[str], verbose: bool) -> 
         _say(name, f"unexpected error: {_one_line(exc)}"
                    + ("" if verbose else f" (run `vsfleet {name} ... --verbose` for the traceback)"))
         return 1
+    finally:
+        threading.excepthook = previous_hook
 
 
 def main(argv: list[str] | None = None) -> int:
