@@ -113,8 +113,7 @@ def main(argv: list[str] | None = None) -> int:
         if len(argv) >= n_words and name in COMMANDS:
             args = argv[n_words:]
             verbose = verbose or "--verbose" in args or "-v" in args
-            if "--verbose" not in args and "-v" not in args and verbose:
-                args = _pass_verbose(COMMANDS[name][0], args)
+            args = _pass_verbose(COMMANDS[name][0], args, verbose)
             return run_command(name, COMMANDS[name][0], args, verbose)
     if argv:
         print(f"vsfleet: unknown command {' '.join(argv[:2])!r}\n", file=sys.stderr)
@@ -122,9 +121,11 @@ def main(argv: list[str] | None = None) -> int:
     return 0 if argv[:1] in (["-h"], ["--help"]) else 2
 
 
-def _pass_verbose(module_name: str, args: list[str]) -> list[str]:
-    """``vsfleet --verbose CMD`` also turns on CMD's own --verbose logging, where CMD has the flag."""
-    return [*args, "--verbose"] if module_name not in NO_VERBOSE_FLAG else args
+def _pass_verbose(module_name: str, args: list[str], verbose: bool) -> list[str]:
+    """CMD's arguments with its own --verbose (debug logging) if asked for, where CMD has the flag."""
+    if module_name in NO_VERBOSE_FLAG:
+        return [a for a in args if a not in ("--verbose", "-v")]
+    return [*args, "--verbose"] if verbose and "--verbose" not in args and "-v" not in args else args
 
 
 # the programs whose argparse has no --verbose of their own

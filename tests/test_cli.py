@@ -118,3 +118,10 @@ def test_flags_zenoh_rejects_are_one_line_config_errors(tmp_path):
     with pytest.raises(ZenohConfigError, match="cannot read the zenoh config"):
         config("--config", str(tmp_path / "missing.json5"))
     assert issubclass(SessionError, ConnectionError) and issubclass(ZenohConfigError, ValueError)
+
+
+def test_verbose_reaches_a_programs_own_flag_and_is_dropped_for_programs_without_one():
+    assert cli._pass_verbose("agent.main", ["--robot", "r1"], True) == ["--robot", "r1", "--verbose"]
+    assert cli._pass_verbose("agent.main", ["--robot", "r1", "-v"], True) == ["--robot", "r1", "-v"]
+    assert cli._pass_verbose("agent.main", ["--robot", "r1"], False) == ["--robot", "r1"]
+    assert cli._pass_verbose("fleetctl.mission_cmd", ["m.toml", "--verbose"], True) == ["m.toml"]

@@ -285,3 +285,15 @@ def test_a_waiting_agent_logs_every_few_seconds_and_sigterm_stops_it_with_code_0
             p.wait()
     assert last.strip() == f"vsfleet agent: stopped by SIGTERM while waiting for a zenoh router (mode client, at {endpoint})"
     assert not any("Traceback" in line for line in lines.seen)
+
+
+def test_run_names_the_child_that_exited_early_with_its_one_line_error(tmp_path):
+    from fleetctl.run import Children
+
+    children = Children(tmp_path)
+    p = children.start("agent-r1", [sys.executable, "-c",
+                                    "print('starting'); print('vsfleet agent: no zenoh router reachable'); "
+                                    "raise SystemExit(2)"])
+    assert p.wait(timeout=30) == 2
+    assert children.dead() == ["agent-r1"]
+    assert children.last_line("agent-r1") == "vsfleet agent: no zenoh router reachable"
