@@ -185,8 +185,9 @@ def open_session(conf: zenoh.Config, *, log_every_s: float = WAIT_LOG_EVERY_S) -
 
 def _open_waiting(conf: zenoh.Config, log_every_s: float) -> zenoh.Session:
     """Open in a worker thread (zenoh blocks until connected) while this thread logs and stays interruptible."""
-    target = describe_target(conf).replace("tried ", "at ").replace(" and found none", "")
     scouting = not _get(conf, "connect/endpoints", session_mode(conf))
+    target = (f"mode {session_mode(conf)}, scouting by multicast" if scouting
+              else describe_target(conf).replace("tried ", "at "))
     done, abandoned = threading.Event(), threading.Event()
     result: dict = {}
 

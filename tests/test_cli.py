@@ -125,3 +125,14 @@ def test_verbose_reaches_a_programs_own_flag_and_is_dropped_for_programs_without
     assert cli._pass_verbose("agent.main", ["--robot", "r1", "-v"], True) == ["--robot", "r1", "-v"]
     assert cli._pass_verbose("agent.main", ["--robot", "r1"], False) == ["--robot", "r1"]
     assert cli._pass_verbose("fleetctl.mission_cmd", ["m.toml", "--verbose"], True) == ["m.toml"]
+
+
+def test_every_program_opens_its_session_through_open_session():
+    """A new program that called zenoh.open itself would crash with zenoh's traceback without a router."""
+    from pathlib import Path
+
+    root = Path(__file__).parent.parent
+    offenders = [str(f.relative_to(root)) for d in ("agent", "simfleet", "tracker", "fleetctl")
+                 for f in sorted((root / d).rglob("*.py"))
+                 if f.name != "zconf.py" and "zenoh.open(" in f.read_text()]
+    assert offenders == []
