@@ -115,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
             verbose = verbose or "--verbose" in args or "-v" in args
             args = _pass_verbose(COMMANDS[name][0], args, verbose)
             return run_command(name, COMMANDS[name][0], args, verbose)
-    if argv:
+    if argv and argv[0] not in ("-h", "--help"):
         print(f"vsfleet: unknown command {' '.join(argv[:2])!r}\n", file=sys.stderr)
     print(USAGE, file=sys.stderr)
     return 0 if argv[:1] in (["-h"], ["--help"]) else 2

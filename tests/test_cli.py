@@ -136,3 +136,8 @@ def test_every_program_opens_its_session_through_open_session():
                  for f in sorted((root / d).rglob("*.py"))
                  if f.name != "zconf.py" and "zenoh.open(" in f.read_text()]
     assert offenders == []
+
+
+def test_help_prints_the_usage_and_exits_0(capsys):
+    assert cli.main(["--help"]) == 0
+    assert capsys.readouterr().err.startswith("usage: vsfleet [--version] [--verbose] COMMAND")
