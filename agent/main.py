@@ -24,7 +24,15 @@ from typing import Callable
 import zenoh
 
 from fleetctl.lifecycle import Rejections, StopFlag, wall_clock
-from fleetctl.zconf import RELIABLE_QOS, STREAM_QOS, TELEMETRY_QOS, add_zenoh_args, init_logging, zenoh_config
+from fleetctl.zconf import (
+    RELIABLE_QOS,
+    STREAM_QOS,
+    TELEMETRY_QOS,
+    add_zenoh_args,
+    init_logging,
+    open_session,
+    zenoh_config,
+)
 from vsfleet.errors import VsfleetValueError
 from vsfleet.failure import Decision
 from vsfleet.frames import Frame, FrameMerger, MissionBook
@@ -329,7 +337,7 @@ def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFla
             agent.wake.set()
         return cb
 
-    with zenoh.open(conf) as session:
+    with open_session(conf) as session:
         cmd_pub = session.declare_publisher(keys.cmd(robot), **STREAM_QOS)
         state_pub = session.declare_publisher(keys.state(robot), **TELEMETRY_QOS)
         event_pub = session.declare_publisher(keys.event(robot), **RELIABLE_QOS)

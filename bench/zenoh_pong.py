@@ -13,7 +13,7 @@ import argparse
 import zenoh
 
 from fleetctl.lifecycle import StopFlag
-from fleetctl.zconf import STREAM_QOS, add_zenoh_args, init_logging, zenoh_config
+from fleetctl.zconf import STREAM_QOS, add_zenoh_args, init_logging, open_session, zenoh_config
 from vsfleet.wire import Keys
 
 
@@ -25,7 +25,7 @@ def main(argv: list[str] | None = None) -> int:
     init_logging()
     keys = Keys(args.fleet)
     stop = StopFlag()
-    with zenoh.open(zenoh_config(args)) as session:
+    with open_session(zenoh_config(args)) as session:
         pub = session.declare_publisher(f"{keys.prefix}/bench/pong", **STREAM_QOS)
         sub = session.declare_subscriber(f"{keys.prefix}/bench/ping", lambda s: pub.put(s.payload))
         token = session.liveliness().declare_token(keys.alive("pong", "0"))

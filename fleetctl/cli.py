@@ -1,9 +1,16 @@
-"""The ``vsfleet`` console script: one subcommand per program; each ``main`` is importable."""
+"""The ``vsfleet`` console script: one subcommand per program; each ``main`` is importable.
+
+Errors reach the user as one line ``vsfleet COMMAND: ...``; an unexpected exception's
+traceback is shown only with --verbose (before or after the command).
+"""
 
 from __future__ import annotations
 
 import importlib
+import importlib.metadata
 import sys
+import threading
+import traceback
 
 COMMANDS = {
     "agent": ("agent.main", "one agent per robot"),
@@ -23,26 +30,106 @@ COMMANDS = {
     "fuzz": ("fleetctl.fuzz", "throw invalid messages at every key the fleet subscribes to"),
 }
 
-USAGE = "usage: vsfleet COMMAND [ARGS...]\n\ncommands:\n" + "\n".join(
+USAGE = ("usage: vsfleet [--version] [--verbose] COMMAND [ARGS...]\n\ncommands:\n" + "\n".join(
     f"  {name:<14} {doc}" for name, (_, doc) in COMMANDS.items())
+    + "\n\nvsfleet COMMAND --help describes a command's flags.")
+
+
+def version() -> str:
+    """The installed package's version (pyproject.toml), or 'unknown' when run from a bare checkout."""
+    try:
+        return importlib.metadata.version("vsfleet")
+    except importlib.metadata.PackageNotFoundError:
+        return "unknown (not installed)"
+
+
+def _say(name: str, message: str) -> None:
+    print(f"vsfleet {name}: {message}", file=sys.stderr, flush=True)
+
+
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def run_command(name: str, module_name: str, args: list[str], verbose: bool) -> int:
+    """Run one program's main; every error becomes one line (and exit code 2, or 1 if unexpected)."""
+    from fleetctl.zconf import SessionError, StoppedWaiting, ZenohConfigError
+
+    def thread_hook(hook_args) -> None:  # a crashed worker thread: one line, the traceback only if verbose
+        if verbose:
+            traceback.print_exception(hook_args.exc_type, hook_args.exc_value, hook_args.exc_traceback)
+        else:
+            _say(name, f"thread {hook_args.thread.name if hook_args.thread else '?'} failed: "
+                       f"{_one_line(hook_args.exc_value)} (--verbose shows the traceback)")
+
+    previous_hook, threading.excepthook = threading.excepthook, thread_hook
+    try:
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as exc:
+            if (exc.name or "").split(".")[0] != "cv2":
+                raise
+            _say(name, "needs OpenCV, which is not installed: install vsfleet[camera] (pip install '.[camera]')")
+            return 2
+        return int(module.main(args) or 0)
+    except (SessionError, ZenohConfigError) as exc:
+        _say(name, str(exc))
+        return 2
+    except StoppedWaiting as exc:
+        _say(name, str(exc))
+        return 0
+    except SystemExit as exc:  # argparse (int codes, its message already printed) or SystemExit("text")
+        if exc.code is None or isinstance(exc.code, int):
+            return exc.code or 0
+        _say(name, str(exc.code))
+        return 2
+    except KeyboardInterrupt:
+        _say(name, "interrupted")
+        return 130
+    except BrokenPipeError:  # e.g. `vsfleet ... | head`: the reader left
+        return 1
+    except Exception as exc:  # noqa: BLE001 - the last line of defence: no traceback unless asked
+        if verbose:
+            traceback.print_exc()
+        _say(name, f"unexpected error: {_one_line(exc)}"
+                   + ("" if verbose else f" (run `vsfleet {name} ... --verbose` for the traceback)"))
+        return 1
+    finally:
+        threading.excepthook = previous_hook
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
+    verbose = False
+    while argv[:1] in (["--verbose"], ["-v"]):
+        verbose = True
+        argv = argv[1:]
+    if argv[:1] in (["--version"], ["-V"]):
+        print(f"vsfleet {version()}")
+        return 0
     for n_words in (2, 1):
         name = " ".join(argv[:n_words])
         if len(argv) >= n_words and name in COMMANDS:
-            try:
-                module = importlib.import_module(COMMANDS[name][0])
-            except ModuleNotFoundError as exc:
-                if (exc.name or "").split(".")[0] != "cv2":
-                    raise
-                print(f"vsfleet {name}: needs OpenCV, which is not installed: install vsfleet[camera] "
-                      "(pip install '.[camera]')", file=sys.stderr)
-                return 2
-            return int(module.main(argv[n_words:]) or 0)
+            args = argv[n_words:]
+            verbose = verbose or "--verbose" in args or "-v" in args
+            args = _pass_verbose(COMMANDS[name][0], args, verbose)
+            return run_command(name, COMMANDS[name][0], args, verbose)
+    if argv and argv[0] not in ("-h", "--help"):
+        print(f"vsfleet: unknown command {' '.join(argv[:2])!r}\n", file=sys.stderr)
     print(USAGE, file=sys.stderr)
     return 0 if argv[:1] in (["-h"], ["--help"]) else 2
+
+
+def _pass_verbose(module_name: str, args: list[str], verbose: bool) -> list[str]:
+    """CMD's arguments with its own --verbose (debug logging) if asked for, where CMD has the flag."""
+    if module_name in NO_VERBOSE_FLAG:
+        return [a for a in args if a not in ("--verbose", "-v")]
+    return [*args, "--verbose"] if verbose and "--verbose" not in args and "-v" not in args else args
+
+
+# the programs whose argparse has no --verbose of their own
+NO_VERBOSE_FLAG = {"fleetctl.deploy", "fleetctl.plot", "fleetctl.mission_cmd"}
 
 
 if __name__ == "__main__":

@@ -36,7 +36,7 @@ from vsfleet.wire import (
 )
 
 from .lifecycle import StopFlag, pace, wall_clock
-from .zconf import RELIABLE_QOS, add_zenoh_args, init_logging, zenoh_config
+from .zconf import RELIABLE_QOS, add_zenoh_args, init_logging, open_session, zenoh_config
 
 log = logging.getLogger("vsfleet.fuzz")
 
@@ -142,7 +142,7 @@ def run_fuzz(conf: zenoh.Config, fleet: str, robots: list[str], kinds: tuple[str
     rng = random.Random(seed)
     keys = Keys(fleet)
     sent: Counter = Counter()
-    with zenoh.open(conf) as session:
+    with open_session(conf) as session:
         t0 = clock()
         period = 1.0 / rate_hz
         k = 0

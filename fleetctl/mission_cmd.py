@@ -25,7 +25,7 @@ from vsfleet.wire import Keys, Mission, encode_mission, mission_from_dict
 
 from .lifecycle import wall_clock
 from .scenario_file import load_scenario
-from .zconf import RELIABLE_QOS, add_zenoh_args, init_logging, zenoh_config
+from .zconf import RELIABLE_QOS, add_zenoh_args, init_logging, open_session, zenoh_config
 
 log = logging.getLogger("vsfleet.mission")
 
@@ -84,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     except (OSError, ValueError) as exc:
         log.error("cannot load mission: %s", exc)
         return 2
-    with zenoh.open(zenoh_config(args)) as session:
+    with open_session(zenoh_config(args)) as session:
         if not args.force:
             why = robot_set_mismatch(mission, live_agents(session, keys))
             if why is not None:

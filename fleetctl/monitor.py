@@ -41,7 +41,7 @@ from vsfleet.wire import (
 from .lifecycle import StopFlag
 from .peers import current_missions
 from .record import split_key
-from .zconf import add_zenoh_args, init_logging, zenoh_config
+from .zconf import add_zenoh_args, init_logging, open_session, zenoh_config
 
 log = logging.getLogger("vsfleet.monitor")
 
@@ -317,7 +317,7 @@ def main(argv: list[str] | None = None) -> int:
 
     stop = StopFlag()
     t_end = time.monotonic() + args.duration if args.duration > 0 else math.inf
-    with zenoh.open(zenoh_config(args)) as session:
+    with open_session(zenoh_config(args)) as session:
         session.declare_subscriber(key_expr, on_sample)
         session.liveliness().declare_subscriber(key_expr, on_token, history=True)
         for key, payload in current_missions(session, fleet, timeout_s=2.0):

@@ -60,7 +60,7 @@ from vsfleet.wire import (
 from .lifecycle import StopFlag
 from .peers import current_missions
 from .zcli_codec import jsonable
-from .zconf import add_zenoh_args, init_logging, zenoh_config
+from .zconf import SessionError, add_zenoh_args, init_logging, open_session, zenoh_config
 
 log = logging.getLogger("vsfleet.record")
 
@@ -450,7 +450,7 @@ class Recording:
                  derived: bool = True) -> None:
         self.key_expr = key_expr
         self.recorder = LiveRecorder(out, derived=derived)
-        self.session = zenoh.open(conf)
+        self.session = open_session(conf)
         try:
             self.sub = self.session.declare_subscriber(key_expr, self.recorder.on_sample)
             self.alive_sub = self.session.liveliness().declare_subscriber(
@@ -513,6 +513,8 @@ def main(argv: list[str] | None = None) -> int:
     stop = StopFlag()
     try:
         rec = Recording(zenoh_config(args), args.out, key_expr, query_mission=not args.no_mission_query)
+    except SessionError:  # one line from `vsfleet`, like every program's
+        raise
     except (OSError, zenoh.ZError) as exc:
         log.error("cannot record: %s", exc)
         return 2

@@ -29,7 +29,7 @@ from vsfleet.wire import check_name
 
 from .lifecycle import StopFlag
 from .record import LIVELINESS, RAW, LogRecord, read_log, split_key
-from .zconf import add_zenoh_args, init_logging, zenoh_config
+from .zconf import SessionError, add_zenoh_args, init_logging, open_session, zenoh_config
 
 log = logging.getLogger("vsfleet.replay")
 
@@ -188,7 +188,7 @@ def replay_records(session: zenoh.Session, records: Sequence[LogRecord], speed: 
 def replay(conf: zenoh.Config, path: str | Path, speed: float = 1.0, fleet: str | None = None,
            stop: StopFlag | None = None, progress: bool = True, wait_subscribers_s: float = 1.0) -> ReplayStats:
     records = read_log(path)
-    with zenoh.open(conf) as session:
+    with open_session(conf) as session:
         return replay_records(session, records, speed, fleet, stop, progress, wait_subscribers_s)
 
 
@@ -212,6 +212,8 @@ def main(argv: list[str] | None = None) -> int:
             check_name(args.fleet, "fleet")
         stats = replay(zenoh_config(args), args.file, args.speed, args.fleet, stop,
                        progress=not args.no_progress, wait_subscribers_s=args.wait_subscribers)
+    except SessionError:  # one line from `vsfleet`, like every program's
+        raise
     except (OSError, ValueError, McapError, zenoh.ZError) as exc:
         log.error("%s", exc)
         return 2

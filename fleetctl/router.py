@@ -16,7 +16,7 @@ import time
 import zenoh
 
 from .lifecycle import StopFlag
-from .zconf import add_zenoh_args, init_logging, zenoh_config
+from .zconf import add_zenoh_args, init_logging, open_session, zenoh_config
 
 log = logging.getLogger("vsfleet.router")
 
@@ -55,7 +55,7 @@ def loopback_router_config(port: int) -> zenoh.Config:
 def open_loopback_router(port: int | None = None) -> tuple[zenoh.Session, str]:
     """Open an embedded router on a free loopback port; returns (session, endpoint)."""
     port = port or free_loopback_port()
-    session = zenoh.open(loopback_router_config(port))
+    session = open_session(loopback_router_config(port))
     return session, f"tcp/127.0.0.1:{port}"
 
 
@@ -103,11 +103,7 @@ def main(argv: list[str] | None = None) -> int:
     except zenoh.ZError as exc:  # a config file zenoh cannot read
         log.error("cannot start the router: %s", exc)
         return 1
-    try:
-        session = zenoh.open(conf)
-    except zenoh.ZError as exc:  # a missing password dictionary or certificate
-        log.error("cannot start the router: %s", exc)
-        return 1
+    session = open_session(conf)  # SessionError: one line from `vsfleet` (port in use, missing certificate)
     stop = StopFlag()
     with session:
         acl = conf.get_json("access_control/enabled") == "true"

@@ -155,6 +155,11 @@ class Children:
     def dead(self) -> list[str]:
         return [n for n, p in self.procs.items() if p.poll() is not None]
 
+    def last_line(self, name: str) -> str:
+        """The last non-empty line of a child's log (a child's error is one line: `vsfleet agent: ...`)."""
+        lines = (self.log_dir / f"{name}.log").read_text(errors="replace").strip().splitlines()
+        return lines[-1] if lines else "(no output)"
+
     def stop(self, names: list[str] | None = None, grace_s: float = 5.0) -> bool:
         """Terminate (then kill) the named children; True if all exited with code 0 on SIGTERM."""
         names = list(self.procs) if names is None else names
@@ -239,7 +244,8 @@ def run(scenario_path: str, duration_s: float | None = None, out_dir: str = "run
                 reason = "interrupted"
                 break
             if children.dead():
-                reason = f"child exited early: {', '.join(children.dead())}"
+                reason = "child exited early: " + "; ".join(
+                    f"{n} (code {children.procs[n].returncode}: {children.last_line(n)})" for n in children.dead())
                 log.error("%s", reason)
                 break
             if elapsed >= duration:

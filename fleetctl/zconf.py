@@ -2,6 +2,9 @@
 
 Layering order (as zenoh-python's examples/common): the --config file, then the
 flags, then each --cfg KEY:VALUE override. The default mode is client.
+Every program opens its session with ``open_session``: without a router it fails
+in one line that says what was tried and what to do (SessionError), or, with
+--wait or ``connect/timeout_ms: -1``, waits for the router and says so.
 """
 
 from __future__ import annotations
@@ -9,6 +12,10 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import re
+import signal
+import threading
+import time
 
 import zenoh
 
@@ -25,6 +32,10 @@ RELIABLE_QOS = dict(congestion_control=zenoh.CongestionControl.BLOCK,
                     priority=zenoh.Priority.INTERACTIVE_HIGH)
 
 
+class ZenohConfigError(ValueError):
+    """A --config file or a flag that zenoh cannot take."""
+
+
 def add_zenoh_args(parser: argparse.ArgumentParser) -> None:
     """Add --mode, --connect, --listen, --config, --no-multicast-scouting, --cfg."""
     g = parser.add_argument_group("zenoh")
@@ -39,24 +50,38 @@ def add_zenoh_args(parser: argparse.ArgumentParser) -> None:
                    help="disable multicast scouting")
     g.add_argument("--cfg", action="append", default=[], metavar="KEY:VALUE",
                    help="config override, VALUE is JSON5, e.g. --cfg 'scouting/gossip/enabled:false'")
+    g.add_argument("--wait", action="store_true",
+                   help="wait for the router however long it takes, logging every few seconds "
+                        "(same as --cfg connect/timeout_ms:-1); default: fail at once if none is reachable")
 
 
 def zenoh_config(args: argparse.Namespace) -> zenoh.Config:
     """Build a zenoh.Config from parsed flags (file, then flags, then --cfg overrides)."""
-    conf = zenoh.Config.from_file(args.config) if args.config else zenoh.Config()
+    try:
+        conf = zenoh.Config.from_file(args.config) if args.config else zenoh.Config()
+    except zenoh.ZError as exc:
+        raise ZenohConfigError(f"cannot read the zenoh config {args.config}: {_zenoh_reason(exc)}") from None
+    settings = []
     if args.mode is not None or not args.config:
-        conf.insert_json5("mode", json.dumps(args.mode or "client"))
+        settings.append(("--mode", "mode", json.dumps(args.mode or "client")))
     if args.connect:
-        conf.insert_json5("connect/endpoints", json.dumps(args.connect))
+        settings.append(("--connect", "connect/endpoints", json.dumps(args.connect)))
     if args.listen:
-        conf.insert_json5("listen/endpoints", json.dumps(args.listen))
+        settings.append(("--listen", "listen/endpoints", json.dumps(args.listen)))
     if args.no_multicast_scouting:
-        conf.insert_json5("scouting/multicast/enabled", "false")
+        settings.append(("--no-multicast-scouting", "scouting/multicast/enabled", "false"))
+    if getattr(args, "wait", False):
+        settings.append(("--wait", "connect/timeout_ms", "-1"))
     for item in args.cfg:
         key, sep, value = item.partition(":")
         if not sep or not key:
-            raise SystemExit(f"--cfg expects KEY:VALUE, got {item!r}")
-        conf.insert_json5(key, value)
+            raise ZenohConfigError(f"--cfg expects KEY:VALUE, got {item!r}")
+        settings.append((f"--cfg {item}", key, value))
+    for flag, key, value in settings:
+        try:
+            conf.insert_json5(key, value)
+        except zenoh.ZError as exc:
+            raise ZenohConfigError(f"{flag}: zenoh rejects {key} = {value}: {_zenoh_reason(exc)}") from None
     return conf
 
 
@@ -69,3 +94,140 @@ def init_logging(verbose: bool = False) -> None:
     logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO,
                         format="%(asctime)s %(name)s %(levelname)s %(message)s")
     zenoh.init_log_from_env_or("error")
+
+
+START_ROUTER_HINT = "start one with `vsfleet router --listen tcp/0.0.0.0:7447`"
+CONNECT_HINT = "point at one with `--connect tcp/HOST:7447`"
+WAIT_LOG_EVERY_S = 5.0
+
+
+class SessionError(ConnectionError):
+    """zenoh could not open the session; the message (one line) says what was tried and what to do."""
+
+
+class StoppedWaiting(Exception):
+    """SIGTERM or SIGINT arrived while the program was waiting for its router: nothing was opened."""
+
+
+def _get(conf: zenoh.Config, key: str, mode: str):
+    """A config value as Python (None if unset); per-mode values ({router, peer, client}) resolved for ``mode``."""
+    try:
+        value = json.loads(conf.get_json(key))
+    except (zenoh.ZError, ValueError):
+        return None
+    if isinstance(value, dict) and mode in value:
+        value = value[mode]
+    return value
+
+
+def session_mode(conf: zenoh.Config) -> str:
+    """The mode zenoh will open: the config's, else zenoh's default (peer)."""
+    return _get(conf, "mode", "peer") or "peer"
+
+
+def waits_for_router(conf: zenoh.Config) -> bool:
+    """True if the config asks to wait without limit for the first connection (connect/timeout_ms: -1)."""
+    return _get(conf, "connect/timeout_ms", session_mode(conf)) == -1
+
+
+def describe_target(conf: zenoh.Config) -> str:
+    """What the session tries to reach, for a one-line message: the mode, then the endpoints or the scouting."""
+    mode = session_mode(conf)
+    endpoints = _get(conf, "connect/endpoints", mode) or []
+    if mode == "router" and not endpoints:
+        listen = _get(conf, "listen/endpoints", mode) or ["zenoh's default listener"]
+        return f"mode router, listening on {', '.join(map(str, listen))}"
+    if endpoints:
+        return f"mode {mode}, tried {', '.join(map(str, endpoints))}"
+    if _get(conf, "scouting/multicast/enabled", mode) is False:
+        return f"mode {mode}, no --connect endpoint and multicast scouting off"
+    timeout_ms = _get(conf, "scouting/timeout", mode)
+    timeout_ms = 3000 if timeout_ms is None else timeout_ms  # zenoh's default
+    within = f" for {timeout_ms / 1000:g} s" if isinstance(timeout_ms, (int, float)) else ""
+    return f"mode {mode}, scouted by multicast{within} and found none"
+
+
+def _zenoh_reason(exc: BaseException) -> str:
+    """zenoh's error text without its Rust source location (`` at /.../orchestrator.rs:447.``)."""
+    return re.sub(r"\s+at \S+\.rs:\d+\.?", "", str(exc)).strip()
+
+
+def describe_failure(conf: zenoh.Config, exc: BaseException | None = None) -> str:
+    """One line: why the session did not open, what was tried, and what to do about it."""
+    mode = session_mode(conf)
+    target = describe_target(conf)
+    reason = _zenoh_reason(exc) if exc is not None else ""
+    if mode == "router":
+        hint = ("; another program listens there: stop it, or give another `--listen tcp/0.0.0.0:PORT`"
+                if "in use" in reason else "")
+        return f"cannot start a zenoh router ({target}): {reason or 'zenoh refused'}{hint}"
+    unreachable = not reason or re.search(r"Unable to connect|[Tt]imeout|No peer specified", reason)
+    what = "no zenoh router reachable" if unreachable else f"cannot open a zenoh session: {reason}"
+    line = f"{what} ({target}); {START_ROUTER_HINT}, {CONNECT_HINT}, or add --wait to wait for it"
+    if unreachable and _get(conf, "transport/auth/usrpwd/user", mode):
+        line += "; if the router is up, check the login (transport/auth) in the config"
+    return line
+
+
+def open_session(conf: zenoh.Config, *, log_every_s: float = WAIT_LOG_EVERY_S) -> zenoh.Session:
+    """``zenoh.open(conf)`` for every program: SessionError (one line) if no router is reachable.
+
+    With ``connect/timeout_ms: -1`` (--wait) it waits instead, logging every ``log_every_s`` [s];
+    SIGTERM or SIGINT while waiting raises StoppedWaiting. The session is a context manager.
+    """
+    if not waits_for_router(conf):
+        try:
+            return zenoh.open(conf)
+        except zenoh.ZError as exc:
+            raise SessionError(describe_failure(conf, exc)) from None
+    return _open_waiting(conf, log_every_s)
+
+
+def _open_waiting(conf: zenoh.Config, log_every_s: float) -> zenoh.Session:
+    """Open in a worker thread (zenoh blocks until connected) while this thread logs and stays interruptible."""
+    scouting = not _get(conf, "connect/endpoints", session_mode(conf))
+    target = (f"mode {session_mode(conf)}, scouting by multicast" if scouting
+              else describe_target(conf).replace("tried ", "at "))
+    done, abandoned = threading.Event(), threading.Event()
+    result: dict = {}
+
+    def work() -> None:
+        while not abandoned.is_set():
+            try:
+                session = zenoh.open(conf)
+            except zenoh.ZError as exc:  # scouting timed out: scout again; anything else is for the caller
+                if scouting and re.search(r"[Tt]imeout", str(exc)):
+                    abandoned.wait(1.0)
+                    continue
+                result["error"] = exc
+                break
+            if abandoned.is_set():
+                session.close()
+                return
+            result["session"] = session
+            break
+        done.set()
+
+    def on_signal(signum, _frame) -> None:
+        raise StoppedWaiting(f"stopped by {signal.Signals(signum).name} while waiting for a zenoh router "
+                             f"({target})")
+
+    in_main = threading.current_thread() is threading.main_thread()
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)} if in_main else {}
+    t0 = time.monotonic()
+    try:
+        threading.Thread(target=work, name="zenoh-open", daemon=True).start()
+        log.info("waiting for a zenoh router (%s); %s, %s; Ctrl-C to stop", target, START_ROUTER_HINT,
+                 CONNECT_HINT)
+        while not done.wait(log_every_s):
+            log.info("still waiting for a zenoh router (%s): %.0f s so far", target, time.monotonic() - t0)
+    except BaseException:
+        abandoned.set()
+        raise
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    if "error" in result:
+        raise SessionError(describe_failure(conf, result["error"]))
+    log.info("connected to the zenoh router after %.1f s of waiting", time.monotonic() - t0)
+    return result["session"]

@@ -18,7 +18,7 @@ import zenoh
 
 from fleetctl.lifecycle import Rejections, StopFlag, pace, wall_clock
 from fleetctl.scenario_file import load_scenario
-from fleetctl.zconf import TELEMETRY_QOS, add_zenoh_args, init_logging, zenoh_config
+from fleetctl.zconf import TELEMETRY_QOS, add_zenoh_args, init_logging, open_session, zenoh_config
 from vsfleet.geometry import Pose2
 from vsfleet.scenario import Scenario
 from vsfleet.wire import Keys, TruthMsg, decode_cmd, decode_fault, encode
@@ -133,7 +133,7 @@ def run_sim(conf: zenoh.Config, scenario: Scenario, stop: StopFlag | None = None
     keys = Keys(scenario.fleet)
     fleet = Fleet(scenario, keys, t0=clock())
     truth_every = max(1, round(scenario.sim.rate_hz / scenario.sim.truth_rate_hz))
-    with zenoh.open(conf) as session:
+    with open_session(conf) as session:
         pubs = {r: session.declare_publisher(keys.truth(r), **TELEMETRY_QOS) for r in fleet.robots}
         token = session.liveliness().declare_token(keys.alive("sim", "simfleet"))
         subs = [

@@ -298,6 +298,7 @@ def test_each_unit_restarts_and_runs_a_command_line_its_program_accepts(unit):
     module = importlib.import_module(COMMANDS[name][0])
     args = module.build_parser().parse_args(argv[1 + len(name.split()):])
     assert args.config.startswith("/etc/vsfleet/")
+    assert args.wait == (name != "router"), "a unit's client waits for its router, whatever its config says"
     if name == "agent":
         assert args.robot == "r1" and args.config == "/etc/vsfleet/r1.json5" and args.ttl == 0.3
 

@@ -365,7 +365,9 @@ def run_camera_tracker(conf, config: CameraConfig, calibration: FloorCalibration
     stop = stop or StopFlag()
     keys = Keys(fleet)
     tracker = CameraTracker(config, calibration, src)
-    with zenoh.open(conf) as session:
+    from fleetctl.zconf import open_session
+
+    with open_session(conf) as session:
         pubs: dict[str, zenoh.Publisher] = {}
         token = session.liveliness().declare_token(keys.alive("tracker", tracker.src))
         subs = []

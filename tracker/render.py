@@ -350,7 +350,7 @@ def run_render(args: argparse.Namespace, config: CameraConfig, renderer: Rendere
     import zenoh
 
     from fleetctl.lifecycle import Rejections, StopFlag, wall_clock
-    from fleetctl.zconf import zenoh_config
+    from fleetctl.zconf import open_session, zenoh_config
     from vsfleet.wire import Keys, decode_truth
 
     keys = Keys(args.fleet)
@@ -365,7 +365,7 @@ def run_render(args: argparse.Namespace, config: CameraConfig, renderer: Rendere
         except Exception as exc:  # noqa: BLE001 - WireError, or anything else: counted, never fatal
             rejections.reject(key, str(exc))
 
-    with zenoh.open(zenoh_config(args)) as session:
+    with open_session(zenoh_config(args)) as session:
         sub = session.declare_subscriber(keys.truth(), on_truth)
         try:
             frames = record_video(book, renderer, config, Path(args.out), args.fps, args.duration, stop, wall_clock)

@@ -20,7 +20,7 @@ import numpy as np
 import zenoh
 
 from fleetctl.lifecycle import Rejections, StopFlag, pace, wall_clock
-from fleetctl.zconf import STREAM_QOS, add_zenoh_args, init_logging, zenoh_config
+from fleetctl.zconf import STREAM_QOS, add_zenoh_args, init_logging, open_session, zenoh_config
 from vsfleet.kinematics import wrap_angles
 from vsfleet.scenario import TrackerParams
 from vsfleet.wire import FrameMsg, Keys, PoseMsg, TruthMsg, decode_truth, encode, encode_frame
@@ -89,7 +89,7 @@ def run_tracker(conf: zenoh.Config, params: TrackerParams, fleet: str = "demo", 
     tracker = SimTracker(params, src, seed, clock_offset_s)
     period = 1.0 / params.rate_hz
     pending: deque[tuple[float, FrameMsg | None]] = deque()
-    with zenoh.open(conf) as session:
+    with open_session(conf) as session:
         pubs: dict[str, zenoh.Publisher] = {}
         frame_pub = session.declare_publisher(keys.frame(src), **STREAM_QOS)
         token = session.liveliness().declare_token(keys.alive("tracker", src))

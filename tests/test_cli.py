@@ -1,0 +1,143 @@
+"""The `vsfleet` entry point and the session helpers, in-process: version, one-line errors, --verbose.
+
+A fake program module (written to tmp_path and put on sys.path) stands in for a subcommand, so each
+error path is exercised without zenoh or a router.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib.metadata
+import json
+
+import pytest
+import zenoh
+
+from fleetctl import cli
+from fleetctl.zconf import (CONNECT_HINT, START_ROUTER_HINT, SessionError, ZenohConfigError, add_zenoh_args,
+                            describe_failure, describe_target, waits_for_router, zenoh_config)
+
+
+def config(*flags: str) -> zenoh.Config:
+    p = argparse.ArgumentParser()
+    add_zenoh_args(p)
+    return zenoh_config(p.parse_args(list(flags)))
+
+
+def test_version_prints_the_installed_packages_version(capsys):
+    assert cli.main(["--version"]) == 0
+    assert capsys.readouterr().out.strip() == f"vsfleet {importlib.metadata.version('vsfleet')}"
+
+
+FAKE = '''
+import sys
+from fleetctl.zconf import SessionError, StoppedWaiting
+
+def main(argv):
+    kind = argv[0]
+    if kind == "bug":
+        raise KeyError("the key that was not there")
+    if kind == "nosession":
+        raise SessionError("no zenoh router reachable (mode client, tried tcp/127.0.0.1:1)")
+    if kind == "stopped":
+        raise StoppedWaiting("stopped by SIGTERM while waiting for a zenoh router")
+    if kind == "exit-text":
+        raise SystemExit("--cfg expects KEY:VALUE")
+    if kind == "interrupt":
+        raise KeyboardInterrupt
+    return 0
+'''
+
+
+@pytest.fixture
+def fake_command(tmp_path, monkeypatch):
+    (tmp_path / "fake_vsfleet_program.py").write_text(FAKE)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setitem(cli.COMMANDS, "fake", ("fake_vsfleet_program", "a test stand-in"))
+    return "fake"
+
+
+@pytest.mark.parametrize("kind, code, line", [
+    ("bug", 1, "vsfleet fake: unexpected error: KeyError: 'the key that was not there' "
+               "(run `vsfleet fake ... --verbose` for the traceback)"),
+    ("nosession", 2, "vsfleet fake: no zenoh router reachable (mode client, tried tcp/127.0.0.1:1)"),
+    ("stopped", 0, "vsfleet fake: stopped by SIGTERM while waiting for a zenoh router"),
+    ("exit-text", 2, "vsfleet fake: --cfg expects KEY:VALUE"),
+    ("interrupt", 130, "vsfleet fake: interrupted"),
+])
+def test_every_error_reaches_the_user_as_one_line_without_a_traceback(fake_command, capsys, kind, code, line):
+    assert cli.main([fake_command, kind]) == code
+    err = capsys.readouterr().err
+    assert err.splitlines() == [line]
+
+
+@pytest.mark.parametrize("argv", [["--verbose", "fake", "bug"], ["fake", "bug", "--verbose"], ["-v", "fake", "bug"]])
+def test_verbose_before_or_after_the_command_shows_the_traceback_of_an_unexpected_error(fake_command, capsys, argv):
+    assert cli.main(argv) == 1
+    err = capsys.readouterr().err
+    assert "Traceback (most recent call last)" in err and "KeyError" in err
+    assert err.splitlines()[-1] == "vsfleet fake: unexpected error: KeyError: 'the key that was not there'"
+
+
+def test_an_unknown_command_is_named_and_exits_2(capsys):
+    assert cli.main(["frobnicate"]) == 2
+    assert capsys.readouterr().err.startswith("vsfleet: unknown command 'frobnicate'")
+
+
+def test_wait_and_a_timeout_of_minus_one_in_the_config_both_mean_waiting(tmp_path):
+    assert not waits_for_router(config("--connect", "tcp/127.0.0.1:1"))
+    assert waits_for_router(config("--connect", "tcp/127.0.0.1:1", "--wait"))
+    assert waits_for_router(config("--cfg", "connect/timeout_ms:-1"))
+    robot = tmp_path / "robot.json5"  # as deploy/robot-client.json5, without the login
+    robot.write_text(json.dumps({"mode": "client", "connect": {"endpoints": ["tcp/10.0.0.1:7447"], "timeout_ms": -1}}))
+    assert waits_for_router(config("--config", str(robot)))
+    operator = tmp_path / "operator.json5"
+    operator.write_text(json.dumps({"mode": "client", "connect": {"timeout_ms": 10000}}))
+    assert not waits_for_router(config("--config", str(operator)))
+    assert waits_for_router(config("--config", str(operator), "--wait"))
+
+
+def test_the_failure_line_names_the_mode_and_endpoints_or_the_scouting_and_what_to_do():
+    tried = config("--connect", "tcp/127.0.0.1:1", "--connect", "tcp/10.0.0.1:7447")
+    assert describe_target(tried) == "mode client, tried tcp/127.0.0.1:1, tcp/10.0.0.1:7447"
+    assert describe_target(config()) == "mode client, scouted by multicast for 3 s and found none"
+    assert describe_target(config("--no-multicast-scouting")) == \
+        "mode client, no --connect endpoint and multicast scouting off"
+    line = describe_failure(tried, zenoh.ZError("Unable to connect to any of [...]!  at /x/orchestrator.rs:447."))
+    assert line == (f"no zenoh router reachable (mode client, tried tcp/127.0.0.1:1, tcp/10.0.0.1:7447); "
+                    f"{START_ROUTER_HINT}, {CONNECT_HINT}, or add --wait to wait for it")
+    other = describe_failure(tried, zenoh.ZError("Failed to load certificate at /src/tls.rs:12."))
+    assert other.startswith("cannot open a zenoh session: Failed to load certificate (mode client")
+
+
+def test_flags_zenoh_rejects_are_one_line_config_errors(tmp_path):
+    with pytest.raises(ZenohConfigError, match=r"--cfg nope:1: zenoh rejects nope = 1"):
+        config("--cfg", "nope:1")
+    with pytest.raises(ZenohConfigError, match="--cfg expects KEY:VALUE"):
+        config("--cfg", "nope")
+    with pytest.raises(ZenohConfigError, match="cannot read the zenoh config"):
+        config("--config", str(tmp_path / "missing.json5"))
+    assert issubclass(SessionError, ConnectionError) and issubclass(ZenohConfigError, ValueError)
+
+
+def test_verbose_reaches_a_programs_own_flag_and_is_dropped_for_programs_without_one():
+    assert cli._pass_verbose("agent.main", ["--robot", "r1"], True) == ["--robot", "r1", "--verbose"]
+    assert cli._pass_verbose("agent.main", ["--robot", "r1", "-v"], True) == ["--robot", "r1", "-v"]
+    assert cli._pass_verbose("agent.main", ["--robot", "r1"], False) == ["--robot", "r1"]
+    assert cli._pass_verbose("fleetctl.mission_cmd", ["m.toml", "--verbose"], True) == ["m.toml"]
+
+
+def test_every_program_opens_its_session_through_open_session():
+    """A new program that called zenoh.open itself would crash with zenoh's traceback without a router."""
+    from pathlib import Path
+
+    root = Path(__file__).parent.parent
+    offenders = [str(f.relative_to(root)) for d in ("agent", "simfleet", "tracker", "fleetctl")
+                 for f in sorted((root / d).rglob("*.py"))
+                 if f.name != "zconf.py" and "zenoh.open(" in f.read_text()]
+    assert offenders == []
+
+
+def test_help_prints_the_usage_and_exits_0(capsys):
+    assert cli.main(["--help"]) == 0
+    assert capsys.readouterr().err.startswith("usage: vsfleet [--version] [--verbose] COMMAND")
