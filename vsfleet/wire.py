@@ -614,7 +614,8 @@ def _named_numbers(v: Any, what: str, known: tuple[str, ...]) -> tuple[tuple[str
     return tuple(sorted((k, _num(v, k)) for k in v))
 
 
-def _failure(v: Any) -> tuple[tuple[str, float], ...]:
+def failure_from_dict(v: Any) -> tuple[tuple[str, float], ...]:
+    """A mission's ``failure`` map {threshold: value} as sorted pairs, checked as FailurePolicy checks them."""
     from .failure import FailurePolicy
 
     pairs = _named_numbers(v, "failure", failure_names())
@@ -625,7 +626,8 @@ def _failure(v: Any) -> tuple[tuple[str, float], ...]:
     return pairs
 
 
-def _controller_gains(v: Any, controller: str | None) -> tuple[tuple[str, float], ...]:
+def controller_gains_from_dict(v: Any, controller: str | None) -> tuple[tuple[str, float], ...]:
+    """A mission's ``controller_gains`` map as sorted pairs, checked by building the controller with them."""
     from .control import DEFAULT_CONTROLLER, make_controller
 
     pairs = _named_numbers(v, "controller_gains", controller_gain_names(controller))
@@ -705,8 +707,9 @@ def mission_from_dict(m: Mapping[str, Any]) -> Mission:
     on_failure = m.get("on_failure", "hold")
     if on_failure not in ON_FAILURE:
         raise WireError(f"field 'on_failure' must be one of {ON_FAILURE}, got {on_failure!r}")
-    failure = _failure(m["failure"]) if m.get("failure") is not None else ()
-    gains = _controller_gains(m["controller_gains"], controller) if m.get("controller_gains") is not None else ()
+    failure = failure_from_dict(m["failure"]) if m.get("failure") is not None else ()
+    gains = (controller_gains_from_dict(m["controller_gains"], controller)
+             if m.get("controller_gains") is not None else ())
     return Mission(version=_int(m, "version"), metric=metric, robots=tuple(robots),
                    speed_max=_pos(m, "speed_max", allow_zero=True),
                    turn_rate_max=_pos(m, "turn_rate_max", allow_zero=True),
