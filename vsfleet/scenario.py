@@ -33,8 +33,10 @@ Example::
     deadband_m = 0.004
 
     [tracker]
+    kind = "sim"               # sim | camera (render -> detect; `vsfleet run --tracker` overrides)
+    # camera = "../deploy/camera/overhead.toml"   # kind camera: its config, relative to this file
     rate_hz = 30.0
-    noise_xy_m = 0.001
+    noise_xy_m = 0.001         # the simulated tracker's noise, latency and drops (kind sim only)
     noise_th_rad = 0.005
     latency_s = 0.005
     drop_prob = 0.0
@@ -128,13 +130,23 @@ class FaultEvent:
     duration: float
 
 
+TRACKER_KINDS = ("sim", "camera")
+SIM_TRACKER_KEYS = ("noise_xy_m", "noise_th_rad", "latency_s", "drop_prob")
+
+
 @dataclass(frozen=True)
 class TrackerParams:
+    """kind sim: the simulated tracker, with its noise [m, rad], latency [s] and drop probability.
+    kind camera: the synthetic camera of ``camera`` (a camera config path, relative to the scenario
+    file; None: the default one), rendered at rate_hz [Hz] and detected."""
+
     rate_hz: float = 30.0
     noise_xy_m: float = 0.001
     noise_th_rad: float = 0.005
     latency_s: float = 0.005
     drop_prob: float = 0.0
+    kind: str = "sim"
+    camera: str | None = None
 
 
 @dataclass(frozen=True)
@@ -283,8 +295,18 @@ def scenario_from_dict(doc: Mapping[str, Any], name: str = "scenario") -> Scenar
     mission = dataclasses.replace(mission, failure=failure, controller_gains=gains)
 
     tr = _table(doc, "tracker")
-    _only(tr, {"rate_hz", "noise_xy_m", "noise_th_rad", "latency_s", "drop_prob"}, "tracker")
+    _only(tr, {"kind", "camera", "rate_hz", *SIM_TRACKER_KEYS}, "tracker")
+    kind = tr.get("kind", "sim")
+    if kind not in TRACKER_KINDS:
+        raise ScenarioError(f"[tracker] kind must be one of {TRACKER_KINDS}, got {kind!r}")
+    if kind == "camera" and set(SIM_TRACKER_KEYS) & set(tr):
+        raise ScenarioError(f"[tracker] {sorted(set(SIM_TRACKER_KEYS) & set(tr))} are the simulated tracker's; "
+                            "a camera's noise and latency come from its frames")
+    camera = tr.get("camera")
+    if camera is not None and (kind != "camera" or not isinstance(camera, str) or not camera):
+        raise ScenarioError("[tracker] camera (a camera config path) goes with kind = \"camera\"")
     tracker = TrackerParams(
+        kind=kind, camera=camera,
         rate_hz=_float(tr, "rate_hz", "tracker", 30.0, lo=1e-3),
         noise_xy_m=_float(tr, "noise_xy_m", "tracker", 0.001, lo=0.0),
         noise_th_rad=_float(tr, "noise_th_rad", "tracker", 0.005, lo=0.0),
