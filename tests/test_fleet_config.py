@@ -205,3 +205,12 @@ def test_mission_set_refuses_a_json_mission_with_a_misspelt_key_and_names_it(tmp
     path.write_text(json.dumps(good))
     with pytest.raises(WireError, match="'on_faliure'"):
         load_mission(str(path))
+
+
+def test_the_readmes_fleet_file_example_is_valid_and_layers_as_it_says():
+    text = (ROOT / "README.md").read_text()
+    block = text.split("```toml\n", 1)[1].split("```", 1)[0]
+    sc = scenario_from_dict(tomllib.loads(block))
+    (r3,) = sc.robots
+    assert (r3.wheel_base, r3.wheel_speed_max, r3.wheel_accel_max) == (0.12, 0.25, 0.8)
+    assert sc.mission.failure == (("fail_after_s", 2.0),) and sc.mission.controller_gains == (("horizon_s", 1.0),)
