@@ -113,3 +113,26 @@ def test_a_camera_tracker_section_refuses_the_simulated_trackers_keys_and_a_stra
                            ({"kind": "lidar"}, "kind must be one of")):
         with pytest.raises(ScenarioError, match=words):
             scenario_from_dict({**raw, "tracker": tracker})
+
+
+def test_a_calibration_or_intrinsics_file_with_a_misspelt_key_is_refused_with_the_key_named(
+        tmp_path, calibration, renderer):
+    from tracker.calib import CalibrationError, Intrinsics
+
+    doc = calibration.to_dict()
+    assert FloorCalibration.load(_write(tmp_path / "ok.json", doc)).model == doc["model"]
+    # an optional key, misspelt: without the check its value would silently be the default
+    optional = "plane_z" if doc["model"] == "homography" else "reprojection_error"
+    with pytest.raises(CalibrationError, match=f"unknown field.*'{optional}'"):
+        FloorCalibration.load(_write(tmp_path / "bad.json", {**doc, optional: 0.1}))
+    intr = renderer.camera.intrinsics.to_dict()
+    assert Intrinsics.load(_write(tmp_path / "intr.json", intr)).width_px == 1280
+    with pytest.raises(CalibrationError, match="unknown field.*'dist_coefs'"):
+        Intrinsics.load(_write(tmp_path / "intr-bad.json", {**intr, "dist_coefs": [0.1, 0, 0, 0]}))
+
+
+def _write(path: Path, doc: dict) -> Path:
+    import json
+
+    path.write_text(json.dumps(doc))
+    return path
