@@ -90,7 +90,7 @@ def access_control(fleet: str, robots: list[str] | tuple[str, ...], auth: str = 
     rules = [
         _rule("read", "ingress", READ_MESSAGES, [f"{p}/**"]),
         _rule("deliver", "egress", DELIVER_MESSAGES, [f"{p}/**"]),
-        _rule("tracker-pose", "ingress", ["put"], [f"{p}/pose/**", f"{p}/frame/**"]),
+        _rule("tracker-pose", "ingress", ["put"], [f"{p}/frame/**", f"{p}/pose/**"]),
         _rule("tracker-alive", "ingress", ["liveliness_token"], [f"{p}/alive/tracker/*"]),
     ]
     if sim:

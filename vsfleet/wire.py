@@ -726,7 +726,7 @@ def decode_mission(payload: bytes) -> Mission:
 
 
 DECODERS = {
-    "pose": decode_pose, "cmd": decode_cmd, "state": decode_state, "truth": decode_truth,
+    "frame": decode_frame, "pose": decode_pose, "cmd": decode_cmd, "state": decode_state, "truth": decode_truth,
     "fault": decode_fault, "mission": decode_mission, "event": decode_event,
-    "health": decode_health, "frame": decode_frame,
+    "health": decode_health,
 }
