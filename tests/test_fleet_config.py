@@ -214,3 +214,15 @@ def test_the_readmes_fleet_file_example_is_valid_and_layers_as_it_says():
     (r3,) = sc.robots
     assert (r3.wheel_base, r3.wheel_speed_max, r3.wheel_accel_max) == (0.12, 0.25, 0.8)
     assert sc.mission.failure == (("fail_after_s", 2.0),) and sc.mission.controller_gains == (("horizon_s", 1.0),)
+
+
+def test_the_format_example_in_vsfleet_scenario_is_valid():
+    import textwrap
+
+    import vsfleet.scenario
+
+    example = textwrap.dedent(vsfleet.scenario.__doc__.split("Example::\n", 1)[1])
+    sc = scenario_from_dict(tomllib.loads(example))
+    (r1,) = sc.robots
+    assert (r1.wheel_base, r1.wheel_speed_max) == (0.1, 0.25)  # [defaults], then robot type slow
+    assert sc.mission.controller_gains == (("along_gain_per_s", 2.0), ("deadband_m", 0.004))

@@ -60,7 +60,7 @@ Example::
     gain = [1.0, 0.97]         # true/commanded wheel speed, left and right (simulation)
 
     [[faults]]
-    robot = "r2"
+    robot = "r1"
     at_s = 10.0                # after the simulation starts
     kind = "stop"              # stop | slow | stall | wheel | none
     factor = 0.0
