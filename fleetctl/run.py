@@ -1,8 +1,12 @@
 """vsfleet run SCENARIO.toml: the localhost multi-process fleet.
 
 Starts an embedded zenoh router (router-mode session on a free loopback port,
-multicast off), then simfleet, the simulated tracker and one agent process per
-robot, all as clients of that router. Publishes the mission and, as the
+multicast off), then simfleet, the tracker and one agent process per robot, all
+as clients of that router. The tracker is the simulated one, or with ``--tracker
+camera`` (or the scenario's ``[tracker] kind = "camera"``) the camera loop:
+`vsfleet tracker camera --source render` draws the fleet's truth through a
+synthetic camera (calibrated on its rendered references first), detects the
+ArUco markers and publishes the frames the agents follow. Publishes the mission and, as the
 operator, answers mission queries on ``vs/<fleet>/mission`` (agents that start
 after the put ask there as well as their peers). Shows progress, stops everything cleanly (also on Ctrl-C or
 when a child dies), prints a summary and writes the run to runs/<timestamp>/:
@@ -54,6 +58,7 @@ from .zconf import RELIABLE_QOS, init_logging, zenoh_flags
 
 log = logging.getLogger("vsfleet.run")
 
+DEFAULT_CAMERA = Path(__file__).resolve().parent.parent / "deploy" / "camera" / "overhead.toml"
 GOAL_POS_TOL_M = 0.01
 GOAL_TH_TOL_RAD = 0.02
 SETTLED_WHEEL_M_S = 0.002
@@ -197,9 +202,33 @@ def settled_at_goal(mission: Mission, recorder: Recorder, keys: Keys, window_s: 
     return goal_distance(mission, pose) <= GOAL_POS_TOL_M and abs(angle_diff(goal_th, pose.th)) <= GOAL_TH_TOL_RAD
 
 
+def tracker_args(scenario: Scenario, scenario_path: str, kind: str | None, camera: str | None,
+                 run_dir: Path) -> list[str]:
+    """`vsfleet tracker ...` arguments (without the zenoh flags) of the scenario's tracker, or of ``kind``.
+
+    camera: the config ``camera`` (else the scenario's [tracker] camera, relative to its file, else
+    DEFAULT_CAMERA), calibrated on its rendered references into run_dir. ValueError if it cannot be.
+    """
+    tr = scenario.tracker
+    kind = kind or tr.kind
+    common = ["--fleet", scenario.fleet, "--rate", str(tr.rate_hz)]
+    if kind == "sim":
+        return ["sim", *common, "--noise-xy", str(tr.noise_xy_m), "--noise-th", str(tr.noise_th_rad),
+                "--latency", str(tr.latency_s), "--drop", str(tr.drop_prob)]
+    if kind != "camera":
+        raise ValueError(f"--tracker must be sim or camera, got {kind!r}")
+    try:
+        from tracker.camera import render_loop_args
+    except ImportError as exc:
+        raise ValueError(f"--tracker camera needs OpenCV (pip install -e '.[camera]'): {exc}") from None
+    if camera is None:
+        camera = (Path(scenario_path).parent / tr.camera).resolve() if tr.camera is not None else DEFAULT_CAMERA
+    return ["camera", *render_loop_args(camera, scenario.mission.robot_ids, run_dir), *common]
+
+
 def run(scenario_path: str, duration_s: float | None = None, out_dir: str = "runs",
         fleet: str | None = None, stop: StopFlag | None = None, until_goal: bool = True,
-        progress: bool = True) -> tuple[RunSummary, Path]:
+        progress: bool = True, tracker: str | None = None, camera: str | None = None) -> tuple[RunSummary, Path]:
     scenario = load_scenario(scenario_path, fleet=fleet)
     duration = scenario.duration_s if duration_s is None else duration_s
     keys = Keys(scenario.fleet)
@@ -208,6 +237,7 @@ def run(scenario_path: str, duration_s: float | None = None, out_dir: str = "run
     stop = stop or StopFlag()
     children = Children(run_dir)
     recorder = Recorder()
+    tracker_cmd = tracker_args(scenario, scenario_path, tracker, camera, run_dir)
     mcap = LiveRecorder(run_dir / "run.mcap")
     router, endpoint = open_loopback_router()
     flags = zenoh_flags(endpoint)
@@ -223,10 +253,7 @@ def run(scenario_path: str, duration_s: float | None = None, out_dir: str = "run
         router.declare_queryable(keys.mission, lambda q: q.reply(keys.mission, payload), complete=True)
         tr = scenario.tracker
         children.start("sim", child_command("sim", str(scenario_path), "--fleet", scenario.fleet, *flags))
-        children.start("tracker", child_command(
-            "tracker", "sim", "--fleet", scenario.fleet, "--rate", str(tr.rate_hz),
-            "--noise-xy", str(tr.noise_xy_m), "--noise-th", str(tr.noise_th_rad),
-            "--latency", str(tr.latency_s), "--drop", str(tr.drop_prob), *flags))
+        children.start("tracker", child_command("tracker", *tracker_cmd, *flags))
         agents = [f"agent-{r}" for r in mission.robot_ids]
         for r in mission.robot_ids:
             children.start(f"agent-{r}", child_command(
@@ -298,12 +325,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--fleet", default=None, help="override the fleet name")
     p.add_argument("--out", default="runs", help="directory for run records")
     p.add_argument("--no-stop-at-goal", action="store_true", help="run the full duration")
+    p.add_argument("--tracker", choices=("sim", "camera"), default=None,
+                   help="sim: the simulated tracker; camera: render -> detect -> frames through a synthetic "
+                        "camera (default: the scenario's [tracker] kind)")
+    p.add_argument("--camera", default=None, metavar="TOML",
+                   help="camera config of --tracker camera (default: the scenario's, else "
+                        "deploy/camera/overhead.toml)")
     p.add_argument("--verbose", "-v", action="store_true")
     args = p.parse_args(argv)
     init_logging(args.verbose)
     try:
         summary, run_dir = run(args.scenario, args.duration, args.out, args.fleet,
-                               until_goal=not args.no_stop_at_goal)
+                               until_goal=not args.no_stop_at_goal, tracker=args.tracker, camera=args.camera)
     except (OSError, ValueError) as exc:
         log.error("%s", exc)
         return 2

@@ -57,7 +57,8 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
     mission = scenario.mission
     if metric is not None:
         mission = dataclasses.replace(mission, metric=metric)
-    ctrl = make_controller(controller or mission.controller or DEFAULT_CONTROLLER, **gains)
+    ctrl = make_controller(controller or mission.controller or DEFAULT_CONTROLLER,
+                           **{**dict(mission.controller_gains), **gains})
     tr = scenario.tracker
     nxy = tr.noise_xy_m if noise_xy_m is None else noise_xy_m
     nth = tr.noise_th_rad if noise_th_rad is None else noise_th_rad

@@ -54,9 +54,11 @@ def test_missions_survive_a_round_trip(mission):
     assert decode_mission(encode_mission(mission)) == mission
 
 
-def test_a_receiver_ignores_fields_it_does_not_know():
+def test_a_receiver_ignores_only_the_fields_a_newer_protocol_version_adds():
     m = {"t": 1.0, "seq": 1, "x": 0.0, "y": 0.0, "th": 0.0, "src": "s", "confidence": 0.9, "extra": [1, 2]}
-    assert decode_pose(msgpack.packb(m)) == PoseMsg(1.0, 1, 0.0, 0.0, 0.0, "s")
+    assert decode_pose(msgpack.packb({**m, "v": 2})) == PoseMsg(1.0, 1, 0.0, 0.0, 0.0, "s", v=2)
+    with pytest.raises(WireError, match="'confidence'"):
+        decode_pose(msgpack.packb({**m, "v": 1}))
 
 
 POSE = {"t": 1.0, "seq": 1, "x": 0.0, "y": 0.0, "th": 0.0, "src": "s"}

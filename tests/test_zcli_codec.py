@@ -33,7 +33,7 @@ def test_the_msgpack_decoder_is_registered_for_zenoh_cli_and_prints_a_pose_as_on
     decode = plugin("zenoh_cli.codecs.decoders")
     out = decode(zenoh.KeyExpr("vs/demo/pose/r1"), encode(POSE))
     assert "\n" not in out
-    assert json.loads(out) == {"t": POSE.t, "seq": 42, "x": 0.125, "y": -0.5, "th": 0.1, "src": "vgps"}
+    assert json.loads(out) == {"t": POSE.t, "seq": 42, "x": 0.125, "y": -0.5, "th": 0.1, "src": "vgps", "v": 1}
 
 
 def test_the_decoder_keeps_lists_and_floats_of_a_state_exactly():

@@ -254,7 +254,22 @@ def _dist(doc: dict, where: str) -> np.ndarray:
     return a if len(a) else np.zeros(5)
 
 
-def intrinsics_from_dict(doc: dict, where: str = "intrinsics") -> Intrinsics:
+INTRINSICS_KEYS = ("format", "image_size_px", "camera_matrix", "dist_coeffs")
+CALIBRATION_KEYS = {"homography": ("format", "version", "model", "image_size_px", "reprojection_error_mm",
+                                   "homography", "plane_z_m"),
+                    "pinhole": ("format", "version", "model", "image_size_px", "reprojection_error_mm",
+                                "camera_matrix", "dist_coeffs", "rvec", "tvec")}
+
+
+def _no_unknown_keys(doc: dict, known, where: str) -> None:
+    unknown = sorted(set(doc) - set(known))
+    if unknown:
+        raise CalibrationError(f"{where}: unknown field(s) {unknown} (expected some of {sorted(known)})")
+
+
+def intrinsics_from_dict(doc: dict, where: str = "intrinsics", check_keys: bool = True) -> Intrinsics:
+    if check_keys:
+        _no_unknown_keys(doc, INTRINSICS_KEYS, where)
     w, h = _size(doc, where)
     k = _matrix(doc, "camera_matrix", (3, 3), where)
     if k[0, 0] <= 0 or k[1, 1] <= 0:
@@ -298,6 +313,8 @@ def calibration_from_dict(doc: dict, where: str = "calibration") -> FloorCalibra
     if doc.get("format") != CALIBRATION_FORMAT:
         raise CalibrationError(f"{where}: not a floor calibration (field 'format' must be {CALIBRATION_FORMAT!r})")
     model = doc.get("model")
+    if model in CALIBRATION_KEYS:
+        _no_unknown_keys(doc, CALIBRATION_KEYS[model], where)
     w, h = _size(doc, where)
     err = doc.get("reprojection_error_mm")
     if model == "homography":
@@ -310,7 +327,7 @@ def calibration_from_dict(doc: dict, where: str = "calibration") -> FloorCalibra
         return check_geometry(
             FloorCalibration("homography", w, h, homography=hom, plane_z_m=float(z), error_mm=err), where)
     if model == "pinhole":
-        intr = intrinsics_from_dict(doc, where)
+        intr = intrinsics_from_dict(doc, where, check_keys=False)
         cam = PinholeCamera(intr, _matrix(doc, "rvec", (3,), where), _matrix(doc, "tvec", (3,), where))
         return check_geometry(FloorCalibration("pinhole", w, h, camera=cam, error_mm=err), where)
     raise CalibrationError(f"{where}: field 'model' must be 'homography' or 'pinhole', got {model!r}")

@@ -1,10 +1,12 @@
-"""vsfleet tracker camera: ArUco markers seen by an overhead camera, published as robot poses.
+"""vsfleet tracker camera: ArUco markers seen by an overhead camera, published as frames and robot poses.
 
 ``--source`` is a camera index (``0``), a device (``/dev/video0``,
 ``/dev/v4l/by-id/...``), a stream URL (``rtsp://...``), a GStreamer pipeline
 ending in ``appsink`` (needs an OpenCV built with GStreamer), a video file, or
 ``render`` (the synthetic camera of tracker.render, drawing the fleet's truth
-in-process). Every frame gets one ``seq``; every pose carries this tracker's
+in-process). Every frame gets one ``seq`` and is published as one message on
+``vs/<fleet>/frame/<src>`` (every robot seen in it; the agents' input), and each
+robot's pose on ``pose/<robot>`` (for tools). Every pose carries this tracker's
 ``src`` and ``t`` = the frame's capture time: for live sources (all but a video
 file, or any source with ``--live``) the wall clock when ``grab()`` returns
 minus ``--latency``; ``t0 + index / fps`` for a video file; the truth time
@@ -30,7 +32,7 @@ import cv2
 import numpy as np
 
 from fleetctl.lifecycle import StopFlag, pace, wall_clock
-from vsfleet.wire import PoseMsg
+from vsfleet.wire import FrameMsg, PoseMsg
 
 from .calib import CalibrationError, FloorCalibration
 from .markers import CameraConfig, CameraTracker, ConfigError, FrameError, load_config
@@ -235,6 +237,11 @@ class LoopStats:
                 f"{self.bad_frames} bad frames, {self.retries} retries")
 
 
+def frame_of(src: str, seq: int, t_s: float, poses: list[tuple[str, PoseMsg]]) -> FrameMsg:
+    """One camera frame as the frame message: every robot seen, (x, y, th) [m, rad; world] at t_s [s]."""
+    return FrameMsg(t=float(t_s), seq=seq, src=src, poses={robot: (m.x, m.y, m.th) for robot, m in poses})
+
+
 def backoff_s(attempt: int, first_s: float = 0.5, max_s: float = 8.0) -> float:
     return min(max_s, first_s * 2 ** (attempt - 1))
 
@@ -242,8 +249,12 @@ def backoff_s(attempt: int, first_s: float = 0.5, max_s: float = 8.0) -> float:
 def run_loop(open_source: Callable[[], Source], tracker: CameraTracker,
              publish: Callable[[str, PoseMsg], None], stop: StopFlag, retries: int = -1,
              first_backoff_s: float = 0.5, perf: Callable[[], float] = time.perf_counter,
-             stats_every_s: float = STATS_EVERY_S) -> LoopStats:
+             stats_every_s: float = STATS_EVERY_S,
+             publish_frame: Callable[[FrameMsg], None] | None = None) -> LoopStats:
     """Read, detect, publish until stop, the end of a video, or ``retries`` failed attempts in a row (-1: never).
+
+    Every frame detected gives one ``publish_frame`` (also with no robot seen), then
+    one ``publish`` per robot seen.
 
     A live source that fails to open or to give a frame is closed and reopened
     after a logged backoff; an unusable frame is counted and skipped. A video
@@ -314,6 +325,8 @@ def run_loop(open_source: Callable[[], Source], tracker: CameraTracker,
                     stats.process_s += perf() - start
                     stats.frames += 1
                     failures = 0
+                    if publish_frame is not None:
+                        publish_frame(frame_of(tracker.src, tracker.seq, t_s, poses))
                     for robot, msg in poses:
                         publish(robot, msg)
                         stats.poses += 1
@@ -356,11 +369,12 @@ def run_camera_tracker(conf, config: CameraConfig, calibration: FloorCalibration
                        t0_s: float | None = None, paced: bool = True, retries: int = -1,
                        stop: StopFlag | None = None, clock: Callable[[], float] = wall_clock,
                        fps: float | None = None, live: bool | None = None, latency_s: float = 0.0) -> LoopStats:
-    """The zenoh adapter: poses on vs/<fleet>/pose/<robot>, liveliness vs/<fleet>/alive/tracker/<src>."""
+    """The zenoh adapter: frames on vs/<fleet>/frame/<src>, poses on vs/<fleet>/pose/<robot>,
+    liveliness vs/<fleet>/alive/tracker/<src>."""
     import zenoh
 
     from fleetctl.zconf import STREAM_QOS
-    from vsfleet.wire import Keys, decode_truth, encode
+    from vsfleet.wire import Keys, decode_truth, encode, encode_frame
 
     stop = stop or StopFlag()
     keys = Keys(fleet)
@@ -370,7 +384,11 @@ def run_camera_tracker(conf, config: CameraConfig, calibration: FloorCalibration
     with open_session(conf) as session:
         pubs: dict[str, zenoh.Publisher] = {}
         token = session.liveliness().declare_token(keys.alive("tracker", tracker.src))
+        frame_pub = session.declare_publisher(keys.frame(tracker.src), **STREAM_QOS)
         subs = []
+
+        def publish_frame(msg: FrameMsg) -> None:
+            frame_pub.put(encode_frame(msg))
 
         def publish(robot: str, msg: PoseMsg) -> None:
             if robot not in pubs:
@@ -404,7 +422,7 @@ def run_camera_tracker(conf, config: CameraConfig, calibration: FloorCalibration
                  "render" if source == "render" else "live" if is_live(source, bool(live)) else "video file",
                  len(config.markers))
         try:
-            stats = run_loop(open_source, tracker, publish, stop, retries)
+            stats = run_loop(open_source, tracker, publish, stop, retries, publish_frame=publish_frame)
         finally:
             for s in subs:
                 s.undeclare()
@@ -412,6 +430,35 @@ def run_camera_tracker(conf, config: CameraConfig, calibration: FloorCalibration
     log.info("camera tracker %s stopping after %s, %d rejected", tracker.src, stats.summary(),
              tracker.rejections.count)
     return stats
+
+
+def render_loop_args(camera: str | Path, robots: tuple[str, ...], out_dir: Path) -> list[str]:
+    """Prepare the camera loop over the synthetic camera of ``camera`` (render -> detect -> frames).
+
+    Calibrates that camera on its rendered reference markers, writes out_dir/calibration.json,
+    and returns the arguments of `vsfleet tracker camera` (without --fleet, --rate and the zenoh
+    flags). ConfigError when the config has no [sim_camera] or maps no marker to one of ``robots``.
+    """
+    from .calibrate import calibrate_frames
+    from .render import reference_scene
+
+    config = load_config(camera)
+    if config.sim_camera is None:
+        raise ConfigError(f"{camera}: no [sim_camera] table, so nothing to render for the camera loop")
+    mapped = {m.robot for m in config.markers.values()}
+    missing = sorted(set(robots) - mapped)
+    if missing:
+        raise ConfigError(f"{camera}: no marker maps to robot(s) {missing} (its [markers] map "
+                          f"{sorted(mapped)}): the camera could not see them")
+    renderer = Renderer(sim_camera_from_dict(config.sim_camera, f"{camera}: [sim_camera]"), config.dictionary)
+    calibration = calibrate_frames([renderer.render(reference_scene(config), 0.0)], config,
+                                   renderer.camera.intrinsics)
+    out = Path(out_dir) / "calibration.json"
+    calibration.save(out)
+    e = calibration.error_mm
+    log.info("camera %s calibrated on its rendered references: reprojection error mean %.2f mm, max %.2f mm",
+             config.src, e["mean"], e["max"])
+    return ["--camera", str(camera), "--calibration", str(out), "--source", "render"]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,9 +1,16 @@
-"""Scenario files (TOML): the fleet, its robots, the mission, tracker and fault timeline.
+"""Scenario and fleet files (TOML): the fleet, its robots, the mission, tracker and fault timeline.
 
 Parsing is pure: ``scenario_from_dict`` takes the loaded TOML table. Unknown
-keys are errors (a misspelt key must not be silently ignored).
+keys are errors (a misspelt key must not be silently ignored), named in the
+message. The file is versioned (``schema = 1``, required). A robot's keys are
+layered: ``[defaults]``, then its type's ``[robot_types.NAME]``, then its own
+``[robots.ID]``; the more specific layer wins. ``[failure]`` and ``[controller]``
+set the failure thresholds and the controller's gains; both travel in the
+mission, so every agent uses the same numbers.
 
 Example::
+
+    schema = 1
 
     [fleet]
     name = "demo"
@@ -14,12 +21,22 @@ Example::
     speed_max = 0.08           # [m/s] structure origin
     turn_rate_max = 0.3        # [rad/s]
     goal = { x = 1.6, y = 1.0, th = 0.3 }   # or path = [[x, y, th], ...] or twist = {vx, vy, w}
-    controller = "tracking"    # optional
+    controller = "tracking"    # optional (default: vsfleet.control.DEFAULT_CONTROLLER)
     on_failure = "hold"        # hold | drop | rejoin
 
+    [failure]                  # optional: vsfleet.failure.FailurePolicy thresholds [m, s]
+    fail_deviation_m = 0.05
+    fail_after_s = 2.0
+
+    [controller]               # optional: the gains of the mission's controller (its factory's keywords)
+    along_gain_per_s = 2.0
+    deadband_m = 0.004
+
     [tracker]
+    kind = "sim"               # sim | camera (render -> detect; `vsfleet run --tracker` overrides)
+    # camera = "../deploy/camera/overhead.toml"   # kind camera: its config, relative to this file
     rate_hz = 30.0
-    noise_xy_m = 0.001
+    noise_xy_m = 0.001         # the simulated tracker's noise, latency and drops (kind sim only)
     noise_th_rad = 0.005
     latency_s = 0.005
     drop_prob = 0.0
@@ -28,16 +45,22 @@ Example::
     rate_hz = 200.0
     truth_rate_hz = 100.0
 
+    [defaults]                 # every robot (wheel_base, wheel_speed_max, wheel_accel_max, gain, type)
+    wheel_base = 0.1           # [m]
+    wheel_speed_max = 0.3      # [m/s]
+    wheel_accel_max = 1.0      # [m/s^2]
+
+    [robot_types.slow]         # robots of this type (the same keys but type)
+    wheel_speed_max = 0.25
+
     [robots.r1]
+    type = "slow"              # optional: one of [robot_types]
     p = [0.25, 0.0]            # [m; structure frame]
     start = [0.0, 0.0, 0.0]    # [m, m, rad; world]
-    wheel_base = 0.1
-    wheel_speed_max = 0.3
-    wheel_accel_max = 1.0
-    gain = [1.0, 0.97]         # true/commanded wheel speed, left and right
+    gain = [1.0, 0.97]         # true/commanded wheel speed, left and right (simulation)
 
     [[faults]]
-    robot = "r2"
+    robot = "r1"
     at_s = 10.0                # after the simulation starts
     kind = "stop"              # stop | slow | stall | wheel | none
     factor = 0.0
@@ -46,16 +69,44 @@ Example::
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any, Mapping
 
+from .control import DEFAULT_CONTROLLER
 from .errors import VsfleetValueError
-from .wire import FAULT_KINDS, Mission, WireError, check_name, mission_from_dict
+from .wire import (
+    FAULT_KINDS,
+    Mission,
+    UnknownFieldError,
+    WireError,
+    check_known,
+    check_name,
+    controller_gain_names,
+    controller_gains_from_dict,
+    failure_from_dict,
+    failure_names,
+    mission_from_dict,
+)
+
+SCHEMA = 1  # the fleet-file format this code reads
+ROBOT_LAYER_KEYS = ("wheel_base", "wheel_speed_max", "wheel_accel_max", "gain")  # defaults and robot types
+ROBOT_KEYS = ("type", "p", "start", *ROBOT_LAYER_KEYS)
+ROBOT_DEFAULTS: dict[str, Any] = {"wheel_base": 0.1, "wheel_speed_max": 0.3, "wheel_accel_max": 1.0,
+                                  "gain": [1.0, 1.0]}
 
 
 class ScenarioError(VsfleetValueError):
     """A scenario file that is malformed or names unknown keys."""
+
+
+class UnknownKeyError(ScenarioError):
+    """A table of a scenario file with a key the format does not define; ``keys`` names them."""
+
+    def __init__(self, message: str, keys: tuple[str, ...]) -> None:
+        super().__init__(message)
+        self.keys = keys
 
 
 @dataclass(frozen=True)
@@ -79,13 +130,23 @@ class FaultEvent:
     duration: float
 
 
+TRACKER_KINDS = ("sim", "camera")
+SIM_TRACKER_KEYS = ("noise_xy_m", "noise_th_rad", "latency_s", "drop_prob")
+
+
 @dataclass(frozen=True)
 class TrackerParams:
+    """kind sim: the simulated tracker, with its noise [m, rad], latency [s] and drop probability.
+    kind camera: the synthetic camera of ``camera`` (a camera config path, relative to the scenario
+    file; None: the default one), rendered at rate_hz [Hz] and detected."""
+
     rate_hz: float = 30.0
     noise_xy_m: float = 0.001
     noise_th_rad: float = 0.005
     latency_s: float = 0.005
     drop_prob: float = 0.0
+    kind: str = "sim"
+    camera: str | None = None
 
 
 @dataclass(frozen=True)
@@ -106,10 +167,39 @@ class Scenario:
     faults: tuple[FaultEvent, ...]
 
 
-def _only(table: Mapping[str, Any], allowed: set[str], where: str) -> None:
-    extra = set(table) - allowed
-    if extra:
-        raise ScenarioError(f"[{where}] has unknown keys {sorted(extra)}; allowed: {sorted(allowed)}")
+def _only(table: Any, allowed, where: str) -> None:
+    """UnknownKeyError naming every key of ``table`` outside ``allowed``; ScenarioError if not a table."""
+    if not isinstance(table, Mapping):
+        raise ScenarioError(f"[{where}] must be a table, got {type(table).__name__}")
+    try:
+        check_known(table, allowed, f"[{where}]")
+    except UnknownFieldError as exc:
+        raise UnknownKeyError(str(exc).replace("unknown field", "unknown key"), exc.fields) from None
+
+
+def _table(doc: Mapping[str, Any], key: str) -> Mapping[str, Any]:
+    v = doc.get(key, {})
+    if not isinstance(v, Mapping):
+        raise ScenarioError(f"[{key}] must be a table, got {type(v).__name__}")
+    return v
+
+
+def resolve_robot(rid: str, own: Mapping[str, Any], defaults: Mapping[str, Any],
+                  types: Mapping[str, Mapping[str, Any]]) -> dict[str, Any]:
+    """Robot ``rid``'s keys: the code's defaults, then [defaults], its type's table, its own; the last wins.
+
+    Its type is its own ``type``, else the one of [defaults], else none.
+    """
+    kind = own.get("type", defaults.get("type"))
+    if kind is not None and (not isinstance(kind, str) or kind not in types):
+        raise ScenarioError(f"[robots.{rid}] type must be one of the [robot_types] "
+                            f"{sorted(types) or '(none defined)'}, got {kind!r}")
+    layers = (ROBOT_DEFAULTS, {k: v for k, v in defaults.items() if k != "type"},
+              types.get(kind, {}) if kind is not None else {}, {k: v for k, v in own.items() if k != "type"})
+    out: dict[str, Any] = {}
+    for layer in layers:
+        out.update(layer)
+    return out
 
 
 def _float(table: Mapping[str, Any], key: str, where: str, default: float | None = None,
@@ -133,8 +223,14 @@ def _floats(v: Any, n: int, what: str) -> tuple[float, ...]:
 
 def scenario_from_dict(doc: Mapping[str, Any], name: str = "scenario") -> Scenario:
     """Validate a loaded TOML scenario into a Scenario."""
-    _only(doc, {"fleet", "mission", "tracker", "sim", "robots", "faults"}, "top level")
-    fleet_t = doc.get("fleet", {})
+    _only(doc, {"schema", "fleet", "mission", "failure", "controller", "tracker", "sim", "defaults",
+                "robot_types", "robots", "faults"}, "top level")
+    schema = doc.get("schema")
+    if schema is None:
+        raise ScenarioError(f"the file has no schema version: put `schema = {SCHEMA}` at its top")
+    if isinstance(schema, bool) or not isinstance(schema, int) or schema != SCHEMA:
+        raise ScenarioError(f"schema {schema!r} is not one this vsfleet reads (it reads schema = {SCHEMA})")
+    fleet_t = _table(doc, "fleet")
     _only(fleet_t, {"name", "duration_s"}, "fleet")
     fleet = fleet_t.get("name", "demo")
     try:
@@ -143,30 +239,35 @@ def scenario_from_dict(doc: Mapping[str, Any], name: str = "scenario") -> Scenar
         raise ScenarioError(str(exc)) from None
     duration = _float(fleet_t, "duration_s", "fleet", 30.0, lo=0.0)
 
+    defaults = _table(doc, "defaults")
+    _only(defaults, {"type", *ROBOT_LAYER_KEYS}, "defaults")
+    types = _table(doc, "robot_types")
+    for kind, table in types.items():
+        _only(table, ROBOT_LAYER_KEYS, f"robot_types.{kind}")
     robots_t = doc.get("robots")
     if not isinstance(robots_t, Mapping) or not robots_t:
         raise ScenarioError("[robots] must define at least one robot, e.g. [robots.r1]")
     sim_robots, mission_robots = [], {}
     for rid in sorted(robots_t):
-        r = robots_t[rid]
         where = f"robots.{rid}"
-        _only(r, {"p", "start", "wheel_base", "wheel_speed_max", "wheel_accel_max", "gain"}, where)
+        _only(robots_t[rid], ROBOT_KEYS, where)
         try:
             check_name(rid, "robot id")
         except WireError as exc:
             raise ScenarioError(str(exc)) from None
+        r = resolve_robot(rid, robots_t[rid], defaults, types)
         p = _floats(r.get("p"), 2, f"[{where}] p")
         sim_robots.append(SimRobot(
             robot=rid, start=_floats(r.get("start", [p[0], p[1], 0.0]), 3, f"[{where}] start"),
-            wheel_base=_float(r, "wheel_base", where, 0.1, lo=1e-6),
-            wheel_speed_max=_float(r, "wheel_speed_max", where, 0.3, lo=1e-6),
-            wheel_accel_max=_float(r, "wheel_accel_max", where, 1.0, lo=1e-6),
-            gain=_floats(r.get("gain", [1.0, 1.0]), 2, f"[{where}] gain")))
+            wheel_base=_float(r, "wheel_base", where, lo=1e-6),
+            wheel_speed_max=_float(r, "wheel_speed_max", where, lo=1e-6),
+            wheel_accel_max=_float(r, "wheel_accel_max", where, lo=1e-6),
+            gain=_floats(r["gain"], 2, f"[{where}] gain")))
         s = sim_robots[-1]
         mission_robots[rid] = {"p": list(p), "wheel_base": s.wheel_base,
                                "wheel_speed_max": s.wheel_speed_max, "wheel_accel_max": s.wheel_accel_max}
 
-    mission_t = dict(doc.get("mission", {}))
+    mission_t = dict(_table(doc, "mission"))
     _only(mission_t, {"metric", "speed_max", "turn_rate_max", "goal", "path", "twist", "controller",
                       "on_failure"}, "mission")
     mission_t.update(version=1, effective_t=0.0, robots=mission_robots)
@@ -175,10 +276,37 @@ def scenario_from_dict(doc: Mapping[str, Any], name: str = "scenario") -> Scenar
         mission = mission_from_dict(mission_t)
     except WireError as exc:
         raise ScenarioError(f"[mission] {exc}") from None
+    failure_t = _table(doc, "failure")
+    _only(failure_t, failure_names(), "failure")
+    controller_t = _table(doc, "controller")
+    try:
+        _only(controller_t, controller_gain_names(mission.controller), "controller")
+    except UnknownKeyError as exc:
+        raise UnknownKeyError(f"{exc} (the gains of the mission's controller "
+                              f"{mission.controller or DEFAULT_CONTROLLER!r})", exc.keys) from None
+    try:
+        failure = failure_from_dict(failure_t)
+    except WireError as exc:
+        raise ScenarioError(f"[failure] {exc}") from None
+    try:
+        gains = controller_gains_from_dict(controller_t, mission.controller)
+    except WireError as exc:
+        raise ScenarioError(f"[controller] {exc}") from None
+    mission = dataclasses.replace(mission, failure=failure, controller_gains=gains)
 
-    tr = doc.get("tracker", {})
-    _only(tr, {"rate_hz", "noise_xy_m", "noise_th_rad", "latency_s", "drop_prob"}, "tracker")
+    tr = _table(doc, "tracker")
+    _only(tr, {"kind", "camera", "rate_hz", *SIM_TRACKER_KEYS}, "tracker")
+    kind = tr.get("kind", "sim")
+    if kind not in TRACKER_KINDS:
+        raise ScenarioError(f"[tracker] kind must be one of {TRACKER_KINDS}, got {kind!r}")
+    if kind == "camera" and set(SIM_TRACKER_KEYS) & set(tr):
+        raise ScenarioError(f"[tracker] {sorted(set(SIM_TRACKER_KEYS) & set(tr))} are the simulated tracker's; "
+                            "a camera's noise and latency come from its frames")
+    camera = tr.get("camera")
+    if camera is not None and (kind != "camera" or not isinstance(camera, str) or not camera):
+        raise ScenarioError("[tracker] camera (a camera config path) goes with kind = \"camera\"")
     tracker = TrackerParams(
+        kind=kind, camera=camera,
         rate_hz=_float(tr, "rate_hz", "tracker", 30.0, lo=1e-3),
         noise_xy_m=_float(tr, "noise_xy_m", "tracker", 0.001, lo=0.0),
         noise_th_rad=_float(tr, "noise_th_rad", "tracker", 0.005, lo=0.0),
@@ -187,7 +315,7 @@ def scenario_from_dict(doc: Mapping[str, Any], name: str = "scenario") -> Scenar
     if tracker.drop_prob > 1.0:
         raise ScenarioError("[tracker] drop_prob must be in [0, 1]")
 
-    sm = doc.get("sim", {})
+    sm = _table(doc, "sim")
     _only(sm, {"rate_hz", "truth_rate_hz"}, "sim")
     sim = SimParams(rate_hz=_float(sm, "rate_hz", "sim", 200.0, lo=1.0),
                     truth_rate_hz=_float(sm, "truth_rate_hz", "sim", 100.0, lo=1e-3))

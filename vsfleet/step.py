@@ -271,7 +271,7 @@ def mission_controller(name: str | None, gains: tuple[tuple[str, float], ...] = 
 
 def mission_policy(mission: Mission) -> FailurePolicy:
     """The mission's failure policy: its on_failure mode and thresholds."""
-    return FailurePolicy(mission.on_failure, **dict(getattr(mission, "failure", ()) or ()))
+    return FailurePolicy(mission.on_failure, **dict(mission.failure))
 
 
 def _enter_mission(state: AgentState, mission: Mission, policy: FailurePolicy, config: StepConfig) -> AgentState:
@@ -311,7 +311,7 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
                                                   f"{state.robot}: it stays stopped"),)))
     policy = mission_policy(mission)
     controller = config.controller or mission_controller(mission.controller,
-                                                         tuple(getattr(mission, "controller_gains", ()) or ()))
+                                                         mission.controller_gains)
     if mission.version != state.mission_version:
         notes.append(Note("info", f"frame {frame.seq}: switching to mission v{mission.version}"))
         state = _enter_mission(state, mission, policy, config)

@@ -1,13 +1,19 @@
 """The wire contract: key expressions and msgpack codecs (see docs/protocol.md).
 
 Every payload is a msgpack map. A decoder checks every required field's
-presence, type and finiteness, ignores fields it does not know, and turns a
-bad message away with :class:`WireError` (a ValueError) whose message says
-why. Encoders produce exactly what decoders accept (round-trip tested).
+presence, type and finiteness, and turns a bad message away with
+:class:`WireError` (a ValueError) whose message says why. Messages that steer
+the fleet (mission, fault, health, cmd, frame) are closed: an unknown field is
+an :class:`UnknownFieldError` that names it. Telemetry (pose, state, truth,
+event) carries the protocol version ``v`` it follows: at ``v`` <= PROTOCOL_V an
+unknown field is an error too; a newer sender's extra fields are ignored.
+Encoders produce exactly what decoders accept (round-trip tested).
 """
 
 from __future__ import annotations
 
+import difflib
+import inspect
 import math
 import re
 from dataclasses import dataclass, fields
@@ -28,10 +34,19 @@ CONTROLLER_NAMES = ("arc", "tracking", "turn_then_go")  # vsfleet.control.CONTRO
 FAULT_KINDS = ("none", "stop", "slow", "stall", "wheel")
 METRICS = ("l1", "l2", "linf")
 ON_FAILURE = ("hold", "drop", "rejoin")
+PROTOCOL_V = 1          # the telemetry version (field ``v``) this code writes and reads in full
 
 
 class WireError(VsfleetValueError):
     """A message that does not meet the wire contract."""
+
+
+class UnknownFieldError(WireError):
+    """A map with a key the contract does not define (a misspelt key, usually); ``fields`` names them."""
+
+    def __init__(self, message: str, unknown: tuple[str, ...]) -> None:
+        super().__init__(message)
+        self.fields = unknown
 
 
 # ---------------------------------------------------------------- key expressions
@@ -175,6 +190,29 @@ def _opt_int(m: Mapping[str, Any], name: str, default: int) -> int:
     return _int(m, name)
 
 
+def check_known(m: Mapping[str, Any], known, what: str) -> None:
+    """Raise UnknownFieldError naming every key of ``m`` not in ``known`` (with a close match, if any)."""
+    extra = sorted((k for k in m if k not in known), key=repr)
+    if not extra:
+        return
+    hints = []
+    for k in extra:
+        close = difflib.get_close_matches(str(k), sorted(known), n=1, cutoff=0.6)
+        hints.append(f"{k!r} (did you mean {close[0]!r}?)" if close else repr(k))
+    raise UnknownFieldError(f"unknown field{'s' if len(extra) > 1 else ''} {', '.join(hints)} in {what}; "
+                            f"known: {', '.join(sorted(known))}", tuple(str(k) for k in extra))
+
+
+def _version(m: Mapping[str, Any], cls: type, what: str) -> int:
+    """Telemetry's protocol version ``v`` (absent: 1, as before versioning); closed unless newer than ours."""
+    v = m.get("v", 1)
+    if isinstance(v, bool) or not isinstance(v, int) or not (1 <= v < 2**31):
+        raise WireError(f"field 'v' (protocol version) must be an integer >= 1, got {v!r}")
+    if v <= PROTOCOL_V:
+        check_known(m, {f.name for f in fields(cls)}, f"{what} (v{v})")
+    return v
+
+
 def _unique_map(pairs: list[tuple[Any, Any]]) -> dict:
     """A msgpack map as a dict, refusing a key that appears twice (msgpack would keep the last)."""
     out: dict = {}
@@ -220,6 +258,7 @@ class PoseMsg:
     y: float
     th: float
     src: str
+    v: int = PROTOCOL_V  # telemetry: the protocol version followed
 
 
 @dataclass(frozen=True)
@@ -265,6 +304,7 @@ class StateMsg:
     rejected: int
     complete: bool = True  # optional field: False when the frame ran on its deadline
     mission: int = -1      # optional field: version of the mission used (-1 = not sent)
+    v: int = PROTOCOL_V    # telemetry: the protocol version followed
 
 
 @dataclass(frozen=True)
@@ -277,6 +317,7 @@ class TruthMsg:
     th: float
     vl: float
     vr: float
+    v: int = PROTOCOL_V  # telemetry: the protocol version followed
 
 
 @dataclass(frozen=True)
@@ -309,10 +350,12 @@ class EventMsg:
     kind: str
     dev: float
     by: str
+    v: int = PROTOCOL_V  # telemetry: the protocol version followed
 
 
 def decode_event(payload: bytes) -> EventMsg:
     m = unpack_map(payload)
+    v = _version(m, EventMsg, "an event")
     kind = _str(m, "kind")
     if kind not in EVENT_KINDS:
         raise WireError(f"unknown event kind {kind!r}; expected one of {EVENT_KINDS}")
@@ -321,7 +364,7 @@ def decode_event(payload: bytes) -> EventMsg:
     check_name(by, "by")
     dev = m.get("dev")
     dev = math.inf if dev == "inf" else _pos({"dev": dev}, "dev", allow_zero=True)
-    return EventMsg(t=_num(m, "t"), seq=_int(m, "seq"), robot=robot, kind=kind, dev=dev, by=by)
+    return EventMsg(t=_num(m, "t"), seq=_int(m, "seq"), robot=robot, kind=kind, dev=dev, by=by, v=v)
 
 
 def encode_event(msg: EventMsg) -> bytes:
@@ -356,6 +399,7 @@ def _robot_list(m: Mapping[str, Any], name: str) -> tuple[str, ...]:
 
 def decode_health(payload: bytes) -> HealthMsg:
     m = unpack_map(payload, MAX_MISSION_BYTES)
+    check_known(m, {"t", "seq", "mission", "failed", "dropped", "since"}, "a health answer")
     since = m.get("since")
     if not isinstance(since, Mapping) or len(since) > MAX_ROBOTS:
         raise WireError("field 'since' must be a map of robot id -> time")
@@ -380,8 +424,9 @@ def encode(msg: Any) -> bytes:
 
 def decode_pose(payload: bytes) -> PoseMsg:
     m = unpack_map(payload)
+    v = _version(m, PoseMsg, "a pose")
     return PoseMsg(t=_num(m, "t"), seq=_int(m, "seq"), x=_num(m, "x"), y=_num(m, "y"),
-                   th=_num(m, "th"), src=_str(m, "src"))
+                   th=_num(m, "th"), src=_str(m, "src"), v=v)
 
 
 def encode_frame(msg: FrameMsg) -> bytes:
@@ -398,9 +443,7 @@ def decode_frame(payload: bytes) -> FrameMsg:
     listed twice, a pose that is not three finite numbers within MAX_ABS.
     """
     m = unpack_map(payload, MAX_FRAME_BYTES)
-    extra = set(m) - {"t", "seq", "src", "poses"}
-    if extra:
-        raise WireError(f"unknown field(s) {sorted(extra)} in a frame")
+    check_known(m, {"t", "seq", "src", "poses"}, "a frame")
     t, seq, src = _num(m, "t"), _int(m, "seq"), check_name(_str(m, "src"), "src")
     poses = m.get("poses")
     if not isinstance(poses, dict):
@@ -424,6 +467,7 @@ def decode_frame(payload: bytes) -> FrameMsg:
 
 def decode_cmd(payload: bytes) -> CmdMsg:
     m = unpack_map(payload)
+    check_known(m, {f.name for f in fields(CmdMsg)}, "a command")
     ttl = _pos(m, "ttl")
     if ttl > MAX_TTL_S:
         raise WireError(f"field 'ttl' must be <= {MAX_TTL_S} s, got {ttl}")
@@ -432,6 +476,7 @@ def decode_cmd(payload: bytes) -> CmdMsg:
 
 def decode_state(payload: bytes) -> StateMsg:
     m = unpack_map(payload)
+    v = _version(m, StateMsg, "a state")
     used = m.get("used")
     if not isinstance(used, list) or not all(isinstance(u, str) and NAME_RE.match(u) for u in used):
         raise WireError("field 'used' must be a list of robot ids")
@@ -439,17 +484,19 @@ def decode_state(payload: bytes) -> StateMsg:
                     th=_num(m, "th"), gx=_num(m, "gx"), gy=_num(m, "gy"), gth=_num(m, "gth"),
                     cost=_pos(m, "cost", allow_zero=True), err=_pos(m, "err", allow_zero=True),
                     used=tuple(used), rejected=_int(m, "rejected"),
-                    complete=_opt_bool(m, "complete", True), mission=_opt_int(m, "mission", -1))
+                    complete=_opt_bool(m, "complete", True), mission=_opt_int(m, "mission", -1), v=v)
 
 
 def decode_truth(payload: bytes) -> TruthMsg:
     m = unpack_map(payload)
+    v = _version(m, TruthMsg, "a truth")
     return TruthMsg(t=_num(m, "t"), x=_num(m, "x"), y=_num(m, "y"), th=_num(m, "th"),
-                    vl=_num(m, "vl"), vr=_num(m, "vr"))
+                    vl=_num(m, "vl"), vr=_num(m, "vr"), v=v)
 
 
 def decode_fault(payload: bytes) -> FaultMsg:
     m = unpack_map(payload)
+    check_known(m, {"kind", "factor", "duration"}, "a fault")
     kind = _str(m, "kind")
     if kind not in FAULT_KINDS:
         raise WireError(f"unknown fault kind {kind!r}; expected one of {FAULT_KINDS}")
@@ -475,7 +522,11 @@ class Mission:
     """A versioned mission; every agent switches to it at tracker time ``effective_t`` [s].
 
     Exactly one of ``goal`` (x, y, th), ``path`` ((x, y, th), ...) or ``twist``
-    (vx, vy, w) [structure frame] is set.
+    (vx, vy, w) [structure frame] is set. ``failure``: (name, value) pairs of
+    FailurePolicy thresholds [m, s, ratio] (see :func:`failure_names`);
+    ``controller_gains``: (name, value) pairs of the controller's factory gains
+    (see :func:`controller_gain_names`). Both sorted by name; absent ones take
+    the code's defaults. Every agent builds the same policy and controller from them.
     """
 
     version: int
@@ -489,6 +540,8 @@ class Mission:
     twist: tuple[float, float, float] | None = None
     controller: str | None = None
     on_failure: str = "hold"
+    failure: tuple[tuple[str, float], ...] = ()
+    controller_gains: tuple[tuple[str, float], ...] = ()
 
     @property
     def robot_ids(self) -> tuple[str, ...]:
@@ -517,7 +570,72 @@ class Mission:
             d["twist"] = {"vx": self.twist[0], "vy": self.twist[1], "w": self.twist[2]}
         if self.controller is not None:
             d["controller"] = self.controller
+        if self.failure:
+            d["failure"] = dict(self.failure)
+        if self.controller_gains:
+            d["controller_gains"] = dict(self.controller_gains)
         return d
+
+
+MISSION_FIELDS = frozenset(f.name for f in fields(Mission))
+ROBOT_SPEC_FIELDS = frozenset(("p", "wheel_base", "wheel_speed_max", "wheel_accel_max"))
+
+
+def failure_names() -> tuple[str, ...]:
+    """The thresholds a mission's ``failure`` may set: every FailurePolicy field but ``mode`` (on_failure)."""
+    from .failure import FailurePolicy  # here, not at the top: failure.py may come to import this module
+
+    return tuple(f.name for f in fields(FailurePolicy) if f.name != "mode")
+
+
+def controller_gain_names(controller: str | None) -> tuple[str, ...]:
+    """The numeric keyword gains of ``controller``'s factory and of make_controller (deadband_m), sorted.
+
+    Read from the signatures, so a new controller's gains are known at once. None is the
+    default controller. WireError for an unknown controller.
+    """
+    from .control import CONTROLLERS, DEFAULT_CONTROLLER, make_controller
+
+    name = DEFAULT_CONTROLLER if controller is None else controller
+    if name not in CONTROLLERS:
+        raise WireError(f"field 'controller' must be one of {tuple(sorted(CONTROLLERS))}, got {name!r}")
+    params = [*inspect.signature(CONTROLLERS[name]).parameters.values(),
+              *(q for q in inspect.signature(make_controller).parameters.values() if q.name != "name")]
+    return tuple(sorted({q.name for q in params
+                         if q.kind in (q.POSITIONAL_OR_KEYWORD, q.KEYWORD_ONLY)
+                         and isinstance(q.default, (int, float)) and not isinstance(q.default, bool)}))
+
+
+def _named_numbers(v: Any, what: str, known: tuple[str, ...]) -> tuple[tuple[str, float], ...]:
+    """A map {name: finite number} with names from ``known`` as sorted (name, value) pairs."""
+    if not isinstance(v, Mapping):
+        raise WireError(f"field {what!r} must be a map of name -> number")
+    check_known(v, known, f"{what!r}")
+    return tuple(sorted((k, _num(v, k)) for k in v))
+
+
+def failure_from_dict(v: Any) -> tuple[tuple[str, float], ...]:
+    """A mission's ``failure`` map {threshold: value} as sorted pairs, checked as FailurePolicy checks them."""
+    from .failure import FailurePolicy
+
+    pairs = _named_numbers(v, "failure", failure_names())
+    try:
+        FailurePolicy(**dict(pairs))
+    except (ValueError, TypeError) as exc:
+        raise WireError(f"field 'failure': {exc}") from None
+    return pairs
+
+
+def controller_gains_from_dict(v: Any, controller: str | None) -> tuple[tuple[str, float], ...]:
+    """A mission's ``controller_gains`` map as sorted pairs, checked by building the controller with them."""
+    from .control import DEFAULT_CONTROLLER, make_controller
+
+    pairs = _named_numbers(v, "controller_gains", controller_gain_names(controller))
+    try:
+        make_controller(controller or DEFAULT_CONTROLLER, **dict(pairs))  # the factory checks the ranges
+    except (ValueError, TypeError) as exc:
+        raise WireError(f"field 'controller_gains': {exc}") from None
+    return pairs
 
 
 def _triple(v: Any, what: str) -> tuple[float, float, float]:
@@ -530,6 +648,7 @@ def mission_from_dict(m: Mapping[str, Any]) -> Mission:
     """Validate a mission map (from msgpack or a scenario file) into a Mission."""
     if not isinstance(m, Mapping):
         raise WireError("mission must be a map")
+    check_known(m, MISSION_FIELDS, "a mission")
     metric = _str(m, "metric")
     if metric not in METRICS:
         raise WireError(f"unknown metric {metric!r}; expected one of {METRICS}")
@@ -545,6 +664,7 @@ def mission_from_dict(m: Mapping[str, Any]) -> Mission:
         spec = robots_in[rid]
         if not isinstance(spec, Mapping):
             raise WireError(f"robot {rid!r}: spec must be a map")
+        check_known(spec, ROBOT_SPEC_FIELDS, f"robot {rid!r}")
         p = spec.get("p")
         if not isinstance(p, (list, tuple)) or len(p) != 2:
             raise WireError(f"robot {rid!r}: 'p' must be [x, y]")
@@ -568,6 +688,7 @@ def mission_from_dict(m: Mapping[str, Any]) -> Mission:
         g = m["goal"]
         if not isinstance(g, Mapping):
             raise WireError("field 'goal' must be a map {x, y, th}")
+        check_known(g, ("x", "y", "th"), "'goal'")
         goal = (_num(g, "x"), _num(g, "y"), _num(g, "th"))
     elif "path" in targets:
         p = m["path"]
@@ -578,6 +699,7 @@ def mission_from_dict(m: Mapping[str, Any]) -> Mission:
         tw = m["twist"]
         if not isinstance(tw, Mapping):
             raise WireError("field 'twist' must be a map {vx, vy, w}")
+        check_known(tw, ("vx", "vy", "w"), "'twist'")
         twist = (_num(tw, "vx"), _num(tw, "vy"), _num(tw, "w"))
     controller = m.get("controller")
     if controller is not None and controller not in CONTROLLER_NAMES:
@@ -585,11 +707,14 @@ def mission_from_dict(m: Mapping[str, Any]) -> Mission:
     on_failure = m.get("on_failure", "hold")
     if on_failure not in ON_FAILURE:
         raise WireError(f"field 'on_failure' must be one of {ON_FAILURE}, got {on_failure!r}")
+    failure = failure_from_dict(m["failure"]) if m.get("failure") is not None else ()
+    gains = (controller_gains_from_dict(m["controller_gains"], controller)
+             if m.get("controller_gains") is not None else ())
     return Mission(version=_int(m, "version"), metric=metric, robots=tuple(robots),
                    speed_max=_pos(m, "speed_max", allow_zero=True),
                    turn_rate_max=_pos(m, "turn_rate_max", allow_zero=True),
                    effective_t=_num(m, "effective_t"), goal=goal, path=path, twist=twist,
-                   controller=controller, on_failure=on_failure)
+                   controller=controller, on_failure=on_failure, failure=failure, controller_gains=gains)
 
 
 def encode_mission(mission: Mission) -> bytes:

@@ -175,7 +175,7 @@ def test_mission_set_refuses_a_malformed_file_with_a_clear_message(tmp_path):
     from fleetctl.run import child_command
 
     bad = tmp_path / "bad.toml"
-    bad.write_text('[mission]\nmetric = "l3"\n[robots.r1]\np = [0, 0]\n')
+    bad.write_text('schema = 1\n[mission]\nmetric = "l3"\n[robots.r1]\np = [0, 0]\n')
     out = subprocess.run(child_command("mission", "set", str(bad), "--no-multicast-scouting"),
                          capture_output=True, text=True, timeout=30)
     assert out.returncode == 2
