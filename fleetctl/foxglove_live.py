@@ -16,6 +16,7 @@ time. At start it asks the fleet for its mission (as ``vsfleet record`` does).
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import queue
 import threading
@@ -215,7 +216,8 @@ def main(argv: list[str] | None = None) -> int:
         log.error("%s", exc)
         return 2
     if args.write_layout:
-        Path(args.write_layout).write_text(layout(args.fleet, robots).to_json() + "\n")
+        text = json.dumps(json.loads(layout(args.fleet, robots).to_json()), indent=2)
+        Path(args.write_layout).write_text(text + "\n")
         log.info("layout for fleet %s (%s) written to %s", args.fleet, ", ".join(robots), args.write_layout)
         return 0
     stop = StopFlag()
@@ -226,8 +228,8 @@ def main(argv: list[str] | None = None) -> int:
         log.error("cannot serve: %s", exc)
         return 2
     with server:
-        print(f"foxglove: open ws://{args.host}:{server.port} in Foxglove (fleet {args.fleet}); "
-              f"layout docs/foxglove-layout.json", flush=True)
+        print(f"foxglove: open ws://{args.host}:{server.port} in Foxglove (fleet {args.fleet}), "
+              f"or {server.server.app_url()}; layout docs/foxglove-layout.json", flush=True)
         while not stop.wait(1.0):
             pass
         log.info("foxglove server stopping after %d messages (%d dropped, %d turned away)",

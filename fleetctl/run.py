@@ -194,7 +194,7 @@ def settled_at_goal(mission: Mission, recorder: Recorder, keys: Keys, window_s: 
 
 def run(scenario_path: str, duration_s: float | None = None, out_dir: str = "runs",
         fleet: str | None = None, stop: StopFlag | None = None, until_goal: bool = True,
-        progress: bool = True) -> tuple[RunSummary, Path]:
+        progress: bool = True, foxglove_port: int | None = None) -> tuple[RunSummary, Path]:
     scenario = load_scenario(scenario_path, fleet=fleet)
     duration = scenario.duration_s if duration_s is None else duration_s
     keys = Keys(scenario.fleet)
@@ -226,6 +226,11 @@ def run(scenario_path: str, duration_s: float | None = None, out_dir: str = "run
         for r in mission.robot_ids:
             children.start(f"agent-{r}", child_command(
                 "agent", "--robot", r, "--fleet", scenario.fleet, "--dt", str(1.0 / tr.rate_hz), *flags))
+        if foxglove_port is not None:  # the live view beside the fleet (fleetctl.foxglove_live)
+            children.start("foxglove", child_command("foxglove", "--fleet", scenario.fleet,
+                                                     "--port", str(foxglove_port), *flags))
+            print(f"foxglove: open ws://127.0.0.1:{foxglove_port} in Foxglove (layout docs/foxglove-layout.json)",
+                  flush=True)
         router.put(keys.mission, payload, **RELIABLE_QOS)
         log.info("fleet of %d robots started on %s; logs in %s", len(agents), endpoint, run_dir)
 
@@ -292,12 +297,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--fleet", default=None, help="override the fleet name")
     p.add_argument("--out", default="runs", help="directory for run records")
     p.add_argument("--no-stop-at-goal", action="store_true", help="run the full duration")
+    p.add_argument("--foxglove", type=int, nargs="?", const=8765, default=None, metavar="PORT",
+                   help="also serve the fleet live to Foxglove on ws://127.0.0.1:PORT (default 8765)")
     p.add_argument("--verbose", "-v", action="store_true")
     args = p.parse_args(argv)
     init_logging(args.verbose)
     try:
         summary, run_dir = run(args.scenario, args.duration, args.out, args.fleet,
-                               until_goal=not args.no_stop_at_goal)
+                               until_goal=not args.no_stop_at_goal, foxglove_port=args.foxglove)
     except (OSError, ValueError) as exc:
         log.error("%s", exc)
         return 2
