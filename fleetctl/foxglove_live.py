@@ -81,8 +81,7 @@ class LiveServer:
         self.views = FleetViews()
         self.context = foxglove.Context()
         self.sink = ChannelSink(self.context)
-        self.server = foxglove.start_server(name=f"vsfleet {fleet}", host=host, port=port,
-                                            capabilities=[Capability.Time], context=self.context)
+        self.server = None
         self._queue: queue.Queue = queue.Queue(maxsize=QUEUE_DEPTH)
         self._cond = threading.Condition()
         self.handled = 0
@@ -90,12 +89,14 @@ class LiveServer:
         self._last_time_ns = 0
         self._thread = threading.Thread(target=self._drain, name="foxglove-views", daemon=True)
         self._thread.start()
-        try:
+        try:  # subscribed before the port listens: a client that can connect sees every message from then on
             self.session = zenoh.open(conf)
             self.sub = self.session.declare_subscriber(self.keys.everything, self._on_sample)
             if query_mission:
                 for key, payload in current_missions(self.session, fleet, timeout_s=2.0):
                     self._put(key, payload)
+            self.server = foxglove.start_server(name=f"vsfleet {fleet}", host=host, port=port,
+                                                capabilities=[Capability.Time], context=self.context)
         except Exception:
             self.close()
             raise
@@ -139,7 +140,7 @@ class LiveServer:
             mirror = json_mirror(key, payload)
             if mirror is not None:  # stamped with the message's own t, else the tracker's clock
                 self.sink.log_json(topic, mirror[2], mirror[3], payload_time_ns(payload) or t_ns)
-        if self.views.now_ns > self._last_time_ns:
+        if self.views.now_ns > self._last_time_ns and self.server is not None:
             self._last_time_ns = self.views.now_ns
             self.server.broadcast_time(self._last_time_ns)
 
@@ -157,7 +158,8 @@ class LiveServer:
         if self._thread.is_alive():
             self._queue.put(None)
             self._thread.join(timeout=5.0)
-        self.server.stop()
+        if self.server is not None:
+            self.server.stop()
 
     def __enter__(self) -> "LiveServer":
         return self

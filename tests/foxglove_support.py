@@ -44,7 +44,7 @@ class FoxgloveClient:
     """Connects, records server info, advertised channels, messages per topic and server time; one reader thread."""
 
     def __init__(self, url: str, open_timeout_s: float = 10.0) -> None:
-        self.ws = connect(url, subprotocols=SUBPROTOCOLS, open_timeout=open_timeout_s, max_size=None)
+        self.ws = connect(url, subprotocols=SUBPROTOCOLS, open_timeout=open_timeout_s, max_size=None).__enter__()
         self.cond = threading.Condition()
         self.server_info: dict | None = None
         self.channels: dict[int, dict] = {}          # channel id -> advertised channel
@@ -137,5 +137,5 @@ class FoxgloveClient:
         self.ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
 
     def close(self) -> None:
-        self.ws.close()
+        self.ws.__exit__(None, None, None)
         self._thread.join(timeout=5.0)

@@ -1,0 +1,112 @@
+"""vsfleet foxglove in one process: a loopback zenoh router, the live server, and a protocol client.
+
+The client (tests/foxglove_support.py) speaks the Foxglove WebSocket protocol
+from its spec; it checks the server's info, the SDK schemas it advertises, the
+scene, the log and the time it broadcasts (the tracker's clock).
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import time
+
+import foxglove.messages
+import pytest
+import zenoh
+
+from fleetctl.foxglove_live import LiveServer
+from fleetctl.foxglove_views import seconds_to_ns, structure_points
+from fleetctl.router import open_loopback_router
+from tests.foxglove_support import FoxgloveClient
+from vsfleet.wire import FrameMsg, Mission, RobotSpec, StateMsg, encode, encode_frame, encode_mission
+
+T0 = time.time()
+MISSION = Mission(version=1, metric="linf", speed_max=0.08, turn_rate_max=0.3, effective_t=T0,
+                  goal=(1.0, 0.5, 0.2),
+                  robots=(("r1", RobotSpec((0.3, 0.0), 0.12, 0.3, 0.8)),
+                          ("r2", RobotSpec((-0.15, 0.26), 0.12, 0.3, 0.8))))
+
+
+def client_conf(endpoint: str) -> zenoh.Config:
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    return conf
+
+
+@pytest.fixture
+def live():
+    router, endpoint = open_loopback_router()
+    payload = encode_mission(MISSION)  # the operator answers mission queries, as vsfleet run does
+    queryable = router.declare_queryable("vs/lab/mission", lambda q: q.reply("vs/lab/mission", payload))
+    server = LiveServer(client_conf(endpoint), "lab", "127.0.0.1", 0)
+    client = FoxgloveClient(f"ws://127.0.0.1:{server.port}")
+    yield router, server, client
+    client.close()
+    server.close()
+    queryable.undeclare()
+    router.close()
+
+
+def frame(seq: int) -> FrameMsg:
+    return FrameMsg(t=T0 + seq / 30, seq=seq, src="cam0", poses={"r1": (0.3 + 0.01 * seq, 0.0, 0.1),
+                                                                 "r2": (-0.15, 0.26, 0.2)})
+
+
+def test_the_server_serves_the_fleet_with_the_sdks_schemas_and_broadcasts_the_trackers_clock(live):
+    router, server, client = live
+    client.wait_for(lambda c: c.server_info is not None, 10)
+    assert client.subprotocol in ("foxglove.sdk.v1", "foxglove.websocket.v1")
+    assert "time" in client.server_info["capabilities"]
+    router.put("vs/lab/frame/cam0", encode_frame(frame(1)))
+    client.wait_for(lambda c: {"/foxglove/vs/lab/scene", "/json/vs/lab/mission", "/foxglove/vs/lab/log"}
+                    <= set(c.topics()), 10)  # the mission came from the query at start
+    ch = client.topics()["/foxglove/vs/lab/scene"]
+    sdk = foxglove.messages.SceneUpdate.get_schema()
+    assert (ch["encoding"], ch["schemaName"]) == ("protobuf", "foxglove.SceneUpdate")
+    assert base64.b64decode(ch["schema"]) == sdk.data
+    client.subscribe(["/foxglove/vs/lab/scene", "/foxglove/vs/lab/log"])
+    seq = 1
+    while not client.messages["/foxglove/vs/lab/scene"]:  # until the subscription is in place
+        seq += 1
+        router.put("vs/lab/frame/cam0", encode_frame(frame(seq)))
+        try:
+            client.wait_for(lambda c: c.messages["/foxglove/vs/lab/scene"], 0.2)
+        except TimeoutError:
+            assert seq < 100, "no scene after 100 frames"
+    sent = {seconds_to_ns(frame(i).t): frame(i) for i in range(1, seq + 1)}
+    t_ns, update = client.messages["/foxglove/vs/lab/scene"][0]
+    (robots,) = update["entities"]
+    assert robots["id"] == "robots" and t_ns in sent  # stamped with the frame's t
+    assert [(a["pose"]["position"]["x"], a["pose"]["position"]["y"]) for a in robots["arrows"]] == \
+        [sent[t_ns].poses[r][:2] for r in ("r1", "r2")]
+    client.wait_for(lambda c: max(sent) in c.times, 5)
+    assert set(client.times) <= set(sent)  # the server's time is the frames' t
+    assert client.times == sorted(client.times)  # the tracker's clock only goes forward
+
+    state = StateMsg(t=frame(seq).t + 0.004, seq=seq, x=0.01, y=0.02, th=0.1, gx=0.02, gy=0.02, gth=0.1, cost=0.003,
+                     err=0.002, used=("r1", "r2"), rejected=2)
+    router.put("vs/lab/state/r1", encode(state))
+    router.put("vs/lab/state/r2", b"\xc1 not msgpack")
+    client.wait_for(lambda c: len(c.messages["/foxglove/vs/lab/scene"]) >= 2 and
+                    len(c.messages["/foxglove/vs/lab/log"]) >= 2 and "/json/vs/lab/state/r1" in c.topics(), 5)
+    client.subscribe(["/json/vs/lab/state/r1"])
+    state = StateMsg(t=state.t + 1 / 30, seq=seq + 1, x=0.01, y=0.02, th=0.1, gx=0.02, gy=0.02, gth=0.1,
+                     cost=0.003, err=0.002, used=("r1", "r2"), rejected=2)
+    while not client.messages["/json/vs/lab/state/r1"]:  # until the subscription is in place
+        router.put("vs/lab/state/r1", encode(state))
+        try:
+            client.wait_for(lambda c: c.messages["/json/vs/lab/state/r1"], 0.2)
+        except TimeoutError:
+            pass
+    _, update = client.messages["/foxglove/vs/lab/scene"][-1]
+    fitted = next(e for e in update["entities"] if e["id"] == "fitted")
+    assert [(s["pose"]["position"]["x"], s["pose"]["position"]["y"]) for s in fitted["spheres"]] == \
+        [(x, y) for x, y, _ in structure_points(MISSION, 0.01, 0.02, 0.1)]
+    t_json, mirror = client.messages["/json/vs/lab/state/r1"][0]
+    assert mirror["err"] == 0.002 and mirror["cost"] == 0.003 and t_json == seconds_to_ns(state.t)
+    lines = [m["message"] for _, m in client.messages["/foxglove/vs/lab/log"]]
+    assert any("agent r1 rejected 2 more" in line for line in lines)
+    assert any("vs/lab/state/r2" in line for line in lines)
