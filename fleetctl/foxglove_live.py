@@ -78,9 +78,9 @@ class LiveServer:
     def __init__(self, conf: zenoh.Config, fleet: str = "demo", host: str = "127.0.0.1", port: int = 8765,
                  query_mission: bool = True) -> None:
         self.keys = Keys(check_name(fleet, "fleet"))
-        self.views = FleetViews()
         self.context = foxglove.Context()
         self.sink = ChannelSink(self.context)
+        self.views = FleetViews(wanted=self.sink.wanted)  # views nobody subscribes to are not built
         self.server = None
         self._queue: queue.Queue = queue.Queue(maxsize=QUEUE_DEPTH)
         self._cond = threading.Condition()

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Iterable, NamedTuple
+from typing import Any, Callable, Iterable, NamedTuple
 
 import foxglove.messages as fm
 
@@ -40,7 +40,8 @@ from vsfleet.wire import (
 
 FRAME_ID = "world"
 LOG_NAME = "vsfleet"
-REJECT_LOG_EVERY_NS = 1_000_000_000  # at most one "turned away" line per key per second of tracker time
+REJECT_LOG_EVERY_NS = 1_000_000_000
+MISSION_REDRAW_NS = 1_000_000_000  # the mission entity rides along with a structure update once a second  # at most one "turned away" line per key per second of tracker time
 
 GREEN = fm.Color(r=0.1, g=0.75, b=0.3, a=1.0)
 ORANGE = fm.Color(r=1.0, g=0.55, b=0.0, a=1.0)
@@ -120,6 +121,18 @@ def structure_entity(t_ns: int, ident: str, mission: Mission, pose: tuple[float,
                    spheres=[_sphere(px, py, 0.03, color) for px, py, _ in pts], lines=lines)
 
 
+def mission_entity(t_ns: int, mission: Mission) -> fm.SceneEntity:
+    """The mission's goal (an arrow) or path (a line through its waypoints) [m, rad; world]."""
+    goal = mission.goal or (mission.path[-1] if mission.path else None)
+    prims: dict[str, list] = {}
+    if goal is not None:
+        prims["arrows"] = [_arrow(*goal, 0.15, PURPLE)]
+    if mission.path:
+        prims["lines"] = [fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineStrip, thickness=0.004,
+                                           color=PURPLE, points=[_p3(x, y) for x, y, _ in mission.path])]
+    return _entity(t_ns, "mission", {"version": str(mission.version)}, **prims)
+
+
 def log_message(t_ns: int, level: fm.LogLevel, name: str, text: str) -> fm.Log:
     return fm.Log(timestamp=fox_time(t_ns), level=level, message=text, name=name)
 
@@ -136,6 +149,7 @@ class _Fleet:
     failed: set[str] = field(default_factory=set)
     dropped: set[str] = field(default_factory=set)
     rejected: dict[str, int] = field(default_factory=dict)  # agent -> last `rejected` count in its state
+    mission_drawn_ns: int = 0  # when the mission entity was last sent (re-sent each second for late viewers)
 
 
 class FleetViews:
@@ -144,7 +158,9 @@ class FleetViews:
     ``now_ns`` is the newest tracker time seen (frames and poses) [ns], to broadcast as the server's time.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, wanted: Callable[[str], bool] | None = None) -> None:
+        """wanted(topic): False to skip building a per-message view nobody watches (the state is still kept)."""
+        self.wanted = wanted or (lambda topic: True)
         self.fleets: dict[str, _Fleet] = {}
         self.now_ns = 0
         self.turned_away = 0
@@ -165,8 +181,8 @@ class FleetViews:
                 return self._pose(base, f, rest, payload)
             if kind == "truth" and rest:
                 m = decode_truth(payload)
-                t = seconds_to_ns(m.t)
-                return [View(f"{base}/truth/{rest}", pose_in_frame(t, m.x, m.y, m.th), t)]
+                t, topic = seconds_to_ns(m.t), f"{base}/truth/{rest}"
+                return [View(topic, pose_in_frame(t, m.x, m.y, m.th), t)] if self.wanted(topic) else []
             if kind == "state" and rest:
                 return self._state(base, f, rest, payload)
             if kind == "event" and rest:
@@ -181,7 +197,9 @@ class FleetViews:
     def _clock(self, t_ns: int) -> None:
         self.now_ns = max(self.now_ns, t_ns)
 
-    def _robots(self, base: str, f: _Fleet, t_ns: int, meta: dict[str, str]) -> View:
+    def _robots(self, base: str, f: _Fleet, t_ns: int, meta: dict[str, str]) -> list[View]:
+        if not self.wanted(f"{base}/scene"):
+            return []
         arrows, texts = [], []
         for robot in sorted(f.poses):
             x, y, th = f.poses[robot]
@@ -190,8 +208,7 @@ class FleetViews:
             texts.append(fm.TextPrimitive(pose=fox_pose(x, y, 0.0, 0.05), billboard=True, font_size=14.0,
                                           scale_invariant=True, color=WHITE, text=robot))
         entity = _entity(t_ns, "robots", meta, arrows=arrows, texts=texts)
-        views = [View(f"{base}/scene", fm.SceneUpdate(entities=[entity]), t_ns)]
-        return views
+        return [View(f"{base}/scene", fm.SceneUpdate(entities=[entity]), t_ns)]
 
     def _frame(self, base: str, f: _Fleet, m: FrameMsg) -> list[View]:
         t = seconds_to_ns(m.t)
@@ -204,7 +221,8 @@ class FleetViews:
         m = decode_pose(payload)
         t = seconds_to_ns(m.t)
         self._clock(t)
-        views = [View(f"{base}/pose/{robot}", pose_in_frame(t, m.x, m.y, m.th), t)]
+        topic = f"{base}/pose/{robot}"
+        views = [View(topic, pose_in_frame(t, m.x, m.y, m.th), t)] if self.wanted(topic) else []
         if m.src in f.frame_srcs:
             return views  # this tracker's frames draw the robots
         f.poses[robot] = (m.x, m.y, m.th)
@@ -221,7 +239,8 @@ class FleetViews:
     def _state(self, base: str, f: _Fleet, agent: str, payload: bytes) -> list[View]:
         m = decode_state(payload)
         t = seconds_to_ns(m.t)
-        views = [View(f"{base}/state/{agent}", pose_in_frame(t, m.x, m.y, m.th), t)]
+        topic = f"{base}/state/{agent}"
+        views = [View(topic, pose_in_frame(t, m.x, m.y, m.th), t)] if self.wanted(topic) else []
         before = f.rejected.get(agent, 0)
         f.rejected[agent] = m.rejected
         if m.rejected > before:
@@ -229,7 +248,7 @@ class FleetViews:
                 t, fm.LogLevel.Warning, f"agent {agent}",
                 f"agent {agent} rejected {m.rejected - before} more message(s), {m.rejected} in all"), t))
         mission = f.mission
-        if mission is not None and m.seq > f.structure_seq:
+        if mission is not None and m.seq > f.structure_seq and self.wanted(f"{base}/scene"):
             f.structure_seq = m.seq
             meta = {"seq": str(m.seq), "by": agent, "cost_m": repr(m.cost), "mission": str(m.mission)}
             fitted = structure_entity(t, "fitted", mission, (m.x, m.y, m.th), GREEN, meta)
@@ -242,8 +261,11 @@ class FleetViews:
                     pts += [_p3(rx, ry), _p3(tx, ty)]
             lines = [fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineList, thickness=0.003, color=ORANGE,
                                       points=pts)] if pts else []
-            tgt = _entity(t, "targets", meta, lines=lines)
-            views.append(View(f"{base}/scene", fm.SceneUpdate(entities=[fitted, advanced, tgt]), t))
+            entities = [fitted, advanced, _entity(t, "targets", meta, lines=lines)]
+            if t - f.mission_drawn_ns >= MISSION_REDRAW_NS:
+                entities.append(mission_entity(t, mission))
+                f.mission_drawn_ns = t
+            views.append(View(f"{base}/scene", fm.SceneUpdate(entities=entities), t))
         return views
 
     def _event(self, base: str, f: _Fleet, by: str, payload: bytes) -> list[View]:
@@ -277,16 +299,12 @@ class FleetViews:
                 f"metric {mission.metric}, speed_max {mission.speed_max} m/s, on_failure {mission.on_failure}")
         views = [View(f"{base}/log", log_message(t, fm.LogLevel.Info, LOG_NAME, text), t)]
         goal = mission.goal or (mission.path[-1] if mission.path else None)
-        prims: dict[str, list] = {}
         if goal is not None:
             views.append(View(f"{base}/goal", pose_in_frame(t, *goal), t))
-            prims["arrows"] = [_arrow(*goal, 0.15, PURPLE)]
         if mission.path:
             views.append(View(f"{base}/path", poses_in_frame(t, mission.path), t))
-            prims["lines"] = [fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineStrip, thickness=0.004,
-                                               color=PURPLE, points=[_p3(x, y) for x, y, _ in mission.path])]
-        entity = _entity(t, "mission", {"version": str(mission.version)}, **prims)
-        views.append(View(f"{base}/scene", fm.SceneUpdate(entities=[entity]), t))
+        views.append(View(f"{base}/scene", fm.SceneUpdate(entities=[mission_entity(t, mission)]), t))
+        f.mission_drawn_ns = t
         return views
 
     def _turned_away(self, base: str, key: str, why: str, t_ns: int) -> list[View]:

@@ -16,6 +16,7 @@ import pytest
 from mcap.reader import make_reader
 
 from fleetctl.foxglove_live import layout
+from fleetctl.foxglove_views import FleetViews
 
 from fleetctl.record import (
     FOXGLOVE,
@@ -47,7 +48,7 @@ from vsfleet.wire import (
     encode_mission,
 )
 
-from tests.foxglove_support import decode_protobuf
+from tests.foxglove_support import decode_protobuf, protobuf_class
 
 T0 = 1795378504.397066
 MISSION = Mission(version=3, metric="linf", speed_max=0.08, turn_rate_max=0.3, effective_t=T0,
@@ -339,3 +340,24 @@ def test_replay_adds_no_frames_for_a_source_whose_frames_were_recorded_nor_for_b
             LogRecord(1002, 1002, "vs/demo/pose/r2", b"\xc1 not a pose"),
             LogRecord(1003, 1003, "vs/demo/pose/r3", encode(PoseMsg(t=T0, seq=1, x=0, y=0, th=0, src="bad src")))]
     assert with_frames(recs) == recs
+
+
+def test_the_mission_is_redrawn_once_a_second_with_the_structure_for_viewers_that_join_late():
+    views = FleetViews()
+    t0 = seconds_to_ns(T0)
+    views.on_message("vs/demo/mission", encode_mission(MISSION), t0)
+
+    def ids_at(seq: int, t: float) -> list[str]:
+        out = views.on_message("vs/demo/state/r1", state(seq, t), 0)
+        (scene,) = [v.message for v in out if v.topic == "/foxglove/vs/demo/scene"]
+        return [e.id for e in decode_scene(scene).entities]
+
+    assert ids_at(1, T0 + 0.5) == ["fitted", "advanced", "targets"]
+    assert ids_at(2, T0 + 1.2) == ["fitted", "advanced", "targets", "mission"]
+    assert ids_at(3, T0 + 1.5) == ["fitted", "advanced", "targets"]
+
+
+def decode_scene(msg):
+    schema = type(msg).get_schema()
+    cls = protobuf_class(schema.name, schema.data)
+    return cls.FromString(msg.encode())
