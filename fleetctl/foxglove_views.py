@@ -27,6 +27,7 @@ from typing import Any, Callable, Iterable, NamedTuple
 import foxglove.messages as fm
 
 from vsfleet.wire import (
+    MAX_ROBOTS,
     FrameMsg,
     Mission,
     WireError,
@@ -41,7 +42,8 @@ from vsfleet.wire import (
 FRAME_ID = "world"
 LOG_NAME = "vsfleet"
 REJECT_LOG_EVERY_NS = 1_000_000_000
-MISSION_REDRAW_NS = 1_000_000_000  # the mission entity rides along with a structure update once a second  # at most one "turned away" line per key per second of tracker time
+MISSION_REDRAW_NS = 1_000_000_000
+MAX_KEYS = 4096  # keys remembered for rate-limiting "turned away" lines  # the mission entity rides along with a structure update once a second  # at most one "turned away" line per key per second of tracker time
 
 GREEN = fm.Color(r=0.1, g=0.75, b=0.3, a=1.0)
 ORANGE = fm.Color(r=1.0, g=0.55, b=0.0, a=1.0)
@@ -69,7 +71,20 @@ def seconds_to_ns(t_s: float) -> int:
     return int(whole) * 1_000_000_000 + round((t_s - whole) * 1e9)
 
 
+MAX_STAMP_NS = (2**32) * 1_000_000_000  # foxglove.Timestamp holds uint32 seconds
+
+
+def stamp_ns(t_s: float) -> int:
+    """A message's t [s] as ns; WireError when a Foxglove timestamp cannot hold it."""
+    t_ns = seconds_to_ns(t_s)
+    fox_time(t_ns)
+    return t_ns
+
+
 def fox_time(t_ns: int) -> fm.Timestamp:
+    """A Foxglove timestamp; WireError for a time before the UNIX epoch or after 2106 (uint32 seconds)."""
+    if not 0 <= t_ns < MAX_STAMP_NS:
+        raise WireError(f"time {t_ns * 1e-9:.9g} s is outside what a Foxglove timestamp holds (0 to 2**32 s)")
     return fm.Timestamp(sec=t_ns // 1_000_000_000, nsec=t_ns % 1_000_000_000)
 
 
@@ -181,7 +196,7 @@ class FleetViews:
                 return self._pose(base, f, rest, payload)
             if kind == "truth" and rest:
                 m = decode_truth(payload)
-                t, topic = seconds_to_ns(m.t), f"{base}/truth/{rest}"
+                t, topic = stamp_ns(m.t), f"{base}/truth/{rest}"
                 return [View(topic, pose_in_frame(t, m.x, m.y, m.th), t)] if self.wanted(topic) else []
             if kind == "state" and rest:
                 return self._state(base, f, rest, payload)
@@ -211,7 +226,9 @@ class FleetViews:
         return [View(f"{base}/scene", fm.SceneUpdate(entities=[entity]), t_ns)]
 
     def _frame(self, base: str, f: _Fleet, m: FrameMsg) -> list[View]:
-        t = seconds_to_ns(m.t)
+        t = stamp_ns(m.t)
+        if len(f.poses.keys() | m.poses.keys()) > MAX_ROBOTS:
+            raise WireError(f"more than {MAX_ROBOTS} robots seen in all")
         self._clock(t)
         f.frame_srcs.add(m.src)
         f.poses.update(m.poses)
@@ -219,12 +236,14 @@ class FleetViews:
 
     def _pose(self, base: str, f: _Fleet, robot: str, payload: bytes) -> list[View]:
         m = decode_pose(payload)
-        t = seconds_to_ns(m.t)
+        t = stamp_ns(m.t)
         self._clock(t)
         topic = f"{base}/pose/{robot}"
         views = [View(topic, pose_in_frame(t, m.x, m.y, m.th), t)] if self.wanted(topic) else []
         if m.src in f.frame_srcs:
             return views  # this tracker's frames draw the robots
+        if robot not in f.poses and len(f.poses) >= MAX_ROBOTS:
+            raise WireError(f"more than {MAX_ROBOTS} robots seen in all")
         f.poses[robot] = (m.x, m.y, m.th)
         seq, seen = f.pose_group.get(m.src, (None, set()))
         if seq != m.seq:
@@ -238,9 +257,11 @@ class FleetViews:
 
     def _state(self, base: str, f: _Fleet, agent: str, payload: bytes) -> list[View]:
         m = decode_state(payload)
-        t = seconds_to_ns(m.t)
+        t = stamp_ns(m.t)
         topic = f"{base}/state/{agent}"
         views = [View(topic, pose_in_frame(t, m.x, m.y, m.th), t)] if self.wanted(topic) else []
+        if agent not in f.rejected and len(f.rejected) >= MAX_ROBOTS:
+            raise WireError(f"more than {MAX_ROBOTS} agents seen in all")
         before = f.rejected.get(agent, 0)
         f.rejected[agent] = m.rejected
         if m.rejected > before:
@@ -272,7 +293,7 @@ class FleetViews:
         m = decode_event(payload)
         if m.by != by:
             raise WireError(f"event from {by!r} says it is by {m.by!r}")
-        t = seconds_to_ns(m.t)
+        t = stamp_ns(m.t)
         if m.kind == "fail":
             f.failed.add(m.robot)
         elif m.kind == "recover":
@@ -292,7 +313,7 @@ class FleetViews:
             return []  # the same mission again (a query's answer, a republish)
         f.mission = mission
         f.structure_seq = -1
-        t = t_ns
+        t = min(max(t_ns, 0), MAX_STAMP_NS - 1)
         target = ("goal", mission.goal) if mission.goal is not None else \
             ("path", mission.path) if mission.path is not None else ("twist", mission.twist)
         text = (f"mission v{mission.version}: {target[0]} {_fmt(target[1])}, {len(mission.robots)} robots, "
@@ -309,7 +330,9 @@ class FleetViews:
 
     def _turned_away(self, base: str, key: str, why: str, t_ns: int) -> list[View]:
         self.turned_away += 1
-        t = max(t_ns, self.now_ns)
+        t = min(max(t_ns, self.now_ns, 0), MAX_STAMP_NS - 1)
+        if len(self._last_reject_log) > MAX_KEYS:
+            self._last_reject_log.clear()
         last = self._last_reject_log.get(key)
         if last is not None and t - last < REJECT_LOG_EVERY_NS:
             return []

@@ -361,3 +361,20 @@ def decode_scene(msg):
     schema = type(msg).get_schema()
     cls = protobuf_class(schema.name, schema.data)
     return cls.FromString(msg.encode())
+
+
+def test_views_turn_away_times_a_foxglove_timestamp_cannot_hold_and_robots_beyond_the_limit():
+    views = FleetViews()
+    good = FrameMsg(t=T0, seq=1, src="cam0", poses={"r1": (0.0, 0.0, 0.0)})
+    assert [v.topic for v in views.on_message("vs/demo/frame/cam0", encode_frame(good), 0)] == \
+        ["/foxglove/vs/demo/scene"]
+    for t in (-1.0, 2.0**32):  # before 1970, after 2106: the wire accepts them, foxglove.Timestamp cannot
+        bad = FrameMsg(t=t, seq=2, src="cam0", poses={"r1": (1.0, 0.0, 0.0)})
+        (line,) = views.on_message("vs/demo/frame/cam1", encode_frame(bad), seconds_to_ns(T0))
+        assert line.topic == "/foxglove/vs/demo/log" and "Foxglove timestamp" in line.message.encode().decode("latin1")
+        views._last_reject_log.clear()
+    assert views.now_ns == seconds_to_ns(T0)  # the clock is not moved by a message turned away
+    assert views.fleets["demo"].poses == {"r1": (0.0, 0.0, 0.0)}
+    many = FrameMsg(t=T0 + 1, seq=3, src="cam0", poses={f"x{i}": (0.0, 0.0, 0.0) for i in range(1000)})
+    (line,) = views.on_message("vs/demo/frame/cam0", encode_frame(many), 0)
+    assert line.topic == "/foxglove/vs/demo/log" and len(views.fleets["demo"].poses) == 1
