@@ -240,8 +240,9 @@ class McapLogWriter:
         log_ns, pub_ns = rec.log_time_ns, rec.publish_time_ns
         for view in self._views.on_message(rec.key, rec.payload, pub_ns):
             schema = type(view.message).get_schema()  # the SDK's own schema (protobuf)
-            cid = self._channel(view.topic, FOXGLOVE, rec.key, schema.encoding,
-                                self._schema_id(schema.name, schema.encoding, schema.data))
+            key = rec.key if view.topic == f"/foxglove/{rec.key}" else view.topic.removeprefix("/foxglove/")
+            cid = self._channel(view.topic, FOXGLOVE, key, schema.encoding,  # key: the source key, or the
+                                self._schema_id(schema.name, schema.encoding, schema.data))  # fleet-level view
             self._add(cid, log_ns, view.t_ns, view.message.encode())
         mirror = json_mirror(rec.key, rec.payload)
         if mirror is not None:
