@@ -110,3 +110,34 @@ def test_the_server_serves_the_fleet_with_the_sdks_schemas_and_broadcasts_the_tr
     lines = [m["message"] for _, m in client.messages["/foxglove/vs/lab/log"]]
     assert any("agent r1 rejected 2 more" in line for line in lines)
     assert any("vs/lab/state/r2" in line for line in lines)
+
+
+def test_a_file_recorded_live_by_vsfleet_record_reads_back_with_the_sdks_schemas(tmp_path):
+    from mcap.reader import make_reader
+
+    from fleetctl.record import Recording
+    from tests.foxglove_support import decode_protobuf
+
+    router, endpoint = open_loopback_router()
+    try:
+        with Recording(client_conf(endpoint), tmp_path / "live.mcap", "vs/lab/**", query_mission=False) as rec:
+            router.put("vs/lab/mission", encode_mission(MISSION))
+            router.put("vs/lab/frame/cam0", encode_frame(frame(1)))
+            router.put("vs/lab/state/r1", encode(StateMsg(t=frame(1).t, seq=1, x=0.01, y=0.02, th=0.1, gx=0.02,
+                                                          gy=0.02, gth=0.1, cost=0.0, err=0.0, used=(), rejected=0)))
+            assert rec.wait_count(3, timeout_s=10), f"{rec.count} of 3 records"
+    finally:
+        router.close()
+    seen = {}
+    with open(tmp_path / "live.mcap", "rb") as f:
+        for schema, channel, m in make_reader(f).iter_messages():
+            if channel.metadata["vsfleet.role"] != "foxglove":
+                continue
+            sdk = getattr(foxglove.messages, schema.name.removeprefix("foxglove.")).get_schema()
+            assert (schema.encoding, schema.data) == ("protobuf", sdk.data)
+            seen.setdefault(channel.topic, []).append(decode_protobuf(schema.name, schema.data, m.data))
+    assert set(seen) == {"/foxglove/vs/lab/scene", "/foxglove/vs/lab/goal", "/foxglove/vs/lab/log",
+                         "/foxglove/vs/lab/state/r1"}
+    ids = [e["id"] for update in seen["/foxglove/vs/lab/scene"] for e in update["entities"]]
+    assert ids == ["mission", "robots", "fitted", "advanced", "targets"]
+    assert seen["/foxglove/vs/lab/goal"][0]["pose"]["position"] == {"x": 1.0, "y": 0.5, "z": 0.0}
