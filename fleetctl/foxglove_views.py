@@ -13,6 +13,8 @@ are the tracker's clock. Topics for fleet ``F`` (see docs/foxglove.md):
   and ``advanced`` (the structure pose and its template points, one sphere per
   robot), ``targets`` (a line from each robot to its point on the advanced
   structure) and ``mission`` (goal or path);
+* ``/foxglove/vs/F/tf``: foxglove.FrameTransforms, world -> ``F/<robot>`` (each frame) and
+  world -> ``F/structure``, ``F/structure_advanced`` (each structure update);
 * ``/foxglove/vs/F/goal`` foxglove.PoseInFrame, ``/foxglove/vs/F/path`` foxglove.PosesInFrame;
 * ``/foxglove/vs/F/log``: foxglove.Log for failure-policy events, agents'
   rejection counts going up, missions, and messages this builder turned away.
@@ -41,9 +43,9 @@ from vsfleet.wire import (
 
 FRAME_ID = "world"
 LOG_NAME = "vsfleet"
-REJECT_LOG_EVERY_NS = 1_000_000_000
-MISSION_REDRAW_NS = 1_000_000_000
-MAX_KEYS = 4096  # keys remembered for rate-limiting "turned away" lines  # the mission entity rides along with a structure update once a second  # at most one "turned away" line per key per second of tracker time
+REJECT_LOG_EVERY_NS = 1_000_000_000  # at most one "turned away" line per key per second of tracker time
+MISSION_REDRAW_NS = 1_000_000_000    # the mission entity rides along with a structure update once a second
+MAX_KEYS = 4096                      # keys remembered for rate-limiting "turned away" lines
 
 GREEN = fm.Color(r=0.1, g=0.75, b=0.3, a=1.0)
 ORANGE = fm.Color(r=1.0, g=0.55, b=0.0, a=1.0)
@@ -88,10 +90,14 @@ def fox_time(t_ns: int) -> fm.Timestamp:
     return fm.Timestamp(sec=t_ns // 1_000_000_000, nsec=t_ns % 1_000_000_000)
 
 
+def yaw(th: float) -> fm.Quaternion:
+    """The rotation by th [rad] about +z."""
+    return fm.Quaternion(x=0.0, y=0.0, z=math.sin(th / 2.0), w=math.cos(th / 2.0))
+
+
 def fox_pose(x: float, y: float, th: float, z: float = 0.0) -> fm.Pose:
     """A pose on the ground plane (z [m]), heading th [rad] about +z."""
-    return fm.Pose(position=fm.Vector3(x=x, y=y, z=z),
-                   orientation=fm.Quaternion(x=0.0, y=0.0, z=math.sin(th / 2.0), w=math.cos(th / 2.0)))
+    return fm.Pose(position=fm.Vector3(x=x, y=y, z=z), orientation=yaw(th))
 
 
 def pose_in_frame(t_ns: int, x: float, y: float, th: float) -> fm.PoseInFrame:
@@ -128,12 +134,22 @@ def _entity(t_ns: int, ident: str, meta: dict[str, str], **prims) -> fm.SceneEnt
 
 def structure_entity(t_ns: int, ident: str, mission: Mission, pose: tuple[float, float, float],
                      color: fm.Color, meta: dict[str, str]) -> fm.SceneEntity:
-    """The structure at ``pose`` [m, rad; world]: an arrow, its template points (spheres, mission order), an outline."""
+    """The structure at ``pose`` [m, rad; world]: an arrow, its template points (spheres, mission order),
+    and an outline through them."""
     pts = structure_points(mission, *pose)
     lines = [fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineLoop, thickness=0.005, color=color,
                               points=[_p3(px, py) for px, py, _ in pts])] if len(pts) > 1 else []
     return _entity(t_ns, ident, meta, arrows=[_arrow(*pose, 0.1, color)],
                    spheres=[_sphere(px, py, 0.03, color) for px, py, _ in pts], lines=lines)
+
+
+def frame_transforms(t_ns: int, children: dict[str, tuple[float, float, float]]) -> fm.FrameTransforms:
+    """world -> child frame at each pose (x, y, th) [m, rad; world]."""
+    out = []
+    for child, (x, y, th) in children.items():
+        out.append(fm.FrameTransform(timestamp=fox_time(t_ns), parent_frame_id=FRAME_ID, child_frame_id=child,
+                                     translation=fm.Vector3(x=x, y=y, z=0.0), rotation=yaw(th)))
+    return fm.FrameTransforms(transforms=out)
 
 
 def mission_entity(t_ns: int, mission: Mission) -> fm.SceneEntity:
@@ -223,7 +239,12 @@ class FleetViews:
             texts.append(fm.TextPrimitive(pose=fox_pose(x, y, 0.0, 0.05), billboard=True, font_size=14.0,
                                           scale_invariant=True, color=WHITE, text=robot))
         entity = _entity(t_ns, "robots", meta, arrows=arrows, texts=texts)
-        return [View(f"{base}/scene", fm.SceneUpdate(entities=[entity]), t_ns)]
+        views = [View(f"{base}/scene", fm.SceneUpdate(entities=[entity]), t_ns)]
+        if self.wanted(f"{base}/tf"):
+            fleet = base.rsplit("/", 1)[1]
+            children = {f"{fleet}/{r}": f.poses[r] for r in sorted(f.poses)}
+            views.append(View(f"{base}/tf", frame_transforms(t_ns, children), t_ns))
+        return views
 
     def _frame(self, base: str, f: _Fleet, m: FrameMsg) -> list[View]:
         t = stamp_ns(m.t)
@@ -287,6 +308,10 @@ class FleetViews:
                 entities.append(mission_entity(t, mission))
                 f.mission_drawn_ns = t
             views.append(View(f"{base}/scene", fm.SceneUpdate(entities=entities), t))
+            if self.wanted(f"{base}/tf"):
+                fleet = base.rsplit("/", 1)[1]
+                views.append(View(f"{base}/tf", frame_transforms(t, {
+                    f"{fleet}/structure": (m.x, m.y, m.th), f"{fleet}/structure_advanced": (m.gx, m.gy, m.gth)}), t))
         return views
 
     def _event(self, base: str, f: _Fleet, by: str, payload: bytes) -> list[View]:

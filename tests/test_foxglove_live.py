@@ -137,7 +137,9 @@ def test_a_file_recorded_live_by_vsfleet_record_reads_back_with_the_sdks_schemas
             assert (schema.encoding, schema.data) == ("protobuf", sdk.data)
             seen.setdefault(channel.topic, []).append(decode_protobuf(schema.name, schema.data, m.data))
     assert set(seen) == {"/foxglove/vs/lab/scene", "/foxglove/vs/lab/goal", "/foxglove/vs/lab/log",
-                         "/foxglove/vs/lab/state/r1"}
+                         "/foxglove/vs/lab/state/r1", "/foxglove/vs/lab/tf"}
+    frames = [[t["child_frame_id"] for t in m["transforms"]] for m in seen["/foxglove/vs/lab/tf"]]
+    assert frames == [["lab/r1", "lab/r2"], ["lab/structure", "lab/structure_advanced"]]
     ids = [e["id"] for update in seen["/foxglove/vs/lab/scene"] for e in update["entities"]]
     assert ids == ["mission", "robots", "fitted", "advanced", "targets"]
     assert seen["/foxglove/vs/lab/goal"][0]["pose"]["position"] == {"x": 1.0, "y": 0.5, "z": 0.0}

@@ -1,4 +1,5 @@
-"""The MCAP record: raw channels per key, times, JSON and Foxglove views (SDK schemas); replay's schedule, keys, frames."""
+"""The MCAP record: raw channels per key, times, JSON and Foxglove views (the SDK's schemas);
+replay's schedule, keys and frames."""
 
 from __future__ import annotations
 
@@ -165,11 +166,18 @@ def test_poses_truth_and_states_are_drawable_as_foxglove_poses_with_the_sdks_sch
     assert fox == {"/foxglove/vs/demo/pose/r1": "foxglove.PoseInFrame",
                    "/foxglove/vs/demo/truth/r1": "foxglove.PoseInFrame",
                    "/foxglove/vs/demo/state/r2": "foxglove.PoseInFrame",
-                   "/foxglove/vs/demo/scene": "foxglove.SceneUpdate"}  # the robots, from the pose
+                   "/foxglove/vs/demo/scene": "foxglove.SceneUpdate",  # the robots, from the pose
+                   "/foxglove/vs/demo/tf": "foxglove.FrameTransforms"}  # world -> demo/r1
+    (tf,) = fox_messages(path, "/foxglove/vs/demo/tf")
+    (tr,) = tf["transforms"]
+    assert (tr["parent_frame_id"], tr["child_frame_id"]) == ("world", "demo/r1")
+    assert tr["translation"] == {"x": 0.5, "y": -0.25, "z": 0.0}
+    assert tr["rotation"]["z"] == pytest.approx(math.sqrt(0.5))
     (pose,) = fox_messages(path, "/foxglove/vs/demo/pose/r1")
     assert pose["frame_id"] == "world"
     sec, nsec = divmod(seconds_to_ns(T0), 10**9)  # T0 to the nanosecond (protobuf JSON writes RFC 3339)
-    assert pose["timestamp"] == datetime.fromtimestamp(sec, timezone.utc).strftime("%Y-%m-%dT%H:%M:%S") + f".{nsec:09d}Z"
+    day_time = datetime.fromtimestamp(sec, timezone.utc).strftime("%Y-%m-%dT%H:%M:%S")
+    assert pose["timestamp"] == f"{day_time}.{nsec:09d}Z"
     assert pose["pose"]["position"] == {"x": 0.5, "y": -0.25, "z": 0.0}
     q = pose["pose"]["orientation"]
     assert q["x"] == 0.0 and q["y"] == 0.0
@@ -367,7 +375,7 @@ def test_views_turn_away_times_a_foxglove_timestamp_cannot_hold_and_robots_beyon
     views = FleetViews()
     good = FrameMsg(t=T0, seq=1, src="cam0", poses={"r1": (0.0, 0.0, 0.0)})
     assert [v.topic for v in views.on_message("vs/demo/frame/cam0", encode_frame(good), 0)] == \
-        ["/foxglove/vs/demo/scene"]
+        ["/foxglove/vs/demo/scene", "/foxglove/vs/demo/tf"]
     for t in (-1.0, 2.0**32):  # before 1970, after 2106: the wire accepts them, foxglove.Timestamp cannot
         bad = FrameMsg(t=t, seq=2, src="cam0", poses={"r1": (1.0, 0.0, 0.0)})
         (line,) = views.on_message("vs/demo/frame/cam1", encode_frame(bad), seconds_to_ns(T0))
