@@ -33,6 +33,7 @@ from vsfleet.wire import (
     FrameMsg,
     Mission,
     WireError,
+    check_name,
     decode_event,
     decode_frame,
     decode_mission,
@@ -206,8 +207,13 @@ class FleetViews:
         f = self.fleets.setdefault(fleet, _Fleet())
         base = f"/foxglove/vs/{fleet}"
         try:
+            if rest is not None and kind in ("frame", "pose", "truth", "state", "event"):
+                check_name(rest, "src" if kind == "frame" else "robot")  # one key chunk
             if kind == "frame" and rest:
-                return self._frame(base, f, decode_frame(payload))
+                m = decode_frame(payload)
+                if m.src != rest:
+                    raise WireError(f"frame on frame/{rest} says it is from {m.src!r}")
+                return self._frame(base, f, m)
             if kind == "pose" and rest:
                 return self._pose(base, f, rest, payload)
             if kind == "truth" and rest:
@@ -229,8 +235,13 @@ class FleetViews:
         self.now_ns = max(self.now_ns, t_ns)
 
     def _robots(self, base: str, f: _Fleet, t_ns: int, meta: dict[str, str]) -> list[View]:
+        views = []
+        if self.wanted(f"{base}/tf"):
+            fleet = base.rsplit("/", 1)[1]
+            children = {f"{fleet}/{r}": f.poses[r] for r in sorted(f.poses)}
+            views.append(View(f"{base}/tf", frame_transforms(t_ns, children), t_ns))
         if not self.wanted(f"{base}/scene"):
-            return []
+            return views
         arrows, texts = [], []
         for robot in sorted(f.poses):
             x, y, th = f.poses[robot]
@@ -239,11 +250,7 @@ class FleetViews:
             texts.append(fm.TextPrimitive(pose=fox_pose(x, y, 0.0, 0.05), billboard=True, font_size=14.0,
                                           scale_invariant=True, color=WHITE, text=robot))
         entity = _entity(t_ns, "robots", meta, arrows=arrows, texts=texts)
-        views = [View(f"{base}/scene", fm.SceneUpdate(entities=[entity]), t_ns)]
-        if self.wanted(f"{base}/tf"):
-            fleet = base.rsplit("/", 1)[1]
-            children = {f"{fleet}/{r}": f.poses[r] for r in sorted(f.poses)}
-            views.append(View(f"{base}/tf", frame_transforms(t_ns, children), t_ns))
+        views.insert(0, View(f"{base}/scene", fm.SceneUpdate(entities=[entity]), t_ns))
         return views
 
     def _frame(self, base: str, f: _Fleet, m: FrameMsg) -> list[View]:

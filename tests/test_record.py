@@ -378,7 +378,7 @@ def test_views_turn_away_times_a_foxglove_timestamp_cannot_hold_and_robots_beyon
         ["/foxglove/vs/demo/scene", "/foxglove/vs/demo/tf"]
     for t in (-1.0, 2.0**32):  # before 1970, after 2106: the wire accepts them, foxglove.Timestamp cannot
         bad = FrameMsg(t=t, seq=2, src="cam0", poses={"r1": (1.0, 0.0, 0.0)})
-        (line,) = views.on_message("vs/demo/frame/cam1", encode_frame(bad), seconds_to_ns(T0))
+        (line,) = views.on_message("vs/demo/frame/cam0", encode_frame(bad), seconds_to_ns(T0))
         assert line.topic == "/foxglove/vs/demo/log" and "Foxglove timestamp" in line.message.encode().decode("latin1")
         views._last_reject_log.clear()
     assert views.now_ns == seconds_to_ns(T0)  # the clock is not moved by a message turned away
@@ -386,3 +386,14 @@ def test_views_turn_away_times_a_foxglove_timestamp_cannot_hold_and_robots_beyon
     many = FrameMsg(t=T0 + 1, seq=3, src="cam0", poses={f"x{i}": (0.0, 0.0, 0.0) for i in range(1000)})
     (line,) = views.on_message("vs/demo/frame/cam0", encode_frame(many), 0)
     assert line.topic == "/foxglove/vs/demo/log" and len(views.fleets["demo"].poses) == 1
+
+
+def test_views_turn_away_a_frame_whose_src_is_not_its_keys_and_keys_that_are_not_one_chunk():
+    views = FleetViews()
+    frame = encode_frame(FrameMsg(t=T0, seq=1, src="cam0", poses={"r1": (0.0, 0.0, 0.0)}))
+    (line,) = views.on_message("vs/demo/frame/cam1", frame, seconds_to_ns(T0))
+    assert line.topic == "/foxglove/vs/demo/log"
+    pose = encode(PoseMsg(t=T0, seq=1, x=0, y=0, th=0, src="cam0"))
+    assert [v.topic for v in views.on_message("vs/demo/pose/r1/extra", pose, seconds_to_ns(T0) + 1)] == \
+        ["/foxglove/vs/demo/log"]
+    assert views.fleets["demo"].poses == {} and views.turned_away == 2
