@@ -36,6 +36,11 @@ from .peers import current_missions
 from .record import json_mirror, payload_time_ns
 from .zconf import add_zenoh_args, init_logging, zenoh_config
 
+try:  # main's one-line first-contact errors (issue 18); on merge, keep only this import
+    from .zconf import open_session
+except ImportError:  # this branch predates fleetctl.zconf.open_session
+    open_session = zenoh.open
+
 log = logging.getLogger("vsfleet.foxglove")
 
 QUEUE_DEPTH = 20_000  # messages waiting for the view thread; beyond, the newest are dropped (counted)
@@ -90,7 +95,7 @@ class LiveServer:
         self._thread = threading.Thread(target=self._drain, name="foxglove-views", daemon=True)
         self._thread.start()
         try:  # subscribed before the port listens: a client that can connect sees every message from then on
-            self.session = zenoh.open(conf)
+            self.session = open_session(conf)
             self.sub = self.session.declare_subscriber(self.keys.everything, self._on_sample)
             if query_mission:
                 for key, payload in current_missions(self.session, fleet, timeout_s=2.0):
