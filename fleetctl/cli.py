@@ -27,6 +27,7 @@ COMMANDS = {
     "replay": ("fleetctl.replay", "publish a recording back into a key space"),
     "plot": ("fleetctl.plot", "the paper's figures (PNG) from a recording"),
     "monitor": ("fleetctl.monitor", "live terminal view of a running fleet"),
+    "foxglove": ("fleetctl.foxglove_live", "live Foxglove WebSocket server on a fleet's key space"),
     "fuzz": ("fleetctl.fuzz", "throw invalid messages at every key the fleet subscribes to"),
 }
 

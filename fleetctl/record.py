@@ -14,13 +14,14 @@ Layout of the file (one channel per key and role; channel metadata
   disappears (recorded with history, so tokens alive at the start are in).
 * ``json`` — topic ``/json/<key>``: the same message as JSON (jsonschema
   ``vsfleet.<kind>``), so Foxglove and other tools can plot every field.
-* ``foxglove`` — drawable views, JSON with Foxglove schemas, frame ``world``:
-  ``/foxglove/<key>`` foxglove.PoseInFrame for pose/<robot>, truth/<robot>
-  and state/<robot> (the agent's fitted structure pose);
-  ``/foxglove/vs/<fleet>/structure`` foxglove.PosesInFrame, the structure's
-  points (one per robot) once per frame; ``/foxglove/vs/<fleet>/goal``
-  foxglove.PoseInFrame and ``/foxglove/vs/<fleet>/path`` foxglove.PosesInFrame
-  from the mission.
+* ``foxglove`` — drawable views built by fleetctl.foxglove_views with the
+  foxglove-sdk's message types (protobuf, the SDK's schemas), the same topics
+  and schemas that ``vsfleet foxglove`` serves live: ``/foxglove/<key>``
+  foxglove.PoseInFrame for pose/<robot>, truth/<robot> and state/<robot>;
+  ``/foxglove/vs/<fleet>/scene`` foxglove.SceneUpdate (robots, fitted and
+  advanced structure with their template points, targets, mission);
+  ``/foxglove/vs/<fleet>/log`` foxglove.Log (events, rejections, missions);
+  ``/foxglove/vs/<fleet>/goal`` and ``/path`` from the mission.
 
 At start the recorder also queries the mission (``vsfleet run`` answers as the
 operator on ``vs/<fleet>/mission``; agents answer under ``vs/<fleet>/peer/<robot>/mission``,
@@ -46,16 +47,9 @@ import zenoh
 from mcap.reader import make_reader
 from mcap.writer import CompressionType, Writer
 
-from vsfleet.wire import (
-    Keys,
-    Mission,
-    WireError,
-    check_name,
-    decode_mission,
-    decode_pose,
-    decode_state,
-    decode_truth,
-)
+from vsfleet.wire import Keys, check_name
+
+from .foxglove_views import FleetViews, seconds_to_ns, structure_points  # noqa: F401 (re-exported)
 
 from .lifecycle import StopFlag
 from .peers import current_missions
@@ -67,7 +61,6 @@ log = logging.getLogger("vsfleet.record")
 ROLE = "vsfleet.role"
 KEY = "vsfleet.key"
 RAW, LIVELINESS, JSON_ROLE, FOXGLOVE = "raw", "liveliness", "json", "foxglove"
-FRAME_ID = "world"
 KEY_RE = re.compile(r"^vs/([A-Za-z0-9_-]+)/(.+)$")
 
 
@@ -93,12 +86,6 @@ class LogRecord(NamedTuple):
         if self.role != LIVELINESS:
             return None
         return bool(msgpack.unpackb(self.payload).get("alive"))
-
-
-def seconds_to_ns(t_s: float) -> int:
-    """UNIX seconds -> integer nanoseconds, exact to the nanosecond for float64 times near now."""
-    whole = math.floor(t_s)
-    return int(whole) * 1_000_000_000 + round((t_s - whole) * 1e9)
 
 
 def payload_time_ns(payload: bytes) -> int | None:
@@ -146,6 +133,8 @@ _FIELDS = {
                   err=_NUM, used={"type": "array", "items": _STR}, rejected=_INT, complete=_BOOL,
                   mission=_INT),
     "truth": dict(t=_NUM, x=_NUM, y=_NUM, th=_NUM, vl=_NUM, vr=_NUM),
+    "frame": dict(t=_NUM, seq=_INT, src=_STR, poses={"type": "object"}),
+    "event": dict(t=_NUM, seq=_INT, robot=_STR, kind=_STR, dev={"type": ["number", "string"]}, by=_STR),
     "fault": dict(kind=_STR, factor=_NUM, duration=_NUM),
     "mission": dict(version=_INT, metric=_STR, robots={"type": "object"}, speed_max=_NUM,
                     turn_rate_max=_NUM, effective_t=_NUM),
@@ -157,48 +146,15 @@ def vsfleet_json_schema(kind: str) -> dict:
     return {"title": f"vsfleet.{kind}", "type": "object", "properties": dict(_FIELDS.get(kind, {}))}
 
 
-_TIME = {"type": "object", "title": "time", "properties": {
-    "sec": {"type": "integer", "minimum": 0}, "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}}}
-_POSE = {"title": "foxglove.Pose", "type": "object", "properties": {
-    "position": {"title": "foxglove.Vector3", "type": "object",
-                 "properties": {c: _NUM for c in "xyz"}, "required": list("xyz")},
-    "orientation": {"title": "foxglove.Quaternion", "type": "object",
-                    "properties": {c: _NUM for c in "xyzw"}, "required": list("xyzw")}},
-    "required": ["position", "orientation"]}
-FOXGLOVE_SCHEMAS = {
-    "foxglove.PoseInFrame": {
-        "title": "foxglove.PoseInFrame", "type": "object",
-        "properties": {"timestamp": _TIME, "frame_id": _STR, "pose": _POSE},
-        "required": ["timestamp", "frame_id", "pose"]},
-    "foxglove.PosesInFrame": {
-        "title": "foxglove.PosesInFrame", "type": "object",
-        "properties": {"timestamp": _TIME, "frame_id": _STR, "poses": {"type": "array", "items": _POSE}},
-        "required": ["timestamp", "frame_id", "poses"]},
-}
-
-
-def fox_time(t_ns: int) -> dict:
-    return {"sec": t_ns // 1_000_000_000, "nsec": t_ns % 1_000_000_000}
-
-
-def fox_pose(x: float, y: float, th: float) -> dict:
-    """A foxglove.Pose on the ground plane (z = 0), heading th [rad] about +z."""
-    return {"position": {"x": x, "y": y, "z": 0.0},
-            "orientation": {"x": 0.0, "y": 0.0, "z": math.sin(th / 2.0), "w": math.cos(th / 2.0)}}
-
-
-def pose_in_frame(t_ns: int, x: float, y: float, th: float) -> dict:
-    return {"timestamp": fox_time(t_ns), "frame_id": FRAME_ID, "pose": fox_pose(x, y, th)}
-
-
-def poses_in_frame(t_ns: int, poses: Iterable[tuple[float, float, float]]) -> dict:
-    return {"timestamp": fox_time(t_ns), "frame_id": FRAME_ID, "poses": [fox_pose(*p) for p in poses]}
-
-
-def structure_points(mission: Mission, x: float, y: float, th: float) -> list[tuple[float, float, float]]:
-    """Each robot's point of the structure at pose (x, y, th) [m, rad; world], heading th."""
-    c, s = math.cos(th), math.sin(th)
-    return [(x + c * sp.p[0] - s * sp.p[1], y + s * sp.p[0] + c * sp.p[1], th) for _, sp in mission.robots]
+def json_mirror(key: str, payload: bytes) -> tuple[str, str, dict, Any] | None:
+    """The JSON mirror of a message: (topic ``/json/<key>``, schema name, jsonschema, object); None if not msgpack."""
+    try:
+        obj = msgpack.unpackb(payload, raw=False, strict_map_key=False)
+    except Exception:
+        return None
+    parts = split_key(key)
+    kind = parts[1] if parts else "message"
+    return f"/json/{key}", f"vsfleet.{kind}", vsfleet_json_schema(kind), jsonable(obj)
 
 
 # ---------------------------------------------------------------- writing
@@ -215,8 +171,7 @@ class McapLogWriter:
         self._schemas: dict[str, int] = {}
         self._channels: dict[tuple[str, str], int] = {}
         self._sequence: dict[int, int] = {}
-        self._missions: dict[str, Mission] = {}
-        self._structure_seq: dict[str, int] = {}
+        self._views = FleetViews()
         self._last_log_ns = 0
         self.derived = derived
         self.count = 0  # raw + liveliness records written
@@ -224,9 +179,11 @@ class McapLogWriter:
 
     # -- channels
     def _schema(self, name: str, schema: dict) -> int:
+        return self._schema_id(name, "jsonschema", json.dumps(schema).encode())
+
+    def _schema_id(self, name: str, encoding: str, data: bytes) -> int:
         if name not in self._schemas:
-            self._schemas[name] = self._writer.register_schema(
-                name=name, encoding="jsonschema", data=json.dumps(schema).encode())
+            self._schemas[name] = self._writer.register_schema(name=name, encoding=encoding, data=data)
         return self._schemas[name]
 
     def _channel(self, topic: str, role: str, key: str, encoding: str, schema_id: int = 0) -> int:
@@ -280,51 +237,17 @@ class McapLogWriter:
                 log.debug("no derived view for %s: %s", rec.key, exc)
 
     def _derive(self, rec: LogRecord) -> None:
-        parts = split_key(rec.key)
-        kind = parts[1] if parts else "message"
-        try:
-            obj = msgpack.unpackb(rec.payload, raw=False, strict_map_key=False)
-        except Exception:
-            return
         log_ns, pub_ns = rec.log_time_ns, rec.publish_time_ns
-        self._add_json(f"/json/{rec.key}", JSON_ROLE, rec.key, f"vsfleet.{kind}", vsfleet_json_schema(kind),
-                       log_ns, pub_ns, jsonable(obj))
-        if parts is None:
-            return
-        fleet, kind, rest = parts
-        pif = "foxglove.PoseInFrame"
-        try:
-            if kind == "pose" and rest:
-                m = decode_pose(rec.payload)
-                self._add_json(f"/foxglove/{rec.key}", FOXGLOVE, rec.key, pif, FOXGLOVE_SCHEMAS[pif],
-                               log_ns, pub_ns, pose_in_frame(pub_ns, m.x, m.y, m.th))
-            elif kind == "truth" and rest:
-                m = decode_truth(rec.payload)
-                self._add_json(f"/foxglove/{rec.key}", FOXGLOVE, rec.key, pif, FOXGLOVE_SCHEMAS[pif],
-                               log_ns, pub_ns, pose_in_frame(pub_ns, m.x, m.y, m.th))
-            elif kind == "state" and rest:
-                m = decode_state(rec.payload)
-                self._add_json(f"/foxglove/{rec.key}", FOXGLOVE, rec.key, pif, FOXGLOVE_SCHEMAS[pif],
-                               log_ns, pub_ns, pose_in_frame(pub_ns, m.x, m.y, m.th))
-                mission = self._missions.get(fleet)
-                if mission is not None and m.seq > self._structure_seq.get(fleet, -1):
-                    self._structure_seq[fleet] = m.seq
-                    self._add_json(f"/foxglove/vs/{fleet}/structure", FOXGLOVE, rec.key, "foxglove.PosesInFrame",
-                                   FOXGLOVE_SCHEMAS["foxglove.PosesInFrame"], log_ns, pub_ns,
-                                   poses_in_frame(pub_ns, structure_points(mission, m.x, m.y, m.th)))
-            elif kind == "mission" and rest is None:
-                mission = decode_mission(rec.payload)
-                self._missions[fleet] = mission
-                goal = mission.goal or (mission.path[-1] if mission.path else None)
-                if goal is not None:
-                    self._add_json(f"/foxglove/vs/{fleet}/goal", FOXGLOVE, rec.key, pif, FOXGLOVE_SCHEMAS[pif],
-                                   log_ns, pub_ns, pose_in_frame(pub_ns, *goal))
-                if mission.path:
-                    self._add_json(f"/foxglove/vs/{fleet}/path", FOXGLOVE, rec.key, "foxglove.PosesInFrame",
-                                   FOXGLOVE_SCHEMAS["foxglove.PosesInFrame"], log_ns, pub_ns,
-                                   poses_in_frame(pub_ns, mission.path))
-        except WireError:
-            pass  # not drawable; the raw and JSON records are kept
+        for view in self._views.on_message(rec.key, rec.payload, pub_ns):
+            schema = type(view.message).get_schema()  # the SDK's own schema (protobuf)
+            key = rec.key if view.topic == f"/foxglove/{rec.key}" else view.topic.removeprefix("/foxglove/")
+            cid = self._channel(view.topic, FOXGLOVE, key, schema.encoding,  # key: the source key, or the
+                                self._schema_id(schema.name, schema.encoding, schema.data))  # fleet-level view
+            self._add(cid, log_ns, view.t_ns, view.message.encode())
+        mirror = json_mirror(rec.key, rec.payload)
+        if mirror is not None:
+            topic, name, schema, obj = mirror
+            self._add_json(topic, JSON_ROLE, rec.key, name, schema, log_ns, pub_ns, obj)
 
     def close(self) -> None:
         if not self.closed:

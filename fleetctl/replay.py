@@ -8,6 +8,13 @@ tokens are declared and undeclared as recorded. ``--fleet NAME`` moves the
 messages to ``vs/NAME/...``. The latest replayed mission answers mission
 queries, as an agent would. All samples go reliably (congestion control
 block) at one priority, so their order is kept.
+
+A recording made before trackers published frames (``vs/<fleet>/frame/<src>``,
+which agents subscribe to) has only ``pose/<robot>``: replay then also
+publishes one frame per tracker frame, the recorded poses grouped by
+``(src, seq)``, right after the group's last pose, with ``t`` the newest pose
+time of the group (``--no-frames`` turns this off). Sources whose frames are
+in the recording are replayed as recorded.
 """
 
 from __future__ import annotations
@@ -25,10 +32,10 @@ from typing import Callable, Sequence
 import zenoh
 from mcap.exceptions import McapError
 
-from vsfleet.wire import check_name
+from vsfleet.wire import FrameMsg, WireError, check_name, decode_pose, encode_frame
 
 from .lifecycle import StopFlag
-from .record import LIVELINESS, RAW, LogRecord, read_log, split_key
+from .record import LIVELINESS, RAW, LogRecord, read_log, seconds_to_ns, split_key
 from .zconf import SessionError, add_zenoh_args, init_logging, open_session, zenoh_config
 
 log = logging.getLogger("vsfleet.replay")
@@ -54,6 +61,57 @@ def offsets_s(records: Sequence[LogRecord], speed: float) -> list[float]:
         return []
     t0 = records[0].log_time_ns
     return [(r.log_time_ns - t0) * 1e-9 / speed for r in records]
+
+
+def with_frames(records: Sequence[LogRecord]) -> list[LogRecord]:
+    """``records`` plus one ``vs/<fleet>/frame/<src>`` record per recorded (src, seq) of pose/<robot>.
+
+    A frame goes right after the last pose of its group (a group ends when that
+    source's next seq starts, or at the end), with that pose's log time; its t is
+    the newest pose time in the group. Sources that have frame records, and poses
+    that do not decode, are left as they are.
+    """
+    recorded = set()
+    for r in records:
+        parts = split_key(r.key) if r.role == RAW else None
+        if parts is not None and parts[1] == "frame" and parts[2]:
+            recorded.add((parts[0], parts[2]))
+    after: dict[int, list[LogRecord]] = {}
+    open_groups: dict[tuple[str, str], tuple[int, int, float, dict]] = {}  # (fleet, src) -> (seq, last i, t, poses)
+
+    def close(fleet: str, src: str) -> None:
+        seq, last, t, poses = open_groups.pop((fleet, src))
+        payload = encode_frame(FrameMsg(t=t, seq=seq, src=src, poses=poses))
+        after.setdefault(last, []).append(LogRecord(records[last].log_time_ns, seconds_to_ns(t),
+                                                    f"vs/{fleet}/frame/{src}", payload, RAW))
+
+    for i, r in enumerate(records):
+        parts = split_key(r.key) if r.role == RAW else None
+        if parts is None or parts[1] != "pose" or not parts[2]:
+            continue
+        fleet, _, robot = parts
+        try:
+            m = decode_pose(r.payload)
+            check_name(robot, "robot")
+            src = check_name(m.src, "src")
+        except WireError:
+            continue
+        if (fleet, src) in recorded:
+            continue
+        group = open_groups.get((fleet, src))
+        if group is not None and group[0] != m.seq:
+            close(fleet, src)
+            group = None
+        seq, _, t, poses = group or (m.seq, i, m.t, {})
+        poses[robot] = (m.x, m.y, m.th)
+        open_groups[(fleet, src)] = (seq, i, max(t, m.t), poses)
+    for fleet, src in list(open_groups):
+        close(fleet, src)
+    out: list[LogRecord] = []
+    for i, r in enumerate(records):
+        out.append(r)
+        out.extend(after.get(i, ()))
+    return out
 
 
 def ns_timestamp(t_ns: int, ident: zenoh.TimestampId) -> zenoh.Timestamp:
@@ -127,12 +185,17 @@ class MissionAnswers:
 def replay_records(session: zenoh.Session, records: Sequence[LogRecord], speed: float = 1.0,
                    fleet: str | None = None, stop: StopFlag | None = None, progress: bool = True,
                    wait_subscribers_s: float = 1.0, clock: Callable[[], float] = time.monotonic,
-                   out=None) -> ReplayStats:
-    """Publish ``records`` (raw and liveliness) on ``session`` in order; see the module doc."""
+                   out=None, frames: bool = True) -> ReplayStats:
+    """Publish ``records`` (raw and liveliness) on ``session`` in order; see the module doc.
+
+    frames: also publish the frames of sources recorded as pose/<robot> only (with_frames).
+    """
     stop = stop or StopFlag(install_signals=False)
     if fleet is not None:
         check_name(fleet, "fleet")
     records = [r for r in records if r.role in (RAW, LIVELINESS)]
+    if frames:
+        records = with_frames(records)
     when = offsets_s(records, speed)
     ident = session.new_timestamp().get_id()
     raw_keys = sorted({remap_key(r.key, fleet) for r in records if r.role == RAW})
@@ -186,10 +249,11 @@ def replay_records(session: zenoh.Session, records: Sequence[LogRecord], speed: 
 
 
 def replay(conf: zenoh.Config, path: str | Path, speed: float = 1.0, fleet: str | None = None,
-           stop: StopFlag | None = None, progress: bool = True, wait_subscribers_s: float = 1.0) -> ReplayStats:
+           stop: StopFlag | None = None, progress: bool = True, wait_subscribers_s: float = 1.0,
+           frames: bool = True) -> ReplayStats:
     records = read_log(path)
     with open_session(conf) as session:
-        return replay_records(session, records, speed, fleet, stop, progress, wait_subscribers_s)
+        return replay_records(session, records, speed, fleet, stop, progress, wait_subscribers_s, frames=frames)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -199,6 +263,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--fleet", default=None, help="publish under vs/<fleet>/ instead of the recorded fleet")
     p.add_argument("--wait-subscribers", type=float, default=1.0, metavar="S",
                    help="wait up to S seconds for a subscriber on every key before starting (default 1)")
+    p.add_argument("--no-frames", action="store_true",
+                   help="do not publish frame/<src> for recordings that have only pose/<robot>")
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("--verbose", "-v", action="store_true")
     add_zenoh_args(p)
@@ -211,7 +277,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.fleet is not None:
             check_name(args.fleet, "fleet")
         stats = replay(zenoh_config(args), args.file, args.speed, args.fleet, stop,
-                       progress=not args.no_progress, wait_subscribers_s=args.wait_subscribers)
+                       progress=not args.no_progress, wait_subscribers_s=args.wait_subscribers,
+                       frames=not args.no_frames)
     except SessionError:  # one line from `vsfleet`, like every program's
         raise
     except (OSError, ValueError, McapError, zenoh.ZError) as exc:

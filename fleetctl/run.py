@@ -228,7 +228,8 @@ def tracker_args(scenario: Scenario, scenario_path: str, kind: str | None, camer
 
 def run(scenario_path: str, duration_s: float | None = None, out_dir: str = "runs",
         fleet: str | None = None, stop: StopFlag | None = None, until_goal: bool = True,
-        progress: bool = True, tracker: str | None = None, camera: str | None = None) -> tuple[RunSummary, Path]:
+        progress: bool = True, tracker: str | None = None, camera: str | None = None,
+        foxglove_port: int | None = None) -> tuple[RunSummary, Path]:
     scenario = load_scenario(scenario_path, fleet=fleet)
     duration = scenario.duration_s if duration_s is None else duration_s
     keys = Keys(scenario.fleet)
@@ -258,6 +259,11 @@ def run(scenario_path: str, duration_s: float | None = None, out_dir: str = "run
         for r in mission.robot_ids:
             children.start(f"agent-{r}", child_command(
                 "agent", "--robot", r, "--fleet", scenario.fleet, "--dt", str(1.0 / tr.rate_hz), *flags))
+        if foxglove_port is not None:  # the live view beside the fleet (fleetctl.foxglove_live)
+            children.start("foxglove", child_command("foxglove", "--fleet", scenario.fleet,
+                                                     "--port", str(foxglove_port), *flags))
+            print(f"foxglove: open ws://127.0.0.1:{foxglove_port} in Foxglove (layout docs/foxglove-layout.json)",
+                  flush=True)
         router.put(keys.mission, payload, **RELIABLE_QOS)
         log.info("fleet of %d robots started on %s; logs in %s", len(agents), endpoint, run_dir)
 
@@ -331,12 +337,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--camera", default=None, metavar="TOML",
                    help="camera config of --tracker camera (default: the scenario's, else "
                         "deploy/camera/overhead.toml)")
+    p.add_argument("--foxglove", type=int, nargs="?", const=8765, default=None, metavar="PORT",
+                   help="also serve the fleet live to Foxglove on ws://127.0.0.1:PORT (default 8765)")
     p.add_argument("--verbose", "-v", action="store_true")
     args = p.parse_args(argv)
     init_logging(args.verbose)
     try:
         summary, run_dir = run(args.scenario, args.duration, args.out, args.fleet,
-                               until_goal=not args.no_stop_at_goal, tracker=args.tracker, camera=args.camera)
+                               until_goal=not args.no_stop_at_goal, tracker=args.tracker, camera=args.camera,
+                               foxglove_port=args.foxglove)
     except (OSError, ValueError) as exc:
         log.error("%s", exc)
         return 2

@@ -66,7 +66,8 @@ def test_the_run_record_holds_the_mission_every_robots_messages_and_the_agents_t
 
 def test_record_replay_record_loses_no_message_and_keeps_keys_order_and_publish_times(
         recorded_run, keep_signal_handlers, tmp_path, capsys):
-    run_dir, first = recorded_run
+    run_dir, recorded = recorded_run
+    first = replay.with_frames(recorded)  # what replay publishes: the record, plus frames where only poses were
     router, endpoint = open_loopback_router()
     try:
         with Recording(client_config(endpoint), tmp_path / "again.mcap", "vs/e2e/**") as rec:
@@ -79,6 +80,8 @@ def test_record_replay_record_loses_no_message_and_keeps_keys_order_and_publish_
     second = read_log(tmp_path / "again.mcap")
     assert len(second) == len(first)
     assert raw(second) == raw(first)          # same keys, payloads and publish times, in the same order
+    frames = [r for r in second if r.role == RAW and r.key.startswith("vs/e2e/frame/")]
+    assert frames, "every tracker frame is on vs/<fleet>/frame/<src> after replay"
     assert tokens(second) == tokens(first)    # every token appeared and went away as recorded
     assert "ETA" in capsys.readouterr().err   # progress, a line at a time off a terminal
 

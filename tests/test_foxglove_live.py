@@ -1,0 +1,145 @@
+"""vsfleet foxglove in one process: a loopback zenoh router, the live server, and a protocol client.
+
+The client (tests/foxglove_support.py) speaks the Foxglove WebSocket protocol
+from its spec; it checks the server's info, the SDK schemas it advertises, the
+scene, the log and the time it broadcasts (the tracker's clock).
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import time
+
+import foxglove.messages
+import pytest
+import zenoh
+
+from fleetctl.foxglove_live import LiveServer
+from fleetctl.foxglove_views import seconds_to_ns, structure_points
+from fleetctl.router import open_loopback_router
+from tests.foxglove_support import FoxgloveClient
+from vsfleet.wire import FrameMsg, Mission, RobotSpec, StateMsg, encode, encode_frame, encode_mission
+
+T0 = time.time()
+MISSION = Mission(version=1, metric="linf", speed_max=0.08, turn_rate_max=0.3, effective_t=T0,
+                  goal=(1.0, 0.5, 0.2),
+                  robots=(("r1", RobotSpec((0.3, 0.0), 0.12, 0.3, 0.8)),
+                          ("r2", RobotSpec((-0.15, 0.26), 0.12, 0.3, 0.8))))
+
+
+def client_conf(endpoint: str) -> zenoh.Config:
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    return conf
+
+
+@pytest.fixture
+def live():
+    router, endpoint = open_loopback_router()
+    payload = encode_mission(MISSION)  # the operator answers mission queries, as vsfleet run does
+    queryable = router.declare_queryable("vs/lab/mission", lambda q: q.reply("vs/lab/mission", payload))
+    server = LiveServer(client_conf(endpoint), "lab", "127.0.0.1", 0)
+    client = FoxgloveClient(f"ws://127.0.0.1:{server.port}")
+    yield router, server, client
+    client.close()
+    server.close()
+    queryable.undeclare()
+    router.close()
+
+
+def frame(seq: int) -> FrameMsg:
+    return FrameMsg(t=T0 + seq / 30, seq=seq, src="cam0", poses={"r1": (0.3 + 0.01 * seq, 0.0, 0.1),
+                                                                 "r2": (-0.15, 0.26, 0.2)})
+
+
+def test_the_server_serves_the_fleet_with_the_sdks_schemas_and_broadcasts_the_trackers_clock(live):
+    router, server, client = live
+    client.wait_for(lambda c: c.server_info is not None, 10)
+    assert client.subprotocol in ("foxglove.sdk.v1", "foxglove.websocket.v1")
+    assert "time" in client.server_info["capabilities"]
+    router.put("vs/lab/frame/cam0", encode_frame(frame(1)))
+    client.wait_for(lambda c: {"/foxglove/vs/lab/scene", "/json/vs/lab/mission", "/foxglove/vs/lab/log"}
+                    <= set(c.topics()), 10)  # the mission came from the query at start
+    ch = client.topics()["/foxglove/vs/lab/scene"]
+    sdk = foxglove.messages.SceneUpdate.get_schema()
+    assert (ch["encoding"], ch["schemaName"]) == ("protobuf", "foxglove.SceneUpdate")
+    assert base64.b64decode(ch["schema"]) == sdk.data
+    client.subscribe(["/foxglove/vs/lab/scene", "/foxglove/vs/lab/log"])
+    seq = 1
+    while not client.messages["/foxglove/vs/lab/scene"]:  # until the subscription is in place
+        seq += 1
+        router.put("vs/lab/frame/cam0", encode_frame(frame(seq)))
+        try:
+            client.wait_for(lambda c: c.messages["/foxglove/vs/lab/scene"], 0.2)
+        except TimeoutError:
+            assert seq < 100, "no scene after 100 frames"
+    sent = {seconds_to_ns(frame(i).t): frame(i) for i in range(1, seq + 1)}
+    t_ns, update = client.messages["/foxglove/vs/lab/scene"][0]
+    (robots,) = update["entities"]
+    assert robots["id"] == "robots" and t_ns in sent  # stamped with the frame's t
+    assert [(a["pose"]["position"]["x"], a["pose"]["position"]["y"]) for a in robots["arrows"]] == \
+        [sent[t_ns].poses[r][:2] for r in ("r1", "r2")]
+    client.wait_for(lambda c: max(sent) in c.times, 5)
+    assert set(client.times) <= set(sent)  # the server's time is the frames' t
+    assert client.times == sorted(client.times)  # the tracker's clock only goes forward
+
+    state = StateMsg(t=frame(seq).t + 0.004, seq=seq, x=0.01, y=0.02, th=0.1, gx=0.02, gy=0.02, gth=0.1, cost=0.003,
+                     err=0.002, used=("r1", "r2"), rejected=2)
+    router.put("vs/lab/state/r1", encode(state))
+    router.put("vs/lab/state/r2", b"\xc1 not msgpack")
+    client.wait_for(lambda c: len(c.messages["/foxglove/vs/lab/scene"]) >= 2 and
+                    len(c.messages["/foxglove/vs/lab/log"]) >= 2 and "/json/vs/lab/state/r1" in c.topics(), 5)
+    client.subscribe(["/json/vs/lab/state/r1"])
+    state = StateMsg(t=state.t + 1 / 30, seq=seq + 1, x=0.01, y=0.02, th=0.1, gx=0.02, gy=0.02, gth=0.1,
+                     cost=0.003, err=0.002, used=("r1", "r2"), rejected=2)
+    while not client.messages["/json/vs/lab/state/r1"]:  # until the subscription is in place
+        router.put("vs/lab/state/r1", encode(state))
+        try:
+            client.wait_for(lambda c: c.messages["/json/vs/lab/state/r1"], 0.2)
+        except TimeoutError:
+            pass
+    _, update = client.messages["/foxglove/vs/lab/scene"][-1]
+    fitted = next(e for e in update["entities"] if e["id"] == "fitted")
+    assert [(s["pose"]["position"]["x"], s["pose"]["position"]["y"]) for s in fitted["spheres"]] == \
+        [(x, y) for x, y, _ in structure_points(MISSION, 0.01, 0.02, 0.1)]
+    t_json, mirror = client.messages["/json/vs/lab/state/r1"][0]
+    assert mirror["err"] == 0.002 and mirror["cost"] == 0.003 and t_json == seconds_to_ns(state.t)
+    lines = [m["message"] for _, m in client.messages["/foxglove/vs/lab/log"]]
+    assert any("agent r1 rejected 2 more" in line for line in lines)
+    assert any("vs/lab/state/r2" in line for line in lines)
+
+
+def test_a_file_recorded_live_by_vsfleet_record_reads_back_with_the_sdks_schemas(tmp_path):
+    from mcap.reader import make_reader
+
+    from fleetctl.record import Recording
+    from tests.foxglove_support import decode_protobuf
+
+    router, endpoint = open_loopback_router()
+    try:
+        with Recording(client_conf(endpoint), tmp_path / "live.mcap", "vs/lab/**", query_mission=False) as rec:
+            router.put("vs/lab/mission", encode_mission(MISSION))
+            router.put("vs/lab/frame/cam0", encode_frame(frame(1)))
+            router.put("vs/lab/state/r1", encode(StateMsg(t=frame(1).t, seq=1, x=0.01, y=0.02, th=0.1, gx=0.02,
+                                                          gy=0.02, gth=0.1, cost=0.0, err=0.0, used=(), rejected=0)))
+            assert rec.wait_count(3, timeout_s=10), f"{rec.count} of 3 records"
+    finally:
+        router.close()
+    seen = {}
+    with open(tmp_path / "live.mcap", "rb") as f:
+        for schema, channel, m in make_reader(f).iter_messages():
+            if channel.metadata["vsfleet.role"] != "foxglove":
+                continue
+            sdk = getattr(foxglove.messages, schema.name.removeprefix("foxglove.")).get_schema()
+            assert (schema.encoding, schema.data) == ("protobuf", sdk.data)
+            seen.setdefault(channel.topic, []).append(decode_protobuf(schema.name, schema.data, m.data))
+    assert set(seen) == {"/foxglove/vs/lab/scene", "/foxglove/vs/lab/goal", "/foxglove/vs/lab/log",
+                         "/foxglove/vs/lab/state/r1", "/foxglove/vs/lab/tf"}
+    frames = [[t["child_frame_id"] for t in m["transforms"]] for m in seen["/foxglove/vs/lab/tf"]]
+    assert frames == [["lab/r1", "lab/r2"], ["lab/structure", "lab/structure_advanced"]]
+    ids = [e["id"] for update in seen["/foxglove/vs/lab/scene"] for e in update["entities"]]
+    assert ids == ["mission", "robots", "fitted", "advanced", "targets"]
+    assert seen["/foxglove/vs/lab/goal"][0]["pose"]["position"] == {"x": 1.0, "y": 0.5, "z": 0.0}
