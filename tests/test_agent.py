@@ -368,3 +368,22 @@ def test_only_under_hold_are_failed_robots_judged_apart(monkeypatch, on_failure,
     set_health(agent, Health(failed=frozenset({"r2"})))   # failed (under hold, say), not dropped
     frame(agent, clock, 1, 100.0, POSES)
     assert seen == [frozenset(judged)]
+
+
+def test_under_a_flood_the_slot_keeps_only_the_newest_frame_and_counts_the_ones_it_dropped():
+    agent, cmds, states, clock = make_agent()
+    clock.t = 100.0
+    for k in range(1, 1001):                                  # 1000 frames before the agent gets to run
+        agent.on_frame(KEYS.frame("sim"), encode_frame(FrameMsg(100.0 + k * 1e-4, k, "sim", POSES)))
+    ran = agent.poll()
+    assert ran.seq == 1000 and agent.frames_replaced == 999
+    assert [decode_cmd(c).seq for c in cmds] == [1000] and agent.poll() is None
+    # each source has its own slot: a second camera's frame is not dropped for the first's
+    agent.on_frame(KEYS.frame("cam2"), encode_frame(FrameMsg(100.2, 1, "cam2", {"r2": POSES["r2"]})))
+    agent.on_frame(KEYS.frame("sim"), encode_frame(FrameMsg(100.2, 1001, "sim", {"r1": POSES["r1"]})))
+    clock.t = 100.2
+    assert agent.poll() is None                               # r3 unseen by both: its deadline first
+    clock.t = 100.24
+    ran = agent.poll()
+    assert ran.seq == 1001 and set(ran.fresh) == {"r1", "r2"} and not ran.complete
+    assert agent.frames_replaced == 999

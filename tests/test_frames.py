@@ -82,7 +82,7 @@ def test_two_cameras_merge_the_freshest_pose_of_each_robot_whatever_the_arrival_
         runs.append(fm.ready(10.002))                 # every robot seen at this instant: at once
     assert runs[0] == runs[1]                          # the same frame, bit for bit
     assert runs[0].poses == {"r1": (0.0, 0.0, 0.0), "r2": (1.0, 0.0, 0.0)} and runs[0].src == "cam2"
-    assert runs[0].fresh == {"r2"}
+    assert runs[0].fresh == {"r1", "r2"}                # both of the same instant
 
 
 def test_with_two_cameras_a_frame_missing_robots_waits_for_its_deadline():

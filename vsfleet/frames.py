@@ -30,8 +30,9 @@ from .wire import FrameMsg, Mission
 class Frame:
     """Merged poses (x, y, th) [m, rad; world] for frame ``seq`` of ``src`` at tracker time ``t`` [s].
 
-    fresh: the robots whose pose comes from this very frame (the failure rule's motion test
-    takes only those); complete: every robot asked for is in ``poses``.
+    fresh: the robots whose pose is of this frame's instant, from any source (at most half the
+    deadline older; the failure rule's motion test takes only those, never a pose held over from
+    an earlier frame); complete: every robot asked for is fresh.
     """
 
     seq: int
@@ -113,14 +114,14 @@ class FrameMerger:
             return None
         self.pending, self.deadline_at = None, None
         self.done = (msg.t, msg.seq)
-        oldest = msg.t - self.max_age_s
+        oldest, instant = msg.t - self.max_age_s, msg.t - 0.5 * self.deadline_s
         poses, fresh = {}, []
         for r in self.robots:
             held = self.held.get(r)
             if held is None or held[0] < oldest:
                 continue
             poses[r] = held[3]
-            if held[1] == msg.seq and held[2] == msg.src and held[0] == msg.t:
+            if held[0] >= instant:
                 fresh.append(r)
         return Frame(seq=msg.seq, t=msg.t, poses=poses, complete=listed, fresh=frozenset(fresh), src=msg.src)
 
