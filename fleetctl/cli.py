@@ -21,6 +21,8 @@ COMMANDS = {
     "plot": ("fleetctl.plot", "the paper's figures (PNG) from a recording"),
     "monitor": ("fleetctl.monitor", "live terminal view of a running fleet"),
     "fuzz": ("fleetctl.fuzz", "throw invalid messages at every key the fleet subscribes to"),
+    "bridge ros2": ("fleetctl.bridge_ros2", "one robot's commands -> geometry_msgs/Twist over rmw_zenoh"),
+    "bridge ros2-poses": ("fleetctl.bridge_ros2_poses", "mocap PoseStamped/Odometry over rmw_zenoh -> frames"),
 }
 
 USAGE = "usage: vsfleet COMMAND [ARGS...]\n\ncommands:\n" + "\n".join(
