@@ -11,6 +11,8 @@ mission is known nothing but zero is sent.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import json
 import logging
 import threading
 import time
@@ -214,18 +216,33 @@ class TwistPublisher:
             t.undeclare()
 
 
+def ros_client_config(endpoint: str) -> zenoh.Config:
+    """A client session to the ROS 2 host's own router (``--ros-connect``), multicast scouting off."""
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    return conf
+
+
 def run_bridge(conf: zenoh.Config, robot: str, fleet: str = "demo", namespace: str = "/",
                topic: str = "cmd_vel", domain: int = 0, distro: str = "jazzy",
                layout: rz.Attachment = rz.Attachment.CURRENT, node_name: str | None = None,
-               stop: StopFlag | None = None, ready: threading.Event | None = None) -> BridgeStats:
-    """Run until ``stop``; returns the counters. The last thing it publishes is a zero Twist."""
+               ros_conf: zenoh.Config | None = None, stop: StopFlag | None = None,
+               ready: threading.Event | None = None) -> BridgeStats:
+    """Run until ``stop``; returns the counters. The last thing it publishes is a zero Twist.
+
+    With ``ros_conf`` the ROS 2 side gets a session of its own (the robot's router), and ``conf``
+    is only for vsfleet (the lab router); otherwise one session serves both."""
     stop = stop or StopFlag()
     keys = Keys(fleet)
     full_topic = rz.resolve_topic(namespace, topic)
-    with zenoh.open(conf) as session:
-        node = rz.Node(domain=domain, zid=str(session.info.zid()), nid=0, namespace=namespace,
+    with contextlib.ExitStack() as stack:
+        session = stack.enter_context(zenoh.open(conf))
+        ros = stack.enter_context(zenoh.open(ros_conf)) if ros_conf is not None else session
+        node = rz.Node(domain=domain, zid=str(ros.info.zid()), nid=0, namespace=namespace,
                        name=node_name or f"vsfleet_bridge_{robot}")
-        out = TwistPublisher(session, node=node, topic=full_topic, distro=distro, layout=layout)
+        out = TwistPublisher(ros, node=node, topic=full_topic, distro=distro, layout=layout)
         bridge = CmdBridge(robot, out.send)
         log.info("robot %s: %s -> %s (%s, ROS domain %d)", robot, keys.cmd(robot), out.key, distro, domain)
         subs = [session.declare_subscriber(keys.mission, lambda s: bridge.on_mission(
@@ -280,6 +297,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--attachment", choices=[a.value for a in rz.Attachment], default="current",
                    help="attachment layout: current (humble >= 0.1.2, jazzy >= 0.2.4) or keyed (older)")
     p.add_argument("--node-name", default=None, help="ROS node name (default vsfleet_bridge_<robot>)")
+    p.add_argument("--ros-connect", default=None, metavar="ENDPOINT",
+                   help="reach ROS 2 through this router (e.g. tcp/127.0.0.1:7447) in a session of its "
+                        "own; the zenoh flags below are then for the vsfleet side only")
     p.add_argument("--verbose", "-v", action="store_true")
     add_zenoh_args(p)
     return p
@@ -297,7 +317,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"vsfleet bridge ros2: {exc}", flush=True)
         return 2
     run_bridge(zenoh_config(args), args.robot, args.fleet, args.namespace, args.topic, args.domain,
-               args.distro, rz.Attachment(args.attachment), args.node_name)
+               args.distro, rz.Attachment(args.attachment), args.node_name,
+               ros_client_config(args.ros_connect) if args.ros_connect else None)
     return 0
 
 

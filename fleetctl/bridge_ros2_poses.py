@@ -13,6 +13,7 @@ logged (rate-limited) and never becomes a frame.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
 import threading
 import time
@@ -24,6 +25,7 @@ import zenoh
 from vsfleet.wire import FrameMsg, Keys, check_name, encode_frame
 
 from . import rmw_zenoh as rz
+from .bridge_ros2 import ros_client_config
 from .lifecycle import Rejections, StopFlag
 from .zconf import STREAM_QOS, add_zenoh_args, init_logging, zenoh_config
 
@@ -170,24 +172,27 @@ class PoseBridge:
 def run_pose_bridge(conf: zenoh.Config, topics: dict[str, str], fleet: str = "demo", src: str = "ros2",
                     domain: int = 0, distro: str = "jazzy", frame_id: str | None = None,
                     tolerance_s: float = 0.002, hold_s: float = 0.02, node_name: str = "vsfleet_poses",
-                    stop: StopFlag | None = None, ready: threading.Event | None = None) -> PoseStats:
-    """Run until ``stop``; returns the counters."""
+                    ros_conf: zenoh.Config | None = None, stop: StopFlag | None = None,
+                    ready: threading.Event | None = None) -> PoseStats:
+    """Run until ``stop``; returns the counters. ``ros_conf``: a session of its own for ROS 2."""
     stop = stop or StopFlag()
     keys = Keys(fleet)
-    with zenoh.open(conf) as session:
+    with contextlib.ExitStack() as stack:
+        session = stack.enter_context(zenoh.open(conf))
+        ros = stack.enter_context(zenoh.open(ros_conf)) if ros_conf is not None else session
         pub = session.declare_publisher(keys.frame(src), **STREAM_QOS)
         assembler = FrameAssembler(set(topics.values()), src, lambda f: pub.put(encode_frame(f)),
                                    tolerance_s=tolerance_s, hold_s=hold_s)
         bridge = PoseBridge(topics, assembler, distro, frame_id)
-        node = rz.Node(domain=domain, zid=str(session.info.zid()), nid=0, namespace="/", name=node_name)
-        tokens = [session.liveliness().declare_token(node.token())]
+        node = rz.Node(domain=domain, zid=str(ros.info.zid()), nid=0, namespace="/", name=node_name)
+        tokens = [ros.liveliness().declare_token(node.token())]
         subs = []
         for eid, (topic, robot) in enumerate(sorted(topics.items()), start=1):
             for ros_type in rz.POSE_TYPES:
-                tokens.append(session.liveliness().declare_token(
+                tokens.append(ros.liveliness().declare_token(
                     node.endpoint_token("MS", eid, topic, ros_type, distro)))
             selector = f"{domain}/{topic.strip('/')}/*/*"  # PoseStamped or Odometry, told by the key
-            subs.append(session.declare_subscriber(
+            subs.append(ros.declare_subscriber(
                 selector, lambda s, _t=topic: bridge.on_sample(_t, str(s.key_expr), s.payload.to_bytes())))
             log.info("%s (%s) -> %s robot %s", selector, distro, keys.frame(src), robot)
         if ready is not None:
@@ -219,6 +224,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="stamps this close [s] are one mocap instant (default 0.002)")
     p.add_argument("--hold", type=float, default=0.02, metavar="S",
                    help="send an incomplete frame this long [s] after its first pose (default 0.02)")
+    p.add_argument("--node-name", default="vsfleet_poses", help="ROS node name of the subscriptions")
+    p.add_argument("--ros-connect", default=None, metavar="ENDPOINT",
+                   help="reach ROS 2 through this router in a session of its own; the zenoh flags "
+                        "below are then for the vsfleet side only")
     p.add_argument("--verbose", "-v", action="store_true")
     add_zenoh_args(p)
     return p
@@ -238,7 +247,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"vsfleet bridge ros2-poses: {exc}", flush=True)
         return 2
     run_pose_bridge(zenoh_config(args), topics, args.fleet, args.src, args.domain, args.distro,
-                    args.frame_id, args.stamp_tolerance, args.hold)
+                    args.frame_id, args.stamp_tolerance, args.hold, args.node_name,
+                    ros_client_config(args.ros_connect) if args.ros_connect else None)
     return 0
 
 

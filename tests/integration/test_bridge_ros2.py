@@ -77,8 +77,10 @@ def wait_until(pred, timeout_s: float, what: str, poll: threading.Event | None =
 def test_sdk_subscriber_receives_and_decodes_the_bridge_twist_then_a_zero_within_ttl(fleet, sdk, distro):
     robot = "r1"
     ns = f"/{distro}_{robot}"
+    # humble: the ROS side through a session of its own (--ros-connect; here the same router)
+    split = ["--ros-connect", fleet.endpoint] if distro == "humble" else []
     fleet.start(f"bridge-{distro}", "bridge", "ros2", "--robot", robot, "--fleet", fleet.keys.fleet,
-                "--namespace", ns, "--distro", distro)
+                "--namespace", ns, "--distro", distro, *split)
     twists: queue.Queue = queue.Queue()
     type_hash = rz.type_hash(rz.TWIST, distro)
     sub = sdk.ROS2Subscriber(f"{ns}/cmd_vel", rz.TWIST, lambda m: twists.put((time.monotonic(), m)),
@@ -128,14 +130,21 @@ def test_sdk_subscriber_receives_and_decodes_the_bridge_twist_then_a_zero_within
         assert zero_at - last_put <= ttl + 0.1
         # Every sample carried a current-layout attachment the SDK parses; sequence numbers rise.
         from zenoh_ros2_sdk.attachment import Attachment
-        seqs = []
+        seqs, gids = [], set()
         while not attachments.empty():
             a = attachments.get_nowait()
             assert a is not None and len(a) == 33
             parsed = Attachment.from_bytes(a)
             assert len(parsed.gid) == 16 and abs(parsed.timestamp_ns - time.time_ns()) < 60e9
             seqs.append(parsed.sequence_id)
+            gids.add(parsed.gid)
         assert len(seqs) >= 2 and seqs == sorted(seqs) and len(set(seqs)) == len(seqs)
+        # The GID is rmw_zenoh's: XXH3-128 of the publisher's liveliness token, as the graph sees it.
+        tokens = [str(r.ok.key_expr) for r in fleet.router.liveliness().get("@ros2_lv/0/**", timeout=5.0)
+                  if r.ok is not None]
+        mp = [t for t in tokens if f"/MP/%/{rz.mangle(ns)}/" in t]
+        assert len(mp) == 1 and mp[0].endswith(f"/{type_hash}/::,10:,:,:,,")
+        assert gids == {rz.gid_of(mp[0])}
     finally:
         raw.undeclare()
         sub.close()
