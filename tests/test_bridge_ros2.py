@@ -281,3 +281,34 @@ def test_parse_map_refuses_bad_and_repeated_entries():
     for bad in ([], ["r1"], ["r1:vicon"], ["r/1:/a"], ["r1:/a", "r1:/b"], ["r1:/a", "r2:/a"]):
         with pytest.raises(MapError):
             parse_map(bad)
+
+
+# ---------------------------------------------------------------- deploy/ros2
+
+DEPLOY = __import__("pathlib").Path(__file__).resolve().parents[1] / "deploy" / "ros2"
+
+
+def test_the_shared_router_config_loads_and_matches_rmw_zenohs_router_defaults():
+    import zenoh
+    import json
+    conf = zenoh.Config.from_file(str(DEPLOY / "router.json5"))
+
+    def get(key):
+        return json.loads(conf.get_json(key))
+    assert get("mode") == "router"
+    assert get("listen/endpoints") == ["tcp/[::]:7447"]  # where rmw_zenoh sessions connect by default
+    assert get("scouting/multicast/enabled") is False
+    assert get("timestamping/enabled")["router"] is True
+
+
+def test_the_systemd_units_command_line_is_one_the_bridge_accepts():
+    text = (DEPLOY / "vsfleet-bridge-ros2@.service").read_text().replace("\\\n", " ")
+    line = next(line for line in text.splitlines() if line.startswith("ExecStart="))
+    argv = line.split("=", 1)[1].split()
+    assert argv[0].endswith("/vsfleet") and argv[1:3] == ["bridge", "ros2"]
+    env = {"%i": "r1", "${VSFLEET_FLEET}": "lab", "${VSFLEET_ROS_NAMESPACE}": "/r1",
+           "${VSFLEET_ROS_DISTRO}": "humble", "${ROS_DOMAIN_ID}": "0"}
+    args = cmd_parser().parse_args([env.get(a, a) for a in argv[3:]])
+    assert (args.robot, args.namespace, args.distro, args.domain, args.connect) == (
+        "r1", "/r1", "humble", 0, ["tcp/127.0.0.1:7447"])
+    assert args.no_multicast_scouting and args.mode == "client"
