@@ -32,6 +32,7 @@ from .zconf import STREAM_QOS, add_zenoh_args, init_logging, zenoh_config
 log = logging.getLogger("vsfleet.bridge.ros2-poses")
 
 TICK_S = 0.005
+STATS_PERIOD_S = 30.0
 
 
 class MapError(ValueError):
@@ -71,6 +72,7 @@ class PoseStats:
     wrong_frame_id: int = 0
     wrong_type: int = 0
     partial: int = 0
+    duplicate: int = 0
 
 
 @dataclass
@@ -117,11 +119,14 @@ class FrameAssembler:
                 return
             self.stats.messages += 1
             p = self.pending
-            if p is not None and (pose.t > p.t + self.tolerance_s or robot in p.poses):
-                self._flush()
-            elif p is not None and pose.t < p.t - self.tolerance_s:
-                self.stats.stale += 1  # older than the instant being gathered
-                return
+            if p is not None:
+                if pose.t > p.t + self.tolerance_s:
+                    self._flush()  # a newer instant: the gathered one is as complete as it gets
+                elif pose.t < p.t - self.tolerance_s:
+                    self.stats.stale += 1  # older than the instant being gathered
+                    return
+                elif robot in p.poses:
+                    self.stats.duplicate += 1  # the same instant again: the newer message wins
             if self.pending is None:
                 self.pending = _Pending(t=pose.t, since=self.clock())
             self.pending.poses[robot] = (pose.x, pose.y, pose.th)
@@ -197,10 +202,14 @@ def run_pose_bridge(conf: zenoh.Config, topics: dict[str, str], fleet: str = "de
             log.info("%s (%s) -> %s robot %s", selector, distro, keys.frame(src), robot)
         if ready is not None:
             ready.set()
+        next_stats = time.monotonic() + STATS_PERIOD_S
         try:
             while not stop.is_set():
                 assembler.tick()
                 stop.wait(TICK_S)
+                if time.monotonic() >= next_stats:
+                    log.info("stats %s", assembler.stats)
+                    next_stats += STATS_PERIOD_S
         finally:
             for s in subs:
                 s.undeclare()

@@ -231,6 +231,16 @@ def test_a_robot_that_does_not_report_delays_its_frame_by_the_hold_only(poses):
     assert [f.seq for f in frames] == [1, 2] and frames[-1].t == pytest.approx(T0 + 1.01, abs=1e-6)
 
 
+def test_a_repeated_message_of_one_instant_replaces_the_pose_and_makes_no_second_frame(poses):
+    pb, frames, clock = poses
+    pb.on_sample("/vicon/r1/pose", KEY1, posestamped(T0 + 3.0, 1.0, 1.0, 0.0))
+    pb.on_sample("/vicon/r1/pose", KEY1, posestamped(T0 + 3.0, 2.0, 2.0, 0.0))
+    pb.on_sample("/r2/odom", KEY2, odometry(T0 + 3.0, 0.0, 0.0, 0.0))
+    clock.t += 1.0
+    pb.assembler.tick()
+    assert len(frames) == 1 and frames[0].poses["r1"][:2] == (2.0, 2.0) and pb.stats.duplicate == 1
+
+
 def test_frames_never_go_back_in_time(poses):
     pb, frames, clock = poses
     pb.on_sample("/vicon/r1/pose", KEY1, posestamped(T0 + 2.0, 0.0, 0.0, 0.0))

@@ -15,10 +15,10 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from fleetctl.mission_cmd import stamp
-from fleetctl.router import free_loopback_port
 from fleetctl.scenario_file import load_scenario
 from fleetctl import rmw_zenoh as rz
 from tests.integration.harness import LoopbackFleet
@@ -166,9 +166,11 @@ def test_pose_bridge_turns_sdk_posestamped_and_odometry_into_frames_and_drops_ma
     T = store.types
     try:
         from zenoh_ros2_sdk.discovery import get_topic_info
-        wait_until(lambda: (get_topic_info("/vicon/r1/pose", router_port=fleet.router_port) or
-                            type("x", (), {"subscriber_count": 0})).subscriber_count >= 1,
-                   20.0, "the pose bridge's subscription token")
+        def subscribed(topic):
+            info = get_topic_info(topic, router_port=fleet.router_port)
+            return info is not None and info.subscriber_count >= 1
+        wait_until(lambda: subscribed("/vicon/r1/pose") and subscribed("/r2/odom"), 20.0,
+                   "the pose bridge's subscription tokens")
         th = 0.7
 
         def header(sec):
@@ -180,7 +182,7 @@ def test_pose_bridge_turns_sdk_posestamped_and_odometry_into_frames_and_drops_ma
                 position=T["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
                 orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(yaw / 2), w=math.cos(yaw / 2)))
 
-        zero36 = __import__("numpy").zeros(36)
+        zero36 = np.zeros(36)
         sec = int(time.time())
 
         def publish_instant(k):
