@@ -25,6 +25,7 @@ from enum import Enum
 from typing import Any
 
 import xxhash
+import zenoh
 import zenoh.ext as zext
 from rosbags.typesys import Stores, get_typestore
 
@@ -158,8 +159,6 @@ def encode_attachment(seq: int, source_timestamp_ns: int, gid: bytes,
 
 def decode_attachment(data: bytes, layout: Attachment = Attachment.CURRENT) -> tuple[int, int, bytes]:
     """(sequence number, source timestamp [ns], gid) from an attachment; ValueError if malformed."""
-    import zenoh  # noqa: PLC0415 (ZBytes lives in zenoh; only needed here)
-
     try:
         if layout is Attachment.KEYED:
             k1, seq, k2, ts, k3, gid = zext.z_deserialize(
