@@ -145,6 +145,15 @@ def test_sdk_subscriber_receives_and_decodes_the_bridge_twist_then_a_zero_within
         mp = [t for t in tokens if f"/MP/%/{rz.mangle(ns)}/" in t]
         assert len(mp) == 1 and mp[0].endswith(f"/{type_hash}/::,10:,:,:,,")
         assert gids == {rz.gid_of(mp[0])}
+        # Stopping the bridge (SIGTERM) sends a zero at once, long before a 5 s ttl would run out.
+        fleet.router.put(fleet.keys.cmd(robot), encode(CmdMsg(t=t0 + 1000, seq=1000, vl=0.2, vr=0.2, ttl=5.0)))
+        m = twists.get(timeout=5.0)[1]
+        assert m.linear.x == pytest.approx(0.2)
+        stopped_at = time.monotonic()
+        fleet.kill(f"bridge-{distro}", 15)
+        last_at, last = twists.get(timeout=5.0)
+        assert (last.linear.x, last.angular.z) == (0.0, 0.0) and last_at - stopped_at < 2.0
+        assert fleet.procs[f"bridge-{distro}"].wait(timeout=10) == 0
     finally:
         raw.undeclare()
         sub.close()
@@ -196,24 +205,23 @@ def test_pose_bridge_turns_sdk_posestamped_and_odometry_into_frames_and_drops_ma
                                      angular=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)),
                                  covariance=zero36))
 
-        def next_frame(k):
-            publish_instant(k)
+        k = [0]
+
+        def complete_frame():
+            # instants until one frame holds both robots (the SDK's routes come up one by one)
+            k[0] += 1
+            publish_instant(k[0])
             try:
-                return frames.get(timeout=0.5)
+                while True:
+                    f = frames.get(timeout=0.5)
+                    if set(f.poses) == {"r1", "r2"}:
+                        return f
             except queue.Empty:
                 return None
 
-        k = [0]
-
-        def got():
-            k[0] += 1
-            return next_frame(k[0])
-
-        f = wait_until(got, 20.0, "a frame")
+        f = wait_until(complete_frame, 20.0, "a frame with both robots")
         n = k[0]
         # Both robots in one frame, t from the header stamp, yaw from the quaternion.
-        while set(f.poses) != {"r1", "r2"}:
-            f = frames.get(timeout=5.0)
         assert f.t == pytest.approx(sec + n + 0.25, abs=1e-6)
         assert f.poses["r1"] == pytest.approx((1.0 + n, 2.0, th), abs=1e-9)
         assert f.poses["r2"] == pytest.approx((-1.0, 0.5 - n, -th), abs=1e-9)
