@@ -15,8 +15,6 @@ from fleetctl.bridge_ros2_poses import FrameAssembler, MapError, PoseBridge, mai
 from fleetctl.lifecycle import Rejections
 from vsfleet.wire import CmdMsg, Mission, RobotSpec, encode, encode_mission
 
-pytest.importorskip("rosbags")
-
 
 class Clock:
     def __init__(self, t: float = 100.0) -> None:
@@ -321,3 +319,54 @@ def test_the_systemd_units_command_line_is_one_the_bridge_accepts():
     assert (args.robot, args.namespace, args.distro, args.domain, args.connect) == (
         "r1", "/r1", "humble", 0, ["tcp/127.0.0.1:7447"])
     assert args.no_multicast_scouting and args.mode == "client"
+
+
+class FakeSession:
+    """What TwistPublisher uses of a zenoh session: publishers and liveliness tokens, recorded."""
+
+    class _Token:
+        def __init__(self, owner, key):
+            self.owner, self.key = owner, key
+            owner.tokens.add(key)
+
+        def undeclare(self):
+            self.owner.tokens.discard(self.key)
+
+    class _Pub:
+        def __init__(self, owner, key, kw):
+            self.owner, self.key, self.kw = owner, key, kw
+
+        def put(self, payload, attachment=None):
+            self.owner.puts.append((self.key, payload, attachment))
+
+        def undeclare(self):
+            self.owner.undeclared.append(self.key)
+
+    def __init__(self):
+        self.tokens, self.puts, self.undeclared = set(), [], []
+
+    def liveliness(self):
+        return type("L", (), {"declare_token": lambda _s, key: FakeSession._Token(self, key)})()
+
+    def declare_publisher(self, key, **kw):
+        return FakeSession._Pub(self, key, kw)
+
+
+@pytest.mark.parametrize("distro, layout", [("jazzy", rz.Attachment.CURRENT), ("humble", rz.Attachment.KEYED)])
+def test_twist_publisher_sends_cdr_with_a_rising_sequence_and_its_tokens_gid(distro, layout):
+    from fleetctl.bridge_ros2 import TwistPublisher
+    s = FakeSession()
+    node = rz.Node(domain=5, zid="c0ffee", nid=0, namespace="/r1", name="vsfleet_bridge_r1")
+    out = TwistPublisher(s, node=node, topic="/r1/cmd_vel", distro=distro, layout=layout)
+    assert s.tokens == set()  # not visible until it says so (after its subscriptions exist)
+    out.declare_tokens()
+    assert s.tokens == {node.token(), node.endpoint_token("MP", 1, "/r1/cmd_vel", rz.TWIST, distro)}
+    out.send(0.1, 0.0, "cmd")
+    out.send(0.0, 0.0, "expired")
+    (k1, p1, a1), (k2, p2, a2) = s.puts
+    assert k1 == k2 == rz.data_keyexpr(5, "/r1/cmd_vel", rz.TWIST, distro)
+    assert rz.decode_twist(p1, distro) == (0.1, 0.0) and rz.decode_twist(p2, distro) == (0.0, 0.0)
+    (q1, t1, g1), (q2, t2, g2) = rz.decode_attachment(a1, layout), rz.decode_attachment(a2, layout)
+    assert (q1, q2) == (1, 2) and t1 <= t2 and g1 == g2 == rz.gid_of(out.pub_token)
+    out.close()
+    assert s.tokens == set() and s.undeclared == [k1]
