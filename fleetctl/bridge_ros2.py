@@ -68,6 +68,7 @@ class CmdBridge:
         self.deadline: float | None = None  # local time the running command expires; None = stopped
         self.last_t = -float("inf")          # tracker time of the newest command taken
         self.moving = False                  # the last Twist sent was not zero
+        self.closed = False                  # after shutdown() nothing but that zero goes out
         self._lock = threading.RLock()
 
     # ------------------------------------------------------------ output
@@ -84,6 +85,12 @@ class CmdBridge:
         with self._lock:
             self.deadline = None
             self._twist(0.0, 0.0, reason)
+
+    def shutdown(self) -> None:
+        """The last Twist: a zero. A command still in a callback after it is dropped."""
+        with self._lock:
+            self.closed = True
+            self.zero("stop")
 
     # ------------------------------------------------------------ missions
     def on_mission(self, key: str, payload: bytes) -> bool:
@@ -139,6 +146,8 @@ class CmdBridge:
             self.rejections.reject(key, str(exc))
             return
         with self._lock:
+            if self.closed:
+                return
             now = self.clock()
             if cmd.t < self.last_t:
                 self.stats.stale += 1
@@ -280,7 +289,7 @@ def run_bridge(conf: zenoh.Config, robot: str, fleet: str = "demo", namespace: s
             for s in subs:
                 s.undeclare()
             fetcher_stop.set()
-            bridge.zero("stop")
+            bridge.shutdown()
             log.info("stopped: %s", bridge.stats)
             out.close()
     return bridge.stats

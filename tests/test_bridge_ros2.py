@@ -86,6 +86,16 @@ def test_a_zero_twist_follows_when_the_command_ttl_runs_out(bridge):
     assert len(sent) == 2  # one zero, not one per tick
 
 
+def test_after_shutdown_the_last_twist_is_the_zero_whatever_arrives(bridge):
+    b, sent, clock = bridge
+    b.on_mission("m", encode_mission(mission()))
+    b.on_cmd("k", cmd(10.0, 0.2, 0.2))
+    b.shutdown()
+    b.on_cmd("k", cmd(10.1, 0.2, 0.2))  # a callback still running as the bridge stops
+    b.expire()
+    assert sent[-1] == (0.0, 0.0, "stop") and len(sent) == 2
+
+
 def test_a_newer_command_extends_and_a_shorter_ttl_shortens_the_deadline(bridge):
     b, sent, clock = bridge
     b.on_mission("m", encode_mission(mission()))
