@@ -380,3 +380,22 @@ def test_twist_publisher_sends_cdr_with_a_rising_sequence_and_its_tokens_gid(dis
     assert (q1, q2) == (1, 2) and t1 <= t2 and g1 == g2 == rz.gid_of(out.pub_token)
     out.close()
     assert s.tokens == set() and s.undeclared == [k1]
+
+
+def test_startup_query_asks_the_operator_and_the_agents_and_takes_the_answer(bridge):
+    from types import SimpleNamespace as NS
+
+    from fleetctl.bridge_ros2 import fetch_mission
+    from vsfleet.wire import Keys
+    b, sent, clock = bridge
+    keys = Keys("demo")
+    m = encode_mission(mission(version=4))
+    asked = []
+
+    def get(selector, **kw):
+        asked.append(selector)
+        if selector == keys.peer_mission("*"):
+            return [NS(ok=NS(key_expr=keys.peer_mission(r), payload=NS(to_bytes=lambda: m))) for r in ("r2", "r3")]
+        return [NS(ok=None)]  # the operator does not answer (mission set only puts)
+    assert fetch_mission(NS(get=get), keys, b, 1.0)
+    assert asked == [keys.mission, keys.peer_mission("*")] and set(b.missions) == {4}
