@@ -89,6 +89,18 @@ def test_sdk_subscriber_receives_and_decodes_the_bridge_twist_then_a_zero_within
     raw = fleet.router.declare_subscriber(
         rz.data_keyexpr(0, f"{ns}/cmd_vel", rz.TWIST, distro),
         lambda s: attachments.put(s.attachment.to_bytes() if s.attachment is not None else None))
+    # rmw_zenoh_cpp's subscriptions are zenoh-ext advanced subscribers: default options for a
+    # volatile one, history with late-publisher detection for a transient-local one.
+    import zenoh.ext as zext
+    advanced: dict[str, queue.Queue] = {"volatile": queue.Queue(), "transient_local": queue.Queue()}
+    adv = [zext.declare_advanced_subscriber(
+               fleet.router, rz.data_keyexpr(0, f"{ns}/cmd_vel", rz.TWIST, distro),
+               lambda s, q=advanced[kind]: q.put(s.attachment.to_bytes() if s.attachment is not None else None),
+               **opts)
+           for kind, opts in (("volatile", {}),
+                              ("transient_local", {"history": zext.HistoryConfig(detect_late_publishers=True,
+                                                                                  max_samples=10),
+                                                   "subscriber_detection": True}))]
     try:
         # The bridge shows in the SDK's `ros2 topic list` (its liveliness token parser).
         from zenoh_ros2_sdk.discovery import get_topic_names_and_types
@@ -145,6 +157,9 @@ def test_sdk_subscriber_receives_and_decodes_the_bridge_twist_then_a_zero_within
         mp = [t for t in tokens if f"/MP/%/{rz.mangle(ns)}/" in t]
         assert len(mp) == 1 and mp[0].endswith(f"/{type_hash}/::,10:,:,:,,")
         assert gids == {rz.gid_of(mp[0])}
+        for kind, q in advanced.items():  # the advanced subscribers got the samples, attachment and all
+            got = [q.get_nowait() for _ in range(q.qsize())]
+            assert len(got) >= 2 and all(a is not None and len(a) == 33 for a in got), kind
         # Stopping the bridge (SIGTERM) sends a zero at once, long before a 5 s ttl would run out.
         fleet.router.put(fleet.keys.cmd(robot), encode(CmdMsg(t=t0 + 1000, seq=1000, vl=0.2, vr=0.2, ttl=5.0)))
         m = twists.get(timeout=5.0)[1]
@@ -155,6 +170,8 @@ def test_sdk_subscriber_receives_and_decodes_the_bridge_twist_then_a_zero_within
         assert (last.linear.x, last.angular.z) == (0.0, 0.0) and last_at - stopped_at < 2.0
         assert fleet.procs[f"bridge-{distro}"].wait(timeout=10) == 0
     finally:
+        for a in adv:
+            a.undeclare()
         raw.undeclare()
         sub.close()
         fleet.kill(f"bridge-{distro}", 15)
