@@ -15,6 +15,7 @@ from fleetctl import rmw_zenoh as rz
 
 MSGS = Path(__file__).parent / "data" / "ros2_msgs"
 TWIST_RIHS01 = "RIHS01_9c45bf16fe0983d80e3cfe750d6835843d265a9a6c46bd2e609fcddde6fb8d2a"  # reported by ROS 2 jazzy
+import pamoja.ros2 as pamoja  # a second independent implementation (Rust core, its own CDR code)
 import zenoh_ros2_sdk  # noqa: F401  (the dev extra installs it; a missing one must fail, not skip)
 
 
@@ -173,3 +174,30 @@ def test_key_type_chunk_is_parsed_and_odd_keys_refused():
     for bad in ("0/x", "0/a/b/c", "0/odom/nav_msgs::srv::dds_::X_/h"):
         with pytest.raises(rz.RosMessageError):
             rz.ros_type_of_key(bad)
+
+
+# ---------------------------------------------------------------- against pamoja-ros2 (no rosbags inside)
+
+
+def test_twist_cdr_and_jazzy_key_match_pamoja_ros2():
+    assert bytes(pamoja.twist_to_cdr((0.25, 0.0, 0.0), (0.0, 0.0, -1.5))) == rz.encode_twist(0.25, -1.5, "jazzy")
+    assert pamoja.twist_from_cdr(rz.encode_twist(0.1, 0.2, "humble")) == ((0.1, 0.0, 0.0), (0.0, 0.0, 0.2))
+    for topic in ("/cmd_vel", "/r1/cmd_vel"):
+        assert rz.data_keyexpr(3, topic, rz.TWIST, "jazzy") == pamoja.entity_key(
+            3, topic, rz.TWIST, rz.type_hash(rz.TWIST, "jazzy"))
+    assert pamoja.dds_type_name(rz.POSE_STAMPED) == rz.dds_type_name(rz.POSE_STAMPED)
+    assert pamoja.percent_mangle("/vicon/r1/pose") == rz.mangle("/vicon/r1/pose")
+    assert pamoja.type_hash_digest(rz.type_hash(rz.ODOMETRY, "jazzy")) is not None  # a well-formed RIHS01
+
+
+def test_a_posestamped_written_by_pamojas_cdr_writer_decodes():
+    w = pamoja.CdrWriter()  # writes the encapsulation header and aligns each primitive itself
+    w.write_i32(1_796_000_000)
+    w.write_u32(250_000_000)
+    w.write_u32(4)  # frame_id "map": length with the NUL, then the 4 bytes
+    w.write_u32(int.from_bytes(b"map\0", "little"))
+    for v in (1.5, -2.0, 0.1, 0.0, 0.0, math.sin(0.35), math.cos(0.35)):
+        w.write_f64(v)
+    p = rz.decode_pose(bytes(w.bytes), rz.POSE_STAMPED, "jazzy")
+    assert (p.t, p.x, p.y, p.frame_id) == (1_796_000_000.25, 1.5, -2.0, "map")
+    assert p.th == pytest.approx(0.7, abs=1e-12)
