@@ -22,7 +22,7 @@ from typing import Callable
 
 import zenoh
 
-from vsfleet.wire import FrameMsg, Keys, check_name, encode_frame
+from vsfleet.wire import FrameMsg, Keys, PoseMsg, check_name, encode, encode_frame
 
 from . import rmw_zenoh as rz
 from .bridge_ros2 import ros_client_config
@@ -177,17 +177,26 @@ class PoseBridge:
 def run_pose_bridge(conf: zenoh.Config, topics: dict[str, str], fleet: str = "demo", src: str = "ros2",
                     domain: int = 0, distro: str = "jazzy", frame_id: str | None = None,
                     tolerance_s: float = 0.002, hold_s: float = 0.02, node_name: str = "vsfleet_poses",
-                    ros_conf: zenoh.Config | None = None, stop: StopFlag | None = None,
+                    ros_conf: zenoh.Config | None = None, poses: bool = True, stop: StopFlag | None = None,
                     ready: threading.Event | None = None) -> PoseStats:
-    """Run until ``stop``; returns the counters. ``ros_conf``: a session of its own for ROS 2."""
+    """Run until ``stop``; returns the counters. ``ros_conf``: a session of its own for ROS 2.
+    With ``poses``, each robot of a frame also goes out on ``pose/<robot>``, as trackers do."""
     stop = stop or StopFlag()
     keys = Keys(fleet)
     with contextlib.ExitStack() as stack:
         session = stack.enter_context(zenoh.open(conf))
         ros = stack.enter_context(zenoh.open(ros_conf)) if ros_conf is not None else session
         pub = session.declare_publisher(keys.frame(src), **STREAM_QOS)
-        assembler = FrameAssembler(set(topics.values()), src, lambda f: pub.put(encode_frame(f)),
-                                   tolerance_s=tolerance_s, hold_s=hold_s)
+        pose_pubs = {r: session.declare_publisher(keys.pose(r), **STREAM_QOS) for r in topics.values()} \
+            if poses else {}
+
+        def emit(frame: FrameMsg) -> None:
+            pub.put(encode_frame(frame))
+            for robot, (x, y, th) in frame.poses.items():  # for tools, as trackers do
+                if robot in pose_pubs:
+                    pose_pubs[robot].put(encode(PoseMsg(t=frame.t, seq=frame.seq, x=x, y=y, th=th, src=src)))
+
+        assembler = FrameAssembler(set(topics.values()), src, emit, tolerance_s=tolerance_s, hold_s=hold_s)
         bridge = PoseBridge(topics, assembler, distro, frame_id)
         node = rz.Node(domain=domain, zid=str(ros.info.zid()), nid=0, namespace="/", name=node_name)
         tokens = [ros.liveliness().declare_token(node.token())]
@@ -233,6 +242,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="stamps this close [s] are one mocap instant (default 0.002)")
     p.add_argument("--hold", type=float, default=0.02, metavar="S",
                    help="send an incomplete frame this long [s] after its first pose (default 0.02)")
+    p.add_argument("--no-poses", action="store_true",
+                   help="publish frames only, not also pose/<robot> for tools (as trackers do)")
     p.add_argument("--node-name", default="vsfleet_poses", help="ROS node name of the subscriptions")
     p.add_argument("--ros-connect", default=None, metavar="ENDPOINT",
                    help="reach ROS 2 through this router in a session of its own; the zenoh flags "
@@ -257,7 +268,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     run_pose_bridge(zenoh_config(args), topics, args.fleet, args.src, args.domain, args.distro,
                     args.frame_id, args.stamp_tolerance, args.hold, args.node_name,
-                    ros_client_config(args.ros_connect) if args.ros_connect else None)
+                    ros_client_config(args.ros_connect) if args.ros_connect else None, not args.no_poses)
     return 0
 
 

@@ -22,7 +22,7 @@ from fleetctl.mission_cmd import stamp
 from fleetctl.scenario_file import load_scenario
 from fleetctl import rmw_zenoh as rz
 from tests.integration.harness import LoopbackFleet
-from vsfleet.wire import CmdMsg, decode_frame, encode, encode_mission
+from vsfleet.wire import CmdMsg, decode_frame, decode_pose, encode, encode_mission
 
 pytestmark = pytest.mark.integration
 ROOT = Path(__file__).resolve().parents[2]
@@ -184,6 +184,9 @@ def test_pose_bridge_turns_sdk_posestamped_and_odometry_into_frames_and_drops_ma
     frames: queue.Queue = queue.Queue()
     sub = fleet.router.declare_subscriber(fleet.keys.frame("mocap"), lambda s: frames.put(decode_frame(
         s.payload.to_bytes())))
+    poses: queue.Queue = queue.Queue()
+    pose_sub = fleet.router.declare_subscriber(fleet.keys.pose(), lambda s: poses.put(decode_pose(
+        s.payload.to_bytes())))
     pose_pub = sdk.ROS2Publisher("/vicon/r1/pose", rz.POSE_STAMPED, router_port=fleet.router_port,
                                  type_hash=rz.type_hash(rz.POSE_STAMPED, "jazzy"))
     odom_pub = sdk.ROS2Publisher("/r2/odom", rz.ODOMETRY, router_port=fleet.router_port,
@@ -250,8 +253,22 @@ def test_pose_bridge_turns_sdk_posestamped_and_odometry_into_frames_and_drops_ma
         assert f2.t == pytest.approx(sec + n + 1.25, abs=1e-6) and set(f2.poses) == {"r1", "r2"}
         assert f2.seq == f.seq + 1
         assert frames.empty()
+        # and each robot of each frame on pose/<robot>, for tools
+        seen = {}
+        want = {(f2.seq, *f2.poses["r1"][:2]), (f2.seq, *f2.poses["r2"][:2])}
+
+        def both_seen():
+            try:
+                m = poses.get(timeout=0.2)
+                seen[(m.seq, m.x, m.y)] = m
+            except queue.Empty:
+                pass
+            return want <= set(seen)
+        wait_until(both_seen, 5.0, "both robots' poses of the last frame")
+        assert all(m.src == "mocap" for m in seen.values())
     finally:
         sub.undeclare()
+        pose_sub.undeclare()
         pose_pub.close()
         odom_pub.close()
         fleet.kill("poses", 15)
