@@ -26,6 +26,7 @@ from vsfleet.quorum import majority
 from vsfleet.wire import Keys, Mission, WireError, check_name, decode_cmd, decode_mission
 
 from . import rmw_zenoh as rz
+from . import zconf
 from .lifecycle import Rejections, StopFlag
 from .zconf import add_zenoh_args, init_logging, zenoh_config
 
@@ -225,6 +226,12 @@ class TwistPublisher:
             t.undeclare()
 
 
+def open_session(conf: zenoh.Config) -> zenoh.Session:
+    """The programs' common opener (``zconf.open_session``: a one-line error without a router)
+    where this checkout has it, else zenoh's own."""
+    return getattr(zconf, "open_session", zenoh.open)(conf)
+
+
 def ros_client_config(endpoint: str) -> zenoh.Config:
     """A client session to the ROS 2 host's own router (``--ros-connect``), multicast scouting off."""
     conf = zenoh.Config()
@@ -247,8 +254,8 @@ def run_bridge(conf: zenoh.Config, robot: str, fleet: str = "demo", namespace: s
     keys = Keys(fleet)
     full_topic = rz.resolve_topic(namespace, topic)
     with contextlib.ExitStack() as stack:
-        session = stack.enter_context(zenoh.open(conf))
-        ros = stack.enter_context(zenoh.open(ros_conf)) if ros_conf is not None else session
+        session = stack.enter_context(open_session(conf))
+        ros = stack.enter_context(open_session(ros_conf)) if ros_conf is not None else session
         node = rz.Node(domain=domain, zid=str(ros.info.zid()), nid=0, namespace=namespace,
                        name=node_name or f"vsfleet_bridge_{robot}")
         out = TwistPublisher(ros, node=node, topic=full_topic, distro=distro, layout=layout)

@@ -25,7 +25,7 @@ import zenoh
 from vsfleet.wire import FrameMsg, Keys, PoseMsg, check_name, encode, encode_frame
 
 from . import rmw_zenoh as rz
-from .bridge_ros2 import ros_client_config
+from .bridge_ros2 import open_session, ros_client_config
 from .lifecycle import Rejections, StopFlag
 from .zconf import STREAM_QOS, add_zenoh_args, init_logging, zenoh_config
 
@@ -184,8 +184,8 @@ def run_pose_bridge(conf: zenoh.Config, topics: dict[str, str], fleet: str = "de
     stop = stop or StopFlag()
     keys = Keys(fleet)
     with contextlib.ExitStack() as stack:
-        session = stack.enter_context(zenoh.open(conf))
-        ros = stack.enter_context(zenoh.open(ros_conf)) if ros_conf is not None else session
+        session = stack.enter_context(open_session(conf))
+        ros = stack.enter_context(open_session(ros_conf)) if ros_conf is not None else session
         pub = session.declare_publisher(keys.frame(src), **STREAM_QOS)
         pose_pubs = {r: session.declare_publisher(keys.pose(r), **STREAM_QOS) for r in topics.values()} \
             if poses else {}
