@@ -29,6 +29,8 @@ COMMANDS = {
     "monitor": ("fleetctl.monitor", "live terminal view of a running fleet"),
     "foxglove": ("fleetctl.foxglove_live", "live Foxglove WebSocket server on a fleet's key space"),
     "fuzz": ("fleetctl.fuzz", "throw invalid messages at every key the fleet subscribes to"),
+    "bridge ros2": ("fleetctl.bridge_ros2", "one robot's commands -> geometry_msgs/Twist over rmw_zenoh"),
+    "bridge ros2-poses": ("fleetctl.bridge_ros2_poses", "mocap PoseStamped/Odometry over rmw_zenoh -> frames"),
 }
 
 USAGE = ("usage: vsfleet [--version] [--verbose] COMMAND [ARGS...]\n\ncommands:\n" + "\n".join(

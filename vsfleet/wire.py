@@ -14,12 +14,14 @@ from __future__ import annotations
 
 import difflib
 import inspect
+import itertools
 import math
 import re
 from dataclasses import dataclass, fields
 from typing import Any, Mapping
 
 import msgpack
+import numpy as np
 
 from .errors import VsfleetValueError
 
@@ -215,11 +217,14 @@ def _version(m: Mapping[str, Any], cls: type, what: str) -> int:
 
 def _unique_map(pairs: list[tuple[Any, Any]]) -> dict:
     """A msgpack map as a dict, refusing a key that appears twice (msgpack would keep the last)."""
-    out: dict = {}
-    for k, v in pairs:
-        if k in out:
-            raise WireError(f"duplicate key {k!r} in a msgpack map")
-        out[k] = v
+    try:
+        out = dict(pairs)
+    except TypeError:  # an unhashable key (a map or an array): not a valid message either
+        raise WireError("a msgpack map with an unhashable key") from None
+    if len(out) != len(pairs):
+        seen: set = set()
+        k = next(k for k, _ in pairs if k in seen or seen.add(k))
+        raise WireError(f"duplicate key {k!r} in a msgpack map")
     return out
 
 
@@ -435,6 +440,22 @@ def encode_frame(msg: FrameMsg) -> bytes:
                   "poses": {r: [float(p[0]), float(p[1]), float(p[2])] for r, p in msg.poses.items()}})
 
 
+_IDS_RE = re.compile(r"[A-Za-z0-9_-]+(?:\x00[A-Za-z0-9_-]+)*")
+
+
+def _frame_pose_error(poses: dict) -> str:
+    """Why a frame's poses are refused: the first robot id or pose that is not valid."""
+    for robot, p in poses.items():
+        if not isinstance(robot, str) or not NAME_RE.match(robot):
+            return f"robot id must match [A-Za-z0-9_-]+, got {robot!r}"
+        if not isinstance(p, list) or len(p) != 3:
+            return f"pose of {robot!r} must be [x, y, th]"
+        for v in p:
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                return f"pose of {robot!r} must hold numbers, got {type(v).__name__}"
+    return "invalid poses"
+
+
 def decode_frame(payload: bytes) -> FrameMsg:
     """A frame, every field checked (docs/protocol.md, "Frames"); WireError otherwise.
 
@@ -450,18 +471,18 @@ def decode_frame(payload: bytes) -> FrameMsg:
         raise WireError("field 'poses' must be a map {robot: [x, y, th]}")
     if len(poses) > MAX_ROBOTS:
         raise WireError(f"a frame lists {len(poses)} robots, more than {MAX_ROBOTS}")
-    out: dict[str, tuple[float, float, float]] = {}
-    for robot, p in poses.items():
-        if not isinstance(robot, str) or not NAME_RE.match(robot):
-            raise WireError(f"robot id must match [A-Za-z0-9_-]+, got {robot!r}")
-        if not isinstance(p, list) or len(p) != 3:
-            raise WireError(f"pose of {robot!r} must be [x, y, th]")
-        for v in p:
-            if isinstance(v, bool) or not isinstance(v, (int, float)):
-                raise WireError(f"pose of {robot!r} must hold numbers, got {type(v).__name__}")
-            if not math.isfinite(v) or abs(v) > MAX_ABS:
-                raise WireError(f"pose of {robot!r} holds {v!r}: not finite or beyond {MAX_ABS:g}")
-        out[robot] = (float(p[0]), float(p[1]), float(p[2]))
+    ids, values = list(poses), list(poses.values())
+    # the fast path checks every robot at once; _frame_pose_error names the first bad one
+    if ids and not (set(map(type, ids)) == {str} and _IDS_RE.fullmatch("\x00".join(ids))
+                    and set(map(type, values)) == {list} and set(map(len, values)) == {3}
+                    and set(map(type, itertools.chain.from_iterable(values))) <= {float, int}):
+        raise WireError(_frame_pose_error(poses))
+    xyth = np.array(values, dtype=float).reshape(len(ids), 3)
+    bad = ~(np.abs(xyth) <= MAX_ABS)  # NaN compares False: caught too
+    if bad.any():
+        i = int(np.flatnonzero(bad.any(axis=1))[0])
+        raise WireError(f"pose of {ids[i]!r} holds {values[i]!r}: not finite or beyond {MAX_ABS:g}")
+    out = dict(zip(ids, map(tuple, xyth.tolist())))
     return FrameMsg(t=t, seq=seq, src=src, poses=out)
 
 
