@@ -130,7 +130,7 @@ def _num(m: Mapping[str, Any], name: str) -> float:
     v = float(v)
     if not math.isfinite(v):
         raise WireError(f"field {name!r} must be finite, got {v}")
-    if abs(v) > (1e11 if name in ("t", "effective_t") else MAX_ABS):
+    if abs(v) > (1e11 if name in ("t", "effective_t", "why_t") else MAX_ABS):
         raise WireError(f"field {name!r} out of range: {v}")
     return v
 
@@ -267,9 +267,17 @@ class StateMsg:
     mission: int = -1      # optional field: version of the mission used (-1 = not sent)
 
 
+TRUTH_WHY = ("idle", "commanded", "expired", "fault")
+
+
 @dataclass(frozen=True)
 class TruthMsg:
-    """simfleet's ground truth for one robot: pose [m, rad; world] and applied wheel speeds [m/s]."""
+    """simfleet's ground truth for one robot at sim time t [s]: pose [m, rad; world], applied wheel speeds [m/s].
+
+    why: what sets the wheels (TRUTH_WHY: idle before any command, commanded, expired after the
+    command's ttl, fault overriding a fresh command), in force since sim time why_t [s].
+    Optional: a message without them (an older simfleet) decodes with why "" and why_t 0.0.
+    """
 
     t: float
     x: float
@@ -277,6 +285,8 @@ class TruthMsg:
     th: float
     vl: float
     vr: float
+    why: str = ""
+    why_t: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -444,8 +454,12 @@ def decode_state(payload: bytes) -> StateMsg:
 
 def decode_truth(payload: bytes) -> TruthMsg:
     m = unpack_map(payload)
+    why = m.get("why", "")
+    if why != "" and why not in TRUTH_WHY:
+        raise WireError(f"field 'why' must be one of {TRUTH_WHY}, got {why!r}")
     return TruthMsg(t=_num(m, "t"), x=_num(m, "x"), y=_num(m, "y"), th=_num(m, "th"),
-                    vl=_num(m, "vl"), vr=_num(m, "vr"))
+                    vl=_num(m, "vl"), vr=_num(m, "vr"), why=why,
+                    why_t=_num(m, "why_t") if "why_t" in m else 0.0)
 
 
 def decode_fault(payload: bytes) -> FaultMsg:
