@@ -4,7 +4,8 @@ Physics runs at a fixed rate (200 Hz by default). Simulation time is counted:
 step k is at ``t0 + k / rate_hz`` on the tracker's clock (UNIX seconds); the
 loop is paced to the wall clock so that agents see real time. Each truth
 message says why the wheels do what they do (``why``: idle, commanded,
-expired, fault) and since when (``why_t``, sim time of the step it began).
+expired, fault), since when (``why_t``, sim time of the step it began) and
+when the robot's command last expired (``expired_t``).
 """
 
 from __future__ import annotations
@@ -59,6 +60,7 @@ class Fleet:
         self.commanded = {r: False for r in self.robots}  # has a fresh command (within its ttl)
         self.expiries = 0
         self.why = {r: ("idle", t0) for r in self.robots}  # (reason, sim time [s] it began): see truth()
+        self.expired_t = {r: 0.0 for r in self.robots}  # sim time [s] of each robot's latest expiry
 
     @property
     def t(self) -> float:
@@ -123,16 +125,19 @@ class Fleet:
             why = _why(c is not None, fresh, faults[rid], t)
             if why != self.why[rid][0]:
                 self.why[rid] = (why, t)
+                if why == "expired":
+                    self.expired_t[rid] = t
             self.states[rid] = step_robot(self.states[rid], robot, c.vl if c else 0.0,
                                           c.vr if c else 0.0, fresh, faults[rid], t, self.dt_s)
         self.k += 1
 
     def truth(self) -> dict[str, TruthMsg]:
         """Every robot's pose and applied wheel speeds after the last step, stamped self.t, with
-        the reason for its wheels (as of that step) and the sim time that reason began."""
+        the reason for its wheels (as of that step), the sim time that reason began and the sim
+        time of its latest command expiry."""
         t = self.t
         return {rid: TruthMsg(t=t, x=s.pose.x, y=s.pose.y, th=s.pose.th, vl=s.vl, vr=s.vr,
-                              why=self.why[rid][0], why_t=self.why[rid][1])
+                              why=self.why[rid][0], why_t=self.why[rid][1], expired_t=self.expired_t[rid])
                 for rid, s in self.states.items()}
 
 

@@ -130,7 +130,8 @@ def test_truth_says_why_the_wheels_move_and_since_which_step():
     keys = Keys(sc.fleet)
     fleet = Fleet(sc, keys, t0=1000.0)
     step_t = [fleet.t0 + k * fleet.dt_s for k in range(400)]  # sim time of step k
-    assert (truth_of(fleet, "r1").why, truth_of(fleet, "r1").why_t) == ("idle", 1000.0)
+    m = truth_of(fleet, "r1")
+    assert (m.why, m.why_t, m.expired_t) == ("idle", 1000.0, 0.0)
     # ttl 0.2975 s: fresh on steps 0..59 (59 * 5 ms = 0.295 s), expired from step 60 (0.300 s)
     fleet.on_cmd(keys.cmd("r1"), encode(CmdMsg(1000.0, 1, 0.2, 0.2, 0.2975)), now=1000.0)
     fleet.step()
@@ -142,7 +143,7 @@ def test_truth_says_why_the_wheels_move_and_since_which_step():
     assert truth_of(fleet, "r1").why == "commanded" and fleet.k == 60
     fleet.step()  # step 60
     m = truth_of(fleet, "r1")
-    assert (m.why, m.why_t) == ("expired", step_t[60])
+    assert (m.why, m.why_t, m.expired_t) == ("expired", step_t[60], step_t[60])
     while fleet.states["r1"].vl > 0.0:  # braking to rest at the wheel acceleration limit
         fleet.step()
     assert truth_of(fleet, "r1").why_t == step_t[60]  # still the same expiry
@@ -150,7 +151,8 @@ def test_truth_says_why_the_wheels_move_and_since_which_step():
     fleet.on_cmd(keys.cmd("r1"), encode(CmdMsg(1000.5, 2, 0.2, 0.2, 5.0)), now=fleet.t)
     k_cmd = fleet.k
     fleet.step()
-    assert (truth_of(fleet, "r1").why, truth_of(fleet, "r1").why_t) == ("commanded", step_t[k_cmd])
+    m = truth_of(fleet, "r1")
+    assert (m.why, m.why_t, m.expired_t) == ("commanded", step_t[k_cmd], step_t[60])  # the expiry stays told
     fleet.on_fault(keys.fault("r1"), encode(FaultMsg("slow", 0.5, 0.0)), now=fleet.t)
     k_fault = fleet.k
     fleet.step()

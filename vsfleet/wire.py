@@ -130,7 +130,7 @@ def _num(m: Mapping[str, Any], name: str) -> float:
     v = float(v)
     if not math.isfinite(v):
         raise WireError(f"field {name!r} must be finite, got {v}")
-    if abs(v) > (1e11 if name in ("t", "effective_t", "why_t") else MAX_ABS):
+    if abs(v) > (1e11 if name in ("t", "effective_t", "why_t", "expired_t") else MAX_ABS):
         raise WireError(f"field {name!r} out of range: {v}")
     return v
 
@@ -275,8 +275,10 @@ class TruthMsg:
     """simfleet's ground truth for one robot at sim time t [s]: pose [m, rad; world], applied wheel speeds [m/s].
 
     why: what sets the wheels (TRUTH_WHY: idle before any command, commanded, expired after the
-    command's ttl, fault overriding a fresh command), in force since sim time why_t [s].
-    Optional: a message without them (an older simfleet) decodes with why "" and why_t 0.0.
+    command's ttl, fault overriding a fresh command), in force since sim time why_t [s];
+    expired_t: sim time [s] of the robot's latest command expiry (0.0: none yet), so a receiver
+    that missed messages still learns of it. Optional: a message without them (an older
+    simfleet) decodes with why "", why_t 0.0 and expired_t 0.0.
     """
 
     t: float
@@ -287,6 +289,7 @@ class TruthMsg:
     vr: float
     why: str = ""
     why_t: float = 0.0
+    expired_t: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -459,7 +462,8 @@ def decode_truth(payload: bytes) -> TruthMsg:
         raise WireError(f"field 'why' must be one of {TRUTH_WHY}, got {why!r}")
     return TruthMsg(t=_num(m, "t"), x=_num(m, "x"), y=_num(m, "y"), th=_num(m, "th"),
                     vl=_num(m, "vl"), vr=_num(m, "vr"), why=why,
-                    why_t=_num(m, "why_t") if "why_t" in m else 0.0)
+                    why_t=_num(m, "why_t") if "why_t" in m else 0.0,
+                    expired_t=_num(m, "expired_t") if "expired_t" in m else 0.0)
 
 
 def decode_fault(payload: bytes) -> FaultMsg:
