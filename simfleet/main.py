@@ -133,11 +133,12 @@ class Fleet:
 
     def truth(self) -> dict[str, TruthMsg]:
         """Every robot's pose and applied wheel speeds after the last step, stamped self.t, with
-        the reason for its wheels (as of that step), the sim time that reason began and the sim
-        time of its latest command expiry."""
+        the reason for its wheels (as of that step), the sim time that reason began, the sim
+        time of its latest command expiry, and the bad messages counted so far."""
         t = self.t
         return {rid: TruthMsg(t=t, x=s.pose.x, y=s.pose.y, th=s.pose.th, vl=s.vl, vr=s.vr,
-                              why=self.why[rid][0], why_t=self.why[rid][1], expired_t=self.expired_t[rid])
+                              why=self.why[rid][0], why_t=self.why[rid][1], expired_t=self.expired_t[rid],
+                              rejected=self.rejections.count)
                 for rid, s in self.states.items()}
 
 

@@ -87,6 +87,7 @@ def test_the_fleet_obeys_ttl_faults_and_rejects_bad_messages():
     fleet.on_cmd(keys.cmd("nobody"), encode(CmdMsg(1.0, 1, 0.1, 0.1, 1.0)), now=fleet.t)
     fleet.on_fault(keys.fault("r1"), encode(FaultMsg("stop", 0.0, 0.0))[:-2], now=fleet.t)
     assert fleet.rejections.count == before + 3
+    assert {m.rejected for m in fleet.truth().values()} == {before + 3}  # told on truth/<robot>
 
 
 def test_a_scenario_fault_timeline_fires_at_its_time():

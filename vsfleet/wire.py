@@ -277,8 +277,9 @@ class TruthMsg:
     why: what sets the wheels (TRUTH_WHY: idle before any command, commanded, expired after the
     command's ttl, fault overriding a fresh command), in force since sim time why_t [s];
     expired_t: sim time [s] of the robot's latest command expiry (0.0: none yet), so a receiver
-    that missed messages still learns of it. Optional: a message without them (an older
-    simfleet) decodes with why "", why_t 0.0 and expired_t 0.0.
+    that missed messages still learns of it; rejected: bad messages simfleet counted so far.
+    Optional: a message without them (an older simfleet) decodes with why "", why_t 0.0,
+    expired_t 0.0 and rejected -1 (not sent).
     """
 
     t: float
@@ -290,6 +291,7 @@ class TruthMsg:
     why: str = ""
     why_t: float = 0.0
     expired_t: float = 0.0
+    rejected: int = -1
 
 
 @dataclass(frozen=True)
@@ -463,7 +465,8 @@ def decode_truth(payload: bytes) -> TruthMsg:
     return TruthMsg(t=_num(m, "t"), x=_num(m, "x"), y=_num(m, "y"), th=_num(m, "th"),
                     vl=_num(m, "vl"), vr=_num(m, "vr"), why=why,
                     why_t=_num(m, "why_t") if "why_t" in m else 0.0,
-                    expired_t=_num(m, "expired_t") if "expired_t" in m else 0.0)
+                    expired_t=_num(m, "expired_t") if "expired_t" in m else 0.0,
+                    rejected=_opt_int(m, "rejected", -1))
 
 
 def decode_fault(payload: bytes) -> FaultMsg:
