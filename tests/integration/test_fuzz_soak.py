@@ -8,7 +8,7 @@ import json
 
 import pytest
 
-from .conftest import ROBOTS, LoopbackFleet, at_goal, max_state_err_m, start_fleet
+from .conftest import ROBOTS, LoopbackFleet, at_goal, max_state_err_m, moving, start_fleet
 
 pytestmark = pytest.mark.integration
 
@@ -36,9 +36,10 @@ def sim_rejected(fleet: LoopbackFleet, expected: int, timeout_s: float = 20.0) -
 
 def test_a_fleet_under_a_flood_of_invalid_messages_counts_every_one_and_keeps_formation(fleet):
     start_fleet(fleet)
-    summary = fuzz(fleet, "pose,mission,fault,cmd", duration_s=4.0)
+    fleet.observed.wait_for(moving("r1"), timeout_s=20)
+    summary = fuzz(fleet, "frame,pose,mission,fault,cmd", duration_s=4.0)
     sent = summary["sent"]
-    for_agents = summary["by_kind"]["pose"] - sent.get("pose/unknown_robot", 0) + summary["by_kind"]["mission"]
+    for_agents = summary["by_kind"]["frame"] + summary["by_kind"]["mission"]  # agents read no pose/<robot>
     for_sim = summary["by_kind"]["cmd"] + summary["by_kind"]["fault"]
 
     def counted(o):
