@@ -39,7 +39,7 @@ from vsfleet.wire import (
     encode_mission,
 )
 
-from .conftest import moving, pose_input
+from .conftest import fleet_up, moving, pose_input
 from .secured import SecuredFleet
 
 pytestmark = pytest.mark.integration
@@ -361,6 +361,7 @@ def test_rogue_clients_cannot_move_a_robot_change_the_mission_or_inject_poses(fl
                                        "--config", str(fleet.client_config("operator"))),
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
+    fleet.observed.wait_for(fleet_up(("r1", "r2")), timeout_s=20)  # both robots commanded, both agents seen
     fleet.observed.wait_for(moving("r1", 0.0), timeout_s=20)
     version = fleet.observed.wait_for(lambda o: next((m.mission for _, _, m in o.state), None), timeout_s=10)
 
