@@ -34,15 +34,15 @@ from fleetctl.run import child_command
 from fleetctl.scenario_file import load_scenario
 from fleetctl.zconf import RELIABLE_QOS, zenoh_flags
 from vsfleet.wire import (
+    FrameMsg,
     Keys,
-    PoseMsg,
     WireError,
     decode_cmd,
     decode_event,
     decode_pose,
     decode_state,
     decode_truth,
-    encode,
+    encode_frame,
     encode_mission,
 )
 
@@ -234,9 +234,9 @@ def halt_bound_s(fleet: "LoopbackFleet", ttl_s: float = TTL_S) -> float:
 
 def pose_input(keys: Keys, robot: str, t: float, seq: int, x: float, y: float, th: float,
                src: str = "test") -> tuple[str, bytes]:
-    """(key, payload) of one observed pose as the agents take it in: the one place that knows the
-    agents' input format (pose/<robot> today; a frame on frame/<src> once agents read frames)."""
-    return keys.pose(robot), encode(PoseMsg(t=t, seq=seq, x=x, y=y, th=th, src=src))
+    """(key, payload) of one observed pose as the agents take it in, a frame of one robot on
+    frame/<src> (issue 12: agents read frames only): the one place that knows the agents' input."""
+    return keys.frame(src), encode_frame(FrameMsg(t=t, seq=seq, src=src, poses={robot: (x, y, th)}))
 
 
 # ---------------------------------------------------------------- the fleet's processes

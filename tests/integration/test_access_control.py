@@ -31,6 +31,7 @@ from vsfleet.wire import (
     EventMsg,
     FaultMsg,
     HealthMsg,
+    PoseMsg,
     StateMsg,
     TruthMsg,
     encode,
@@ -120,21 +121,23 @@ def rogue_messages(fleet: SecuredFleet, who: str) -> list[tuple[str, bytes]]:
         (k.cmd("r1"), encode(CmdMsg(t=now, seq=10**6, vl=0.3, vr=-0.3, ttl=5.0))),
         (k.mission, encode_mission(evil_mission(fleet, now))),
         pose_input(k, "r1", t=now, seq=10**6, x=5.0, y=5.0, th=0.0, src="rogue"),
+        (k.pose("r1"), encode(PoseMsg(t=now, seq=10**6, x=5.0, y=5.0, th=0.0, src="rogue"))),  # for tools
         (k.fault("r1"), encode(FaultMsg(kind="stop", factor=0.0, duration=0.0))),
         (k.truth("r1"), encode(TruthMsg(t=now, x=5.0, y=5.0, th=0.0, vl=0.0, vr=0.0))),
         (k.state("r1"), encode(StateMsg(t=now, seq=10**6, x=5.0, y=5.0, th=0.0, gx=5.0, gy=5.0, gth=0.0,
                                         cost=0.0, err=0.0, used=("r1",), rejected=0))),
         (k.event("r1"), encode_event(EventMsg(t=now, seq=10**6, robot="r2", kind="drop", dev=1.0, by="r1"))),
     ]
-    own = {"tracker": pose_input(k, "r1", 0.0, 0, 0.0, 0.0, 0.0)[0], "sim": k.truth("r1")}.get(who)  # its own
-    return [(key, marked(p, who)) for key, p in msgs if key != own]
+    own = {"tracker": {pose_input(k, "r1", 0.0, 0, 0.0, 0.0, 0.0, src="rogue")[0], k.pose("r1")},
+           "sim": {k.truth("r1")}}.get(who, set())  # what that login may put
+    return [(key, marked(p, who)) for key, p in msgs if key not in own]
 
 
 def sentinel(fleet: SecuredFleet, who: str) -> tuple[str, bytes]:
     """A harmless message ``who`` may put: its own state, or a valid pose/truth of robot zz,
     which no mission names (agents ignore it, nobody rejects it)."""
     k, now = fleet.keys, time.time()
-    key, payload = {"tracker": pose_input(k, "zz", t=now, seq=0, x=0.0, y=0.0, th=0.0, src="rogue"),
+    key, payload = {"tracker": (k.pose("zz"), encode(PoseMsg(t=now, seq=0, x=0.0, y=0.0, th=0.0, src="rogue"))),
                     "sim": (k.truth("zz"), encode(TruthMsg(t=now, x=0.0, y=0.0, th=0.0, vl=0.0, vr=0.0)))}.get(
         who, (k.state(who), msgpack.packb({"t": now})))
     m = msgpack.unpackb(payload)
