@@ -3,7 +3,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench bench-fit clean
+.PHONY: demo test test-unit test-integration bench bench-fit clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -14,8 +14,15 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(BIN)/vsfleet run scenarios/paper-triangle.toml
 
+# the whole suite (CI: .ci/run); test-unit: every test that starts no process (tests/conftest.py)
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
+
+test-unit: $(STAMP)
+	$(BIN)/python -m pytest -q -m "not integration"
+
+test-integration: $(STAMP)
+	$(BIN)/python -m pytest -q -m integration
 
 bench-fit: $(STAMP)
 	$(BIN)/python bench/fit.py

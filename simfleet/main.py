@@ -2,7 +2,10 @@
 
 Physics runs at a fixed rate (200 Hz by default). Simulation time is counted:
 step k is at ``t0 + k / rate_hz`` on the tracker's clock (UNIX seconds); the
-loop is paced to the wall clock so that agents see real time.
+loop is paced to the wall clock so that agents see real time. Each truth
+message says why the wheels do what they do (``why``: idle, commanded,
+expired, fault), since when (``why_t``, sim time of the step it began) and
+when the robot's command last expired (``expired_t``).
 """
 
 from __future__ import annotations
@@ -56,6 +59,8 @@ class Fleet:
         self.rejections = Rejections(log)
         self.commanded = {r: False for r in self.robots}  # has a fresh command (within its ttl)
         self.expiries = 0
+        self.why = {r: ("idle", t0) for r in self.robots}  # (reason, sim time [s] it began): see truth()
+        self.expired_t = {r: 0.0 for r in self.robots}  # sim time [s] of each robot's latest expiry
 
     @property
     def t(self) -> float:
@@ -117,14 +122,36 @@ class Fleet:
                              rid, t, c.seq, c.arrived_t, c.ttl)
                 else:
                     log.info("%s: commanded again at t=%.3f (seq %d)", rid, t, c.seq)
+            why = _why(c is not None, fresh, faults[rid], t)
+            if why != self.why[rid][0]:
+                self.why[rid] = (why, t)
+                if why == "expired":
+                    self.expired_t[rid] = t
             self.states[rid] = step_robot(self.states[rid], robot, c.vl if c else 0.0,
                                           c.vr if c else 0.0, fresh, faults[rid], t, self.dt_s)
         self.k += 1
 
     def truth(self) -> dict[str, TruthMsg]:
+        """Every robot's pose and applied wheel speeds after the last step, stamped self.t, with
+        the reason for its wheels (as of that step), the sim time that reason began, the sim
+        time of its latest command expiry, and the bad messages counted so far."""
         t = self.t
-        return {rid: TruthMsg(t=t, x=s.pose.x, y=s.pose.y, th=s.pose.th, vl=s.vl, vr=s.vr)
+        return {rid: TruthMsg(t=t, x=s.pose.x, y=s.pose.y, th=s.pose.th, vl=s.vl, vr=s.vr,
+                              why=self.why[rid][0], why_t=self.why[rid][1], expired_t=self.expired_t[rid],
+                              rejected=self.rejections.count)
                 for rid, s in self.states.items()}
+
+
+def _why(ever_commanded: bool, fresh: bool, fault: Fault, t: float) -> str:
+    """What sets a robot's wheels at sim time t: idle (never commanded), expired (the last
+    command outlived its ttl: braking to rest), fault (a fault alters a fresh command), commanded."""
+    if not ever_commanded:
+        return "idle"
+    if not fresh:
+        return "expired"
+    if fault.kind != "none" and t < fault.until_t:
+        return "fault"
+    return "commanded"
 
 
 def run_sim(conf: zenoh.Config, scenario: Scenario, stop: StopFlag | None = None,

@@ -171,6 +171,7 @@ def test_calibrate_command_writes_a_calibration_and_reports_mm(tmp_path, capsys)
     assert cal.model == "pinhole" and cal.error_mm["max"] < 3.0
 
 
+@pytest.mark.integration  # starts a child process (tests/conftest.py)
 def test_camera_command_refuses_a_missing_or_malformed_calibration_without_a_trace(tmp_path):
     missing = run_cli("tracker", "camera", "--camera", str(CONFIG), "--calibration", str(tmp_path / "no.json"),
                       "--source", "0", "--no-multicast-scouting")
@@ -187,6 +188,7 @@ def test_camera_command_refuses_a_missing_or_malformed_calibration_without_a_tra
     assert "image_size_px" in malformed.stderr and "Traceback" not in malformed.stderr
 
 
+@pytest.mark.integration  # starts a child process (tests/conftest.py)
 def test_camera_command_refuses_a_malformed_config_and_a_missing_video(tmp_path, calibration):
     cal = tmp_path / "cal.json"
     calibration.save(cal)
@@ -200,6 +202,7 @@ def test_camera_command_refuses_a_malformed_config_and_a_missing_video(tmp_path,
     assert out.returncode == 2 and "no such video file" in out.stderr and "Traceback" not in out.stderr
 
 
+@pytest.mark.integration  # starts a child process (tests/conftest.py)
 def test_camera_command_retries_a_camera_that_does_not_open_then_gives_up(calibration, tmp_path):
     cal = tmp_path / "cal.json"
     calibration.save(cal)

@@ -230,6 +230,7 @@ def test_a_video_file_that_cannot_be_opened_is_not_retried(config, calibration, 
     assert "retry" not in caplog.text
 
 
+@pytest.mark.integration  # starts a child process (tests/conftest.py)
 def test_the_command_refuses_an_unreadable_video_at_once_and_fails_a_truncated_one(tmp_path, clip, calibration):
     _, cut = clip
     cal = tmp_path / "cal.json"

@@ -188,7 +188,7 @@ SECRETS = {"usrpwd": ["router/passwords", "router/router.json5", "r1/r1.json5", 
                     "operator/operator.key", "router/router.json5", "r1/r1.json5"]}
 
 
-@pytest.mark.parametrize("auth", ["usrpwd", "mtls"])
+@pytest.mark.parametrize("auth", ["usrpwd", pytest.param("mtls", marks=pytest.mark.integration)])  # openssl
 def test_secret_files_are_created_private_not_made_private_afterwards(tmp_path, monkeypatch, auth):
     """With chmod out of action, only the mode a file is created with counts: it must already be 0600."""
     if auth == "mtls" and shutil.which("openssl") is None:
@@ -210,6 +210,7 @@ def test_secret_files_are_created_private_not_made_private_afterwards(tmp_path, 
     assert stat.S_IMODE((tmp_path / "r1" / "r1.json5").stat().st_mode) == 0o600
 
 
+@pytest.mark.integration  # starts a child process (tests/conftest.py)
 @pytest.mark.skipif(shutil.which("openssl") is None, reason="needs the openssl command-line tool")
 def test_mtls_deploy_makes_certificates_with_the_identities_as_common_names(tmp_path):
     paths = deploy.write_deploy(tmp_path, "lab", ROBOTS, "tls/10.0.0.1:7447", auth="mtls")
@@ -250,6 +251,7 @@ def test_the_checked_in_examples_are_what_the_generator_writes():
         zenoh.Config.from_file(str(f))
 
 
+@pytest.mark.integration  # starts a child process (tests/conftest.py)
 def test_the_cli_writes_a_site_and_refuses_a_bad_fleet_file(tmp_path):
     out = subprocess.run([sys.executable, "-m", "fleetctl.cli", "deploy", "config", str(DEPLOY / "fleet.toml"),
                           "--router", "tcp/10.0.0.1:7447", "--out", str(tmp_path / "site")],
@@ -322,6 +324,7 @@ def test_the_expected_units_exist():
                                       "vsfleet-router.service"}
 
 
+@pytest.mark.integration  # starts a child process (tests/conftest.py)
 @pytest.mark.skipif(shutil.which("systemd-analyze") is None, reason="needs systemd-analyze")
 def test_systemd_analyze_finds_nothing_wrong_with_the_units(tmp_path):
     vsfleet = Path(sys.executable).parent / "vsfleet"
@@ -351,6 +354,7 @@ def test_vsfleet_router_runs_a_router_when_the_config_sets_no_mode(tmp_path):
     assert json.loads(router.router_config(args).get_json("mode")) == "router"
 
 
+@pytest.mark.integration  # starts a child process (tests/conftest.py)
 @pytest.mark.parametrize("mode, flags", [("client", []), ("peer", []), (None, ["--mode", "peer"])])
 def test_vsfleet_router_refuses_another_mode_with_a_clear_message(tmp_path, mode, flags):
     conf = write_conf(tmp_path / "r.json5", mode)

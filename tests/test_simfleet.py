@@ -87,6 +87,7 @@ def test_the_fleet_obeys_ttl_faults_and_rejects_bad_messages():
     fleet.on_cmd(keys.cmd("nobody"), encode(CmdMsg(1.0, 1, 0.1, 0.1, 1.0)), now=fleet.t)
     fleet.on_fault(keys.fault("r1"), encode(FaultMsg("stop", 0.0, 0.0))[:-2], now=fleet.t)
     assert fleet.rejections.count == before + 3
+    assert {m.rejected for m in fleet.truth().values()} == {before + 3}  # told on truth/<robot>
 
 
 def test_a_scenario_fault_timeline_fires_at_its_time():
@@ -118,3 +119,46 @@ def test_the_tracker_sends_one_frame_of_every_robot_adds_noise_and_drops_frames(
     dropper.on_truth(keys, keys.truth("r1"), encode(TruthMsg(100.0, 0.0, 0.0, 0.0, 0.0, 0.0)))
     empty = sum(1 for _ in range(1000) if not dropper.frame(now=100.0))
     assert 250 < empty < 350
+
+
+def truth_of(fleet, robot):
+    """The truth message simfleet would publish now, through the codec."""
+    from vsfleet.wire import decode_truth
+    return decode_truth(encode(fleet.truth()[robot]))
+
+
+def test_truth_says_why_the_wheels_move_and_since_which_step():
+    sc = load_scenario(Path(__file__).parent / "data" / "e2e-triangle.toml")
+    keys = Keys(sc.fleet)
+    fleet = Fleet(sc, keys, t0=1000.0)
+    step_t = [fleet.t0 + k * fleet.dt_s for k in range(400)]  # sim time of step k
+    m = truth_of(fleet, "r1")
+    assert (m.why, m.why_t, m.expired_t) == ("idle", 1000.0, 0.0)
+    # ttl 0.2975 s: fresh on steps 0..59 (59 * 5 ms = 0.295 s), expired from step 60 (0.300 s)
+    fleet.on_cmd(keys.cmd("r1"), encode(CmdMsg(1000.0, 1, 0.2, 0.2, 0.2975)), now=1000.0)
+    fleet.step()
+    m = truth_of(fleet, "r1")
+    assert (m.why, m.why_t) == ("commanded", step_t[0]) and m.vl > 0.0
+    assert truth_of(fleet, "r2").why == "idle"
+    for _ in range(59):
+        fleet.step()
+    assert truth_of(fleet, "r1").why == "commanded" and fleet.k == 60
+    fleet.step()  # step 60
+    m = truth_of(fleet, "r1")
+    assert (m.why, m.why_t, m.expired_t) == ("expired", step_t[60], step_t[60])
+    while fleet.states["r1"].vl > 0.0:  # braking to rest at the wheel acceleration limit
+        fleet.step()
+    assert truth_of(fleet, "r1").why_t == step_t[60]  # still the same expiry
+    # a fresh command: commanded again from the next step; a fault over it says fault
+    fleet.on_cmd(keys.cmd("r1"), encode(CmdMsg(1000.5, 2, 0.2, 0.2, 5.0)), now=fleet.t)
+    k_cmd = fleet.k
+    fleet.step()
+    m = truth_of(fleet, "r1")
+    assert (m.why, m.why_t, m.expired_t) == ("commanded", step_t[k_cmd], step_t[60])  # the expiry stays told
+    fleet.on_fault(keys.fault("r1"), encode(FaultMsg("slow", 0.5, 0.0)), now=fleet.t)
+    k_fault = fleet.k
+    fleet.step()
+    assert (truth_of(fleet, "r1").why, truth_of(fleet, "r1").why_t) == ("fault", step_t[k_fault])
+    fleet.on_fault(keys.fault("r1"), encode(FaultMsg("none", 1.0, 0.0)), now=fleet.t)
+    fleet.step()
+    assert truth_of(fleet, "r1").why == "commanded"

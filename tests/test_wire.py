@@ -35,6 +35,8 @@ ROUND_TRIP = [
     (CmdMsg(1.7e9, 42, 0.1, -0.2, 0.3), decode_cmd),
     (StateMsg(1.7e9, 42, 1.0, 2.0, 0.1, 1.1, 2.1, 0.2, 0.004, 0.002, ("r1", "r2"), 7), decode_state),
     (TruthMsg(1.7e9, 1.0, 2.0, -3.1, 0.1, 0.2), decode_truth),
+    (TruthMsg(1.7e9, 1.0, 2.0, -3.1, 0.1, 0.2, why="expired", why_t=1.7e9 - 0.005,
+              expired_t=1.7e9 - 0.005, rejected=3), decode_truth),
     (FaultMsg("slow", 0.5, 2.0), decode_fault),
 ]
 
@@ -59,6 +61,12 @@ def test_a_receiver_ignores_only_the_fields_a_newer_protocol_version_adds():
     assert decode_pose(msgpack.packb({**m, "v": 2})) == PoseMsg(1.0, 1, 0.0, 0.0, 0.0, "s", v=2)
     with pytest.raises(WireError, match="'confidence'"):
         decode_pose(msgpack.packb({**m, "v": 1}))
+
+
+def test_a_truth_message_of_an_older_simfleet_without_why_still_decodes():
+    old = {"t": 1.0, "x": 0.5, "y": 0.0, "th": 0.0, "vl": 0.1, "vr": 0.1}
+    assert decode_truth(msgpack.packb(old)) == TruthMsg(1.0, 0.5, 0.0, 0.0, 0.1, 0.1, why="", why_t=0.0,
+                                                               expired_t=0.0, rejected=-1)
 
 
 POSE = {"t": 1.0, "seq": 1, "x": 0.0, "y": 0.0, "th": 0.0, "src": "s"}
@@ -101,6 +109,10 @@ REJECT = [
     (decode_state, msgpack.packb(with_(STATE, cost=-1.0)), ">= 0"),
     (decode_truth, msgpack.packb(without(TRUTH, "vr")), "missing field 'vr'"),
     (decode_truth, msgpack.packb(with_(TRUTH, x=1e400)), "finite"),
+    (decode_truth, msgpack.packb(with_(TRUTH, why="halted")), "field 'why' must be one of"),
+    (decode_truth, msgpack.packb(with_(TRUTH, why=1)), "field 'why' must be one of"),
+    (decode_truth, msgpack.packb(with_(TRUTH, why="expired", why_t="soon")), "must be a number"),
+    (decode_truth, msgpack.packb(with_(TRUTH, rejected=-2)), "out of range"),
     (decode_fault, msgpack.packb(with_(FAULT, kind="explode")), "unknown fault kind"),
     (decode_fault, msgpack.packb(without(FAULT, "duration")), "missing field 'duration'"),
     (decode_fault, msgpack.packb(with_(FAULT, factor=-1)), ">= 0"),

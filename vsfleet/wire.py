@@ -147,7 +147,7 @@ def _num(m: Mapping[str, Any], name: str) -> float:
     v = float(v)
     if not math.isfinite(v):
         raise WireError(f"field {name!r} must be finite, got {v}")
-    if abs(v) > (1e11 if name in ("t", "effective_t") else MAX_ABS):
+    if abs(v) > (1e11 if name in ("t", "effective_t", "why_t", "expired_t") else MAX_ABS):
         raise WireError(f"field {name!r} out of range: {v}")
     return v
 
@@ -312,9 +312,20 @@ class StateMsg:
     v: int = PROTOCOL_V    # telemetry: the protocol version followed
 
 
+TRUTH_WHY = ("idle", "commanded", "expired", "fault")
+
+
 @dataclass(frozen=True)
 class TruthMsg:
-    """simfleet's ground truth for one robot: pose [m, rad; world] and applied wheel speeds [m/s]."""
+    """simfleet's ground truth for one robot at sim time t [s]: pose [m, rad; world], applied wheel speeds [m/s].
+
+    why: what sets the wheels (TRUTH_WHY: idle before any command, commanded, expired after the
+    command's ttl, fault overriding a fresh command), in force since sim time why_t [s];
+    expired_t: sim time [s] of the robot's latest command expiry (0.0: none yet), so a receiver
+    that missed messages still learns of it; rejected: bad messages simfleet counted so far.
+    Optional: a message without them (an older simfleet) decodes with why "", why_t 0.0,
+    expired_t 0.0 and rejected -1 (not sent).
+    """
 
     t: float
     x: float
@@ -322,6 +333,10 @@ class TruthMsg:
     th: float
     vl: float
     vr: float
+    why: str = ""
+    why_t: float = 0.0
+    expired_t: float = 0.0
+    rejected: int = -1
     v: int = PROTOCOL_V  # telemetry: the protocol version followed
 
 
@@ -511,8 +526,14 @@ def decode_state(payload: bytes) -> StateMsg:
 def decode_truth(payload: bytes) -> TruthMsg:
     m = unpack_map(payload)
     v = _version(m, TruthMsg, "a truth")
+    why = m.get("why", "")
+    if why != "" and why not in TRUTH_WHY:
+        raise WireError(f"field 'why' must be one of {TRUTH_WHY}, got {why!r}")
     return TruthMsg(t=_num(m, "t"), x=_num(m, "x"), y=_num(m, "y"), th=_num(m, "th"),
-                    vl=_num(m, "vl"), vr=_num(m, "vr"), v=v)
+                    vl=_num(m, "vl"), vr=_num(m, "vr"), why=why,
+                    why_t=_num(m, "why_t") if "why_t" in m else 0.0,
+                    expired_t=_num(m, "expired_t") if "expired_t" in m else 0.0,
+                    rejected=_opt_int(m, "rejected", -1), v=v)
 
 
 def decode_fault(payload: bytes) -> FaultMsg:

@@ -15,7 +15,7 @@ import zenoh
 from fleetctl.deploy import write_deploy
 from fleetctl.run import child_command
 
-from .harness import LoopbackFleet, wait_port
+from .conftest import LoopbackFleet, wait_port
 
 
 def install_deploy(out: Path, fleet: str, robots, router_endpoint: str, auth: str) -> Path:

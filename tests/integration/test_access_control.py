@@ -40,6 +40,7 @@ from vsfleet.wire import (
     encode_mission,
 )
 
+from .conftest import fleet_up, moving, pose_input
 from .secured import SecuredFleet
 
 pytestmark = pytest.mark.integration
@@ -106,12 +107,6 @@ class RogueCounter:
                 raise TimeoutError(f"{what} did not arrive within {timeout_s} s")
 
 
-def moving(robot: str, after_t: float):
-    def pred(obs):
-        return any(r == robot and m.t > after_t and abs(m.vl) + abs(m.vr) > 0.02 for _, r, m in obs.truth[-60:])
-    return pred
-
-
 def evil_mission(fleet: SecuredFleet, now: float):
     """A valid mission, newer than the real one, that drives the structure elsewhere."""
     return dataclasses.replace(fleet.mission, version=int(now * 1000) + 10**6, twist=None,
@@ -125,25 +120,27 @@ def rogue_messages(fleet: SecuredFleet, who: str) -> list[tuple[str, bytes]]:
     msgs = [
         (k.cmd("r1"), encode(CmdMsg(t=now, seq=10**6, vl=0.3, vr=-0.3, ttl=5.0))),
         (k.mission, encode_mission(evil_mission(fleet, now))),
-        (k.pose("r1"), encode(PoseMsg(t=now, seq=10**6, x=5.0, y=5.0, th=0.0, src="rogue"))),
+        pose_input(k, "r1", t=now, seq=10**6, x=5.0, y=5.0, th=0.0, src="rogue"),
+        (k.pose("r1"), encode(PoseMsg(t=now, seq=10**6, x=5.0, y=5.0, th=0.0, src="rogue"))),  # for tools
         (k.fault("r1"), encode(FaultMsg(kind="stop", factor=0.0, duration=0.0))),
         (k.truth("r1"), encode(TruthMsg(t=now, x=5.0, y=5.0, th=0.0, vl=0.0, vr=0.0))),
         (k.state("r1"), encode(StateMsg(t=now, seq=10**6, x=5.0, y=5.0, th=0.0, gx=5.0, gy=5.0, gth=0.0,
                                         cost=0.0, err=0.0, used=("r1",), rejected=0))),
         (k.event("r1"), encode_event(EventMsg(t=now, seq=10**6, robot="r2", kind="drop", dev=1.0, by="r1"))),
     ]
-    own = {"tracker": k.pose("r1"), "sim": k.truth("r1")}.get(who)  # what that login may put
-    return [(key, marked(p, who)) for key, p in msgs if key != own]
+    own = {"tracker": {pose_input(k, "r1", 0.0, 0, 0.0, 0.0, 0.0, src="rogue")[0], k.pose("r1")},
+           "sim": {k.truth("r1")}}.get(who, set())  # what that login may put
+    return [(key, marked(p, who)) for key, p in msgs if key not in own]
 
 
 def sentinel(fleet: SecuredFleet, who: str) -> tuple[str, bytes]:
     """A harmless message ``who`` may put: its own state, or a valid pose/truth of robot zz,
     which no mission names (agents ignore it, nobody rejects it)."""
     k, now = fleet.keys, time.time()
-    key, msg = {"tracker": (k.pose("zz"), PoseMsg(t=now, seq=0, x=0.0, y=0.0, th=0.0, src="rogue")),
-                "sim": (k.truth("zz"), TruthMsg(t=now, x=0.0, y=0.0, th=0.0, vl=0.0, vr=0.0))}.get(
-        who, (k.state(who), {"t": now}))
-    m = msgpack.unpackb(encode(msg)) if not isinstance(msg, dict) else msg
+    key, payload = {"tracker": (k.pose("zz"), encode(PoseMsg(t=now, seq=0, x=0.0, y=0.0, th=0.0, src="rogue"))),
+                    "sim": (k.truth("zz"), encode(TruthMsg(t=now, x=0.0, y=0.0, th=0.0, vl=0.0, vr=0.0)))}.get(
+        who, (k.state(who), msgpack.packb({"t": now})))
+    m = msgpack.unpackb(payload)
     return key, msgpack.packb({**m, "rogue": who, "sentinel": True}, use_bin_type=True)
 
 
@@ -367,6 +364,7 @@ def test_rogue_clients_cannot_move_a_robot_change_the_mission_or_inject_poses(fl
                                        "--config", str(fleet.client_config("operator"))),
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
+    fleet.observed.wait_for(fleet_up(("r1", "r2")), timeout_s=20)  # both robots commanded, both agents seen
     fleet.observed.wait_for(moving("r1", 0.0), timeout_s=20)
     version = fleet.observed.wait_for(lambda o: next((m.mission for _, _, m in o.state), None), timeout_s=10)
 

@@ -21,7 +21,7 @@ import pytest
 from fleetctl.mission_cmd import stamp
 from fleetctl.scenario_file import load_scenario
 from fleetctl import rmw_zenoh as rz
-from tests.integration.harness import LoopbackFleet
+from tests.integration.conftest import LoopbackFleet
 from vsfleet.wire import CmdMsg, decode_frame, decode_pose, encode, encode_mission
 
 pytestmark = pytest.mark.integration

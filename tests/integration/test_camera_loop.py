@@ -20,7 +20,7 @@ from vsfleet.analysis import deviation_stats, fitted_truth, goal_distance, truth
 from vsfleet.geometry import angle_diff  # noqa: E402
 from vsfleet.wire import decode_pose  # noqa: E402
 
-from .harness import LoopbackFleet  # noqa: E402
+from .conftest import LoopbackFleet  # noqa: E402
 
 pytestmark = pytest.mark.integration
 

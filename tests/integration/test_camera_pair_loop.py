@@ -17,7 +17,7 @@ from camera_support import save_calibration  # noqa: E402
 from vsfleet.analysis import goal_distance  # noqa: E402
 from vsfleet.wire import decode_pose  # noqa: E402
 
-from .harness import LoopbackFleet  # noqa: E402
+from .conftest import LoopbackFleet  # noqa: E402
 from .test_camera_loop import GOAL_TOL_M, MAX_DEVIATION_M, drive_to_goal, formation_deviation  # noqa: E402
 
 pytestmark = pytest.mark.integration

@@ -20,7 +20,7 @@ from fleetctl.router import free_loopback_port, wait_listening
 from fleetctl.run import child_command
 from fleetctl.zconf import CONNECT_HINT, START_ROUTER_HINT
 
-from .harness import Observed, open_client
+from .conftest import Observed, open_client
 
 pytestmark = pytest.mark.integration
 

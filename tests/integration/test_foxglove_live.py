@@ -22,7 +22,7 @@ from fleetctl.router import wait_listening as wait_port
 from tests.foxglove_support import FoxgloveClient
 from vsfleet.wire import WireError, decode_pose
 
-from .harness import LoopbackFleet
+from .conftest import LoopbackFleet
 
 pytestmark = pytest.mark.integration
 

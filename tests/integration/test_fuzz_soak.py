@@ -5,18 +5,12 @@ on an invalid command, and the fleet keeps formation."""
 from __future__ import annotations
 
 import json
-import re
-import signal
-from pathlib import Path
 
 import pytest
 
-from .harness import LoopbackFleet
-from .test_faults import ROBOTS, at_goal, max_state_err_m, moving, start_fleet
+from .conftest import ROBOTS, LoopbackFleet, at_goal, max_state_err_m, moving, start_fleet
 
 pytestmark = pytest.mark.integration
-
-E2E = Path(__file__).parent.parent / "data" / "e2e-triangle.toml"
 
 
 def fuzz(fleet: LoopbackFleet, kinds: str, duration_s: float) -> dict:
@@ -29,19 +23,15 @@ def fuzz(fleet: LoopbackFleet, kinds: str, duration_s: float) -> dict:
     return json.loads(line)
 
 
-def sim_rejected(fleet: LoopbackFleet) -> int:
-    """Stop simfleet and read the rejection count from its last log line."""
-    fleet.procs["sim"].send_signal(signal.SIGTERM)
-    assert fleet.procs["sim"].wait(timeout=20) == 0
-    text = (fleet.log_dir / "sim.log").read_text()
-    return int(re.findall(r"simfleet stopping at step \d+ .*?, (\d+) rejected", text)[-1])
-
-
-@pytest.fixture
-def fleet(tmp_path):
-    f = LoopbackFleet(E2E, tmp_path)
-    yield f
-    f.close()
+def sim_rejected(fleet: LoopbackFleet, expected: int, timeout_s: float = 20.0) -> int:
+    """simfleet's count of rejected messages as its truth tells it: waits until it reaches ``expected``
+    (or the timeout), returns the newest count."""
+    newest = lambda o: o.truth[-1][2].rejected if o.truth else -1  # noqa: E731
+    try:
+        fleet.observed.wait_for(lambda o: newest(o) >= expected, timeout_s)
+    except TimeoutError:
+        pass
+    return newest(fleet.observed)
 
 
 def test_a_fleet_under_a_flood_of_invalid_messages_counts_every_one_and_keeps_formation(fleet):
@@ -67,7 +57,7 @@ def test_a_fleet_under_a_flood_of_invalid_messages_counts_every_one_and_keeps_fo
         if name != "fuzz":
             assert p.poll() is None, f"{name} died:\n{fleet.logs()}"
     err = max_state_err_m(fleet.observed)
-    got_sim = sim_rejected(fleet)
+    got_sim = sim_rejected(fleet, for_sim)
     print(f"max error {err * 100:.2f} cm; simfleet counted {got_sim} of {for_sim}")
     assert got_sim == for_sim
     assert err < 0.025
@@ -82,6 +72,7 @@ def test_no_robot_moves_on_an_invalid_command(fleet):
     summary = fuzz(fleet, "cmd,fault", duration_s=2.0)
     fleet.observed.wait_for(lambda o: len(o.truth) > n_before + 100, timeout_s=20)
     during = fleet.observed.truth[n_before:]
-    assert all(m.vl == 0.0 and m.vr == 0.0 for _, _, m in during)
+    assert all(m.vl == 0.0 and m.vr == 0.0 and m.why == "idle" for _, _, m in during)  # never commanded
     assert all((m.x, m.y, m.th) == start[r] for _, r, m in during)
-    assert sim_rejected(fleet) == summary["by_kind"]["cmd"] + summary["by_kind"]["fault"]
+    for_sim = summary["by_kind"]["cmd"] + summary["by_kind"]["fault"]
+    assert sim_rejected(fleet, for_sim) == for_sim

@@ -9,6 +9,7 @@ the router stops the fleet, which then resumes. Needs root; skips otherwise.
 
 from __future__ import annotations
 
+import threading
 import time
 from pathlib import Path
 
@@ -16,16 +17,15 @@ import pytest
 
 from vsfleet.analysis import agreement, deviation_stats, fitted_truth, goal_distance, truth_frames
 
+from .conftest import ROBOTS, TTL_S, all_halted, commanded_again, halt_bound_s, moving
+from .conftest import start_fleet as start_processes
 from .netns import Lab, NetnsFleet, netns_unavailable
-from .simlog import wait_halts
 
 pytestmark = pytest.mark.integration
 
 DATA = Path(__file__).parent.parent / "data"
 E2E = DATA / "e2e-triangle.toml"
 CIRCLE = DATA / "deploy-circle.toml"   # drives a circle forever; on_failure = "rejoin"
-ROBOTS = ("r1", "r2", "r3")
-TTL_S = 0.3
 GOAL_POS_TOL_M = 0.01
 PAPER_MAX_DEVIATION_M = 0.025  # the paper's real robots (Fig. 10); as tests/integration/test_fleet.py
 
@@ -45,18 +45,16 @@ def lab(netns_ok):
 
 
 def start_fleet(scenario: Path, tmp_path: Path, lab: Lab) -> NetnsFleet:
+    """The fleet across the lab's hosts, up (every robot commanded, every agent seen) and under way:
+    every robot moving, every agent through a second of frames."""
     fleet = NetnsFleet(scenario, tmp_path, lab)
     try:
-        fleet.start_sim_and_tracker()
+        t_up = start_processes(fleet, timeout_s=30)  # the mission as the operator
         for r in ROBOTS:
-            fleet.start_agent(r, "--ttl", str(TTL_S))
-        fleet.wait_alive("agent", ROBOTS, timeout_s=30)
-        fleet.publish_mission()  # as the operator
-        t_mission = time.time()
-        for r in ROBOTS:  # under way: every robot moving, every agent through a second of frames
-            fleet.observed.wait_for(moving(r, t_mission), timeout_s=20)
+            fleet.observed.wait_for(moving(r), timeout_s=20)
         fleet.observed.wait_for(
-            lambda o: all(sum(1 for _, r, _ in o.state if r == a) >= 30 for a in ROBOTS), timeout_s=20)
+            lambda o: all(sum(1 for t, r, _ in o.state if r == a and t > t_up) >= 30 for a in ROBOTS),
+            timeout_s=20)
     except BaseException:
         print(fleet.logs())
         fleet.close()
@@ -71,14 +69,6 @@ def circle(lab, tmp_path):
     fleet.close()
 
 
-def moving(robot: str, after_t: float):
-    """A truth message of ``robot`` stamped after ``after_t`` with its wheels turning."""
-    def pred(obs):
-        return next((m for _, r, m in obs.truth[-90:]
-                     if r == robot and m.t > after_t and abs(m.vl) + abs(m.vr) > 0.02), None)
-    return pred
-
-
 def first_cmd(fleet: NetnsFleet, robot: str, after_s: float):
     """Arrival time of the first cmd of ``robot``'s agent for a frame after ``after_s``
     (not one that was stuck in a socket buffer). Scans only what arrives from now on."""
@@ -87,12 +77,6 @@ def first_cmd(fleet: NetnsFleet, robot: str, after_s: float):
     def pred(obs):
         return next((t for t, r, m in obs.cmd[start:] if r == robot and m.t > after_s), None)
     return pred
-
-
-def halt_bound_s(fleet: NetnsFleet, robot: str) -> float:
-    """ttl, then braking from full speed at the wheel acceleration limit, plus one truth period."""
-    spec = next(s for s in fleet.scenario.robots if s.robot == robot)
-    return TTL_S + spec.wheel_speed_max / spec.wheel_accel_max + 0.02
 
 
 def events(fleet: NetnsFleet, robot: str, kind: str, after_s: float) -> dict[str, float]:
@@ -138,10 +122,10 @@ def test_a_cut_link_halts_its_robot_within_ttl_and_the_agent_rejoins_when_restor
                      if r == "r1" and m.t > t_cut and m.vl == 0.0 and m.vr == 0.0), None)
 
     halt_s = fleet.observed.wait_for(halted, timeout_s=5).t - t_cut
-    bound = halt_bound_s(fleet, "r1")
-    # simfleet's own account: r1's last command ran out ttl after the cut (a command already in
-    # flight when the link went down may still arrive: 50 ms slack, as for the router kill)
-    expired_t = wait_halts(fleet.log_dir / "sim.log", t_cut, TTL_S, ["r1"], timeout_s=5)["r1"]
+    bound = halt_bound_s(fleet)
+    # simfleet's own account on truth/r1: r1's last command ran out ttl after the cut (a command already
+    # in flight when the link went down may still arrive: 50 ms slack, as for the router kill)
+    expired_t = fleet.observed.wait_for(all_halted(t_cut, ("r1",), TTL_S), timeout_s=5)["r1"]
     expired_s = expired_t - t_cut
     # the others follow on_failure = "rejoin": both drop r1 and carry on without it
     fleet.observed.wait_for(lambda o: set(events(fleet, "r1", "drop", t_cut)) >= {"r2", "r3"}, timeout_s=15)
@@ -171,16 +155,20 @@ def test_the_fleet_resumes_after_the_router_is_killed_and_restarted(circle):
     fleet = circle
     t_kill = fleet.kill("router")  # SIGKILL: no goodbye to the clients
     fleet.procs["router"].wait(timeout=10)
-    # no commands reach simfleet: every robot halts ttl after its last command arrived
-    expiries = wait_halts(fleet.log_dir / "sim.log", t_kill, TTL_S, ROBOTS, timeout_s=5)
-    halt_after_kill_s = {r: round(t - t_kill, 3) for r, t in expiries.items()}
-    # (a message already in flight may still be delivered while the router dies: 50 ms slack)
-    assert all(t - t_kill <= TTL_S + 0.05 for t in expiries.values()), halt_after_kill_s
+    # no commands reach simfleet: every robot halts ttl after its last command arrived; the test
+    # hears of it once the router is back (truth's expired_t tells of an expiry it did not see)
+    threading.Event().wait(2 * TTL_S)  # the outage: the fault being injected
     t_restart = time.time()
     firsts = {r: first_cmd(fleet, r, t_restart) for r in ROBOTS}
     fleet.start_router()  # waits until it listens
     listening_s = time.time() - t_restart
     arrivals = {r: fleet.observed.wait_for(firsts[r], timeout_s=30) for r in ROBOTS}
+    resumed = {r: fleet.observed.wait_for(commanded_again(r, t_restart), timeout_s=30) for r in ROBOTS}
+    expiries = fleet.observed.wait_for(all_halted(t_kill, ROBOTS, TTL_S), timeout_s=10)
+    halt_after_kill_s = {r: round(t - t_kill, 3) for r, t in expiries.items()}
+    # (a message already in flight may still be delivered while the router dies: 50 ms slack)
+    assert all(t - t_kill <= TTL_S + 0.05 for t in expiries.values()), halt_after_kill_s
+    assert all(expiries[r] < resumed[r] for r in ROBOTS)
     for r in ROBOTS:
         fleet.observed.wait_for(moving(r, t_restart), timeout_s=20)
     fleet.observed.wait_for(

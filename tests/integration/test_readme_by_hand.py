@@ -23,7 +23,7 @@ from fleetctl.run import SETTLE_S, Recorder, child_command, settled_at_goal
 from fleetctl.scenario_file import load_scenario
 from vsfleet.wire import Keys
 
-from .harness import Observed, open_client
+from .conftest import Observed, open_client
 
 pytestmark = pytest.mark.integration
 

@@ -1,0 +1,384 @@
+"""What every multi-process test shares: a loopback fleet, what the test's session observed, and the
+waits on it. Every test here is marked ``integration`` (tests/conftest.py).
+
+The processes are real `vsfleet` children on a free loopback port, multicast scouting off; the test
+observes through its own zenoh session, never through log text:
+
+- ``truth/<robot>`` says what simfleet applies and why (``why``: idle, commanded, expired, fault, since
+  ``why_t``): halts, command expiries and resumptions are read there;
+- ``state/<robot>``, ``cmd/<robot>`` and ``event/<robot>`` say what each agent computed and decided.
+
+Every wait is on a condition over what was observed, with a timeout. :func:`start_fleet` returns only
+once the fleet is up (every robot commanded, every agent's state seen), so a test injects its fault
+into a running fleet. Inputs a test feeds the agents itself go through :func:`pose_input`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import signal
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from fleetctl.mission_cmd import stamp
+from fleetctl.router import free_loopback_port, open_loopback_router
+from fleetctl.router import wait_listening as wait_port
+from fleetctl.run import child_command
+from fleetctl.scenario_file import load_scenario
+from fleetctl.zconf import RELIABLE_QOS, zenoh_flags
+from vsfleet.wire import (
+    FrameMsg,
+    Keys,
+    WireError,
+    decode_cmd,
+    decode_event,
+    decode_pose,
+    decode_state,
+    decode_truth,
+    encode_frame,
+    encode_mission,
+)
+
+__all__ = ["free_loopback_port", "wait_port"]  # the port helpers, re-exported for the tests
+
+DATA = Path(__file__).parent.parent / "data"
+E2E = DATA / "e2e-triangle.toml"
+ROBOTS = ("r1", "r2", "r3")
+TTL_S = 0.3
+
+
+# ---------------------------------------------------------------- what the test's session observed
+
+
+class Observed:
+    """Every decoded truth/state/cmd/event message with its arrival time [s, this host], and each robot's
+    truth reasons as they changed; waits with a condition."""
+
+    def __init__(self, keys: Keys) -> None:
+        self.keys = keys
+        self.cond = threading.Condition()
+        self.truth: list[tuple[float, str, object]] = []
+        self.state: list[tuple[float, str, object]] = []
+        self.cmd: list[tuple[float, str, object]] = []
+        self.event: list[tuple[float, str, object]] = []  # (arrival, deciding agent, EventMsg) from event/<agent>
+        self.why: dict[str, list[tuple[str, float]]] = {}  # robot -> [(why, why_t [s, sim clock])] in time order
+        self.pose_seqs: set[int] = set()  # frame numbers the trackers published on pose/<robot>
+        self._told: set[tuple[str, str, float]] = set()  # (robot, why, why_t) already in self.why
+        self.alive: set[str] = set()
+        self.alive_t: dict[str, float] = {}  # when each token last appeared [s, this host]
+
+    def on_liveliness(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        with self.cond:
+            if sample.kind == zenoh.SampleKind.PUT:
+                self.alive.add(key)
+                self.alive_t[key] = time.time()
+            else:
+                self.alive.discard(key)
+            self.cond.notify_all()
+
+    def on_sample(self, sample: zenoh.Sample) -> None:
+        key = str(sample.key_expr)
+        now = time.time()
+        if key.startswith(f"{self.keys.prefix}/event/"):
+            try:  # the key names the deciding agent (only its login may put there)
+                by = self.keys.robot_of(key, "event")
+                msg = decode_event(sample.payload.to_bytes())
+            except WireError:
+                return
+            if msg.by != by:
+                return  # not the agent the key says it is from
+            with self.cond:
+                self.event.append((now, by, msg))
+                self.cond.notify_all()
+            return
+        if key.startswith(f"{self.keys.prefix}/pose/"):
+            try:
+                seq = decode_pose(sample.payload.to_bytes()).seq
+            except WireError:
+                return
+            with self.cond:
+                self.pose_seqs.add(seq)
+            return
+        for kind, decode, store in (("truth", decode_truth, self.truth), ("state", decode_state, self.state),
+                                    ("cmd", decode_cmd, self.cmd)):
+            if key.startswith(f"{self.keys.prefix}/{kind}/"):
+                try:
+                    robot, msg = self.keys.robot_of(key, kind), decode(sample.payload.to_bytes())
+                except WireError:
+                    return
+                with self.cond:
+                    store.append((now, robot, msg))
+                    if kind == "truth" and msg.why:
+                        self._reasons(robot, msg)
+                    self.cond.notify_all()
+                return
+
+    def _reasons(self, robot: str, msg) -> None:
+        """Record a change of ``robot``'s reason, and an expiry this message tells of that was not seen
+        as a reason (it happened while this session was cut off from simfleet); kept in sim-time order."""
+        reasons = self.why.setdefault(robot, [])
+        for entry in ((msg.why, msg.why_t), ("expired", msg.expired_t)):
+            if entry[1] > 0.0 and (robot, *entry) not in self._told:
+                self._told.add((robot, *entry))
+                reasons.append(entry)
+                reasons.sort(key=lambda e: e[1])
+
+    def wait_for(self, predicate, timeout_s: float):
+        """Wait until predicate(self) returns a truthy value; returns it (or raises TimeoutError)."""
+        with self.cond:
+            result = self.cond.wait_for(lambda: predicate(self), timeout=timeout_s)
+        if not result:
+            raise TimeoutError(f"condition not met within {timeout_s} s")
+        return result
+
+
+# ---------------------------------------------------------------- predicates over what was observed
+
+
+def moving(robot: str, after_t: float = 0.0):
+    """The newest truth message of ``robot`` stamped after ``after_t`` with its wheels turning, else None."""
+    def pred(obs: Observed):
+        return next((m for _, r, m in reversed(obs.truth[-90:])
+                     if r == robot and m.t > after_t and abs(m.vl) + abs(m.vr) > 0.02), None)
+    return pred
+
+
+def halts(obs: Observed, after_t: float, ttl_s: float | None = None) -> dict[str, float]:
+    """Each robot's halt in force after ``after_t`` [s]: the sim time its command expired (truth ``why``).
+
+    A robot commanded at ``after_t`` halts at its first expiry after it. A robot whose command had
+    already expired (its agent starved of CPU just before, say) and which was not commanded again
+    halted at that expiry, returned as it is (<= after_t), if that was at most ``ttl_s`` before
+    (any time, with None). Robots with neither (never commanded, or no expiry yet) are absent.
+    """
+    out: dict[str, float] = {}
+    for robot, reasons in obs.why.items():
+        before = [(why, t) for why, t in reasons if t <= after_t]
+        if before and before[-1][0] == "expired":
+            if ttl_s is None or before[-1][1] >= after_t - ttl_s:
+                out[robot] = before[-1][1]
+            continue
+        first = next((t for why, t in reasons if t > after_t and why == "expired"), None)
+        if first is not None:
+            out[robot] = first
+    return out
+
+
+def all_halted(after_t: float, robots=ROBOTS, ttl_s: float | None = None):
+    """Predicate: :func:`halts` after ``after_t`` covers every one of ``robots`` (returns it)."""
+    def pred(obs: Observed):
+        found = halts(obs, after_t, ttl_s)
+        return found if set(robots) <= set(found) else None
+    return pred
+
+
+def commanded_again(robot: str, after_t: float):
+    """Predicate: the sim time [s] ``robot`` was first commanded again after ``after_t`` (truth ``why``)."""
+    def pred(obs: Observed):
+        return next((t for why, t in obs.why.get(robot, ()) if why == "commanded" and t > after_t), None)
+    return pred
+
+
+def at_rest_after(t0: float, robots=ROBOTS):
+    """Predicate: the first truth time after t0 by which every robot's wheels had come to rest, else None."""
+    def pred(obs: Observed):
+        zero_since: dict[str, float] = {}
+        for _, r, m in obs.truth:
+            if m.t > t0 and m.vl == 0.0 and m.vr == 0.0:
+                zero_since.setdefault(r, m.t)
+        return max(zero_since.values()) if set(robots) <= set(zero_since) else None
+    return pred
+
+
+def at_goal(fleet: "LoopbackFleet", tol_m: float = 0.01, robots=ROBOTS):
+    """Predicate: every agent's newest state puts the structure within ``tol_m`` of the goal."""
+    gx, gy, _ = fleet.mission.goal
+
+    def pred(obs: Observed):
+        latest = {}
+        for _, r, m in obs.state:
+            latest[r] = m
+        return set(latest) >= set(robots) and all(math.hypot(m.x - gx, m.y - gy) < tol_m for m in latest.values())
+    return pred
+
+
+def fleet_up(robots=ROBOTS, after_t: float = 0.0):
+    """Predicate: simfleet says every robot is commanded and every agent's state was seen (after ``after_t``)."""
+    def pred(obs: Observed):
+        commanded = {r for r in robots if any(why == "commanded" for why, _ in obs.why.get(r, ()))}
+        states = {r for t, r, _ in obs.state[-30 * len(robots):] if t > after_t}
+        return commanded == set(robots) and states >= set(robots)
+    return pred
+
+
+def max_state_err_m(obs: Observed, after_t: float = 0.0) -> float:
+    """The largest own-robot error [m] any agent reported on a frame stamped after ``after_t``."""
+    return max((m.err for _, _, m in obs.state if m.t > after_t), default=0.0)
+
+
+def halt_bound_s(fleet: "LoopbackFleet", ttl_s: float = TTL_S) -> float:
+    """ttl, then braking at the wheel acceleration limit from full speed, plus one truth period [s]."""
+    return ttl_s + max(r.wheel_speed_max / r.wheel_accel_max for r in fleet.scenario.robots) + 0.02
+
+
+# ---------------------------------------------------------------- inputs the test feeds the agents
+
+
+def pose_input(keys: Keys, robot: str, t: float, seq: int, x: float, y: float, th: float,
+               src: str = "test") -> tuple[str, bytes]:
+    """(key, payload) of one observed pose as the agents take it in, a frame of one robot on
+    frame/<src> (issue 12: agents read frames only): the one place that knows the agents' input."""
+    return keys.frame(src), encode_frame(FrameMsg(t=t, seq=seq, src=src, poses={robot: (x, y, th)}))
+
+
+# ---------------------------------------------------------------- the fleet's processes
+
+
+def open_client(endpoint: str) -> zenoh.Session:
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    return zenoh.open(conf)
+
+
+class LoopbackFleet:
+    """The fleet's processes on loopback. The router is embedded in the test's own session, or
+    (router_process=True) a `vsfleet router` child that a test can kill and restart."""
+
+    def __init__(self, scenario_path: str | Path, log_dir: Path, router_process: bool = False) -> None:
+        self.scenario_path = str(scenario_path)
+        self.scenario = load_scenario(scenario_path)
+        self.keys = Keys(self.scenario.fleet)
+        self.log_dir = log_dir
+        self.procs: dict[str, subprocess.Popen] = {}
+        if router_process:
+            self.router_port = free_loopback_port()
+            self.endpoint = f"tcp/127.0.0.1:{self.router_port}"
+            self.start_router()
+            self.router = self.open_observer()  # the observer's session (named for symmetry)
+        else:
+            self.router, self.endpoint = open_loopback_router()
+        self.flags = zenoh_flags(self.endpoint)
+        self.observed = Observed(self.keys)
+        self.sub = self.router.declare_subscriber(self.keys.everything, self.observed.on_sample)
+        self.alive_sub = self.router.liveliness().declare_subscriber(
+            self.keys.alive(), self.observed.on_liveliness, history=True)
+        self.mission = stamp(self.scenario.mission, time.time(), 0.0, version=1)
+
+    def start(self, name: str, *args: str) -> subprocess.Popen:
+        flags = [] if name == "router" else self.flags
+        with (self.log_dir / f"{name}.log").open("ab") as out:
+            p = subprocess.Popen(child_command(*args, *flags), stdout=out, stderr=subprocess.STDOUT,
+                                 stdin=subprocess.DEVNULL, start_new_session=True)
+        self.procs[name] = p
+        return p
+
+    def open_observer(self) -> zenoh.Session:
+        """The test's client session to the router child; subclasses may log in."""
+        return open_client(self.endpoint)
+
+    def start_router(self) -> subprocess.Popen:
+        """Start (or restart) the `vsfleet router` child on this fleet's port; waits until it listens."""
+        p = self.start("router", "router", "--listen", self.endpoint, "--no-multicast-scouting")
+        wait_port(self.router_port, 20.0)
+        return p
+
+    def start_sim_and_tracker(self, *tracker_extra: str) -> None:
+        tr = self.scenario.tracker
+        self.start("sim", "sim", self.scenario_path)
+        self.start("tracker", "tracker", "sim", "--fleet", self.scenario.fleet, "--rate", str(tr.rate_hz),
+                   "--noise-xy", str(tr.noise_xy_m), "--noise-th", str(tr.noise_th_rad),
+                   "--latency", str(tr.latency_s), *tracker_extra)
+
+    def start_agent(self, robot: str, *extra: str) -> subprocess.Popen:
+        return self.start(f"agent-{robot}", "agent", "--robot", robot, "--fleet", self.scenario.fleet, *extra)
+
+    def wait_alive(self, role: str, ids, timeout_s: float = 20.0) -> None:
+        want = {self.keys.alive(role, i) for i in ids}
+        self.observed.wait_for(lambda o: want <= o.alive, timeout_s)
+
+    def publish_mission(self) -> None:
+        self.router.put(self.keys.mission, encode_mission(self.mission), **RELIABLE_QOS)
+
+    def kill(self, name: str, sig: int = signal.SIGKILL) -> float:
+        self.procs[name].send_signal(sig)
+        return time.time()
+
+    def close(self) -> None:
+        for p in self.procs.values():
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+        for p in self.procs.values():
+            try:
+                p.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait()
+        self.sub.undeclare()
+        self.alive_sub.undeclare()
+        self.router.close()
+
+    def logs(self) -> str:
+        return "\n".join(f"--- {f.name}\n{f.read_text(errors='replace')[-3000:]}"
+                         for f in sorted(self.log_dir.glob("*.log")))
+
+
+def start_fleet(fleet: LoopbackFleet, *tracker_extra: str, robots=ROBOTS, on_failure: str | None = None,
+                ttl_s: float | None = TTL_S, timeout_s: float = 30.0) -> float:
+    """Start simfleet, the simulated tracker and one agent per robot, publish the mission (with
+    ``on_failure`` if given), and wait until the fleet is up: every robot commanded (simfleet's
+    truth says so) and every agent's state seen. Returns the time [s, this host] it was up."""
+    if on_failure is not None:
+        fleet.mission = dataclasses.replace(fleet.mission, on_failure=on_failure)
+    fleet.start_sim_and_tracker(*tracker_extra)
+    for r in robots:
+        fleet.start_agent(r, *(("--ttl", str(ttl_s)) if ttl_s is not None else ()))
+    fleet.wait_alive("agent", robots, timeout_s)
+    fleet.wait_alive("tracker", ("sim",), timeout_s)
+    fleet.wait_alive("sim", ("simfleet",), timeout_s)
+    fleet.publish_mission()
+    fleet.observed.wait_for(fleet_up(robots), timeout_s)
+    return time.time()
+
+
+# ---------------------------------------------------------------- fixtures
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    outcome = yield
+    report = outcome.get_result()
+    if report.when == "call":
+        item.failed_call = report.failed
+
+
+def closing(fleet: LoopbackFleet, request) -> None:
+    """Close the fleet; after a failed test, print its processes' logs (pytest shows them)."""
+    if getattr(request.node, "failed_call", False):
+        print(fleet.logs())
+    fleet.close()
+
+
+@pytest.fixture
+def fleet(tmp_path, request):
+    """The e2e-triangle fleet with the router embedded in the test's session (nothing started yet)."""
+    f = LoopbackFleet(E2E, tmp_path)
+    yield f
+    closing(f, request)
+
+
+@pytest.fixture
+def fleet_with_router_process(tmp_path, request):
+    """The e2e-triangle fleet with `vsfleet router` as a child the test may kill and restart."""
+    f = LoopbackFleet(E2E, tmp_path, router_process=True)
+    yield f
+    closing(f, request)

@@ -1,0 +1,92 @@
+"""Fault handling that needs no processes, on the offline fleet (simfleet.offline: counted frames, the
+agents' clock injected) and simfleet's physics on counted steps: tracker clock skew, decisions that
+every agent makes on the same frame, and a robot whose commands stop halting ttl after the last one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import pytest
+
+from fleetctl.scenario_file import load_scenario
+from simfleet.main import Fleet
+from simfleet.offline import run_offline
+from vsfleet.scenario import FaultEvent
+from vsfleet.wire import CmdMsg, Keys, decode_truth, encode
+
+ROOT = Path(__file__).parent.parent
+E2E = load_scenario(ROOT / "tests" / "data" / "e2e-triangle.toml")
+FAILURE = load_scenario(ROOT / "scenarios" / "paper-failure.toml")
+
+
+@pytest.mark.parametrize("skew_s", [-0.3, 0.9])
+def test_a_skewed_tracker_clock_inside_the_documented_window_brings_the_fleet_to_the_goal(skew_s):
+    """Agents take frames up to 1 s ahead of their clock and up to 0.5 s behind it."""
+    run = run_offline(E2E, 30.0, seed=1, tracker_clock_ahead_s=skew_s)
+    assert run.t_goal_s is not None
+    assert float(run.deviations_m.max()) < 0.025
+
+
+@pytest.mark.parametrize("skew_s", [-0.7, 1.2])
+def test_a_skewed_tracker_clock_outside_the_window_moves_no_robot_on_any_frame(skew_s):
+    run = run_offline(E2E, 3.0, seed=1, tracker_clock_ahead_s=skew_s, stop_at_goal=False)
+    starts = {r.robot: r.start for r in E2E.robots}
+    assert len(run.positions_m) == 90  # every frame of the 3 s ran
+    start_xy = [starts[r][:2] for r in run.robots]
+    assert (run.positions_m == start_xy).all()  # on every frame, bit for bit: no command was applied
+    for r, pose in run.final_poses.items():
+        assert pose.th == pytest.approx(starts[r][2], abs=1e-12)  # (re-wrapped, not turned)
+    assert run.t_goal_s is None and all(d == [] for d in run.decisions.values())
+
+
+def test_a_stopped_robot_is_dropped_by_every_agent_on_the_same_frame_whatever_the_command_latency():
+    sc = dataclasses.replace(FAILURE, mission=dataclasses.replace(FAILURE.mission, on_failure="drop"),
+                             faults=(FaultEvent("r2", 8.0, "stop", 0.0, 0.0),))
+    frame_s = 1.0 / sc.tracker.rate_hz
+    for latency in (1, 2, 3):
+        run = run_offline(sc, 20.0, seed=2, latency_frames=latency, stop_at_goal=False)
+        made = run.decisions["r1"]
+        assert all(v == made for v in run.decisions.values()), latency  # same decisions, same frames
+        assert [(d.robot, d.kind) for d in made] == [("r2", "fail"), ("r2", "drop")], latency
+        fail, drop = made
+        # within 3 s of the stop, dropped on the very frame it failed (on_failure = drop), a frame time
+        assert 8.0 < fail.t < 8.0 + 3.0, latency
+        assert drop.t == fail.t, latency
+        assert math.isclose(fail.t / frame_s, round(fail.t / frame_s), abs_tol=1e-6), latency
+
+
+def test_the_same_seed_gives_the_same_decisions_on_the_same_frames_and_the_same_trace():
+    sc = dataclasses.replace(FAILURE, mission=dataclasses.replace(FAILURE.mission, on_failure="rejoin"),
+                             faults=(FaultEvent("r2", 8.0, "stall", 0.0, 4.0),))
+    a = run_offline(sc, 25.0, seed=5, stop_at_goal=False)
+    b = run_offline(sc, 25.0, seed=5, stop_at_goal=False)
+    assert a.decisions == b.decisions and a.trace == b.trace
+    assert [(d.robot, d.kind) for d in a.decisions["r1"]] == [("r2", "fail"), ("r2", "drop"), ("r2", "rejoin")]
+
+
+def test_a_robot_whose_commands_stop_expires_exactly_ttl_after_the_last_and_is_at_rest_within_the_bound():
+    keys = Keys(E2E.fleet)
+    fleet = Fleet(E2E, keys, t0=0.0)
+    ttl_s = 0.2975  # 59.5 steps of 5 ms: no step lands on the boundary
+    last_k = None
+    for k in range(200):  # a command every 6 steps (33 Hz) for 1 s
+        if k % 6 == 0:
+            fleet.on_cmd(keys.cmd("r1"), encode(CmdMsg(fleet.t, k, 0.2, 0.2, ttl_s)), now=fleet.t)
+            last_k = k
+        fleet.step()
+    moving_vl = fleet.states["r1"].vl
+    assert moving_vl > 0.15
+    expiry_k = last_k + 60  # the first step more than ttl after the last arrival
+    while fleet.k <= expiry_k:
+        assert decode_truth(encode(fleet.truth()["r1"])).why == "commanded"
+        fleet.step()
+    m = decode_truth(encode(fleet.truth()["r1"]))
+    assert (m.why, m.why_t, m.expired_t) == ("expired", expiry_k * fleet.dt_s, expiry_k * fleet.dt_s)
+    spec = next(r for r in E2E.robots if r.robot == "r1")
+    brake_steps = math.ceil(moving_vl / (spec.wheel_accel_max * fleet.dt_s)) + 1
+    for _ in range(brake_steps):
+        fleet.step()
+    assert (fleet.states["r1"].vl, fleet.states["r1"].vr) == (0.0, 0.0)
