@@ -17,6 +17,7 @@ import threading
 from dataclasses import dataclass
 from typing import Callable
 
+import numpy as np
 import zenoh
 
 from fleetctl.lifecycle import Rejections, StopFlag, pace, wall_clock
@@ -26,7 +27,7 @@ from vsfleet.geometry import Pose2
 from vsfleet.scenario import Scenario
 from vsfleet.wire import Keys, TruthMsg, decode_cmd, decode_fault, encode
 
-from .physics import Fault, RobotState, step_robot
+from .physics import Fault, FaultArrays, FleetParams, RobotState, step_robots
 
 log = logging.getLogger("vsfleet.sim")
 
@@ -48,19 +49,43 @@ class Fleet:
         self.scenario = scenario
         self.keys = keys
         self.robots = {r.robot: r for r in scenario.robots}
-        self.states = {r.robot: RobotState(Pose2(*r.start)) for r in scenario.robots}
+        self.ids = tuple(self.robots)
+        self.row = {r: i for i, r in enumerate(self.ids)}
+        n = len(self.ids)
+        self.params = FleetParams.of(list(self.robots.values()))
+        self.pose = np.array([r.start for r in scenario.robots], dtype=float).reshape(n, 3)
+        self.wheels = np.zeros((n, 2))
         self.cmds: dict[str, _Cmd] = {}
+        self.cmd = np.zeros((n, 2))                  # the latest command's wheels [m/s] ...
+        self.cmd_arrived_t = np.full(n, -math.inf)   # ... when it arrived [s, sim clock] ...
+        self.cmd_ttl_s = np.zeros(n)                 # ... and its ttl [s]
         self.faults: dict[str, Fault] = {r: Fault() for r in self.robots}
+        self.fault_arrays = FaultArrays.of(self.faults.values())
         self.timeline = list(scenario.faults)
         self.t0 = t0
         self.k = 0
         self.dt_s = 1.0 / scenario.sim.rate_hz
         self.lock = threading.Lock()
         self.rejections = Rejections(log)
-        self.commanded = {r: False for r in self.robots}  # has a fresh command (within its ttl)
+        self.fresh = np.zeros(n, dtype=bool)  # has a fresh command (within its ttl)
         self.expiries = 0
-        self.why = {r: ("idle", t0) for r in self.robots}  # (reason, sim time [s] it began): see truth()
-        self.expired_t = {r: 0.0 for r in self.robots}  # sim time [s] of each robot's latest expiry
+        self.why_code = np.zeros(n, dtype=int)  # WHY index: see truth()
+        self.why_t = np.full(n, float(t0))      # sim time [s] the reason began
+        self.expired_at = np.zeros(n)           # sim time [s] of each robot's latest expiry
+
+    @property
+    def states(self) -> dict[str, RobotState]:
+        """Each robot's pose [m, rad; world] and applied wheel speeds [m/s], by id."""
+        return {r: RobotState(Pose2(*self.pose[i]), float(self.wheels[i, 0]), float(self.wheels[i, 1]))
+                for i, r in enumerate(self.ids)}
+
+    @property
+    def why(self) -> dict[str, tuple[str, float]]:
+        return {r: (WHY[self.why_code[i]], float(self.why_t[i])) for i, r in enumerate(self.ids)}
+
+    @property
+    def expired_t(self) -> dict[str, float]:
+        return {r: float(self.expired_at[i]) for i, r in enumerate(self.ids)}
 
     @property
     def t(self) -> float:
@@ -89,6 +114,9 @@ class Fleet:
             if held is not None and (msg.t, msg.seq) < (held.t, held.seq):
                 return  # out of order: a newer frame's command is already applied
             self.cmds[robot] = _Cmd(msg.vl, msg.vr, msg.seq, msg.t, now, msg.ttl)
+            i = self.row[robot]
+            self.cmd[i] = (msg.vl, msg.vr)
+            self.cmd_arrived_t[i], self.cmd_ttl_s[i] = now, msg.ttl
 
     def on_fault(self, key: str, payload: bytes, now: float) -> None:
         got = self._decode(key, "fault", decode_fault, payload)
@@ -100,58 +128,54 @@ class Fleet:
         until = now + duration if duration > 0 else math.inf
         with self.lock:
             self.faults[robot] = Fault(kind, factor, until)
+            self.fault_arrays = FaultArrays.of(self.faults.values())
         log.info("fault on %s: %s factor=%.2f duration=%.2fs", robot, kind, factor, duration)
 
     def step(self) -> None:
-        """One physics step for every robot, at sim time self.t."""
+        """One physics step for every robot at once, at sim time self.t."""
         t = self.t
         while self.timeline and self.t0 + self.timeline[0].at_s <= t:
             ev = self.timeline.pop(0)
             self.set_fault(ev.robot, ev.kind, ev.factor, ev.duration, t)
         with self.lock:
-            cmds = dict(self.cmds)
-            faults = dict(self.faults)
-        for rid, robot in self.robots.items():
-            c = cmds.get(rid)
-            fresh = c is not None and t - c.arrived_t <= c.ttl
-            if fresh != self.commanded[rid]:
-                self.commanded[rid] = fresh
-                if not fresh:
+            cmd, arrived, ttl, faults = self.cmd.copy(), self.cmd_arrived_t.copy(), self.cmd_ttl_s.copy(), \
+                self.fault_arrays
+        fresh = t - arrived <= ttl
+        changed = fresh != self.fresh
+        if changed.any():
+            for i in np.flatnonzero(changed):  # rare: a command stream starts or stops
+                rid, c = self.ids[i], self.cmds.get(self.ids[i])
+                if not fresh[i]:
                     self.expiries += 1
                     log.info("%s: command expired at t=%.3f (last seq %d, arrived %.3f, ttl %.3f): halting",
                              rid, t, c.seq, c.arrived_t, c.ttl)
                 else:
                     log.info("%s: commanded again at t=%.3f (seq %d)", rid, t, c.seq)
-            why = _why(c is not None, fresh, faults[rid], t)
-            if why != self.why[rid][0]:
-                self.why[rid] = (why, t)
-                if why == "expired":
-                    self.expired_t[rid] = t
-            self.states[rid] = step_robot(self.states[rid], robot, c.vl if c else 0.0,
-                                          c.vr if c else 0.0, fresh, faults[rid], t, self.dt_s)
+            self.fresh = fresh
+        faulted = (faults.kind != 0) & (t < faults.until_t)
+        why = np.where(np.isfinite(arrived), np.where(~fresh, EXPIRED, np.where(faulted, FAULT, COMMANDED)), IDLE)
+        moved = why != self.why_code
+        if moved.any():
+            self.why_t = np.where(moved, t, self.why_t)
+            self.expired_at = np.where(moved & (why == EXPIRED), t, self.expired_at)
+            self.why_code = why
+        self.pose, self.wheels = step_robots(self.pose, self.wheels, cmd, fresh, faults, self.params, t, self.dt_s)
         self.k += 1
 
     def truth(self) -> dict[str, TruthMsg]:
         """Every robot's pose and applied wheel speeds after the last step, stamped self.t, with
         the reason for its wheels (as of that step), the sim time that reason began, the sim
         time of its latest command expiry, and the bad messages counted so far."""
-        t = self.t
-        return {rid: TruthMsg(t=t, x=s.pose.x, y=s.pose.y, th=s.pose.th, vl=s.vl, vr=s.vr,
-                              why=self.why[rid][0], why_t=self.why[rid][1], expired_t=self.expired_t[rid],
-                              rejected=self.rejections.count)
-                for rid, s in self.states.items()}
+        t, n_rejected = self.t, self.rejections.count
+        pose, wheels = self.pose.tolist(), self.wheels.tolist()
+        why, why_t, expired = self.why_code.tolist(), self.why_t.tolist(), self.expired_at.tolist()
+        return {rid: TruthMsg(t=t, x=pose[i][0], y=pose[i][1], th=pose[i][2], vl=wheels[i][0], vr=wheels[i][1],
+                              why=WHY[why[i]], why_t=why_t[i], expired_t=expired[i], rejected=n_rejected)
+                for i, rid in enumerate(self.ids)}
 
 
-def _why(ever_commanded: bool, fresh: bool, fault: Fault, t: float) -> str:
-    """What sets a robot's wheels at sim time t: idle (never commanded), expired (the last
-    command outlived its ttl: braking to rest), fault (a fault alters a fresh command), commanded."""
-    if not ever_commanded:
-        return "idle"
-    if not fresh:
-        return "expired"
-    if fault.kind != "none" and t < fault.until_t:
-        return "fault"
-    return "commanded"
+WHY = ("idle", "commanded", "expired", "fault")  # what sets a robot's wheels (truth's ``why``):
+IDLE, COMMANDED, EXPIRED, FAULT = range(4)       # never commanded / fresh / outlived its ttl / a fault alters it
 
 
 def run_sim(conf: zenoh.Config, scenario: Scenario, stop: StopFlag | None = None,

@@ -1,18 +1,25 @@
-"""Pure physics of one simulated robot: commanded -> applied wheel speeds -> exact arc motion.
+"""Pure physics of simulated robots, every robot a row: commanded -> applied wheel speeds -> exact arcs.
 
 Per physics step: a command older than its ttl counts as zero; the wheel gains
 (the paper's robots "differ in performance") scale the command; a fault
 modifies it; the result is clipped to the wheel speed limit and slewed by the
-wheel acceleration limit; the pose is integrated exactly over the step.
+wheel acceleration limit; the pose is integrated exactly over the step
+(vsfleet.kinematics.integrate_arcs). ``step_robots`` does this for arrays of
+all robots at once; ``step_robot`` and ``step_fleet`` are the same rule for one
+robot and for a dict of robots.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 from vsfleet.geometry import Pose2
-from vsfleet.kinematics import integrate_arc
+from vsfleet.kinematics import integrate_arcs, wrap_angles
 from vsfleet.scenario import SimRobot
+
+FAULT_CODES = {"none": 0, "stop": 1, "stall": 2, "slow": 3, "wheel": 4}
 
 
 @dataclass(frozen=True)
@@ -23,16 +30,8 @@ class Fault:
     factor: float = 1.0
     until_t: float = float("inf")
 
-    def apply(self, vl: float, vr: float, t: float) -> tuple[float, float]:
-        if self.kind == "none" or t >= self.until_t:
-            return vl, vr
-        if self.kind in ("stop", "stall"):
-            return 0.0, 0.0
-        if self.kind == "slow":
-            return vl * self.factor, vr * self.factor
-        if self.kind == "wheel":
-            return vl * self.factor, vr
-        return vl, vr
+    def active(self, t: float) -> bool:
+        return self.kind != "none" and t < self.until_t
 
 
 @dataclass(frozen=True)
@@ -44,25 +43,70 @@ class RobotState:
     vr: float = 0.0
 
 
-def _slew(current: float, target: float, max_step: float) -> float:
-    return current + max(-max_step, min(max_step, target - current))
+@dataclass(frozen=True)
+class FleetParams:
+    """Each robot's wheel gains (n, 2), speed limit (n,) [m/s], acceleration limit (n,) [m/s^2] and
+    wheel base (n,) [m], rows in the order given."""
+
+    gain: np.ndarray
+    speed_max_m_s: np.ndarray
+    accel_max_m_s2: np.ndarray
+    wheel_base_m: np.ndarray
+
+    @classmethod
+    def of(cls, robots) -> "FleetParams":
+        return cls(np.array([r.gain for r in robots], dtype=float).reshape(-1, 2),
+                   np.array([r.wheel_speed_max for r in robots], dtype=float),
+                   np.array([r.wheel_accel_max for r in robots], dtype=float),
+                   np.array([r.wheel_base for r in robots], dtype=float))
+
+
+@dataclass(frozen=True)
+class FaultArrays:
+    """Every robot's fault as arrays: kind code (n,) (FAULT_CODES), factor (n,), until_t (n,) [s]."""
+
+    kind: np.ndarray
+    factor: np.ndarray
+    until_t: np.ndarray
+
+    @classmethod
+    def of(cls, faults) -> "FaultArrays":
+        return cls(np.array([FAULT_CODES[f.kind] for f in faults], dtype=int),
+                   np.array([f.factor for f in faults], dtype=float),
+                   np.array([f.until_t for f in faults], dtype=float))
+
+
+def step_robots(pose_world: np.ndarray, wheels_m_s: np.ndarray, cmd_m_s: np.ndarray, cmd_fresh: np.ndarray,
+                faults: FaultArrays, params: FleetParams, t: float, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Advance every robot by one physics step of dt_s [s] at sim time t [s].
+
+    pose_world (n, 3) [m, m, rad], wheels_m_s (n, 2) the applied wheel speeds, cmd_m_s (n, 2) the
+    commanded ones, cmd_fresh (n,) within their ttl. Returns the new poses (heading wrapped) and
+    applied wheel speeds.
+    """
+    u = np.where(np.asarray(cmd_fresh, dtype=bool)[:, None], cmd_m_s, 0.0) * params.gain
+    active = (faults.kind != 0) & (t < faults.until_t)
+    halted = active & ((faults.kind == 1) | (faults.kind == 2))
+    u = np.where(halted[:, None], 0.0, u)
+    u = np.where((active & (faults.kind == 3))[:, None], u * faults.factor[:, None], u)
+    u[:, 0] = np.where(active & (faults.kind == 4), u[:, 0] * faults.factor, u[:, 0])
+    vmax = params.speed_max_m_s[:, None]
+    u = np.clip(u, -vmax, vmax)
+    # a halted robot halts now (motor cut), not after a ramp
+    dv = np.where(halted, np.inf, params.accel_max_m_s2 * dt_s)[:, None]
+    wheels = wheels_m_s + np.clip(u - wheels_m_s, -dv, dv)
+    pose = integrate_arcs(pose_world, wheels, dt_s, params.wheel_base_m)
+    pose[:, 2] = wrap_angles(pose[:, 2])
+    return pose, wheels
 
 
 def step_robot(state: RobotState, robot: SimRobot, cmd_vl: float, cmd_vr: float, cmd_fresh: bool,
                fault: Fault, t: float, dt_s: float) -> RobotState:
-    """Advance one robot by one physics step of ``dt_s`` at sim time ``t``."""
-    if not cmd_fresh:
-        cmd_vl = cmd_vr = 0.0
-    vl, vr = cmd_vl * robot.gain[0], cmd_vr * robot.gain[1]
-    vl, vr = fault.apply(vl, vr, t)
-    vmax = robot.wheel_speed_max
-    vl, vr = max(-vmax, min(vmax, vl)), max(-vmax, min(vmax, vr))
-    dv = robot.wheel_accel_max * dt_s
-    if fault.kind in ("stop", "stall") and t < fault.until_t:
-        dv = float("inf")  # a halted robot halts now (motor cut), not after a ramp
-    vl, vr = _slew(state.vl, vl, dv), _slew(state.vr, vr, dv)
-    pose = integrate_arc(state.pose, vl, vr, dt_s, robot.wheel_base)
-    return RobotState(pose, vl, vr)
+    """Advance one robot by one physics step of ``dt_s`` at sim time ``t`` (step_robots on one row)."""
+    pose, wheels = step_robots(np.array([state.pose.as_tuple()]), np.array([[state.vl, state.vr]]),
+                               np.array([[cmd_vl, cmd_vr]]), np.array([cmd_fresh]), FaultArrays.of([fault]),
+                               FleetParams.of([robot]), t, dt_s)
+    return RobotState(Pose2(*pose[0]), float(wheels[0, 0]), float(wheels[0, 1]))
 
 
 def step_fleet(states: dict[str, RobotState], robots: dict[str, SimRobot],
@@ -71,11 +115,21 @@ def step_fleet(states: dict[str, RobotState], robots: dict[str, SimRobot],
     """Advance every robot by ``substeps`` physics steps of ``dt_s`` from sim time ``t`` [s],
     starting the timeline's faults (FaultEvent, ordered by at_s) when they are due; returns the
     new time. ``states``, ``faults`` and ``timeline`` are updated in place; commands are fresh."""
+    ids = list(robots)
+    params = FleetParams.of([robots[r] for r in ids])
+    pose = np.array([states[r].pose.as_tuple() for r in ids], dtype=float)
+    wheels = np.array([(states[r].vl, states[r].vr) for r in ids], dtype=float)
+    cmd = np.array([cmds[r] for r in ids], dtype=float)
+    fresh = np.ones(len(ids), dtype=bool)
+    arrays = FaultArrays.of([faults[r] for r in ids])
     for _ in range(substeps):
-        while timeline and timeline[0].at_s <= t:
-            ev = timeline.pop(0)
-            faults[ev.robot] = Fault(ev.kind, ev.factor, t + ev.duration if ev.duration > 0 else float("inf"))
-        for r in robots:
-            states[r] = step_robot(states[r], robots[r], *cmds[r], True, faults[r], t, dt_s)
+        if timeline and timeline[0].at_s <= t:
+            while timeline and timeline[0].at_s <= t:
+                ev = timeline.pop(0)
+                faults[ev.robot] = Fault(ev.kind, ev.factor, t + ev.duration if ev.duration > 0 else float("inf"))
+            arrays = FaultArrays.of([faults[r] for r in ids])
+        pose, wheels = step_robots(pose, wheels, cmd, fresh, arrays, params, t, dt_s)
         t += dt_s
+    for i, r in enumerate(ids):
+        states[r] = RobotState(Pose2(*pose[i]), float(wheels[i, 0]), float(wheels[i, 1]))
     return t
