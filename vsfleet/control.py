@@ -302,7 +302,9 @@ class Precision:
        LMS, rate gain_rate, kept within [gain_min, gain_max]).
     2. Age: the filtered pose is driven forward by age_s [s] over the commands already sent.
     3. Target: the structure point at that time (point_now + age f, f = (next - now) / dt_s),
-       smoothed by target_gain around its own prediction.
+       smoothed by target_gain around its own prediction; f is smoothed by feed_gain. Both
+       follow the structure's twist, which every robot sees alike, so the smoothing delays the
+       formation as a rigid body and does not bend it.
     4. Law: a point offset_m [m] ahead of the axle follows the target's offset point at the
        feed-forward velocity plus position_gain_per_s [1/s] times its error; wheels divided by
        the gains estimated, then the envelope (no windup: only commands sent enter the filter).
@@ -313,13 +315,14 @@ class Precision:
     pose_gain: float = 0.15
     heading_gain: float = 0.1
     target_gain: float = 0.2
+    feed_gain: float = 0.1
     gain_rate: float = 0.002
     gain_min: float = 0.3
     gain_max: float = 2.0
     moving_speed_m_s: float = 0.01
     travel_floor_m: float = 0.0005
     _allow_zero = ("gain_rate",)
-    _at_most = {"pose_gain": 1.0, "heading_gain": 1.0, "target_gain": 1.0}
+    _at_most = {"pose_gain": 1.0, "heading_gain": 1.0, "target_gain": 1.0, "feed_gain": 1.0}
 
     def __post_init__(self) -> None:
         _check_gains(self)
@@ -364,8 +367,9 @@ class Precision:
             p = integrate_arcs(p, g_new * seq[:, j], dt, base)
 
         # 3. target at the command's start, smoothed around its prediction
-        f = (inp.point_next_world - inp.point_now_world) / dt
-        raw = inp.point_now_world + inp.age_s * f
+        f_raw = (inp.point_next_world - inp.point_now_world) / dt
+        f = np.where(fresh[:, None], f_raw, state.feed_m_s + self.feed_gain * (f_raw - state.feed_m_s))
+        raw = inp.point_now_world + inp.age_s * f_raw
         guess = state.target_world + state.feed_m_s * dt
         target = np.where(fresh[:, None], raw, guess + self.target_gain * (raw - guess))
 
