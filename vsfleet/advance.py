@@ -89,9 +89,10 @@ class StructureLimits:
     comply_full_m / comply_stop_m: the compliance throttle (see :func:`compliance_scale`): the
     structure moves at full speed while every robot seen is within comply_full_m of its point,
     and halts once one is comply_stop_m away (linear in between).
-    settle_s: near the goal the speed is at most (distance left) / settle_s (and the turn rate
-    (angle left) / settle_s): a finite gain, so that robots that lag a little behind their points
-    do not make the refitted structure chatter around the goal.
+    settle_s / turn_settle_s: near the goal the speed is at most (distance left) / settle_s and
+    the turn rate (angle left) / turn_settle_s: a finite gain, so that robots that lag a little
+    behind their points do not make the refitted structure chatter around the goal, and the
+    fit's noise reaches the twist (and so every robot's feed-forward) attenuated.
     """
 
     speed_max_m_s: float
@@ -99,14 +100,15 @@ class StructureLimits:
     position_tolerance_m: float = 3e-3
     heading_tolerance_rad: float = 0.01
     path_lookahead_m: float = 0.15
-    comply_full_m: float = 0.5
-    comply_stop_m: float = 0.9
+    comply_full_m: float = 0.006
+    comply_stop_m: float = 0.012
     settle_s: float = 0.5
+    turn_settle_s: float = 2.0
 
     def __post_init__(self) -> None:
         for name in ("speed_max_m_s", "turn_rate_max_rad_s", "position_tolerance_m",
                      "heading_tolerance_rad", "path_lookahead_m", "comply_full_m", "comply_stop_m",
-                     "settle_s"):
+                     "settle_s", "turn_settle_s"):
             v = getattr(self, name)
             if not math.isfinite(v) or v < 0.0:
                 raise VsfleetValueError(f"{name} must be finite and >= 0, got {v!r}")
@@ -153,7 +155,7 @@ def _twist_toward(pose: Pose2, target: Pose2, dist_to_stop: float, limits: Struc
     else:
         vx = vy = 0.0
     dth = angle_diff(target.th, pose.th)
-    w = math.copysign(_profile_speed(abs(dth), limits.turn_rate_max_rad_s, alpha_rad_s2, dt_s, limits.settle_s), dth)
+    w = math.copysign(_profile_speed(abs(dth), limits.turn_rate_max_rad_s, alpha_rad_s2, dt_s, limits.turn_settle_s), dth)
     return Twist2(vx, vy, w)
 
 

@@ -277,14 +277,15 @@ class Tracking:
 class PrecisionState:
     """Per robot (rows): the filtered pose at the last observation [m, m, rad; world], the wheel
     gains estimated (actual / commanded, left and right), the commands sent before the last one
-    (n, H, 2) [m/s], the filtered target point [m; world], the last feed-forward velocity
-    [m/s; world] and whether the row has been initialised."""
+    (n, H, 2) [m/s], the filtered target point [m; world], the filtered feed-forward velocity
+    [m/s; world] and the rate [rad/s] at which it turns, and whether the row has been initialised."""
 
     pose_world: np.ndarray
     gains: np.ndarray
     history_m_s: np.ndarray
     target_world: np.ndarray
     feed_m_s: np.ndarray
+    turn_rad_s: np.ndarray
     ready: np.ndarray
 
 
@@ -302,7 +303,8 @@ class Precision:
        LMS, rate gain_rate, kept within [gain_min, gain_max]).
     2. Age: the filtered pose is driven forward by age_s [s] over the commands already sent.
     3. Target: the structure point at that time (point_now + age f, f = (next - now) / dt_s),
-       smoothed by target_gain around its own prediction; f is smoothed by feed_gain. Both
+       smoothed by target_gain around its own prediction; f is smoothed by feed_gain around its
+       prediction as turning at a rate, itself tracked with turn_gain. Both
        follow the structure's twist, which every robot sees alike, so the smoothing delays the
        formation as a rigid body and does not bend it.
     4. Law: a point offset_m [m] ahead of the axle follows the target's offset point at the
@@ -310,13 +312,14 @@ class Precision:
        the gains estimated, then the envelope (no windup: only commands sent enter the filter).
     """
 
-    position_gain_per_s: float = 1.5
-    offset_m: float = 0.04
+    position_gain_per_s: float = 2.5
+    offset_m: float = 0.025
     pose_gain: float = 0.15
     heading_gain: float = 0.1
     target_gain: float = 0.2
-    feed_gain: float = 0.1
-    gain_rate: float = 0.002
+    feed_gain: float = 0.3
+    turn_gain: float = 0.1
+    gain_rate: float = 0.01
     gain_min: float = 0.3
     gain_max: float = 2.0
     moving_speed_m_s: float = 0.01
@@ -332,7 +335,7 @@ class Precision:
     def initial(self, n: int) -> PrecisionState:
         z2 = np.zeros((n, 2))
         return PrecisionState(np.zeros((n, 3)), np.ones((n, 2)), np.zeros((n, _HISTORY, 2)),
-                              z2, z2, np.zeros(n, dtype=bool))
+                              z2, z2, np.zeros(n), np.zeros(n, dtype=bool))
 
     def __call__(self, state: PrecisionState, inp: ControlInput) -> tuple[PrecisionState, np.ndarray]:
         dt, env, act = inp.dt_s, inp.envelopes, inp.active
@@ -368,7 +371,19 @@ class Precision:
 
         # 3. target at the command's start, smoothed around its prediction
         f_raw = (inp.point_next_world - inp.point_now_world) / dt
-        f = np.where(fresh[:, None], f_raw, state.feed_m_s + self.feed_gain * (f_raw - state.feed_m_s))
+        # the feed-forward velocity, tracked as turning at a constant rate (no lag in a steady turn)
+        ca, sa = np.cos(state.turn_rad_s * dt), np.sin(state.turn_rad_s * dt)
+        fp = np.stack([ca * state.feed_m_s[:, 0] - sa * state.feed_m_s[:, 1],
+                       sa * state.feed_m_s[:, 0] + ca * state.feed_m_s[:, 1]], axis=1)
+        nu = f_raw - fp
+        fp2 = fp[:, 0] ** 2 + fp[:, 1] ** 2
+        moving = fp2 > self.moving_speed_m_s ** 2
+        turn_nu = np.where(moving, (fp[:, 0] * nu[:, 1] - fp[:, 1] * nu[:, 0]) / np.where(moving, fp2, 1.0), 0.0)
+        turn = np.where(moving, state.turn_rad_s + self.turn_gain * turn_nu / dt,
+                        (1.0 - self.feed_gain) * state.turn_rad_s)
+        f = fp + self.feed_gain * nu
+        f = np.where(fresh[:, None], f_raw, f)
+        turn = np.where(fresh, 0.0, turn)
         raw = inp.point_now_world + inp.age_s * f_raw
         guess = state.target_world + state.feed_m_s * dt
         target = np.where(fresh[:, None], raw, guess + self.target_gain * (raw - guess))
@@ -382,10 +397,7 @@ class Precision:
         hb = lam[:, None] * hr + (1.0 - lam[:, None]) * hc
         hb_n = np.hypot(hb[:, 0], hb[:, 1])[:, None]
         hb = np.where(hb_n > 1e-9, hb / np.where(hb_n > 1e-9, hb_n, 1.0), hc)
-        prev_speed = np.hypot(state.feed_m_s[:, 0], state.feed_m_s[:, 1])
-        turn_ref = np.where((speed > 0.0) & (prev_speed > 0.0) & state.ready,
-                            wrap_angles(np.arctan2(f[:, 1], f[:, 0])
-                                        - np.arctan2(state.feed_m_s[:, 1], state.feed_m_s[:, 0])) / dt, 0.0)
+        turn_ref = turn
         nr = np.stack([-hb[:, 1], hb[:, 0]], axis=1)
         l = self.offset_m
         feed = f + (lam * l * turn_ref)[:, None] * nr
@@ -403,6 +415,7 @@ class Precision:
             history_m_s=np.where(keep[:, :, None], state.history_m_s, seq[:, :_HISTORY]),
             target_world=np.where(keep, state.target_world, target),
             feed_m_s=np.where(keep, state.feed_m_s, f),
+            turn_rad_s=np.where(act, turn, state.turn_rad_s),
             ready=state.ready | act)
         return new, out
 
