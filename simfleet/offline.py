@@ -47,6 +47,7 @@ class OfflineRun:
     final_poses: dict
     decisions: dict  # robot -> the failure-policy decisions its agent made, in order
     positions_m: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 0, 2)))  # (frames, n, 2) truth
+    commands_m_s: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 0, 2)))  # (frames, n, 2) sent
 
 
 def run_offline(scenario: Scenario, duration_s: float, controller: str | None = None,
@@ -76,7 +77,7 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
     pending: list[dict] = []
     t = 0.0
     tv = 0.0
-    devs, trace, positions = [], [], []
+    devs, trace, positions, sent_log = [], [], [], []
     t_goal = None
     keys = Keys(scenario.fleet)
     sent: dict[str, tuple[float, float]] = {}
@@ -96,6 +97,7 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
             agent.on_frame(keys.frame("offline"), frame)
             agent.poll()
         new = {r: sent.get(r, (0.0, 0.0)) for r in robots}
+        sent_log.append([new[r] for r in ids])
         pending.append(new)
         if len(pending) > latency_frames:
             applied = pending.pop(0)
@@ -117,7 +119,7 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
                       wheel_tv_m_s2=tv / len(robots) / max(span, 1e-9), trace=tuple(trace),
                       final_poses={r: s.pose for r, s in states.items()},
                       decisions={r: list(a.decisions) for r, a in agents.items()},
-                      positions_m=np.array(positions))
+                      positions_m=np.array(positions), commands_m_s=np.array(sent_log, dtype=float))
 
 
 def _wheels(payload: bytes) -> tuple[float, float]:

@@ -148,3 +148,54 @@ def test_robots_facing_across_their_path_slow_the_structure_but_never_stop_it():
     assert aligned.twist.vx_m_s == pytest.approx(0.05)
     assert reversed_ok.twist.vx_m_s == pytest.approx(0.05)   # driving backwards is allowed
     assert across.twist.vx_m_s == pytest.approx(0.05 * ALIGN_FLOOR)  # creeps so the robot can turn
+
+
+# --- arrays over robots, compliance, the mission's speed ----------------------------------
+
+
+def test_headings_and_deviations_are_arrays_with_nan_for_robots_not_seen():
+    from vsfleet.envelope import Envelopes
+
+    goal = GoalTwist(0.05, 0.0, 0.0)
+    as_list = advance_structure(Pose2(0, 0, 0), goal, DT, LIMITS, TRIANGLE, ENV, headings_rad=[0.0, math.pi / 2, None])
+    as_array = advance_structure(Pose2(0, 0, 0), goal, DT, LIMITS, TRIANGLE, Envelopes.of(ENV),
+                                 headings_rad=np.array([0.0, math.pi / 2, np.nan]),
+                                 deviations_m=np.array([0.001, np.nan, 0.002]))
+    assert as_list == as_array
+    with pytest.raises(ShapeError):
+        advance_structure(Pose2(0, 0, 0), goal, DT, LIMITS, TRIANGLE, ENV, deviations_m=np.zeros(2))
+
+
+def test_the_structure_slows_as_a_robot_falls_behind_and_halts_before_it_is_left_behind():
+    goal = GoalTwist(0.05, 0.0, 0.0)
+    full, stop = LIMITS.comply_full_m, LIMITS.comply_stop_m
+    speeds = []
+    for worst in (0.0, full, 0.5 * (full + stop), stop, 0.05):
+        r = advance_structure(Pose2(0, 0, 0), goal, DT, LIMITS, TRIANGLE, ENV,
+                              deviations_m=np.array([0.001, worst, np.nan]))
+        speeds.append(r.twist.vx_m_s)
+    assert speeds[0] == speeds[1] == pytest.approx(0.05)
+    assert speeds[2] == pytest.approx(0.025)
+    assert speeds[3] == speeds[4] == 0.0
+    with pytest.raises(ValueError):
+        StructureLimits(0.1, 0.3, comply_full_m=0.01, comply_stop_m=0.005)
+
+
+def fly(goal, limits, seconds=40.0):
+    """The structure advanced from its own previous pose (robots that follow perfectly)."""
+    pose, t, path = Pose2(0.0, 0.0, 0.0), 0.0, []
+    while t < seconds:
+        r = advance_structure(pose, goal, DT, limits, TRIANGLE, ENV, elapsed_s=t)
+        pose, t = r.pose, t + DT
+        path.append((t, pose, r.at_goal))
+    return path
+
+
+@pytest.mark.parametrize("th", [0.0, math.pi / 2], ids=["straight", "turning 90 deg"])
+def test_a_2_5_m_leg_at_0_1_m_s_arrives_within_10_percent_of_the_ideal_time_without_overshoot(th):
+    limits = StructureLimits(speed_max_m_s=0.1, turn_rate_max_rad_s=0.3)
+    path = fly(GoalPose(Pose2(2.5, 0.0, th)), limits)
+    t_arrive = next(t for t, _, at in path if at)
+    assert t_arrive <= 1.1 * 2.5 / 0.1, t_arrive
+    assert max(p.x for _, p, _ in path) <= 2.5 + 1e-9                 # never past the goal
+    assert all(abs(p.th) <= abs(th) + 1e-9 for _, p, _ in path)       # nor past its heading

@@ -148,3 +148,75 @@ def test_under_hold_a_stopped_robot_never_gets_a_healthy_robot_flagged():
     assert all(v == made for v in run.decisions.values())
     assert [(d.robot, d.kind) for d in made][:1] == [("r2", "fail")]
     assert not [d for d in made if d.robot != "r2"]
+
+
+# --- issue 13: the issue's conditions (bench/conditions.py): sigma 2 mm / 0.01 rad, 30 Hz,
+# commands one frame late, wheel gains within +-4%, a 2.5 m leg at 0.1 m/s; fixed seeds, counted clock
+
+
+def issue_run(seed, controller=None, fault=None, mode="hold", seconds=40.0, stop_at_goal=True, turn=False):
+    import dataclasses
+
+    from bench.conditions import issue_scenario
+    from vsfleet.scenario import FaultEvent
+
+    sc = issue_scenario(seed, turn=turn)
+    sc = dataclasses.replace(sc, mission=dataclasses.replace(sc.mission, on_failure=mode),
+                             faults=(FaultEvent("r2", 8.0, *fault),) if fault else ())
+    return sc, run_offline(sc, seconds, controller=controller, seed=seed, stop_at_goal=stop_at_goal)
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_the_default_controller_holds_the_triangle_within_a_millimetre_under_noise_and_wheel_mismatch(seed):
+    from bench.conditions import ideal_time_s
+    from bench.precision import command_smoothness
+
+    sc, run = issue_run(seed)
+    ts = np.array([t for t, _ in run.trace])
+    mean_cm, settled_max_cm = 100 * run.deviations_m.mean(), 100 * run.deviations_m[ts >= 3.0].max()
+    jitter, _ = command_smoothness(run, 1 / 30)
+    print(f"seed {seed}: mean {mean_cm:.3f} cm, max after 3 s {settled_max_cm:.3f} cm, "
+          f"command change {jitter:.4f} m/s per frame, goal {run.t_goal_s}")
+    assert mean_cm <= 0.07 and settled_max_cm <= 0.2
+    assert jitter <= 0.005
+    assert run.t_goal_s is not None and run.t_goal_s <= 1.1 * ideal_time_s(sc)
+
+
+@pytest.mark.parametrize("name", sorted(CONTROLLERS))
+def test_every_controller_reaches_the_goal_under_the_issues_conditions(name):
+    sc, run = issue_run(1, controller=name, seconds=50.0)
+    assert run.t_goal_s is not None, name
+
+
+def test_under_hold_a_stopped_robot_halts_the_structure_with_every_robot_within_2_5_cm():
+    from bench.faults import formation_errors
+
+    sc, run = issue_run(2, fault=("stop", 0.0, 0.0), seconds=30.0, stop_at_goal=False)
+    err = formation_errors(run, sc.mission)
+    ts = np.array([t for t, _ in run.trace])
+    assert err[ts >= 8.0].max() < 0.025
+    end, before = run.trace[-1][1], run.trace[-60][1]
+    assert np.hypot(end.x - before.x, end.y - before.y) < 0.002      # halted
+    made = run.decisions["r1"]
+    assert all(v == made for v in run.decisions.values())           # the same frame in every agent
+    assert {d.robot for d in made} == {"r2"} and made[0].kind == "fail"
+
+
+def test_a_robot_slowed_to_half_stays_within_1_cm_is_not_flagged_and_after_recovery_the_fleet_reaches_the_goal():
+    from bench.faults import formation_errors
+
+    sc, run = issue_run(1, fault=("slow", 0.5, 8.0), seconds=45.0)
+    err = formation_errors(run, sc.mission)
+    print(f"slowed to 50% for 8 s: max formation error {100 * err.max():.2f} cm, goal {run.t_goal_s}")
+    assert err[30:].max() < 0.01                                     # from 1 s on (the start placement)
+    assert all(v == [] for v in run.decisions.values())
+    assert run.t_goal_s is not None
+
+
+@pytest.mark.parametrize("mode", ["drop", "rejoin"])
+def test_a_stopped_robot_is_dropped_by_every_agent_on_the_same_frame_though_the_structure_waited_for_it(mode):
+    sc, run = issue_run(3, fault=("stop", 0.0, 0.0), mode=mode, seconds=14.0, stop_at_goal=False)
+    made = run.decisions["r1"]
+    assert all(v == made for v in run.decisions.values())
+    assert [(d.robot, d.kind) for d in made] == [("r2", "fail"), ("r2", "drop")]
+    assert 8.0 < made[0].t < 8.0 + 3.0

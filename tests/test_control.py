@@ -31,16 +31,40 @@ from hypothesis import strategies as st
 from vsfleet.control import (
     CONTROLLERS,
     DEFAULT_CONTROLLER,
+    Arc,
+    ControlInput,
     ControllerGainError,
+    Held,
+    TurnThenGo,
     UnknownControllerError,
-    make_arc,
     make_controller,
-    make_turn_then_go,
 )
-from vsfleet.envelope import Envelope
-from vsfleet.errors import VsfleetValueError
+from vsfleet.envelope import Envelope, Envelopes
+from vsfleet.errors import ShapeError, VsfleetValueError
 from vsfleet.geometry import Pose2
 from vsfleet.kinematics import integrate_arc, inverse_arc
+
+from tests import control_reference as ref
+
+
+class One:
+    """One robot through a vectorised controller: the scalar call of the per-robot code it replaced,
+    (pose, now, next, dt, envelope, prev) -> (vl, vr), keeping the controller's state between calls."""
+
+    def __init__(self, controller, age_s: float = 0.0):
+        self.controller, self.age_s = controller, age_s
+        self.state = controller.initial(1)
+
+    def __call__(self, pose, now, nxt, dt, env, prev):
+        inp = ControlInput(pose_world=np.array([[pose.x, pose.y, pose.th]]), point_now_world=np.array([now], float),
+                           point_next_world=np.array([nxt], float), wheels_prev_m_s=np.array([prev], float),
+                           dt_s=dt, age_s=self.age_s, envelopes=Envelopes.of([env]), active=np.array([True]))
+        self.state, wheels = self.controller(self.state, inp)
+        return (float(wheels[0, 0]), float(wheels[0, 1]))
+
+
+def one(name, **gains):
+    return One(make_controller(name, **gains))
 
 ENV = Envelope(wheel_base_m=0.1, wheel_speed_max_m_s=0.3, wheel_accel_max_m_s2=1.0)
 DT = 1.0 / 30.0
@@ -87,6 +111,7 @@ class Run:
 
 def simulate(controller, path, start: Pose2, ticks: int = TICKS, noise=None) -> Run:
     """Closed loop from rest; noise = (rng, sigma_xy_m, sigma_th_rad) perturbs the measured pose."""
+    controller = One(controller)
     pose, prev = start, (0.0, 0.0)
     errors, commands = [], []
     for k in range(ticks):
@@ -231,7 +256,7 @@ wheel = st.floats(-ENV.wheel_speed_max_m_s, ENV.wheel_speed_max_m_s)
 )
 def test_any_tick_of_any_controller_is_within_limits(name, pose, now, step, prev):
     nxt = (now[0] + step[0], now[1] + step[1])
-    vl, vr = make_controller(name, deadband_m=0.0)(pose, now, nxt, DT, ENV, prev)
+    vl, vr = one(name, deadband_m=0.0)(pose, now, nxt, DT, ENV, prev)
     step_max = ENV.wheel_accel_max_m_s2 * DT * (1 + SLACK)
     for v, p in ((vl, prev[0]), (vr, prev[1])):
         assert math.isfinite(v)
@@ -242,29 +267,29 @@ def test_any_tick_of_any_controller_is_within_limits(name, pose, now, step, prev
 @pytest.mark.parametrize("name", NAMES)
 def test_every_controller_turns_toward_a_point_on_its_left(name):
     pose = Pose2(0.0, 0.0, 0.0)
-    vl, vr = make_controller(name, deadband_m=0.0)(pose, (0.05, 0.1), (0.053, 0.1), DT, ENV, (0.1, 0.1))
+    vl, vr = one(name, deadband_m=0.0)(pose, (0.05, 0.1), (0.053, 0.1), DT, ENV, (0.1, 0.1))
     assert vr > vl
 
 
 @pytest.mark.parametrize("name", NAMES)
 def test_every_controller_returns_zero_at_a_resting_point_it_already_holds(name):
     pose = Pose2(0.2, -0.1, 1.0)
-    assert make_controller(name)(pose, (0.2, -0.1), (0.2, -0.1), DT, ENV, (0.0, 0.0)) == (0.0, 0.0)
+    assert one(name)(pose, (0.2, -0.1), (0.2, -0.1), DT, ENV, (0.0, 0.0)) == (0.0, 0.0)
 
 
 def test_arc_with_zero_horizon_is_the_papers_one_tick_inverse_arc():
     pose, nxt = Pose2(0.0, 0.0, 0.3), (0.004, 0.003)
     wide = Envelope(0.1, 10.0, 1000.0)
     expected = inverse_arc(pose, nxt, DT, wide.wheel_base_m)
-    vl, vr = make_arc(horizon_s=0.0)(pose, (0.0, 0.0), nxt, DT, wide, expected)
-    assert (vl, vr) == expected
+    vl, vr = One(Arc(horizon_s=0.0))(pose, (0.0, 0.0), nxt, DT, wide, expected)
+    assert (vl, vr) == pytest.approx(expected, rel=1e-12, abs=1e-15)
     end = integrate_arc(pose, vl, vr, DT, wide.wheel_base_m)
     assert math.hypot(end.x - nxt[0], end.y - nxt[1]) < 1e-12
 
 
 def test_turn_then_go_with_zero_horizon_drives_the_papers_min_d_max_dist_per_tick():
     pose = Pose2(0.0, 0.0, 0.0)
-    controller = make_turn_then_go(horizon_s=0.0, d_max_m=0.005)
+    controller = One(TurnThenGo(horizon_s=0.0, d_max_m=0.005))
     near = controller(pose, (0.0, 0.0), (0.002, 0.0), DT, ENV, (0.06, 0.06))
     far = controller(pose, (0.0, 0.0), (0.5, 0.0), DT, ENV, (0.15, 0.15))
     assert near == pytest.approx((0.002 / DT, 0.002 / DT))
@@ -274,17 +299,17 @@ def test_turn_then_go_with_zero_horizon_drives_the_papers_min_d_max_dist_per_tic
 def test_turn_then_go_backs_onto_a_point_behind_unless_told_not_to():
     pose = Pose2(0.0, 0.0, 0.0)
     behind = ((-0.05, 0.01), (-0.05, 0.01))
-    vl, vr = make_turn_then_go()(pose, *behind, DT, ENV, (0.0, 0.0))
+    vl, vr = One(TurnThenGo())(pose, *behind, DT, ENV, (0.0, 0.0))
     assert vl + vr < 0
-    vl, vr = make_turn_then_go(allow_reverse=False)(pose, *behind, DT, ENV, (0.0, 0.0))
+    vl, vr = One(TurnThenGo(allow_reverse=False))(pose, *behind, DT, ENV, (0.0, 0.0))
     assert vr > vl  # turns round to the left instead
 
 
 # --- registry ---------------------------------------------------------------------------
 
 
-def test_the_registry_names_three_controllers_and_a_default_among_them():
-    assert set(CONTROLLERS) == {"turn_then_go", "arc", "tracking"}
+def test_the_registry_names_the_papers_two_kanayamas_and_the_precision_controller_with_a_default():
+    assert set(CONTROLLERS) == {"turn_then_go", "arc", "tracking", "precision"}
     assert DEFAULT_CONTROLLER in CONTROLLERS
 
 
@@ -306,6 +331,9 @@ def test_make_controller_rejects_a_misspelt_gain():
         ("arc", {"horizon_s": math.nan}),
         ("tracking", {"along_gain_per_s": 0.0}),
         ("tracking", {"moving_speed_m_s": "fast"}),
+        ("precision", {"pose_gain": 1.5}),
+        ("precision", {"gain_min": 1.2}),
+        ("turn_then_go", {"allow_reverse": 1}),
     ],
 )
 def test_make_controller_rejects_bad_gains(name, gains):
@@ -315,10 +343,8 @@ def test_make_controller_rejects_bad_gains(name, gains):
 
 @pytest.mark.parametrize("name", sorted(CONTROLLERS))
 def test_a_robot_near_a_resting_point_holds_still_instead_of_chasing_noise(name):
-    from vsfleet.control import with_deadband
-
-    held = make_controller(name)  # default deadband 4 mm
-    bare = make_controller(name, deadband_m=0.0)
+    held = one(name)  # default deadband 4 mm
+    bare = one(name, deadband_m=0.0)
     pose = Pose2(0.0, 0.0, 0.0)
     point = (0.0, 0.002)  # 2 mm to the side, at rest: pure tracker noise
     assert bare(pose, point, point, DT, ENV, (0.0, 0.0)) != (0.0, 0.0)
@@ -328,14 +354,196 @@ def test_a_robot_near_a_resting_point_holds_still_instead_of_chasing_noise(name)
     assert vl == vr == pytest.approx(0.2 - ENV.wheel_accel_max_m_s2 * DT)
     # a moving point, or one beyond the deadband, is tracked as before
     far = (0.0, 0.01)
+    held, bare = one(name), one(name, deadband_m=0.0)   # fresh states: the same history
     assert held(pose, far, far, DT, ENV, (0.0, 0.0)) == bare(pose, far, far, DT, ENV, (0.0, 0.0))
     moving = (0.003, 0.002)
     assert held(pose, point, moving, DT, ENV, (0.0, 0.0)) == bare(pose, point, moving, DT, ENV, (0.0, 0.0))
     with pytest.raises(ValueError):
-        with_deadband(bare, deadband_m=float("nan"))
+        Held(make_controller(name, deadband_m=0.0), deadband_m=float("nan"))
 
 
 def test_the_wire_contract_names_exactly_the_registered_controllers():
     from vsfleet.wire import CONTROLLER_NAMES
 
     assert set(CONTROLLER_NAMES) == set(CONTROLLERS)
+
+
+# --- vectorised over robots -------------------------------------------------------------
+
+ENVS = Envelopes.of([ENV, Envelope(0.12, 0.25, 0.8), Envelope(0.08, 0.3, 1.2)] * 20)
+
+
+def random_inputs(rng, n=60, spread=0.3):
+    """n robots at random poses, points a few cm away moving up to 0.5 m/s, random previous commands."""
+    pose = np.column_stack([rng.uniform(-1, 1, (n, 2)), rng.uniform(-math.pi, math.pi, n)])
+    now = pose[:, :2] + rng.normal(0.0, spread, (n, 2)) * rng.choice([0.0, 0.01, 0.1, 1.0], (n, 1))
+    nxt = now + rng.normal(0.0, 0.5 * DT, (n, 2)) * rng.choice([0.0, 1.0], (n, 1))
+    prev = rng.uniform(-0.3, 0.3, (n, 2)) * rng.choice([0.0, 1.0], (n, 1))
+    return pose, now, nxt, prev
+
+
+SCALAR_REFERENCE = {"turn_then_go": ref.make_turn_then_go, "arc": ref.make_arc, "tracking": ref.make_tracking}
+
+
+@pytest.mark.parametrize("name", sorted(SCALAR_REFERENCE))
+def test_the_vectorised_paper_controllers_give_the_per_robot_reference_results(name):
+    rng = np.random.default_rng(3)
+    vec, scalar = make_controller(name, deadband_m=0.0), SCALAR_REFERENCE[name]()
+    for _ in range(5):
+        pose, now, nxt, prev = random_inputs(rng)
+        inp = ControlInput(pose, now, nxt, prev, DT, 0.0, ENVS, np.ones(len(pose), dtype=bool))
+        _, wheels = vec(vec.initial(len(pose)), inp)
+        expected = [scalar(Pose2(*pose[i]), tuple(now[i]), tuple(nxt[i]), DT, ENVS.row(i), tuple(prev[i]))
+                    for i in range(len(pose))]
+        np.testing.assert_allclose(wheels, np.array(expected), rtol=1e-9, atol=1e-12)
+
+
+def test_the_vectorised_deadband_matches_the_per_robot_reference():
+    rng = np.random.default_rng(4)
+    vec, scalar = make_controller("arc"), ref.make_controller("arc")
+    pose, now, nxt, prev = random_inputs(rng, spread=0.01)
+    nxt[::2] = now[::2]                                     # half the points rest
+    inp = ControlInput(pose, now, nxt, prev, DT, 0.0, ENVS, np.ones(len(pose), dtype=bool))
+    _, wheels = vec(vec.initial(len(pose)), inp)
+    expected = [scalar(Pose2(*pose[i]), tuple(now[i]), tuple(nxt[i]), DT, ENVS.row(i), tuple(prev[i]))
+                for i in range(len(pose))]
+    np.testing.assert_allclose(wheels, np.array(expected), rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_a_robots_command_and_state_do_not_depend_on_the_other_rows_nor_on_inactive_ones(name):
+    """What an agent predicts for a robot is what that robot's own agent computes, bit for bit."""
+    rng = np.random.default_rng(5)
+    ctrl = make_controller(name)
+    n = 12
+    envs = Envelopes.of([ENVS.row(i) for i in range(n)])
+    state_all, state_one = ctrl.initial(n), ctrl.initial(1)
+    active = np.ones(n, dtype=bool)
+    active[3] = False
+    for _ in range(20):                                   # a history, for the stateful controller
+        pose, now, nxt, prev = random_inputs(rng, n=n, spread=0.02)
+        state_all, wheels = ctrl(state_all, ControlInput(pose, now, nxt, prev, DT, DT, envs, active))
+        state_one, w5 = ctrl(state_one, ControlInput(pose[5:6], now[5:6], nxt[5:6], prev[5:6], DT, DT,
+                                                     Envelopes.of([envs.row(5)]), np.array([True])))
+        assert wheels[5].tobytes() == w5[0].tobytes()
+        assert np.all(wheels[3] == 0.0)
+    fresh = ctrl.initial(n)
+    for a, b in zip(getattr(state_all, "__dict__", {}).values(), getattr(fresh, "__dict__", {}).values()):
+        assert np.array_equal(np.asarray(a)[3], np.asarray(b)[3])   # the inactive row kept its state
+
+
+def test_control_input_refuses_arrays_of_the_wrong_shape():
+    z = np.zeros((2, 2))
+    with pytest.raises(ShapeError):
+        ControlInput(np.zeros((2, 2)), z, z, z, DT, 0.0, Envelopes.of([ENV, ENV]), np.ones(2, bool))
+    with pytest.raises(ShapeError):
+        ControlInput(np.zeros((2, 3)), z, z, z, DT, 0.0, Envelopes.of([ENV]), np.ones(2, bool))
+    with pytest.raises(VsfleetValueError):
+        ControlInput(np.zeros((2, 3)), z, z, z, DT, -1.0, Envelopes.of([ENV, ENV]), np.ones(2, bool))
+
+
+# --- the precision controller -------------------------------------------------------------
+
+
+def delayed_loop(controller, path, ticks=900, gains=(1.0, 1.0), noise=None, age_ticks=1, start=None,
+                 then=None, then_ticks=0):
+    """One robot, its commands in effect age_ticks frames after the observation (as in the fleet),
+    wheel gains applied by the plant; returns (errors [m] per tick, commands (ticks, 2), state).
+    With ``then``, that controller takes over after ``ticks`` for then_ticks, from the same state."""
+    c = One(controller, age_s=age_ticks * DT)
+    x0, y0 = path(0.0)
+    heading = math.atan2(path(DT)[1] - y0, path(DT)[0] - x0) if path(DT) != path(0.0) else 0.0
+    pose = start or Pose2(x0, y0, heading)
+    queue = [(0.0, 0.0)] * age_ticks
+    prev = (0.0, 0.0)
+    errs, cmds = [], []
+    rng = np.random.default_rng(11)
+    for k in range(ticks + then_ticks):
+        if k == ticks and then is not None:
+            c.controller = then
+        seen = pose
+        if noise is not None:
+            seen = Pose2(pose.x + rng.normal(0, noise[0]), pose.y + rng.normal(0, noise[0]),
+                         pose.th + rng.normal(0, noise[1]))
+        prev = c(seen, path(k * DT), path((k + 1) * DT), DT, ENV, prev)
+        cmds.append(prev)
+        queue.append(prev)
+        vl, vr = queue.pop(0)
+        pose = integrate_arc(pose, gains[0] * vl, gains[1] * vr, DT, ENV.wheel_base_m)
+        p = path((k + 1) * DT)
+        errs.append(math.hypot(pose.x - p[0], pose.y - p[1]))
+    return np.array(errs), np.array(cmds), c.state
+
+
+@pytest.mark.parametrize("path", [line, circle], ids=["line", "circle"])
+def test_feed_forward_alone_tracks_a_noise_free_moving_point_with_no_steady_error(path):
+    # Once on the point (10 s with the default gains), feedback is switched all but off for 20 s:
+    # only the point's velocity drives the robot, its commands in effect one frame late.
+    full = make_controller("precision", deadband_m=0.0)
+    ff_only = make_controller("precision", deadband_m=0.0, position_gain_per_s=1e-9)
+    errs, _, _ = delayed_loop(full, path, ticks=300, then=ff_only, then_ticks=600)
+    tail = errs[300:]
+    assert tail.max() < 2e-4, tail.max()                      # line ~1e-15 m; circle < 0.2 mm
+    assert tail[-30:].mean() <= tail[:30].mean() + 2e-5      # and it does not drift away
+
+
+def test_the_frame_age_is_compensated_a_controller_told_it_is_zero_lags():
+    told = make_controller("precision", deadband_m=0.0)
+    errs, _, _ = delayed_loop(told, line, ticks=300, age_ticks=3)
+    untold = make_controller("precision", deadband_m=0.0)
+    c = One(untold, age_s=0.0)                                # the same plant, age not told
+    pose, queue, prev, worst = Pose2(0, 0, 0), [(0.0, 0.0)] * 3, (0.0, 0.0), 0.0
+    for k in range(300):
+        prev = c(pose, line(k * DT), line((k + 1) * DT), DT, ENV, prev)
+        queue.append(prev)
+        vl, vr = queue.pop(0)
+        pose = integrate_arc(pose, vl, vr, DT, ENV.wheel_base_m)
+        if k >= 150:
+            worst = max(worst, math.hypot(pose.x - line((k + 1) * DT)[0], pose.y))
+    assert errs[150:].max() < 1e-5 < worst
+
+
+def test_wheel_gain_estimation_removes_a_4_percent_wheel_mismatch():
+    ctrl = make_controller("precision", deadband_m=0.0)
+    errs, _, state = delayed_loop(ctrl, line, gains=(0.96, 1.04))
+    assert errs[-150:].max() < 1e-4, errs[-150:].max()
+    np.testing.assert_allclose(state.gains[0], (0.96, 1.04), atol=2e-3)
+    # the negative control: without the estimation the same mismatch leaves a steady error
+    blind = make_controller("precision", deadband_m=0.0, gain_rate=0.0)
+    errs_blind, _, _ = delayed_loop(blind, line, gains=(0.96, 1.04))
+    assert errs_blind[-150:].min() > 10 * errs[-150:].max()
+
+
+def test_the_commands_stay_smooth_under_tracker_noise():
+    ctrl = make_controller("precision", deadband_m=0.0)
+    errs, cmds, _ = delayed_loop(ctrl, line, noise=(0.002, 0.01), gains=(0.97, 1.02))
+    change = float(np.abs(np.diff(cmds[150:], axis=0)).mean())
+    assert change < 0.005, change                             # the issue's target, per wheel and frame
+    assert float(errs[150:].mean()) < 0.001
+
+
+def test_saturated_wheels_do_not_wind_the_estimator_up():
+    # the point runs away at 0.5 m/s (the wheels top out at 0.3) for 2 s, then waits
+    def runaway(t):
+        return (0.5 * min(t, 2.0), 0.0)
+    ctrl = make_controller("precision", deadband_m=0.0)
+    errs, cmds, state = delayed_loop(ctrl, runaway, ticks=600, gains=(1.0, 1.0))
+    assert np.abs(cmds).max() <= ENV.wheel_speed_max_m_s * (1 + SLACK)
+    np.testing.assert_allclose(state.gains[0], (1.0, 1.0), atol=0.02)   # saturation is not a weak wheel
+    assert errs[-60:].max() < 0.002                                    # it arrived and rests there
+    # it catches up without overshooting the resting point (x = 1 m) by more than a few mm
+    c = One(make_controller("precision", deadband_m=0.0), age_s=DT)
+    pose, prev, queue, xs = Pose2(0.0, 0.0, 0.0), (0.0, 0.0), [(0.0, 0.0)], []
+    for k in range(600):
+        prev = c(pose, runaway(k * DT), runaway((k + 1) * DT), DT, ENV, prev)
+        queue.append(prev)
+        pose = integrate_arc(pose, *queue.pop(0), DT, ENV.wheel_base_m)
+        xs.append(pose.x)
+    assert max(xs) < 1.0 + 0.003, max(xs)
+
+
+def test_a_robot_whose_point_moves_backwards_drives_in_reverse_instead_of_turning_round():
+    ctrl = make_controller("precision", deadband_m=0.0)
+    errs, cmds, state = delayed_loop(ctrl, line, ticks=300, start=Pose2(0.0, 0.0, math.pi))
+    assert state.direction[0] == -1.0 and np.all(cmds[30:] < 0.0)
+    assert errs[30:].max() < 1e-3

@@ -4,19 +4,42 @@ import math
 
 import pytest
 
-from vsfleet.failure import FailurePolicy, Health, update_health
+import numpy as np
+
+from vsfleet.failure import FailurePolicy, FailureState, Health, failure_step, to_health, with_health
 from vsfleet.wire import EventMsg, WireError, decode_event, encode_event
+
+from tests import failure_reference as ref
 
 ROBOTS = ("r1", "r2", "r3")
 
 
+def step(policy, state, robots, t, deviations, progress_xy=None, expected=None, fresh=None, step_s=None,
+         max_gap_s=math.inf):
+    """One frame through the array form from dicts: deviations {robot: m} (absent = unseen)."""
+    n = len(robots)
+    seen = np.array([r in deviations for r in robots])
+    xy = np.array([progress_xy.get(r, (0.0, 0.0)) if progress_xy else (0.0, 0.0) for r in robots], dtype=float)
+    exp_m = np.array([expected.get(r, (0.0, 0.0)) if expected else (0.0, 0.0) for r in robots], dtype=float)
+    fr = np.array([r in fresh for r in robots]) if fresh is not None else np.zeros(n, dtype=bool)
+    dev = np.array([deviations.get(r, math.inf) for r in robots], dtype=float)
+    return failure_step(policy, state, robots, t, seen, fr, xy, dev, exp_m, step_s, max_gap_s)
+
+
+def update_health(policy, health, deviations, robots, t):
+    """The dict-form call the tests were written against, through the array form."""
+    state = with_health(FailureState.initial(len(robots), policy, 1 / 30), health, robots)
+    state, made = step(policy, state, robots, t, deviations)
+    return to_health(state, robots), made
+
+
 def feed(policy, frames):
     """frames: list of (t, {robot: deviation}); returns (final health, all decisions)."""
-    health, out = Health(), []
+    state, out = FailureState.initial(len(ROBOTS), policy, 0.1), []
     for t, devs in frames:
-        health, made = update_health(policy, health, devs, ROBOTS, t)
+        state, made = step(policy, state, ROBOTS, t, devs)
         out.extend(made)
-    return health, out
+    return to_health(state, ROBOTS), out
 
 
 def frames(bad_r2, t_end=5.0, dt=0.1, ok=0.01):
@@ -79,36 +102,72 @@ def test_events_round_trip_including_an_unseen_robots_infinite_deviation():
         decode_event(encode_event(EventMsg(1.0, 1, "r2", "drop", 0.1, "r1")).replace(b"drop", b"boom"))
 
 
-def test_an_agent_that_missed_a_frame_reaches_the_same_progress_ratio_and_fails_the_robot_on_the_same_frame():
-    from vsfleet.failure import FailurePolicy, Health, Motion, update_health, update_motion
-
+def test_an_agent_that_missed_a_frame_fails_the_robot_on_the_same_frame():
     policy = FailurePolicy("drop")
     dt = 1.0 / 30.0
-    step = (0.1 * dt, 0.0)           # commanded 0.1 m/s along +x, every frame
+    step_m = (0.1 * dt, 0.0)           # commanded 0.1 m/s along +x, every frame
+
     def run(skip):
-        motion, health, x, out = Motion(), Health(), 0.0, []
+        state, x, out = FailureState.initial(1, policy, dt), 0.0, []
         for k in range(200):
             t = 100.0 + k * dt + (0.004 if k % 3 else 0.0)   # jittered frame times
             if k < 60:
                 x = 0.1 * (t - 100.0)                          # moving, then halted for good
             if k in skip:
                 continue
-            motion, ratios = update_motion(policy, motion, {"r1": (x, 0.0, 0.0)}, {"r1": step}, t,
-                                           step_s=dt, max_gap_s=0.3)
-            health, decisions = update_health(policy, health, {"r1": 0.0}, ("r1",), t, ratios)
-            out.append((k, ratios.get("r1"), [d.kind for d in decisions]))
+            state, decisions = step(policy, state, ("r1",), t, {"r1": 0.0}, {"r1": (x, 0.0)}, {"r1": step_m},
+                                    fresh={"r1"}, step_s=dt, max_gap_s=0.3)
+            out.append((k, [d.kind for d in decisions]))
         return out
     full, missed = run(set()), run({95, 96, 97, 98, 99, 110, 111, 120})
-    decided = lambda rows: next(k for k, _, kinds in rows if "drop" in kinds)   # noqa: E731
+    decided = lambda rows: next(k for k, kinds in rows if "drop" in kinds)   # noqa: E731
     assert decided(full) == decided(missed)
-    ratios = dict((k, r) for k, r, _ in full)
-    diffs = [abs(r - ratios[k]) for k, r, _ in missed if r is not None and ratios[k] is not None]
-    assert max(diffs) < 1e-2
+
+
+def test_the_array_form_decides_as_the_per_robot_reference_on_random_frames():
+    rng = np.random.default_rng(8)
+    robots = tuple(f"r{i}" for i in range(6))
+    dt = 1.0 / 30.0
+    for mode in ("hold", "drop", "rejoin"):
+        policy = FailurePolicy(mode, fail_after_s=1.0, rejoin_after_s=0.5, recover_after_s=0.3,
+                               min_expected_m=0.02)
+        state = FailureState.initial(len(robots), policy, dt)
+        health, motion = ref.Health(), ref.Motion()
+        xy = np.zeros((len(robots), 2))
+        mine, theirs = [], []
+        for k in range(400):
+            t = k * dt
+            moving = rng.random(len(robots)) < (0.3 if (k // 60) % 2 else 0.95)   # phases of halting
+            expected = np.where(rng.random((len(robots), 1)) < 0.9, 0.1 * dt, 0.0) * np.array([[1.0, 0.0]])
+            xy = xy + np.where(moving[:, None], expected, 0.0) + rng.normal(0, 1e-4, xy.shape)
+            seen = rng.random(len(robots)) < 0.97
+            fresh = seen & (rng.random(len(robots)) < 0.95)
+            dev = np.where(rng.random(len(robots)) < 0.05, 0.2, rng.uniform(0, 0.03, len(robots)))
+            state, made = failure_step(policy, state, robots, t, seen, fresh, xy, np.where(seen, dev, np.inf),
+                                       expected, dt, 0.3)
+            mine += [(d.t, d.robot, d.kind) for d in made]
+            poses = {r: (xy[i, 0], xy[i, 1], 0.0) for i, r in enumerate(robots) if fresh[i]}
+            motion, ratios = ref.update_motion(policy, motion, poses, {r: tuple(expected[i]) for i, r in
+                                                                      enumerate(robots) if fresh[i]}, t, dt, 0.3)
+            health, made = ref.update_health(policy, health, {r: dev[i] for i, r in enumerate(robots) if seen[i]},
+                                             robots, t, ratios)
+            theirs += [(d.t, d.robot, d.kind) for d in made]
+        assert mine == theirs and len(mine) > 3, mode
+        mine_h = to_health(state, robots)
+        assert (mine_h.since_t, mine_h.failed, mine_h.dropped) == (health.since_t, health.failed, health.dropped)
+
+
+def test_health_converts_to_and_from_the_wire_form():
+    policy = FailurePolicy("rejoin")
+    h = Health(since_t={"r3": 99.5, "unknown": 1.0}, failed=frozenset({"r2"}), dropped=frozenset({"r2"}))
+    state = with_health(FailureState.initial(3, policy, 1 / 30), h, ROBOTS)
+    assert to_health(state, ROBOTS) == Health(since_t={"r3": 99.5}, failed=frozenset({"r2"}),
+                                              dropped=frozenset({"r2"}))
+    no_timers = with_health(FailureState.initial(3, policy, 1 / 30), h, ROBOTS, timers=False)
+    assert to_health(no_timers, ROBOTS).since_t == {}
 
 
 def test_when_every_robot_in_the_fit_is_off_the_structure_is_blamed_not_a_robot():
-    from vsfleet.failure import FailurePolicy, Health, update_health
-
     policy = FailurePolicy("drop")
     health, made = Health(), []
     for k in range(100):                                    # 3.3 s, everyone 7 cm off

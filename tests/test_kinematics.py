@@ -316,3 +316,34 @@ def test_limit_wheels_rejects_non_finite_commands(bad):
 
 def test_kinematics_errors_are_value_errors():
     assert issubclass(TimeStepError, VsfleetValueError) and issubclass(TimeStepError, ValueError)
+
+
+# --- vectorised over robots -----------------------------------------------------------------
+
+
+def test_limit_wheels_v_gives_the_scalar_rule_for_every_row():
+    from vsfleet.kinematics import limit_wheels_v
+
+    rng = np.random.default_rng(2)
+    n = 4000
+    u = rng.uniform(-1.0, 1.0, (n, 2)) * rng.choice([0.0, 0.1, 1.0], (n, 2))
+    p = rng.uniform(-0.6, 0.6, (n, 2)) * rng.choice([0.0, 0.1, 1.0], (n, 2))
+    u[::7] = 0.0
+    u[1::11, 1] = 0.0
+    out = limit_wheels_v(u, p, DT, np.full(n, ENV.wheel_speed_max_m_s), np.full(n, ENV.wheel_accel_max_m_s2))
+    expected = np.array([limit_wheels(u[i, 0], u[i, 1], tuple(p[i]), DT, ENV) for i in range(n)])
+    np.testing.assert_allclose(out, expected, rtol=1e-12, atol=1e-15)
+
+
+def test_integrate_arcs_is_integrate_arc_for_every_row():
+    from vsfleet.kinematics import integrate_arcs
+
+    rng = np.random.default_rng(3)
+    pose = np.column_stack([rng.normal(0, 1, (50, 2)), rng.uniform(-3, 3, 50)])
+    wheels = rng.uniform(-0.3, 0.3, (50, 2))
+    wheels[::5, 1] = wheels[::5, 0]                        # straight lines too
+    out = integrate_arcs(pose, wheels, DT, np.full(50, 0.1))
+    for i in range(50):
+        e = integrate_arc(Pose2(*pose[i]), wheels[i, 0], wheels[i, 1], DT, 0.1)
+        assert out[i, :2] == pytest.approx((e.x, e.y), abs=1e-15)
+        assert math.isclose(math.remainder(out[i, 2] - e.th, 2 * math.pi), 0.0, abs_tol=1e-12)

@@ -89,6 +89,10 @@ class StructureLimits:
     comply_full_m / comply_stop_m: the compliance throttle (see :func:`compliance_scale`): the
     structure moves at full speed while every robot seen is within comply_full_m of its point,
     and halts once one is comply_stop_m away (linear in between).
+    settle_s / turn_settle_s: near the goal the speed is at most (distance left) / settle_s and
+    the turn rate (angle left) / turn_settle_s: a finite gain, so that robots that lag a little
+    behind their points do not make the refitted structure chatter around the goal, and the
+    fit's noise reaches the twist (and so every robot's feed-forward) attenuated.
     """
 
     speed_max_m_s: float
@@ -96,12 +100,15 @@ class StructureLimits:
     position_tolerance_m: float = 3e-3
     heading_tolerance_rad: float = 0.01
     path_lookahead_m: float = 0.15
-    comply_full_m: float = 0.005
-    comply_stop_m: float = 0.009
+    comply_full_m: float = 0.006
+    comply_stop_m: float = 0.012
+    settle_s: float = 0.5
+    turn_settle_s: float = 2.0
 
     def __post_init__(self) -> None:
         for name in ("speed_max_m_s", "turn_rate_max_rad_s", "position_tolerance_m",
-                     "heading_tolerance_rad", "path_lookahead_m", "comply_full_m", "comply_stop_m"):
+                     "heading_tolerance_rad", "path_lookahead_m", "comply_full_m", "comply_stop_m",
+                     "settle_s", "turn_settle_s"):
             v = getattr(self, name)
             if not math.isfinite(v) or v < 0.0:
                 raise VsfleetValueError(f"{name} must be finite and >= 0, got {v!r}")
@@ -128,11 +135,12 @@ def structure_points(pose: Pose2, template_xy: np.ndarray) -> np.ndarray:
     return pose.apply(template_xy)
 
 
-def _profile_speed(distance: float, cap: float, accel: float, dt_s: float) -> float:
-    """Speed toward a target at ``distance`` that decelerates to rest there without overshoot."""
+def _profile_speed(distance: float, cap: float, accel: float, dt_s: float, settle_s: float = 0.0) -> float:
+    """Speed toward a target at ``distance`` that decelerates to rest there without overshoot:
+    min(cap, sqrt(2 accel d), d / max(dt_s, settle_s))."""
     if distance <= 0.0:
         return 0.0
-    return min(cap, math.sqrt(2.0 * accel * distance), distance / dt_s)
+    return min(cap, math.sqrt(2.0 * accel * distance), distance / max(dt_s, settle_s))
 
 
 def _twist_toward(pose: Pose2, target: Pose2, dist_to_stop: float, limits: StructureLimits,
@@ -142,12 +150,12 @@ def _twist_toward(pose: Pose2, target: Pose2, dist_to_stop: float, limits: Struc
     d = math.hypot(ex, ey)
     if d > 0.0:
         # Never step past the carrot itself, nor decelerate later than the stop allows.
-        speed = min(_profile_speed(dist_to_stop, limits.speed_max_m_s, accel_m_s2, dt_s), d / dt_s)
+        speed = min(_profile_speed(dist_to_stop, limits.speed_max_m_s, accel_m_s2, dt_s, limits.settle_s), d / dt_s)
         vx, vy = speed * ex / d, speed * ey / d
     else:
         vx = vy = 0.0
     dth = angle_diff(target.th, pose.th)
-    w = math.copysign(_profile_speed(abs(dth), limits.turn_rate_max_rad_s, alpha_rad_s2, dt_s), dth)
+    w = math.copysign(_profile_speed(abs(dth), limits.turn_rate_max_rad_s, alpha_rad_s2, dt_s, limits.turn_settle_s), dth)
     return Twist2(vx, vy, w)
 
 

@@ -277,19 +277,22 @@ class Tracking:
 class PrecisionState:
     """Per robot (rows): the filtered pose at the last observation [m, m, rad; world], the wheel
     gains estimated (actual / commanded, left and right), the commands sent before the last one
-    (n, H, 2) [m/s], the filtered target point [m; world], the last feed-forward velocity
-    [m/s; world] and whether the row has been initialised."""
+    (n, H, 2) [m/s], the filtered target point [m; world], the filtered feed-forward velocity
+    [m/s; world] and the rate [rad/s] at which it turns, the driving direction (+1 ahead, -1 in
+    reverse) and whether the row has been initialised."""
 
     pose_world: np.ndarray
     gains: np.ndarray
     history_m_s: np.ndarray
     target_world: np.ndarray
     feed_m_s: np.ndarray
+    turn_rad_s: np.ndarray
+    direction: np.ndarray
     ready: np.ndarray
 
 
 # Commands kept besides the last one sent: an age of up to this many ticks is compensated.
-_HISTORY = 3
+_HISTORY = 5
 
 
 @dataclass(frozen=True)
@@ -302,24 +305,31 @@ class Precision:
        LMS, rate gain_rate, kept within [gain_min, gain_max]).
     2. Age: the filtered pose is driven forward by age_s [s] over the commands already sent.
     3. Target: the structure point at that time (point_now + age f, f = (next - now) / dt_s),
-       smoothed by target_gain around its own prediction.
+       smoothed by target_gain around its own prediction; f is smoothed by feed_gain around its
+       prediction as turning at a rate, itself tracked with turn_gain. Both
+       follow the structure's twist, which every robot sees alike, so the smoothing delays the
+       formation as a rigid body and does not bend it.
     4. Law: a point offset_m [m] ahead of the axle follows the target's offset point at the
        feed-forward velocity plus position_gain_per_s [1/s] times its error; wheels divided by
        the gains estimated, then the envelope (no windup: only commands sent enter the filter).
+       A robot whose point moves backwards of its heading (cos below -reverse_cos) drives in reverse.
     """
 
-    position_gain_per_s: float = 1.5
-    offset_m: float = 0.04
+    position_gain_per_s: float = 2.5
+    offset_m: float = 0.025
     pose_gain: float = 0.15
     heading_gain: float = 0.1
     target_gain: float = 0.2
-    gain_rate: float = 0.002
+    feed_gain: float = 0.3
+    turn_gain: float = 0.1
+    reverse_cos: float = 0.2
+    gain_rate: float = 0.01
     gain_min: float = 0.3
     gain_max: float = 2.0
     moving_speed_m_s: float = 0.01
     travel_floor_m: float = 0.0005
     _allow_zero = ("gain_rate",)
-    _at_most = {"pose_gain": 1.0, "heading_gain": 1.0, "target_gain": 1.0}
+    _at_most = {"pose_gain": 1.0, "heading_gain": 1.0, "target_gain": 1.0, "feed_gain": 1.0}
 
     def __post_init__(self) -> None:
         _check_gains(self)
@@ -329,7 +339,7 @@ class Precision:
     def initial(self, n: int) -> PrecisionState:
         z2 = np.zeros((n, 2))
         return PrecisionState(np.zeros((n, 3)), np.ones((n, 2)), np.zeros((n, _HISTORY, 2)),
-                              z2, z2, np.zeros(n, dtype=bool))
+                              z2, z2, np.zeros(n), np.ones(n), np.zeros(n, dtype=bool))
 
     def __call__(self, state: PrecisionState, inp: ControlInput) -> tuple[PrecisionState, np.ndarray]:
         dt, env, act = inp.dt_s, inp.envelopes, inp.active
@@ -364,31 +374,55 @@ class Precision:
             p = integrate_arcs(p, g_new * seq[:, j], dt, base)
 
         # 3. target at the command's start, smoothed around its prediction
-        f = (inp.point_next_world - inp.point_now_world) / dt
-        raw = inp.point_now_world + inp.age_s * f
+        f_raw = (inp.point_next_world - inp.point_now_world) / dt
+        # the feed-forward velocity, tracked as turning at a constant rate (no lag in a steady turn)
+        ca, sa = np.cos(state.turn_rad_s * dt), np.sin(state.turn_rad_s * dt)
+        fp = np.stack([ca * state.feed_m_s[:, 0] - sa * state.feed_m_s[:, 1],
+                       sa * state.feed_m_s[:, 0] + ca * state.feed_m_s[:, 1]], axis=1)
+        nu = f_raw - fp
+        fp2 = fp[:, 0] ** 2 + fp[:, 1] ** 2
+        moving = fp2 > self.moving_speed_m_s ** 2
+        turn_nu = np.where(moving, (fp[:, 0] * nu[:, 1] - fp[:, 1] * nu[:, 0]) / np.where(moving, fp2, 1.0), 0.0)
+        turn = np.where(moving, state.turn_rad_s + self.turn_gain * turn_nu / dt,
+                        (1.0 - self.feed_gain) * state.turn_rad_s)
+        f = fp + self.feed_gain * nu
+        f = np.where(fresh[:, None], f_raw, f)
+        f_filtered = f
+        turn = np.where(fresh, 0.0, turn)
+        raw = inp.point_now_world + inp.age_s * f_raw
         guess = state.target_world + state.feed_m_s * dt
         target = np.where(fresh[:, None], raw, guess + self.target_gain * (raw - guess))
 
-        # 4. offset-point law
+        # 4. offset-point law: the point P = c + l m, m the driving direction (the heading, or its
+        # opposite in reverse), follows T + l m_ref, m_ref the point's direction of motion
+        # evaluated at the middle of the command's tick: the point's velocity turned on by
+        # turn * age, the heading by the last command's turn rate over dt/2
+        ahead = turn * inp.age_s  # f is the chord velocity of [now, next]: its middle is dt/2 in
+        ca, sa = np.cos(ahead), np.sin(ahead)
+        f = np.stack([ca * f[:, 0] - sa * f[:, 1], sa * f[:, 0] + ca * f[:, 1]], axis=1)
+        w_last = (g_new[:, 1] * seq[:, 0, 1] - g_new[:, 0] * seq[:, 0, 0]) / base
+        th_mid = p[:, 2] + 0.5 * dt * w_last
         speed = np.hypot(f[:, 0], f[:, 1])
         lam = np.minimum(1.0, speed / self.moving_speed_m_s)
-        hc = np.stack([np.cos(p[:, 2]), np.sin(p[:, 2])], axis=1)
+        hc = np.stack([np.cos(th_mid), np.sin(th_mid)], axis=1)
         safe = np.where(speed > 0.0, speed, 1.0)[:, None]
-        hr = np.where((speed > 0.0)[:, None], f / safe, hc)
-        hb = lam[:, None] * hr + (1.0 - lam[:, None]) * hc
+        # reverse while the point moves backwards of the driving direction (hysteresis: reverse_cos)
+        along = (f[:, 0] * hc[:, 0] + f[:, 1] * hc[:, 1]) / safe[:, 0] * state.direction
+        direction = np.where((speed > self.moving_speed_m_s) & (along < -self.reverse_cos), -state.direction,
+                             state.direction)
+        direction = np.where(fresh, np.where((speed > 0.0) & (along < 0.0), -1.0, 1.0), direction)
+        m_dir = direction[:, None] * hc
+        hr = np.where((speed > 0.0)[:, None], f / safe, m_dir)
+        hb = lam[:, None] * hr + (1.0 - lam[:, None]) * m_dir
         hb_n = np.hypot(hb[:, 0], hb[:, 1])[:, None]
-        hb = np.where(hb_n > 1e-9, hb / np.where(hb_n > 1e-9, hb_n, 1.0), hc)
-        prev_speed = np.hypot(state.feed_m_s[:, 0], state.feed_m_s[:, 1])
-        turn_ref = np.where((speed > 0.0) & (prev_speed > 0.0) & state.ready,
-                            wrap_angles(np.arctan2(f[:, 1], f[:, 0])
-                                        - np.arctan2(state.feed_m_s[:, 1], state.feed_m_s[:, 0])) / dt, 0.0)
+        hb = np.where(hb_n > 1e-9, hb / np.where(hb_n > 1e-9, hb_n, 1.0), m_dir)
         nr = np.stack([-hb[:, 1], hb[:, 0]], axis=1)
         l = self.offset_m
-        feed = f + (lam * l * turn_ref)[:, None] * nr
-        err = (target - p[:, :2]) + l * (hb - hc)
+        feed = f + (lam * l * turn)[:, None] * nr
+        err = (target - p[:, :2]) + l * (hb - m_dir)
         u = feed + self.position_gain_per_s * err
         v = u[:, 0] * hc[:, 0] + u[:, 1] * hc[:, 1]
-        w = (-u[:, 0] * hc[:, 1] + u[:, 1] * hc[:, 0]) / l
+        w = (-u[:, 0] * hc[:, 1] + u[:, 1] * hc[:, 0]) / (l * direction)
         wheels = _wheels(v, w, base) / g_new
         out = _finish(wheels, inp)
 
@@ -398,7 +432,9 @@ class Precision:
             gains=np.where(keep, state.gains, g_new),
             history_m_s=np.where(keep[:, :, None], state.history_m_s, seq[:, :_HISTORY]),
             target_world=np.where(keep, state.target_world, target),
-            feed_m_s=np.where(keep, state.feed_m_s, f),
+            feed_m_s=np.where(keep, state.feed_m_s, f_filtered),
+            turn_rad_s=np.where(act, turn, state.turn_rad_s),
+            direction=np.where(act, direction, state.direction),
             ready=state.ready | act)
         return new, out
 
@@ -417,7 +453,7 @@ class Held:
 
     inner: object
     deadband_m: float = 0.004
-    still_speed_m_s: float = 0.003
+    still_speed_m_s: float = 0.001
 
     def __post_init__(self) -> None:
         for name in ("deadband_m", "still_speed_m_s"):

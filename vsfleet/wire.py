@@ -32,7 +32,7 @@ MAX_FRAME_BYTES = 1 << 16         # a frame lists every robot a tracker sees (10
 MAX_ROBOTS = 1000
 MAX_ABS = 1e6           # any number field: |v| <= 1e6 (metres, seconds apart from t, m/s, rad)
 MAX_TTL_S = 5.0         # a command may keep a robot moving for at most this long
-CONTROLLER_NAMES = ("arc", "tracking", "turn_then_go")  # vsfleet.control.CONTROLLERS
+CONTROLLER_NAMES = ("arc", "precision", "tracking", "turn_then_go")  # vsfleet.control.CONTROLLERS
 FAULT_KINDS = ("none", "stop", "slow", "stall", "wheel")
 METRICS = ("l1", "l2", "linf")
 ON_FAILURE = ("hold", "drop", "rejoin")
