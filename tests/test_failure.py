@@ -111,8 +111,9 @@ def test_an_agent_that_missed_a_frame_fails_the_robot_on_the_same_frame():
         state, x, out = FailureState.initial(1, policy, dt), 0.0, []
         for k in range(200):
             t = 100.0 + k * dt + (0.004 if k % 3 else 0.0)   # jittered frame times
-            if k < 60:
-                x = 0.1 * (t - 100.0)                          # moving, then halted for good
+            # moving, then halted for good between two frames: the ratio then crosses 0.3 between two frames
+            # too (halted on a frame, it would cross exactly on one, and rounding would pick the frame)
+            x = 0.1 * min(t - 100.0, 2.015)
             if k in skip:
                 continue
             state, decisions = step(policy, state, ("r1",), t, {"r1": 0.0}, {"r1": (x, 0.0)}, {"r1": step_m},
