@@ -68,11 +68,8 @@ def fit_section(rows) -> str:
     ])
 
 
-def _floor_p50(floors, rate_hz: float) -> float | None:
-    for f in floors:
-        if f.rate_hz == rate_hz:
-            return percentiles_s(f.rtt_s)["p50"]
-    return None
+def _agree(r) -> str:
+    return f"{r.agreed_frames}/{r.all_ran_frames} ({100 * r.agreed_frames / max(r.all_ran_frames, 1):.1f}%)"
 
 
 def latency_section(loops, floors, frames_asked: int) -> str:
@@ -80,40 +77,47 @@ def latency_section(loops, floors, frames_asked: int) -> str:
     for r in loops:
         p = percentiles_s(r.latency_s)
         fp = percentiles_s(r.frame_latency_s)
-        floor = _floor_p50(floors, r.rate_hz)
+        floor = _floor(floors, r.rate_hz)
+        ratio = (lambda k: f"{p[k] / floor[k]:.1f}" if floor and floor[k] else "–")
         body.append([r.robots, f"{r.rate_hz:.0f}", r.frames, _ms(p["p50"]), _ms(p["p99"]), _ms(p["max"]),
-                     _ms(fp["p50"]), _ms(fp["p99"]), f"{r.missed} ({100 * r.missed / (r.frames * r.robots):.1f}%)",
-                     r.late, f"{p['p50'] / floor:.1f}" if floor else "–", f"{r.others_cores:.2f}"])
+                     f"{ratio('p50')} / {ratio('p99')} / {ratio('max')}", _ms(fp["p50"]), _ms(fp["p99"]),
+                     f"{r.missed} ({100 * r.missed / (r.frames * r.robots):.2f}%)", r.late,
+                     f"{1e3 * r.agent_cpu_s_per_tick.mean():.2f}", f"{r.agent_rss_mib.mean():.0f}", _agree(r),
+                     f"{r.others_cores:.2f}"])
     fl = []
     for f in floors:
         p = percentiles_s(f.rtt_s)
         fl.append([f.label, f.rtt_s.size, _ms(p["p50"]), _ms(p["p99"]), _ms(p["max"]), f.lost])
     return "\n".join([
-        "## 2. Loop latency",
+        "## 2. Loop latency and scale",
         "",
         "From the tracker's publish of a frame to the receipt of the resulting command for the same `seq`. "
         "`bench/loop.py` plays the tracker and simfleet's receiving side in one process. The router is "
         "its own `vsfleet router` process on a free loopback port, as on a deployment. Two client "
-        "sessions connect to it: a *tracker* that publishes `vs/bench/pose/<robot>` for every robot with "
-        "one shared `seq`, and a *sim* subscribed to `vs/bench/cmd/**` and `vs/bench/state/**`. N real "
+        "sessions connect to it: a *tracker* that publishes one message per frame on `vs/bench/frame/bench` "
+        "(every robot's pose), and a *sim* subscribed to `vs/bench/cmd/**` and `vs/bench/state/**`. N real "
         "`vsfleet agent` processes (`fleetctl.run.child_command`, `--dt` = one period) are clients of the "
         "same router, so a frame travels tracker → router → N agents → router → sim, as in `vsfleet run`. "
         "The mission: robots r1..rN on a circle (neighbours ≥ 0.3 m apart), metric l2, the default "
-        "controller (arc), goal 1 km ahead so every robot keeps moving. The robots move: each integrates "
+        "controller, goal 1 km ahead so every robot keeps moving. The robots move: each integrates "
         "its latest fresh command exactly over one period (`integrate_arc`), observed with 1 mm / 5 mrad "
-        "Gaussian noise. Start of a latency = just before the frame's first pose is put (so it includes "
-        "putting all N poses); end = the command's arrival in the sim session's callback; one clock "
-        "(`time.perf_counter`). Every agent runs 2 s of frames before the measurement starts.",
+        "Gaussian noise. Start of a latency = just before the frame is put; end = the command's arrival "
+        "in the sim session's callback; one clock (`time.perf_counter`). Every agent runs 2 s of frames "
+        "before the measurement starts.",
         "",
         f"*Per command* = over every answered (frame, robot); *whole frame* = until the frame's last robot "
         f"answered (frames every robot answered). *Missed* = (frame, robot) pairs never answered (an agent "
         f"that falls behind runs the newest frame and skips the rest). *Late* = answered after one period. "
-        f"*× floor* = p50 per command / the Zenoh floor's p50 at the same rate. *Others* = CPU cores busy "
-        f"with other processes on the machine during the run (from /proc/stat, minus the agents and this "
-        f"process). Frames asked per run: {frames_asked}.",
+        f"*× floor* = p50 / p99 / max per command over the Zenoh floor's p50 / p99 / max at the same rate "
+        f"(the floor is a round trip through the same router process: the same four hops). *CPU/tick* = an "
+        f"agent's user + system CPU (/proc/<pid>/stat, all threads) over the measurement per frame published. "
+        f"*RSS* = VmRSS per agent at the end. *Agree* = of the frames every agent ran, those on which every "
+        f"agent's fitted and advanced structure (`state`: x, y, th, gx, gy, gth, used) is bit-identical. "
+        f"*Others* = CPU cores busy with other processes on the machine during the run (from /proc/stat, "
+        f"minus the agents and this process). Frames asked per run: {frames_asked}.",
         "",
-        table(["agents", "Hz", "frames", "p50 [ms]", "p99 [ms]", "max [ms]", "frame p50 [ms]", "frame p99 [ms]",
-               "missed", "late", "× floor", "others [cores]"], body),
+        table(["agents", "Hz", "frames", "p50 [ms]", "p99 [ms]", "max [ms]", "× floor", "frame p50 [ms]",
+               "frame p99 [ms]", "missed", "late", "CPU/tick [ms]", "RSS [MiB]", "agree", "others [cores]"], body),
         "",
         "### The Zenoh floor",
         "",
@@ -121,11 +125,34 @@ def latency_section(loops, floors, frames_asked: int) -> str:
         "real-time priority) from a client session in the bench process through the same kind of "
         "`vsfleet router` process to a separate Python client process (`bench/zenoh_pong.py`) that puts it back from its "
         "subscriber callback, and back to the bench process: the same hops and processes as the loop, "
-        "without decoding, queueing or the control step.",
+        "without decoding or the control step. Measured in the same run as the loop, before it.",
         "",
         table(["pings", "count", "p50 [ms]", "p99 [ms]", "max [ms]", "lost"], fl),
         "",
         "![latency distributions](bench/latency.png)",
+    ])
+
+
+def _floor(floors, rate_hz: float) -> dict | None:
+    """The floor's p50 / p99 / max [s] at rate_hz (None if not measured)."""
+    for f in floors:
+        if f.rate_hz == rate_hz and f.rtt_s.size:
+            return percentiles_s(f.rtt_s)
+    return None
+
+
+def step_section(rows) -> str:
+    body = [[r["n"], f"{r['step_p50_us']:.0f}", f"{r['step_p90_us']:.0f}", f"{r['decode_p50_us']:.0f}", r["frames"]]
+            for r in rows]
+    return "\n".join([
+        "### The agent step alone",
+        "",
+        "CPU time of one call of `vsfleet.step.agent_step` (fit, advance, every robot's controller, the "
+        "failure rule) and of decoding the frame (`vsfleet.wire.decode_frame`), in one process without "
+        "zenoh (`bench/step.py`): N robots on a circle translating at 0.05 m/s with 1 mm noise, after the "
+        "failure rule's window has filled.",
+        "",
+        table(["N", "step p50 [µs]", "step p90 [µs]", "decode p50 [µs]", "frames"], body),
     ])
 
 
@@ -149,37 +176,33 @@ def scale_section(runs_30hz, rate_hz: float = 30.0, pose_bytes: int = 63) -> str
     body = []
     for r in runs:
         p = percentiles_s(r.latency_s)
-        body.append([r.robots, r.frames, f"{r.missed} ({100 * r.missed_share:.1f}%)",
+        body.append([r.robots, r.frames, f"{r.missed} ({100 * r.missed_share:.2f}%)",
                      f"{100 * r.incomplete / max(r.states, 1):.1f}%", _ms(p["p99"]),
                      "yes" if r.holds else "**no**", "yes" if r.nearly_holds else "**no**",
                      f"{1e3 * r.agent_cpu_s_per_tick.mean():.2f}", f"{1e3 * r.agent_cpu_s_per_answer.mean():.2f}",
                      f"{r.agent_rss_mib.mean():.1f}", f"{1e3 * r.bench_cpu_s_per_frame:.2f}",
                      f"{r.agent_cpu_s_per_tick.sum() * r.rate_hz + r.bench_cpu_s_per_frame * r.rate_hz:.2f}",
-                     f"{cores_to_answer_all(r):.2f}", f"{r.others_cores:.2f}"])
+                     _agree(r), f"{r.others_cores:.2f}"])
     best, near = largest_holding(runs), largest_holding(runs, strict=False)
     msg = []
     for n in (3, 10, 30, 100, 300, 1000):
         m = messages_per_frame(n)
-        msg.append([n, f"{3 * n:,}", f"{m['delivered']:,}", f"{m['delivered'] * rate_hz:,.0f}",
-                    f"{n * rate_hz:,.0f}", f"{n * pose_bytes / 1024:.1f}"])
+        msg.append([n, f"{m['published']:,}", f"{m['delivered']:,}", f"{m['delivered'] * rate_hz:,.0f}",
+                    f"{n * pose_bytes / 1024:.1f}"])
     return "\n".join([
         "## 3. Scale",
         "",
-        f"Every {rate_hz:.0f} Hz run of §2 and a sweep of other fleet sizes (same setup, fewer frames; a size "
-        f"is skipped once two smaller ones failed). A size *holds* {rate_hz:.0f} Hz when every agent answered "
-        f"every measured frame (no missed tick) and p99 latency stayed under one period; *≤ 0.1 %* relaxes "
-        f"the first condition to at most 0.1 % of (frame, robot) pairs missed. *Incomplete* = share of the "
-        f"agents' `state` messages of measured frames with `complete: false` (the agent ran on its deadline "
-        f"without every pose of the frame). CPU = an agent's user + system time (/proc/<pid>/stat, all its "
-        f"threads) over the measurement, *per frame* published and *per tick* it answered (they differ when "
-        f"it skips frames). RSS = /proc/<pid>/status VmRSS at the end. *Bench* = per frame, the bench process "
-        f"(the tracker and the sim side) plus the router process. *Used* = cores the agents and the bench used; *needed* = "
-        f"cores to answer every frame if each cost what an answered tick did. The machine has "
-        f"{os.cpu_count()} cores, shared with *others*.",
+        f"The {rate_hz:.0f} Hz runs of §2, side by side. A size *holds* {rate_hz:.0f} Hz when every agent "
+        f"answered every measured frame (no missed tick) and p99 latency stayed under one period; *≤ 0.1 %* "
+        f"relaxes the first condition to at most 0.1 % of (frame, robot) pairs missed. CPU = an agent's "
+        f"user + system time *per frame* published and *per tick* it answered (they differ when it skips "
+        f"frames). *Bench* = per frame, the bench process (the tracker and the sim side) plus the router "
+        f"process. *Used* = cores the agents and the bench used. The machine has {os.cpu_count()} cores, "
+        f"shared with *others*.",
         "",
         table(["agents", "frames", "missed", "incomplete", "p99 [ms]", "holds", "≤ 0.1 %",
                "CPU/frame [ms]", "CPU/tick [ms]", "RSS/agent [MiB]", "bench CPU/frame [ms]", "used [cores]",
-               "needed [cores]", "others [cores]"], body),
+               "agree", "others [cores]"], body),
         "",
         f"**Largest fleet that held {rate_hz:.0f} Hz with no missed tick: "
         + (f"{best} agent processes" if best else "none of the measured sizes")
@@ -187,42 +210,15 @@ def scale_section(runs_30hz, rate_hz: float = 30.0, pose_bytes: int = 63) -> str
         "",
         "![scale](bench/scale.png)",
         "",
-        "### Messages per frame (on paper)",
+        "### Messages per frame",
         "",
-        "Every agent subscribes to every robot's pose, so the router delivers each of the N poses of a "
-        "frame to N agents: N² deliveries, plus N commands to the fleet and N states to a recorder or "
-        f"monitor. Published per frame: 3N. A pose is {pose_bytes} bytes of msgpack.",
+        "A tracker publishes one message per frame (`vs/<fleet>/frame/<src>`) that every agent receives: N "
+        "deliveries, plus N commands to the fleet and N states to a recorder or monitor. (Before frames, "
+        "every agent subscribed to every robot's pose: N² deliveries and N wake-ups per agent per frame.) "
+        f"A pose inside a frame is about {pose_bytes // 2} bytes of msgpack.",
         "",
         table(["N", "published / frame", "delivered / frame", f"delivered / s at {rate_hz:.0f} Hz",
-               "poses / s each agent receives", "one frame as one message [KiB]"], msg),
-        "",
-        "What limits it here, and what would carry it further:",
-        "",
-        "- **CPU and scheduling, not the network.** The Zenoh floor is well under a millisecond. Each "
-        "agent is a Python process that wakes for the N poses of a frame (zenoh callback → queue → "
-        "main loop) and runs the whole fit and advance for the fleet (`control_step`): its CPU per "
-        "tick grows with N (table above) and the fleet's total with N². All N agents wake on the same "
-        "frame and share the machine's cores, so the last one answers roughly N × (CPU per tick) / "
-        "cores after the frame: most of the growth of latency with N in §2. As the cores the agents "
-        "need approach those the other processes leave free (*needed* + *others* near the machine's "
-        "cores), agents fall behind and skip frames (an agent always runs the newest), which shows as "
-        "missed ticks and incomplete frames. With 2–3 agents, which need a fraction of a core, the "
-        "few missed ticks are most likely stalls longer than one period while other processes held "
-        "the cores. On real robots each agent has its own CPU, so only the per-agent cost (∝ N) "
-        "matters, not the fleet's total.",
-        "- **One message per frame instead of N.** A tracker that publishes a whole frame on one key "
-        "(`vs/<fleet>/frame`, N poses in one msgpack array) turns N² deliveries and N wake-ups per agent "
-        "into N deliveries and one wake-up each; the payload grows linearly (last column above: a "
-        "1000-robot frame fits one 64 KiB zenoh batch, above today's 4 KiB message limit). The agent's "
-        "frame rule becomes trivial (a frame is complete on arrival).",
-        "- **Batching instead of express** for poses once frames are large, and zenoh's shared-memory "
-        "transport between processes on one host; peer-to-peer mode removes the router hop.",
-        "- **Share the fit.** The structure pose depends only on (mission, frame), so it is bit-identical "
-        "across agents: one or a few agents could publish it and the others only run their own "
-        "controller (O(1) per agent), at the price of the paper's full duplication; or keep duplication "
-        "but run many agents in one process (`simfleet.offline` already drives N `Agent` objects in one).",
-        "- **Hierarchy.** Beyond a few hundred robots, sub-structures (each a virtual structure whose "
-        "\"robots\" are the sub-structures' poses) keep each fit small and the fan-out local.",
+               "one frame [KiB]"], msg),
     ])
 
 
