@@ -42,7 +42,7 @@ from vsfleet.control import (
 from vsfleet.envelope import Envelope, Envelopes
 from vsfleet.errors import ShapeError, VsfleetValueError
 from vsfleet.geometry import Pose2
-from vsfleet.kinematics import integrate_arc, inverse_arc
+from vsfleet.kinematics import integrate_arc, integrate_arcs, inverse_arc, wrap_angles
 
 from tests import control_reference as ref
 
@@ -141,11 +141,47 @@ def starts(path):
 ISOLATED_GAINS = {"arc": {"horizon_s": 0.25}}
 
 
+def simulate_all(controller, path, starts_: list[Pose2], ticks: int = TICKS) -> tuple[Run, ...]:
+    """``simulate`` for every start at once: each start is a row of one array through the controller
+    (rows are independent, so this is the same closed loop per start, and 72 times fewer calls)."""
+    m = len(starts_)
+    state = controller.initial(m)
+    envs = Envelopes.of([ENV] * m)
+    pose = np.array([s.as_tuple() for s in starts_], dtype=float)
+    prev = np.zeros((m, 2))
+    errors, commands = [], []
+    for k in range(ticks):
+        now, nxt = np.array(path(k * DT)), np.array(path((k + 1) * DT))
+        errors.append(np.hypot(pose[:, 0] - now[0], pose[:, 1] - now[1]))
+        inp = ControlInput(pose_world=pose, point_now_world=np.tile(now, (m, 1)),
+                           point_next_world=np.tile(nxt, (m, 1)), wheels_prev_m_s=prev, dt_s=DT, age_s=0.0,
+                           envelopes=envs, active=np.ones(m, dtype=bool))
+        state, prev = controller(state, inp)
+        commands.append(prev)
+        pose = integrate_arcs(pose, prev, DT, envs.wheel_base_m)
+        pose[:, 2] = wrap_angles(pose[:, 2])
+    end = path(ticks * DT)
+    errors.append(np.hypot(pose[:, 0] - end[0], pose[:, 1] - end[1]))
+    err, cmd = np.array(errors), np.array(commands)
+    return tuple(Run(s, err[:, i], cmd[:, i, :]) for i, s in enumerate(starts_))
+
+
 @functools.cache
 def runs(name: str, path_name: str, **gains) -> tuple[Run, ...]:
     controller = make_controller(name, deadband_m=0.0, **(gains or ISOLATED_GAINS.get(name, {})))
     path = PATHS[path_name]
-    return tuple(simulate(controller, path, s) for s in starts(path))
+    return simulate_all(controller, path, starts(path))
+
+
+def test_every_start_at_once_is_the_same_closed_loop_as_each_start_alone():
+    for name in CONTROLLERS:
+        controller = make_controller(name, deadband_m=0.0, **ISOLATED_GAINS.get(name, {}))
+        picked = starts(circle)[::17]
+        batch = simulate_all(controller, circle, picked, ticks=90)
+        for run in batch:
+            alone = simulate(controller, circle, run.start, ticks=90)
+            assert np.allclose(alone.errors_m, run.errors_m, rtol=0, atol=1e-9), name
+            assert np.allclose(alone.commands_m_s, run.commands_m_s, rtol=0, atol=1e-9), name
 
 
 def settle_time_s(run: Run) -> float:
