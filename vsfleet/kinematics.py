@@ -241,6 +241,8 @@ def limit_wheels_v(wheels_m_s: np.ndarray, wheels_prev_m_s: np.ndarray, dt_s: fl
     vmax = np.asarray(speed_max_m_s, dtype=float)[:, None]
     step = (np.asarray(accel_max_m_s2, dtype=float) * dt_s)[:, None]
     feasible = np.all((np.abs(u) <= vmax) & (np.abs(u - p) <= step), axis=1)
+    if feasible.all():  # the usual case: every command already within its envelope
+        return u.copy()
     lo = np.maximum(p - step, -vmax)
     hi = np.minimum(p + step, vmax)
     pinned = lo > hi
