@@ -110,7 +110,8 @@ class FailureState:
     NaN = not counting. failed, dropped (n,) bool. Motion: last_t (n,) [s] (NaN = never seen
     fresh), last_xy (n, 2) [m; world], last_expected (n, 2) [m] (the step its command should
     make), and a ring of W frames per robot: window_t (n, W) [s] (NaN = empty), window_nm (n, W, 4)
-    int64 (expected dx, dy, observed dx, dy [nm]), head (n,) the next slot to write.
+    int64 (expected dx, dy, observed dx, dy [nm]), head (n,) the next slot to write; sums_nm (n, 4)
+    int64: the sum of the items still in the window (in_window (n, W)), kept as items come and go.
     """
 
     since_t: np.ndarray
@@ -122,6 +123,8 @@ class FailureState:
     window_t: np.ndarray
     window_nm: np.ndarray
     head: np.ndarray
+    in_window: np.ndarray
+    sums_nm: np.ndarray
 
     @classmethod
     def initial(cls, n: int, policy: FailurePolicy, step_s: float) -> "FailureState":
@@ -130,12 +133,18 @@ class FailureState:
             raise VsfleetValueError(f"step_s must be finite and > 0, got {step_s!r}")
         slots = int(math.ceil(policy.fail_after_s / step_s)) + 4
         return cls(np.full(n, np.nan), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool),
-                   np.full(n, np.nan), np.zeros((n, 2)), np.zeros((n, 2)), np.full((n, slots), np.nan),
-                   np.zeros((n, slots, 4), dtype=np.int64), np.zeros(n, dtype=np.int64))
+                   *_empty_motion(n, slots))
 
     @property
     def motion(self) -> tuple[np.ndarray, ...]:
-        return (self.last_t, self.last_xy, self.last_expected, self.window_t, self.window_nm, self.head)
+        return (self.last_t, self.last_xy, self.last_expected, self.window_t, self.window_nm, self.head,
+                self.in_window, self.sums_nm)
+
+
+def _empty_motion(n: int, slots: int) -> tuple[np.ndarray, ...]:
+    return (np.full(n, np.nan), np.zeros((n, 2)), np.zeros((n, 2)), np.full((n, slots), np.nan),
+            np.zeros((n, slots, 4), dtype=np.int64), np.zeros(n, dtype=np.int64), np.zeros((n, slots), dtype=bool),
+            np.zeros((n, 4), dtype=np.int64))
 
 
 def with_health(state: FailureState, health: Health, robots: Sequence[str],
@@ -159,9 +168,7 @@ def to_health(state: FailureState, robots: Sequence[str]) -> Health:
 def restart_timers(state: FailureState) -> FailureState:
     """After a gap: keep who failed or dropped, forget the timers and the motion window."""
     n, slots = state.window_t.shape
-    return FailureState(np.full(n, np.nan), state.failed, state.dropped, np.full(n, np.nan), np.zeros((n, 2)),
-                        np.zeros((n, 2)), np.full((n, slots), np.nan), np.zeros((n, slots, 4), dtype=np.int64),
-                        np.zeros(n, dtype=np.int64))
+    return FailureState(np.full(n, np.nan), state.failed, state.dropped, *_empty_motion(n, slots))
 
 
 def _motion(policy: FailurePolicy, state: FailureState, t: float, fresh: np.ndarray, xy: np.ndarray,
@@ -174,27 +181,37 @@ def _motion(policy: FailurePolicy, state: FailureState, t: float, fresh: np.ndar
         scale = np.minimum(t - np.where(had, state.last_t, t), max_gap_s) / step_s
         expected = expected * scale[:, None]
     window_t, window_nm, head = state.window_t, state.window_nm, state.head
+    in_window, sums = state.in_window, state.sums_nm
+    expire = in_window & ~(window_t > t - policy.fail_after_s)   # items that left the window
     rows = np.flatnonzero(had)
+    slots = window_t.shape[1]
+    at = head[rows] % slots                                     # a full ring overwrites its oldest item
     if rows.size:
-        slots = window_t.shape[1]
-        at = head[rows] % slots  # a full ring overwrites its oldest item
-        window_t, window_nm = window_t.copy(), window_nm.copy()
+        expire = expire.copy()
+        expire[rows, at] |= in_window[rows, at]
+    if expire.any() or rows.size:
+        sums, in_window = sums.copy(), in_window & ~expire
+        ii, jj = np.nonzero(expire)
+        np.subtract.at(sums, ii, window_nm[ii, jj])
+    if rows.size:
+        window_t, window_nm, head = window_t.copy(), window_nm.copy(), head.copy()
         window_t[rows, at] = t
         item = np.concatenate([expected[rows], xy[rows] - state.last_xy[rows]], axis=1)
-        window_nm[rows, at] = np.rint(item * _NM_PER_M).astype(np.int64)
-        head = head.copy()
+        q = np.rint(item * _NM_PER_M).astype(np.int64)
+        window_nm[rows, at] = q
+        in_window[rows, at] = True
+        sums[rows] += q
         head[rows] += 1
-    valid = window_t > t - policy.fail_after_s            # NaN compares False: empty slots are out
-    sums = np.where(valid[:, :, None], window_nm, 0).sum(axis=1).astype(float) / _NM_PER_M
-    sx, sy, ox, oy = sums[:, 0], sums[:, 1], sums[:, 2], sums[:, 3]
+    total = sums.astype(float) / _NM_PER_M
+    sx, sy, ox, oy = total[:, 0], total[:, 1], total[:, 2], total[:, 3]
     e2 = sx * sx + sy * sy
-    first_t = np.min(np.where(valid, window_t, np.inf), axis=1)
+    first_t = np.min(np.where(in_window, window_t, np.inf), axis=1)
     known = had & (t - first_t >= 0.8 * policy.fail_after_s) & (e2 >= policy.min_expected_m ** 2)
     ratio = np.where(known, (ox * sx + oy * sy) / np.where(known, e2, 1.0), np.nan)
     last_t = np.where(fresh, t, state.last_t)
     last_xy = np.where(fresh[:, None], xy, state.last_xy)
     last_expected = np.where(fresh[:, None], expected_step_m, state.last_expected)
-    return last_t, last_xy, last_expected, window_t, window_nm, head, ratio
+    return last_t, last_xy, last_expected, window_t, window_nm, head, in_window, sums, ratio
 
 
 def failure_step(policy: FailurePolicy, state: FailureState, robots: Sequence[str], t: float,
