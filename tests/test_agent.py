@@ -323,8 +323,8 @@ def test_a_frame_run_on_its_deadline_feeds_the_motion_test_only_the_poses_of_tha
     ran = agent.poll()
     assert ran is not None and not ran.complete and ran.fresh == {"r1", "r2"}
     assert "r3" in ran.poses                                 # still in the fit (held pose)
-    assert agent.motion.last["r3"][0] == 100.0               # but the motion test waits for a fresh one
-    assert agent.motion.last["r1"][0] == 100.033
+    assert agent.failure.last_t[2] == 100.0                  # r3: the motion test waits for a fresh one
+    assert agent.failure.last_t[0] == 100.033
 
 
 def test_the_agent_refuses_a_deadline_outside_its_range():

@@ -324,7 +324,7 @@ class Precision:
     turn_gain: float = 0.1
     reverse_cos: float = 0.2
     gain_rate: float = 0.01
-    gain_min: float = 0.3
+    gain_min: float = 0.5
     gain_max: float = 2.0
     moving_speed_m_s: float = 0.01
     travel_floor_m: float = 0.0005
