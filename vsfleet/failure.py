@@ -107,7 +107,8 @@ class FailureState:
     since_t (n,) [s]: since when the robot has been non-compliant (compliant, once failed);
     NaN = not counting. failed, dropped (n,) bool. Motion: last_t (n,) [s] (NaN = never seen
     fresh), last_xy (n, 2) [m; world], last_expected (n, 2) [m] (the step its command should
-    make), window (n, W, 5) of (t, expected dx, dy, observed dx, dy), oldest first, t NaN = empty.
+    make), window (n, W, 5) of (t, expected dx, dy, observed dx, dy), a ring per robot written
+    at next_slot (n,) (t NaN = empty; the oldest item is overwritten when a window is full).
     """
 
     since_t: np.ndarray
@@ -117,6 +118,7 @@ class FailureState:
     last_xy: np.ndarray
     last_expected: np.ndarray
     window: np.ndarray
+    next_slot: np.ndarray
 
     @classmethod
     def initial(cls, n: int, policy: FailurePolicy, step_s: float) -> "FailureState":
@@ -126,7 +128,7 @@ class FailureState:
         slots = int(math.ceil(policy.fail_after_s / step_s)) + 4
         window = np.full((n, slots, 5), np.nan)
         return cls(np.full(n, np.nan), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool),
-                   np.full(n, np.nan), np.zeros((n, 2)), np.zeros((n, 2)), window)
+                   np.full(n, np.nan), np.zeros((n, 2)), np.zeros((n, 2)), window, np.zeros(n, dtype=int))
 
 
 def with_health(state: FailureState, health: Health, robots: Sequence[str],
@@ -137,7 +139,8 @@ def with_health(state: FailureState, health: Health, robots: Sequence[str],
     dropped = np.array([r in health.dropped for r in robots], dtype=bool)
     since = (np.array([health.since_t.get(r, math.nan) for r in robots], dtype=float) if timers
              else state.since_t)
-    return FailureState(since, failed, dropped, state.last_t, state.last_xy, state.last_expected, state.window)
+    return FailureState(since, failed, dropped, state.last_t, state.last_xy, state.last_expected, state.window,
+                        state.next_slot)
 
 
 def to_health(state: FailureState, robots: Sequence[str]) -> Health:
@@ -151,47 +154,40 @@ def restart_timers(state: FailureState) -> FailureState:
     """After a gap: keep who failed or dropped, forget the timers and the motion window."""
     fresh = FailureState.initial(state.since_t.shape[0], FailurePolicy(), 1.0)
     return FailureState(np.full_like(state.since_t, np.nan), state.failed, state.dropped,
-                        fresh.last_t, fresh.last_xy, fresh.last_expected, np.full_like(state.window, np.nan))
+                        fresh.last_t, fresh.last_xy, fresh.last_expected, np.full_like(state.window, np.nan),
+                        fresh.next_slot)
 
 
 def _motion(policy: FailurePolicy, state: FailureState, t: float, fresh: np.ndarray, xy: np.ndarray,
             expected_step_m: np.ndarray, step_s: float | None, max_gap_s: float):
     """The motion test on fresh rows: the new (last_*, window) and each row's progress ratio
-    (NaN where unknown). See :func:`update_motion` of the docs: net sums over fail_after_s."""
+    (NaN where unknown): net sums over the last fail_after_s, as the module docstring says."""
     had = fresh & np.isfinite(state.last_t)
     ex, ey = state.last_expected[:, 0], state.last_expected[:, 1]
     if step_s is not None:
         scale = np.minimum(t - np.where(had, state.last_t, t), max_gap_s) / step_s
         ex, ey = ex * scale, ey * scale
-    w = state.window
-    keep = w[:, :, _T] > t - policy.fail_after_s           # NaN compares False: empty slots go
-    keep = np.where(had[:, None], keep, np.isfinite(w[:, :, _T]))
-    # keep the kept items in order, oldest first, then append the new one at the end (fresh rows)
     item = np.stack([np.full_like(ex, t), ex, ey, xy[:, 0] - state.last_xy[:, 0],
                      xy[:, 1] - state.last_xy[:, 1]], axis=1)
-    slots = w.shape[1]
-    order = np.argsort(~keep, axis=1, kind="stable")     # kept first, in their order
-    packed = np.take_along_axis(w, order[:, :, None], axis=1)
-    count = keep.sum(axis=1)
-    packed = np.where((np.arange(slots)[None, :] < count[:, None])[:, :, None], packed, np.nan)
-    # a row whose window is full drops its oldest item to make room (more frames than planned)
-    full = had & (count >= slots)
-    packed = np.where(full[:, None, None], np.concatenate([packed[:, 1:], packed[:, :1] * np.nan], axis=1), packed)
-    count = np.where(full, slots - 1, count)
-    put = had[:, None] & (np.arange(slots)[None, :] == count[:, None])
-    packed = np.where(put[:, :, None], item[:, None, :], packed)
-    window = np.where(had[:, None, None], packed, w)
-    valid = np.isfinite(window[:, :, _T])
+    rows = np.flatnonzero(had)
+    window, slot = state.window, state.next_slot
+    if rows.size:
+        window = window.copy()
+        window[rows, slot[rows]] = item[rows]
+        slot = slot.copy()
+        slot[rows] = (slot[rows] + 1) % window.shape[1]
+    times = window[:, :, _T]
+    valid = times > t - policy.fail_after_s               # NaN compares False: empty slots
     sums = np.where(valid[:, :, None], window, 0.0).sum(axis=1)
     sx, sy, ox, oy = sums[:, _EX], sums[:, _EY], sums[:, _OX], sums[:, _OY]
     e2 = sx * sx + sy * sy
-    first_t = np.where(valid.any(axis=1), np.nanmin(np.where(valid, window[:, :, _T], np.inf), axis=1), np.inf)
+    first_t = np.where(valid, times, np.inf).min(axis=1)
     known = had & (t - first_t >= 0.8 * policy.fail_after_s) & (e2 >= policy.min_expected_m ** 2)
     ratio = np.where(known, (ox * sx + oy * sy) / np.where(known, e2, 1.0), np.nan)
     last_t = np.where(fresh, t, state.last_t)
     last_xy = np.where(fresh[:, None], xy, state.last_xy)
     last_expected = np.where(fresh[:, None], expected_step_m, state.last_expected)
-    return last_t, last_xy, last_expected, window, ratio
+    return last_t, last_xy, last_expected, window, slot, ratio
 
 
 def failure_step(policy: FailurePolicy, state: FailureState, robots: Sequence[str], t: float,
@@ -214,7 +210,7 @@ def failure_step(policy: FailurePolicy, state: FailureState, robots: Sequence[st
     exp_m = np.asarray(expected_step_m, dtype=float)
     if seen.shape != (n,) or xy.shape != (n, 2) or dev.shape != (n,) or exp_m.shape != (n, 2):
         raise VsfleetValueError("failure_step: arrays must have n rows, one per robot")
-    last_t, last_xy, last_exp, window, ratio = _motion(policy, state, t, fresh, np.where(fresh[:, None], xy, 0.0),
+    last_t, last_xy, last_exp, window, slot, ratio = _motion(policy, state, t, fresh, np.where(fresh[:, None], xy, 0.0),
                                                        exp_m, step_s, max_gap_s)
     since, failed, dropped = state.since_t.copy(), state.failed.copy(), state.dropped.copy()
     in_fit = seen & ~dropped
@@ -254,4 +250,4 @@ def failure_step(policy: FailurePolicy, state: FailureState, robots: Sequence[st
                 decisions.append(Decision(t, r, "drop", d))
     failed = (failed | fail) & ~back & ~recover
     dropped = (dropped | (fail if mode in ("drop", "rejoin") else False)) & ~back
-    return FailureState(since, failed, dropped, last_t, last_xy, last_exp, window), decisions
+    return FailureState(since, failed, dropped, last_t, last_xy, last_exp, window, slot), decisions
