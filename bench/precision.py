@@ -81,11 +81,17 @@ def overshoot_m(run: OfflineRun, scenario: Scenario) -> float:
 
 
 def precision_row(controller: str, metric: str, seeds, turn: bool = False, duration_s: float = 40.0,
-                  noise_xy_m: float = NOISE_XY_M, after_goal_s: float = 3.0) -> PrecisionRow:
+                  noise_xy_m: float = NOISE_XY_M, after_goal_s: float = 3.0,
+                  scenario: Scenario | None = None) -> PrecisionRow:
+    """One controller and metric over seeds, on the issue's scenario (bench/conditions.py) or on
+    ``scenario`` as it is (its own noise unless noise_xy_m is given)."""
     devs, settled, starts, goals, left, over, jit, jerk = [], [], [], [], [], [], [], []
     ideal = 0.0
     for seed in seeds:
-        sc = issue_scenario(seed, turn=turn, noise_xy_m=noise_xy_m)
+        if scenario is None:
+            sc = issue_scenario(seed, turn=turn, noise_xy_m=noise_xy_m)
+        else:
+            sc = dataclasses.replace(scenario, tracker=dataclasses.replace(scenario.tracker, noise_xy_m=noise_xy_m))
         sc = dataclasses.replace(sc, mission=dataclasses.replace(sc.mission, metric=metric))
         ideal = ideal_time_s(sc)
         dt = 1.0 / sc.tracker.rate_hz
@@ -108,7 +114,8 @@ def precision_row(controller: str, metric: str, seeds, turn: bool = False, durat
             over.append(math.nan)
     d = np.concatenate(devs)
     s = np.concatenate(settled)
-    return PrecisionRow(controller, metric, "turn 90 deg" if turn else "triangle", noise_xy_m, float(d.mean()),
+    name = scenario.name if scenario is not None else ("turn 90 deg" if turn else "triangle")
+    return PrecisionRow(controller, metric, name, noise_xy_m, float(d.mean()),
                         float(d.std()), float(d.max()), float(s.max()) if s.size else math.nan, max(starts),
                         float(np.mean(jit)), float(np.mean(jerk)), int(d.size), tuple(goals), ideal,
                         tuple(left), tuple(over))
@@ -134,12 +141,37 @@ def table(rows: list[PrecisionRow]) -> str:
     return "\n".join(out)
 
 
-def noise_sweep(controller: str, metric: str, noises_m=(0.0, 0.001, 0.002, 0.003, 0.005), seeds=(1, 2, 3),
-                log=print) -> list[PrecisionRow]:
+def issue_noise_sweep(controller: str, metric: str, noises_m=(0.0, 0.001, 0.002, 0.003, 0.005), seeds=(1, 2, 3),
+                      log=print) -> list[PrecisionRow]:
+    """The issue's scenario at several tracker position noises (heading noise 0.01 rad)."""
     out = []
     for i, nz in enumerate(noises_m):
         log(f"[precision noise {i + 1}/{len(noises_m)}] sigma {1e3 * nz:.0f} mm")
         out.append(precision_row(controller, metric, seeds, noise_xy_m=nz))
+    return out
+
+
+def precision_table(scenario: Scenario, seeds=(1, 2, 3), duration_s: float | None = None,
+                    log=print) -> list[PrecisionRow]:
+    """Every controller x metric on ``scenario`` as it is (bench/run_all.py section 4)."""
+    duration = scenario.duration_s if duration_s is None else duration_s
+    jobs = [(c, m) for c in CONTROLLERS for m in METRICS]
+    rows = []
+    for i, (c, m) in enumerate(jobs):
+        log(f"[precision {i + 1}/{len(jobs)}] {c} {m} ({len(seeds)} seeds)")
+        rows.append(precision_row(c, m, seeds, duration_s=duration, noise_xy_m=scenario.tracker.noise_xy_m,
+                                  scenario=scenario))
+    return rows
+
+
+def noise_sweep(scenario: Scenario, controller: str, metric: str, noises_m=(0.0, 0.001, 0.002, 0.005),
+                seeds=(1,), duration_s: float | None = None, log=print) -> list[PrecisionRow]:
+    """One controller and metric on ``scenario`` at several tracker position noises."""
+    duration = scenario.duration_s if duration_s is None else duration_s
+    out = []
+    for i, nz in enumerate(noises_m):
+        log(f"[precision noise {i + 1}/{len(noises_m)}] sigma {1e3 * nz:.0f} mm")
+        out.append(precision_row(controller, metric, seeds, duration_s=duration, noise_xy_m=nz, scenario=scenario))
     return out
 
 
@@ -206,8 +238,8 @@ def main(argv: list[str] | None = None) -> int:
     print(table(rows))
     if not args.no_sweep:
         print()
-        print(noise_table(noise_sweep(DEFAULT_CONTROLLER, "linf", seeds=args.seeds,
-                                      log=lambda s: print(s, file=sys.stderr))))
+        print(noise_table(issue_noise_sweep(DEFAULT_CONTROLLER, "linf", seeds=args.seeds,
+                                            log=lambda s: print(s, file=sys.stderr))))
     if args.plot:
         for p in figures(Path(args.plot)):
             print(f"plot: {p}", file=sys.stderr)

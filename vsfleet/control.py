@@ -27,7 +27,7 @@ import numpy as np
 
 from .envelope import Envelopes
 from .errors import ShapeError, VsfleetValueError
-from .kinematics import integrate_arcs, limit_wheels_v, sinc_v, wrap_angles
+from .kinematics import columns, integrate_arcs, limit_wheels_v, sinc_v, wrap_angles
 
 
 class UnknownControllerError(VsfleetValueError):
@@ -150,7 +150,7 @@ def _finish(wheels: np.ndarray, inp: ControlInput) -> np.ndarray:
 
 def _wheels(v: np.ndarray, w: np.ndarray, base: np.ndarray) -> np.ndarray:
     half = 0.5 * w * base
-    return np.stack([v - half, v + half], axis=1)
+    return columns(v - half, v + half)
 
 
 # --------------------------------------------------------------------------- the paper's two
@@ -187,7 +187,7 @@ class TurnThenGo:
         v = np.minimum(self.d_max_m, dist) / (h * inp.dt_s) * (dx / safe)
         turn = (_braked_turn(self.turn_gain_m_s_per_rad * th_err, th_err, inp.envelopes)
                 * np.minimum(1.0, dist / self.turn_fade_radius_m))
-        wheels = np.where((dist == 0.0)[:, None], 0.0, np.stack([v - turn, v + turn], axis=1))
+        wheels = np.where((dist == 0.0)[:, None], 0.0, columns(v - turn, v + turn))
         return state, _finish(wheels, inp)
 
 
@@ -324,7 +324,7 @@ class Precision:
     turn_gain: float = 0.1
     reverse_cos: float = 0.2
     gain_rate: float = 0.01
-    gain_min: float = 0.3
+    gain_min: float = 0.5
     gain_max: float = 2.0
     moving_speed_m_s: float = 0.01
     travel_floor_m: float = 0.0005
@@ -359,11 +359,11 @@ class Precision:
         nth = wrap_angles(z[:, 2] - pred[:, 2])
         c, s = np.cos(pred[:, 2]), np.sin(pred[:, 2])
         along = c * nx + s * ny
-        d_wheel = np.stack([along - 0.5 * base * nth, along + 0.5 * base * nth], axis=1)
+        d_wheel = columns(along - 0.5 * base * nth, along + 0.5 * base * nth)
         g_new = g + self.gain_rate * d_wheel * travel / (travel * travel + self.travel_floor_m ** 2) * g
         g_new = np.clip(g_new, self.gain_min, self.gain_max)
-        est = np.stack([pred[:, 0] + self.pose_gain * nx, pred[:, 1] + self.pose_gain * ny,
-                        wrap_angles(pred[:, 2] + self.heading_gain * nth)], axis=1)
+        est = columns(pred[:, 0] + self.pose_gain * nx, pred[:, 1] + self.pose_gain * ny,
+                        wrap_angles(pred[:, 2] + self.heading_gain * nth))
         fresh = ~state.ready
         est = np.where(fresh[:, None], z, est)
         g_new = np.where(fresh[:, None], g, g_new)
@@ -377,8 +377,8 @@ class Precision:
         f_raw = (inp.point_next_world - inp.point_now_world) / dt
         # the feed-forward velocity, tracked as turning at a constant rate (no lag in a steady turn)
         ca, sa = np.cos(state.turn_rad_s * dt), np.sin(state.turn_rad_s * dt)
-        fp = np.stack([ca * state.feed_m_s[:, 0] - sa * state.feed_m_s[:, 1],
-                       sa * state.feed_m_s[:, 0] + ca * state.feed_m_s[:, 1]], axis=1)
+        fp = columns(ca * state.feed_m_s[:, 0] - sa * state.feed_m_s[:, 1],
+                       sa * state.feed_m_s[:, 0] + ca * state.feed_m_s[:, 1])
         nu = f_raw - fp
         fp2 = fp[:, 0] ** 2 + fp[:, 1] ** 2
         moving = fp2 > self.moving_speed_m_s ** 2
@@ -399,12 +399,12 @@ class Precision:
         # turn * age, the heading by the last command's turn rate over dt/2
         ahead = turn * inp.age_s  # f is the chord velocity of [now, next]: its middle is dt/2 in
         ca, sa = np.cos(ahead), np.sin(ahead)
-        f = np.stack([ca * f[:, 0] - sa * f[:, 1], sa * f[:, 0] + ca * f[:, 1]], axis=1)
+        f = columns(ca * f[:, 0] - sa * f[:, 1], sa * f[:, 0] + ca * f[:, 1])
         w_last = (g_new[:, 1] * seq[:, 0, 1] - g_new[:, 0] * seq[:, 0, 0]) / base
         th_mid = p[:, 2] + 0.5 * dt * w_last
         speed = np.hypot(f[:, 0], f[:, 1])
         lam = np.minimum(1.0, speed / self.moving_speed_m_s)
-        hc = np.stack([np.cos(th_mid), np.sin(th_mid)], axis=1)
+        hc = columns(np.cos(th_mid), np.sin(th_mid))
         safe = np.where(speed > 0.0, speed, 1.0)[:, None]
         # reverse while the point moves backwards of the driving direction (hysteresis: reverse_cos)
         along = (f[:, 0] * hc[:, 0] + f[:, 1] * hc[:, 1]) / safe[:, 0] * state.direction
@@ -416,7 +416,7 @@ class Precision:
         hb = lam[:, None] * hr + (1.0 - lam[:, None]) * m_dir
         hb_n = np.hypot(hb[:, 0], hb[:, 1])[:, None]
         hb = np.where(hb_n > 1e-9, hb / np.where(hb_n > 1e-9, hb_n, 1.0), m_dir)
-        nr = np.stack([-hb[:, 1], hb[:, 0]], axis=1)
+        nr = columns(-hb[:, 1], hb[:, 0])
         l = self.offset_m
         feed = f + (lam * l * turn)[:, None] * nr
         err = (target - p[:, :2]) + l * (hb - m_dir)

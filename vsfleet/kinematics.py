@@ -192,6 +192,11 @@ def _reachable_toward(u: tuple[float, float], box) -> tuple[float, float]:
 # --- vectorised over robots: rows of (n, ...) arrays in the mission's sorted id order ---------
 
 
+def columns(*cols: np.ndarray) -> np.ndarray:
+    """(n,) arrays side by side as an (n, k) array (np.stack(cols, axis=1), with less overhead)."""
+    return np.array(cols, dtype=float).T
+
+
 def wrap_angles(th_rad: np.ndarray) -> np.ndarray:
     """Wrap angles (any shape) to [-pi, pi), elementwise, as :func:`vsfleet.geometry.wrap_angle`."""
     w = np.fmod(np.asarray(th_rad, dtype=float) + math.pi, 2.0 * math.pi)
@@ -222,8 +227,8 @@ def integrate_arcs(pose_world: np.ndarray, wheels_m_s: np.ndarray, dt_s: float |
     half = 0.5 * w * dt_s
     chord = v * dt_s * sinc_v(half)
     direction = p[:, 2] + half
-    return np.stack([p[:, 0] + chord * np.cos(direction), p[:, 1] + chord * np.sin(direction),
-                     p[:, 2] + w * dt_s], axis=1)
+    return columns(p[:, 0] + chord * np.cos(direction), p[:, 1] + chord * np.sin(direction),
+                     p[:, 2] + w * dt_s)
 
 
 def limit_wheels_v(wheels_m_s: np.ndarray, wheels_prev_m_s: np.ndarray, dt_s: float,
@@ -241,8 +246,16 @@ def limit_wheels_v(wheels_m_s: np.ndarray, wheels_prev_m_s: np.ndarray, dt_s: fl
     vmax = np.asarray(speed_max_m_s, dtype=float)[:, None]
     step = (np.asarray(accel_max_m_s2, dtype=float) * dt_s)[:, None]
     feasible = np.all((np.abs(u) <= vmax) & (np.abs(u - p) <= step), axis=1)
-    if feasible.all():  # the usual case: every command already within its envelope
+    if feasible.all():
         return u.copy()
+    bad = np.flatnonzero(~feasible)
+    out = u.copy()
+    out[bad] = _limit_rows(u[bad], p[bad], vmax[bad], step[bad])
+    return out
+
+
+def _limit_rows(u: np.ndarray, p: np.ndarray, vmax: np.ndarray, step: np.ndarray) -> np.ndarray:
+    """The clipping rule of :func:`limit_wheels_v` for rows that need it (all infeasible)."""
     lo = np.maximum(p - step, -vmax)
     hi = np.minimum(p + step, vmax)
     pinned = lo > hi
@@ -261,8 +274,8 @@ def limit_wheels_v(wheels_m_s: np.ndarray, wheels_prev_m_s: np.ndarray, dt_s: fl
     with np.errstate(invalid="ignore"):
         ray = np.where(on_ray[:, None], np.where(np.isfinite(s), s, 0.0)[:, None] * u, 0.0)
     # 2. the corner at the smallest angle to u (ties: nearest to u), if within 90 deg
-    cx = np.stack([lo[:, 0], lo[:, 0], hi[:, 0], hi[:, 0]], axis=1)
-    cy = np.stack([lo[:, 1], hi[:, 1], lo[:, 1], hi[:, 1]], axis=1)
+    cx = columns(lo[:, 0], lo[:, 0], hi[:, 0], hi[:, 0])
+    cy = columns(lo[:, 1], hi[:, 1], lo[:, 1], hi[:, 1])
     ang = np.abs(np.arctan2(u[:, :1] * cy - u[:, 1:] * cx, u[:, :1] * cx + u[:, 1:] * cy))
     dist = np.hypot(cx - u[:, :1], cy - u[:, 1:])
     best = np.zeros(len(u), dtype=int)
@@ -271,10 +284,9 @@ def limit_wheels_v(wheels_m_s: np.ndarray, wheels_prev_m_s: np.ndarray, dt_s: fl
             (ang[:, j] == ang[np.arange(len(u)), best]) & (dist[:, j] < dist[np.arange(len(u)), best]))
         best = np.where(better, j, best)
     rows = np.arange(len(u))
-    corner = np.stack([cx[rows, best], cy[rows, best]], axis=1)
+    corner = columns(cx[rows, best], cy[rows, best])
     corner_ok = np.any(u != 0.0, axis=1) & (ang[rows, best] < 0.5 * math.pi)
     # 3. the point nearest zero
     zero = np.minimum(np.maximum(0.0, lo), hi)
     out = np.where(on_ray[:, None], ray, np.where(corner_ok[:, None], corner, zero))
-    out = np.minimum(np.maximum(out, lo), hi)
-    return np.where(feasible[:, None], u, out)
+    return np.minimum(np.maximum(out, lo), hi)
