@@ -33,6 +33,7 @@ from vsfleet.wire import (
     decode_cmd,
     decode_fault,
     decode_mission,
+    decode_frame,
     decode_pose,
     decode_state,
     unpack_map,
@@ -111,6 +112,7 @@ class FleetModel:
         self.mission_version: int | None = None
         self.events: deque = deque(maxlen=events_kept)
         self.bad = 0
+        self.frames_seen = False  # pose rates from frames once any frame came
         self.last_t_s = -math.inf
 
     def _robot(self, rid: str) -> _Robot:
@@ -127,6 +129,13 @@ class FleetModel:
             self.fleet = parts[0]  # the first fleet seen; others are ignored
         return parts if parts[0] == self.fleet else None
 
+    def _seen(self, robot: str, t_recv_s: float) -> None:
+        r = self._robot(robot)
+        r.last_pose_s = t_recv_s
+        r.pose_times.append(t_recv_s)
+        while r.pose_times and r.pose_times[0] < t_recv_s - self.rate_window_s:
+            r.pose_times.popleft()
+
     def ingest(self, t_recv_s: float, key: str, payload: bytes) -> None:
         """One data sample."""
         self.last_t_s = max(self.last_t_s, t_recv_s)
@@ -135,13 +144,14 @@ class FleetModel:
             return
         _, kind, rid = parts
         try:
-            if kind == "pose" and rid:
+            if kind == "frame" and rid:  # the agents' input: every robot a tracker saw in one frame
+                for robot in decode_frame(payload).poses:
+                    self._seen(robot, t_recv_s)
+                self.frames_seen = True
+            elif kind == "pose" and rid:
                 decode_pose(payload)
-                r = self._robot(check_name(rid, "robot"))
-                r.last_pose_s = t_recv_s
-                r.pose_times.append(t_recv_s)
-                while r.pose_times and r.pose_times[0] < t_recv_s - self.rate_window_s:
-                    r.pose_times.popleft()
+                if not self.frames_seen:  # a tracker that sends frames sends these too: count once
+                    self._seen(check_name(rid, "robot"), t_recv_s)
             elif kind == "cmd" and rid:
                 m = decode_cmd(payload)
                 self._robot(check_name(rid, "robot")).cmd = (m.vl, m.vr)

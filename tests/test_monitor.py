@@ -158,3 +158,15 @@ def test_the_rendered_table_names_every_robot_with_units_in_the_headers():
     for needle in ("r1", "r2", "r3", "alive", "pose age [s]", "pose rate [Hz]", "vl [m/s]", "err [cm]",
                    "rejected", "mission version: 4", "agreement on frame 59 (run complete) over 3 agents: 0 m"):
         assert needle in text
+
+
+def test_pose_rates_come_from_frames_and_are_not_counted_twice_with_the_poses():
+    from fleetctl.monitor import FleetModel
+    from vsfleet.wire import FrameMsg, PoseMsg, encode, encode_frame
+
+    view = FleetModel("demo")
+    for k in range(30):
+        t = 100.0 + k / 30
+        view.ingest(t, "vs/demo/frame/sim", encode_frame(FrameMsg(t, k, "sim", {"r1": (0.0, 0.0, 0.0)})))
+        view.ingest(t, "vs/demo/pose/r1", encode(PoseMsg(t, k, 0.0, 0.0, 0.0, "sim")))
+    assert len(view._robot("r1").pose_times) == 30 and view.bad == 0
