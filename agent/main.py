@@ -23,8 +23,8 @@ from typing import Callable
 
 import zenoh
 
-from fleetctl.lifecycle import Rejections, StopFlag, wall_clock
-from fleetctl.zconf import (
+from vsfleet.fleetctl.lifecycle import Rejections, StopFlag, wall_clock
+from vsfleet.fleetctl.zconf import (
     RELIABLE_QOS,
     STREAM_QOS,
     TELEMETRY_QOS,

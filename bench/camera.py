@@ -36,9 +36,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from tracker.calibrate import calibrate_frames  # noqa: E402
-from tracker.markers import CameraTracker, load_config  # noqa: E402
-from tracker.render import Renderer, reference_scene, robot_scene, sim_camera_from_dict, write_video  # noqa: E402
+from vsfleet.tracker.calibrate import calibrate_frames  # noqa: E402
+from vsfleet.tracker.markers import CameraTracker, load_config  # noqa: E402
+from vsfleet.tracker.render import Renderer, reference_scene, robot_scene, sim_camera_from_dict, write_video  # noqa: E402
 from vsfleet.geometry import angle_diff  # noqa: E402
 
 FLOOR_M = ((-0.4, 2.4), (-0.4, 1.4))   # robot centres inside the 3 x 2 m floor, 0.1 m from its edges
@@ -93,9 +93,9 @@ E2E_STATS = re.compile(r"(\d+) frames in ([\d.]+) s = ([\d.]+) frames/s end to e
 
 def measure_end_to_end(config_path: str, n_frames: int, seed: int = 2) -> dict:
     """frames / wall time of `vsfleet tracker camera` on a rendered FFV1 video: decode + detect + publish."""
-    from fleetctl.router import open_loopback_router
-    from fleetctl.run import child_command
-    from fleetctl.zconf import zenoh_flags
+    from vsfleet.fleetctl.router import open_loopback_router
+    from vsfleet.fleetctl.run import child_command
+    from vsfleet.fleetctl.zconf import zenoh_flags
     from vsfleet.wire import Keys
 
     config = load_config(config_path)

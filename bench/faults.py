@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from bench.conditions import issue_scenario  # noqa: E402
-from simfleet.offline import run_offline  # noqa: E402
+from vsfleet.simfleet.offline import run_offline  # noqa: E402
 from vsfleet.fit import fit_structure  # noqa: E402
 from vsfleet.scenario import FaultEvent  # noqa: E402
 from vsfleet.step import mission_template  # noqa: E402

@@ -33,8 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from simfleet.offline import run_offline
-from simfleet.physics import Fault, RobotState, step_fleet
+from vsfleet.simfleet.offline import run_offline
+from vsfleet.simfleet.physics import Fault, RobotState, step_fleet
 from vsfleet.analysis import goal_distance
 from vsfleet.envelope import Envelope
 from vsfleet.fit import fit_structure

@@ -40,10 +40,10 @@ import msgpack
 import numpy as np
 import zenoh
 
-from fleetctl.mission_cmd import stamp
-from fleetctl.router import free_loopback_port, open_loopback_router, wait_listening
-from fleetctl.run import Children, child_command
-from fleetctl.zconf import RELIABLE_QOS, STREAM_QOS, add_zenoh_args, zenoh_config, zenoh_flags
+from vsfleet.fleetctl.mission_cmd import stamp
+from vsfleet.fleetctl.router import free_loopback_port, open_loopback_router, wait_listening
+from vsfleet.fleetctl.run import Children, child_command
+from vsfleet.fleetctl.zconf import RELIABLE_QOS, STREAM_QOS, add_zenoh_args, zenoh_config, zenoh_flags
 from vsfleet.geometry import Pose2
 from vsfleet.kinematics import integrate_arc
 from vsfleet.wire import (

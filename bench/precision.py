@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from bench.conditions import NOISE_TH_RAD, NOISE_XY_M, ideal_time_s, issue_scenario  # noqa: E402
-from simfleet.offline import OfflineRun, run_offline  # noqa: E402
+from vsfleet.simfleet.offline import OfflineRun, run_offline  # noqa: E402
 from vsfleet.analysis import goal_distance  # noqa: E402
 from vsfleet.control import CONTROLLERS, DEFAULT_CONTROLLER  # noqa: E402
 from vsfleet.scenario import Scenario  # noqa: E402

@@ -18,10 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-from fleetctl import rmw_zenoh as rz
-from fleetctl.mission_cmd import stamp
-from fleetctl.router import free_loopback_port, wait_listening
-from fleetctl.scenario_file import load_scenario
+from vsfleet.fleetctl import rmw_zenoh as rz
+from vsfleet.fleetctl.mission_cmd import stamp
+from vsfleet.fleetctl.router import free_loopback_port, wait_listening
+from vsfleet.fleetctl.scenario_file import load_scenario
 from tests.integration.harness import open_client
 from vsfleet.wire import CmdMsg, Keys, encode, encode_mission
 
@@ -37,7 +37,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     port = free_loopback_port()
     ep = f"tcp/127.0.0.1:{port}"
-    cli = [sys.executable, "-m", "fleetctl.cli"]
+    cli = [sys.executable, "-m", "vsfleet.fleetctl.cli"]
     procs = [subprocess.Popen([*cli, "router", "--listen", ep, "--no-multicast-scouting"],
                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
     wait_listening(port, 20.0)

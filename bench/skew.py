@@ -19,8 +19,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from fleetctl.scenario_file import load_scenario  # noqa: E402
-from simfleet.offline import run_offline  # noqa: E402
+from vsfleet.fleetctl.scenario_file import load_scenario  # noqa: E402
+from vsfleet.simfleet.offline import run_offline  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -13,22 +13,22 @@ import threading
 import traceback
 
 COMMANDS = {
-    "agent": ("agent.main", "one agent per robot"),
-    "sim": ("simfleet.main", "the simulated fleet"),
-    "tracker sim": ("tracker.sim", "the simulated tracker (VGPS)"),
-    "tracker camera": ("tracker.camera", "ArUco markers from an overhead camera -> poses"),
-    "tracker calibrate": ("tracker.calibrate", "floor calibration from reference markers"),
-    "render": ("tracker.render", "synthetic overhead camera frames of the simulated fleet"),
-    "run": ("fleetctl.run", "the localhost multi-process fleet from a scenario"),
-    "router": ("fleetctl.router", "a zenoh router (router-mode zenoh-python session)"),
-    "deploy config": ("fleetctl.deploy", "zenoh configs with logins and access control for real hosts"),
-    "mission set": ("fleetctl.mission_cmd", "publish a mission file"),
-    "record": ("fleetctl.record", "record a fleet's key space into an MCAP file"),
-    "replay": ("fleetctl.replay", "publish a recording back into a key space"),
-    "plot": ("fleetctl.plot", "the paper's figures (PNG) from a recording"),
-    "monitor": ("fleetctl.monitor", "live terminal view of a running fleet"),
-    "foxglove": ("fleetctl.foxglove_live", "live Foxglove WebSocket server on a fleet's key space"),
-    "fuzz": ("fleetctl.fuzz", "throw invalid messages at every key the fleet subscribes to"),
+    "agent": ("vsfleet.agent.main", "one agent per robot"),
+    "sim": ("vsfleet.simfleet.main", "the simulated fleet"),
+    "tracker sim": ("vsfleet.tracker.sim", "the simulated tracker (VGPS)"),
+    "tracker camera": ("vsfleet.tracker.camera", "ArUco markers from an overhead camera -> poses"),
+    "tracker calibrate": ("vsfleet.tracker.calibrate", "floor calibration from reference markers"),
+    "render": ("vsfleet.tracker.render", "synthetic overhead camera frames of the simulated fleet"),
+    "run": ("vsfleet.fleetctl.run", "the localhost multi-process fleet from a scenario"),
+    "router": ("vsfleet.fleetctl.router", "a zenoh router (router-mode zenoh-python session)"),
+    "deploy config": ("vsfleet.fleetctl.deploy", "zenoh configs with logins and access control for real hosts"),
+    "mission set": ("vsfleet.fleetctl.mission_cmd", "publish a mission file"),
+    "record": ("vsfleet.fleetctl.record", "record a fleet's key space into an MCAP file"),
+    "replay": ("vsfleet.fleetctl.replay", "publish a recording back into a key space"),
+    "plot": ("vsfleet.fleetctl.plot", "the paper's figures (PNG) from a recording"),
+    "monitor": ("vsfleet.fleetctl.monitor", "live terminal view of a running fleet"),
+    "foxglove": ("vsfleet.fleetctl.foxglove_live", "live Foxglove WebSocket server on a fleet's key space"),
+    "fuzz": ("vsfleet.fleetctl.fuzz", "throw invalid messages at every key the fleet subscribes to"),
     "bridge ros2": ("fleetctl.bridge_ros2", "one robot's commands -> geometry_msgs/Twist over rmw_zenoh"),
     "bridge ros2-poses": ("fleetctl.bridge_ros2_poses", "mocap PoseStamped/Odometry over rmw_zenoh -> frames"),
 }
@@ -57,7 +57,7 @@ def _one_line(exc: BaseException) -> str:
 
 def run_command(name: str, module_name: str, args: list[str], verbose: bool) -> int:
     """Run one program's main; every error becomes one line (and exit code 2, or 1 if unexpected)."""
-    from fleetctl.zconf import SessionError, StoppedWaiting, ZenohConfigError
+    from vsfleet.fleetctl.zconf import SessionError, StoppedWaiting, ZenohConfigError
 
     def thread_hook(hook_args) -> None:  # a crashed worker thread: one line, the traceback only if verbose
         if verbose:
@@ -132,7 +132,7 @@ def _pass_verbose(module_name: str, args: list[str], verbose: bool) -> list[str]
 
 
 # the programs whose argparse has no --verbose of their own
-NO_VERBOSE_FLAG = {"fleetctl.deploy", "fleetctl.plot", "fleetctl.mission_cmd"}
+NO_VERBOSE_FLAG = {"vsfleet.fleetctl.deploy", "vsfleet.fleetctl.plot", "vsfleet.fleetctl.mission_cmd"}
 
 
 if __name__ == "__main__":

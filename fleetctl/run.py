@@ -66,7 +66,7 @@ SETTLE_S = 1.0
 
 
 def child_command(*args: str) -> list[str]:
-    return [sys.executable, "-m", "fleetctl.cli", *args]
+    return [sys.executable, "-m", "vsfleet.fleetctl.cli", *args]
 
 
 @dataclass
@@ -218,7 +218,7 @@ def tracker_args(scenario: Scenario, scenario_path: str, kind: str | None, camer
     if kind != "camera":
         raise ValueError(f"--tracker must be sim or camera, got {kind!r}")
     try:
-        from tracker.camera import render_loop_args
+        from vsfleet.tracker.camera import render_loop_args
     except ImportError as exc:
         raise ValueError(f"--tracker camera needs OpenCV (pip install -e '.[camera]'): {exc}") from None
     if camera is None:

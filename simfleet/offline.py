@@ -25,7 +25,7 @@ from vsfleet.scenario import Scenario
 from vsfleet.step import mission_template
 from vsfleet.wire import FrameMsg, Keys, decode_cmd, encode_frame, encode_mission
 
-from agent.main import Agent
+from vsfleet.agent.main import Agent
 
 from .physics import Fault, RobotState, step_fleet
 

@@ -14,11 +14,11 @@ from pathlib import Path
 
 import pytest
 
-from fleetctl.run import child_command
-from tracker.calib import FloorCalibration
-from tracker.calibrate import calibrate_frames
-from tracker.markers import CameraConfig, load_config
-from tracker.render import Renderer, reference_scene, sim_camera_from_dict
+from vsfleet.fleetctl.run import child_command
+from vsfleet.tracker.calib import FloorCalibration
+from vsfleet.tracker.calibrate import calibrate_frames
+from vsfleet.tracker.markers import CameraConfig, load_config
+from vsfleet.tracker.render import Renderer, reference_scene, sim_camera_from_dict
 
 ROOT = Path(__file__).parent.parent
 CONFIG = ROOT / "deploy" / "camera" / "overhead.toml"

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from fleetctl.scenario_file import load_scenario
-from simfleet.physics import Fault, RobotState, step_fleet
+from vsfleet.fleetctl.scenario_file import load_scenario
+from vsfleet.simfleet.physics import Fault, RobotState, step_fleet
 from vsfleet.frames import Frame
 from vsfleet.geometry import Pose2
 from vsfleet.step import AgentState, StepConfig, StepOutput, agent_step

@@ -5,9 +5,9 @@ import dataclasses
 import msgpack
 import pytest
 
-import agent.main as agent_main
+import vsfleet.agent.main as agent_main
 import vsfleet.step as step_mod
-from agent.main import Agent
+from vsfleet.agent.main import Agent
 from vsfleet.control import DEFAULT_CONTROLLER, make_controller
 from vsfleet.failure import Health
 from vsfleet.step import SyncPhase

@@ -9,10 +9,10 @@ import struct
 import msgpack
 import pytest
 
-from fleetctl import rmw_zenoh as rz
-from fleetctl.bridge_ros2 import CmdBridge, build_parser as cmd_parser, main as cmd_main
-from fleetctl.bridge_ros2_poses import FrameAssembler, MapError, PoseBridge, main as poses_main, parse_map
-from fleetctl.lifecycle import Rejections
+from vsfleet.fleetctl import rmw_zenoh as rz
+from vsfleet.fleetctl.bridge_ros2 import CmdBridge, build_parser as cmd_parser, main as cmd_main
+from vsfleet.fleetctl.bridge_ros2_poses import FrameAssembler, MapError, PoseBridge, main as poses_main, parse_map
+from vsfleet.fleetctl.lifecycle import Rejections
 from vsfleet.wire import CmdMsg, Mission, RobotSpec, encode, encode_mission
 
 
@@ -364,7 +364,7 @@ class FakeSession:
 
 @pytest.mark.parametrize("distro, layout", [("jazzy", rz.Attachment.CURRENT), ("humble", rz.Attachment.KEYED)])
 def test_twist_publisher_sends_cdr_with_a_rising_sequence_and_its_tokens_gid(distro, layout):
-    from fleetctl.bridge_ros2 import TwistPublisher
+    from vsfleet.fleetctl.bridge_ros2 import TwistPublisher
     s = FakeSession()
     node = rz.Node(domain=5, zid="c0ffee", nid=0, namespace="/r1", name="vsfleet_bridge_r1")
     out = TwistPublisher(s, node=node, topic="/r1/cmd_vel", distro=distro, layout=layout)
@@ -385,7 +385,7 @@ def test_twist_publisher_sends_cdr_with_a_rising_sequence_and_its_tokens_gid(dis
 def test_startup_query_asks_the_operator_and_the_agents_and_takes_the_answer(bridge):
     from types import SimpleNamespace as NS
 
-    from fleetctl.bridge_ros2 import fetch_mission
+    from vsfleet.fleetctl.bridge_ros2 import fetch_mission
     from vsfleet.wire import Keys
     b, sent, clock = bridge
     keys = Keys("demo")

@@ -19,9 +19,9 @@ from camera_support import (  # noqa: E402, F401 - the fixtures calibration, con
     renderer_for,
     renderer_fixture,
 )
-from tracker.calib import CalibrationError, FloorCalibration, Intrinsics, PinholeCamera, Reference  # noqa: E402
-from tracker.calibrate import calibrate_frames  # noqa: E402
-from tracker.markers import (  # noqa: E402
+from vsfleet.tracker.calib import CalibrationError, FloorCalibration, Intrinsics, PinholeCamera, Reference  # noqa: E402
+from vsfleet.tracker.calibrate import calibrate_frames  # noqa: E402
+from vsfleet.tracker.markers import (  # noqa: E402
     CameraTracker,
     ConfigError,
     FrameError,
@@ -29,7 +29,7 @@ from tracker.markers import (  # noqa: E402
     load_config,
     size_ok,
 )
-from tracker.render import (  # noqa: E402
+from vsfleet.tracker.render import (  # noqa: E402
     Renderer,
     reference_scene,
     render_frame,
@@ -330,7 +330,7 @@ def test_a_calibration_with_the_camera_below_the_floor_or_looking_up_fails_to_lo
 
 
 def test_a_camera_below_the_markers_plane_is_refused_by_the_tracker(config):
-    from tracker.calib import calibration_from_dict
+    from vsfleet.tracker.calib import calibration_from_dict
 
     low = calibration_from_dict(pinhole_doc(PinholeCamera.look_at(1280, 720, 800.0, (1.0, 0.5, 0.05),
                                                                   (1.0, 0.6, 0.0))))
@@ -339,7 +339,7 @@ def test_a_camera_below_the_markers_plane_is_refused_by_the_tracker(config):
 
 
 def test_a_homography_with_the_horizon_in_the_image_fails_to_load():
-    from tracker.calib import calibration_from_dict
+    from vsfleet.tracker.calib import calibration_from_dict
 
     doc = {"format": "vsfleet-floor-calibration", "model": "homography", "image_size_px": [1280, 720],
            "plane_z_m": 0.0, "homography": floor_homography(TILTED).tolist()}
@@ -351,7 +351,7 @@ def test_a_homography_with_the_horizon_in_the_image_fails_to_load():
 
 
 def test_pixels_above_the_horizon_map_to_nan_not_to_a_point_behind_the_camera():
-    from tracker.calib import calibration_from_dict
+    from vsfleet.tracker.calib import calibration_from_dict
 
     cal = calibration_from_dict(pinhole_doc(TILTED))  # it loads: above the floor, looking (slightly) down
     xy = cal.to_plane(np.array([[640.0, 10.0], [640.0, 300.0], [640.0, 710.0]]), 0.1)
@@ -360,7 +360,7 @@ def test_pixels_above_the_horizon_map_to_nan_not_to_a_point_behind_the_camera():
 
 
 def test_a_marker_whose_rays_miss_the_plane_is_rejected_not_published(config, renderer, caplog):
-    from tracker.calib import calibration_from_dict
+    from vsfleet.tracker.calib import calibration_from_dict
 
     tracker = CameraTracker(config, calibration_from_dict(pinhole_doc(TILTED)))
     frame = render_frame(config, {"r1": (1.0, 1.3, 0.0)}, 0.0, renderer.spec)  # near the image's top edge

@@ -19,13 +19,13 @@ from camera_support import (  # noqa: E402, F401 - the fixtures calibration, con
     config_fixture,
     renderer_fixture,
 )
-from fleetctl.lifecycle import StopFlag  # noqa: E402
-from fleetctl.run import DEFAULT_CAMERA, tracker_args  # noqa: E402
-from fleetctl.scenario_file import load_scenario  # noqa: E402
-from tracker.calib import FloorCalibration  # noqa: E402
-from tracker.camera import build_parser, render_loop_args, run_loop  # noqa: E402
-from tracker.markers import CameraTracker, ConfigError  # noqa: E402
-from tracker.render import robot_scene  # noqa: E402
+from vsfleet.fleetctl.lifecycle import StopFlag  # noqa: E402
+from vsfleet.fleetctl.run import DEFAULT_CAMERA, tracker_args  # noqa: E402
+from vsfleet.fleetctl.scenario_file import load_scenario  # noqa: E402
+from vsfleet.tracker.calib import FloorCalibration  # noqa: E402
+from vsfleet.tracker.camera import build_parser, render_loop_args, run_loop  # noqa: E402
+from vsfleet.tracker.markers import CameraTracker, ConfigError  # noqa: E402
+from vsfleet.tracker.render import robot_scene  # noqa: E402
 from vsfleet.scenario import ScenarioError, scenario_from_dict  # noqa: E402
 from vsfleet.wire import decode_frame, encode_frame  # noqa: E402
 
@@ -117,7 +117,7 @@ def test_a_camera_tracker_section_refuses_the_simulated_trackers_keys_and_a_stra
 
 def test_a_calibration_or_intrinsics_file_with_a_misspelt_key_is_refused_with_the_key_named(
         tmp_path, calibration, renderer):
-    from tracker.calib import CalibrationError, Intrinsics
+    from vsfleet.tracker.calib import CalibrationError, Intrinsics
 
     doc = calibration.to_dict()
     assert FloorCalibration.load(_write(tmp_path / "ok.json", doc)).model == doc["model"]

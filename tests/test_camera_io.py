@@ -18,11 +18,11 @@ from camera_support import (  # noqa: E402, F401 - the fixtures calibration, con
     renderer_fixture,
     run_cli,
 )
-from fleetctl.lifecycle import StopFlag  # noqa: E402
-from tracker import calibrate as calibrate_cmd  # noqa: E402
-from tracker import render as render_cmd  # noqa: E402
-from tracker.calib import FloorCalibration  # noqa: E402
-from tracker.camera import (  # noqa: E402
+from vsfleet.fleetctl.lifecycle import StopFlag  # noqa: E402
+from vsfleet.tracker import calibrate as calibrate_cmd  # noqa: E402
+from vsfleet.tracker import render as render_cmd  # noqa: E402
+from vsfleet.tracker.calib import FloorCalibration  # noqa: E402
+from vsfleet.tracker.camera import (  # noqa: E402
     CameraOpenError,
     EndOfVideo,
     FrameReadError,
@@ -30,8 +30,8 @@ from tracker.camera import (  # noqa: E402
     run_loop,
     video_t0,
 )
-from tracker.markers import CameraTracker  # noqa: E402
-from tracker.render import robot_scene, write_video  # noqa: E402
+from vsfleet.tracker.markers import CameraTracker  # noqa: E402
+from vsfleet.tracker.render import robot_scene, write_video  # noqa: E402
 
 
 @pytest.fixture(scope="module")
@@ -216,7 +216,7 @@ def test_camera_command_retries_a_camera_that_does_not_open_then_gives_up(calibr
 
 def test_render_writes_a_video_whose_frames_the_tracker_reads_at_their_capture_times(
         tmp_path, config, renderer, calibration):
-    from tracker.render import TruthBook, record_video
+    from vsfleet.tracker.render import TruthBook, record_video
     from vsfleet.wire import TruthMsg
 
     book = TruthBook()

@@ -18,9 +18,9 @@ from camera_support import (  # noqa: E402, F401 - the fixtures calibration, con
     renderer_fixture,
     run_cli,
 )
-from fleetctl.lifecycle import StopFlag  # noqa: E402
-from tracker import camera as camera_cmd  # noqa: E402
-from tracker.camera import (  # noqa: E402
+from vsfleet.fleetctl.lifecycle import StopFlag  # noqa: E402
+from vsfleet.tracker import camera as camera_cmd  # noqa: E402
+from vsfleet.tracker.camera import (  # noqa: E402
     BrokenVideo,
     CameraOpenError,
     EndOfVideo,
@@ -33,8 +33,8 @@ from tracker.camera import (  # noqa: E402
     run_loop,
     source_kind,
 )
-from tracker.markers import CameraTracker, ConfigError  # noqa: E402
-from tracker.render import TruthBook, robot_scene, write_video  # noqa: E402
+from vsfleet.tracker.markers import CameraTracker, ConfigError  # noqa: E402
+from vsfleet.tracker.render import TruthBook, robot_scene, write_video  # noqa: E402
 from vsfleet.wire import TruthMsg  # noqa: E402
 
 

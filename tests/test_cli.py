@@ -13,8 +13,8 @@ import json
 import pytest
 import zenoh
 
-from fleetctl import cli
-from fleetctl.zconf import (CONNECT_HINT, START_ROUTER_HINT, SessionError, ZenohConfigError, add_zenoh_args,
+from vsfleet.fleetctl import cli
+from vsfleet.fleetctl.zconf import (CONNECT_HINT, START_ROUTER_HINT, SessionError, ZenohConfigError, add_zenoh_args,
                             describe_failure, describe_target, waits_for_router, zenoh_config)
 
 
@@ -31,7 +31,7 @@ def test_version_prints_the_installed_packages_version(capsys):
 
 FAKE = '''
 import sys
-from fleetctl.zconf import SessionError, StoppedWaiting
+from vsfleet.fleetctl.zconf import SessionError, StoppedWaiting
 
 def main(argv):
     kind = argv[0]
@@ -121,10 +121,10 @@ def test_flags_zenoh_rejects_are_one_line_config_errors(tmp_path):
 
 
 def test_verbose_reaches_a_programs_own_flag_and_is_dropped_for_programs_without_one():
-    assert cli._pass_verbose("agent.main", ["--robot", "r1"], True) == ["--robot", "r1", "--verbose"]
-    assert cli._pass_verbose("agent.main", ["--robot", "r1", "-v"], True) == ["--robot", "r1", "-v"]
-    assert cli._pass_verbose("agent.main", ["--robot", "r1"], False) == ["--robot", "r1"]
-    assert cli._pass_verbose("fleetctl.mission_cmd", ["m.toml", "--verbose"], True) == ["m.toml"]
+    assert cli._pass_verbose("vsfleet.agent.main", ["--robot", "r1"], True) == ["--robot", "r1", "--verbose"]
+    assert cli._pass_verbose("vsfleet.agent.main", ["--robot", "r1", "-v"], True) == ["--robot", "r1", "-v"]
+    assert cli._pass_verbose("vsfleet.agent.main", ["--robot", "r1"], False) == ["--robot", "r1"]
+    assert cli._pass_verbose("vsfleet.fleetctl.mission_cmd", ["m.toml", "--verbose"], True) == ["m.toml"]
 
 
 def test_every_program_opens_its_session_through_open_session():

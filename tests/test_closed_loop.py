@@ -5,8 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fleetctl.scenario_file import load_scenario
-from simfleet.offline import run_offline
+from vsfleet.fleetctl.scenario_file import load_scenario
+from vsfleet.simfleet.offline import run_offline
 from vsfleet.control import CONTROLLERS, DEFAULT_CONTROLLER
 from vsfleet.step import frame_arrays, mission_arrays, structure_step
 

@@ -15,9 +15,9 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from fleetctl import deploy
-from fleetctl.cli import COMMANDS
-from fleetctl.scenario_file import load_scenario
+from vsfleet.fleetctl import deploy
+from vsfleet.fleetctl.cli import COMMANDS
+from vsfleet.fleetctl.scenario_file import load_scenario
 from vsfleet.wire import Keys
 
 ROOT = Path(__file__).parent.parent
@@ -253,20 +253,20 @@ def test_the_checked_in_examples_are_what_the_generator_writes():
 
 @pytest.mark.integration  # starts a child process (tests/conftest.py)
 def test_the_cli_writes_a_site_and_refuses_a_bad_fleet_file(tmp_path):
-    out = subprocess.run([sys.executable, "-m", "fleetctl.cli", "deploy", "config", str(DEPLOY / "fleet.toml"),
+    out = subprocess.run([sys.executable, "-m", "vsfleet.fleetctl.cli", "deploy", "config", str(DEPLOY / "fleet.toml"),
                           "--router", "tcp/10.0.0.1:7447", "--out", str(tmp_path / "site")],
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     assert (tmp_path / "site" / "r3" / "r3.json5").exists()
     assert not (tmp_path / "site" / "sim").exists()
-    out = subprocess.run([sys.executable, "-m", "fleetctl.cli", "deploy", "config", str(DEPLOY / "fleet.toml"),
+    out = subprocess.run([sys.executable, "-m", "vsfleet.fleetctl.cli", "deploy", "config", str(DEPLOY / "fleet.toml"),
                           "--router", "tcp/10.0.0.1:7447", "--out", str(tmp_path / "sim-site"), "--sim"],
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     assert (tmp_path / "sim-site" / "sim" / "sim.json5").exists()
     bad = tmp_path / "bad.toml"
     bad.write_text((DEPLOY / "fleet.toml").read_text().replace("[robots.r3]", "[robots.tracker]"))
-    out = subprocess.run([sys.executable, "-m", "fleetctl.cli", "deploy", "config", str(bad),
+    out = subprocess.run([sys.executable, "-m", "vsfleet.fleetctl.cli", "deploy", "config", str(bad),
                           "--router", "tcp/10.0.0.1:7447", "--out", str(tmp_path / "x")],
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and "clashes with the 'tracker' identity" in out.stderr
@@ -346,7 +346,7 @@ def write_conf(path: Path, mode: str | None) -> Path:
 
 
 def test_vsfleet_router_runs_a_router_when_the_config_sets_no_mode(tmp_path):
-    from fleetctl import router
+    from vsfleet.fleetctl import router
 
     args = router.build_parser().parse_args(["--config", str(write_conf(tmp_path / "r.json5", None))])
     assert json.loads(router.router_config(args).get_json("mode")) == "router"
@@ -358,7 +358,7 @@ def test_vsfleet_router_runs_a_router_when_the_config_sets_no_mode(tmp_path):
 @pytest.mark.parametrize("mode, flags", [("client", []), ("peer", []), (None, ["--mode", "peer"])])
 def test_vsfleet_router_refuses_another_mode_with_a_clear_message(tmp_path, mode, flags):
     conf = write_conf(tmp_path / "r.json5", mode)
-    out = subprocess.run([sys.executable, "-m", "fleetctl.cli", "router", "--config", str(conf), *flags],
+    out = subprocess.run([sys.executable, "-m", "vsfleet.fleetctl.cli", "router", "--config", str(conf), *flags],
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 2
     assert "`vsfleet router` runs a router" in out.stderr

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import pytest
 
-from fleetctl import deploy
-from fleetctl.mission_cmd import load_mission
-from fleetctl.scenario_file import load_scenario
+from vsfleet.fleetctl import deploy
+from vsfleet.fleetctl.mission_cmd import load_mission
+from vsfleet.fleetctl.scenario_file import load_scenario
 from vsfleet.control import make_controller
 from vsfleet.failure import FailurePolicy
 from vsfleet.scenario import ROBOT_DEFAULTS, ScenarioError, UnknownKeyError, scenario_from_dict

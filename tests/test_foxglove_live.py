@@ -15,9 +15,9 @@ import foxglove.messages
 import pytest
 import zenoh
 
-from fleetctl.foxglove_live import LiveServer
-from fleetctl.foxglove_views import seconds_to_ns, structure_points
-from fleetctl.router import open_loopback_router
+from vsfleet.fleetctl.foxglove_live import LiveServer
+from vsfleet.fleetctl.foxglove_views import seconds_to_ns, structure_points
+from vsfleet.fleetctl.router import open_loopback_router
 from tests.foxglove_support import FoxgloveClient
 from vsfleet.wire import FrameMsg, Mission, RobotSpec, StateMsg, encode, encode_frame, encode_mission
 
@@ -115,7 +115,7 @@ def test_the_server_serves_the_fleet_with_the_sdks_schemas_and_broadcasts_the_tr
 def test_a_file_recorded_live_by_vsfleet_record_reads_back_with_the_sdks_schemas(tmp_path):
     from mcap.reader import make_reader
 
-    from fleetctl.record import Recording
+    from vsfleet.fleetctl.record import Recording
     from tests.foxglove_support import decode_protobuf
 
     router, endpoint = open_loopback_router()

@@ -4,7 +4,7 @@ import random
 
 import pytest
 
-from fleetctl.fuzz import CATEGORIES, KINDS, UNKNOWN_ROBOT, bad_payload, target_key
+from vsfleet.fleetctl.fuzz import CATEGORIES, KINDS, UNKNOWN_ROBOT, bad_payload, target_key
 from vsfleet.wire import DECODERS, Keys, WireError
 
 KEYS = Keys("demo")

@@ -6,7 +6,7 @@ import msgpack
 import pytest
 from rich.console import Console
 
-from fleetctl.monitor import FleetModel, render
+from vsfleet.fleetctl.monitor import FleetModel, render
 from vsfleet.wire import CmdMsg, FaultMsg, PoseMsg, StateMsg, encode
 
 T0 = 1795378500.0
@@ -161,7 +161,7 @@ def test_the_rendered_table_names_every_robot_with_units_in_the_headers():
 
 
 def test_pose_rates_come_from_frames_and_are_not_counted_twice_with_the_poses():
-    from fleetctl.monitor import FleetModel
+    from vsfleet.fleetctl.monitor import FleetModel
     from vsfleet.wire import FrameMsg, PoseMsg, encode, encode_frame
 
     view = FleetModel("demo")

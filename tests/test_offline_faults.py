@@ -11,9 +11,9 @@ from pathlib import Path
 
 import pytest
 
-from fleetctl.scenario_file import load_scenario
-from simfleet.main import Fleet
-from simfleet.offline import run_offline
+from vsfleet.fleetctl.scenario_file import load_scenario
+from vsfleet.simfleet.main import Fleet
+from vsfleet.simfleet.offline import run_offline
 from vsfleet.scenario import FaultEvent
 from vsfleet.wire import CmdMsg, Keys, decode_truth, encode
 

@@ -8,9 +8,9 @@ import re
 import numpy as np
 import pytest
 
-from fleetctl import plot
-from fleetctl.plot import FaultMark, add_timeline, extract, write_plots
-from fleetctl.record import LogRecord, publish_time_ns, seconds_to_ns, structure_points, write_log
+from vsfleet.fleetctl import plot
+from vsfleet.fleetctl.plot import FaultMark, add_timeline, extract, write_plots
+from vsfleet.fleetctl.record import LogRecord, publish_time_ns, seconds_to_ns, structure_points, write_log
 from vsfleet.scenario import FaultEvent
 from vsfleet.wire import (FaultMsg, Mission, PoseMsg, RobotSpec, StateMsg, TruthMsg, encode,
                           encode_mission)

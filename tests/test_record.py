@@ -16,10 +16,10 @@ import msgpack
 import pytest
 from mcap.reader import make_reader
 
-from fleetctl.foxglove_live import layout
-from fleetctl.foxglove_views import FleetViews
+from vsfleet.fleetctl.foxglove_live import layout
+from vsfleet.fleetctl.foxglove_views import FleetViews
 
-from fleetctl.record import (
+from vsfleet.fleetctl.record import (
     FOXGLOVE,
     JSON_ROLE,
     LIVELINESS,
@@ -32,7 +32,7 @@ from fleetctl.record import (
     seconds_to_ns,
     structure_points,
 )
-from fleetctl.replay import Progress, offsets_s, remap_key, with_frames
+from vsfleet.fleetctl.replay import Progress, offsets_s, remap_key, with_frames
 from vsfleet.wire import (
     CmdMsg,
     EventMsg,

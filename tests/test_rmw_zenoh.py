@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from fleetctl import rmw_zenoh as rz
+from vsfleet.fleetctl import rmw_zenoh as rz
 
 MSGS = Path(__file__).parent / "data" / "ros2_msgs"
 TWIST_RIHS01 = "RIHS01_9c45bf16fe0983d80e3cfe750d6835843d265a9a6c46bd2e609fcddde6fb8d2a"  # reported by ROS 2 jazzy

@@ -5,13 +5,13 @@ import math
 import numpy as np
 import pytest
 
-from simfleet.main import Fleet
-from simfleet.physics import Fault, RobotState, step_robot
-from tracker.sim import SimTracker
+from vsfleet.simfleet.main import Fleet
+from vsfleet.simfleet.physics import Fault, RobotState, step_robot
+from vsfleet.tracker.sim import SimTracker
 from vsfleet.geometry import Pose2
 from vsfleet.scenario import SimRobot, TrackerParams
 from vsfleet.wire import CmdMsg, FaultMsg, Keys, TruthMsg, encode
-from fleetctl.scenario_file import load_scenario
+from vsfleet.fleetctl.scenario_file import load_scenario
 from pathlib import Path
 
 ROBOT = SimRobot("r1", (0.0, 0.0, 0.0), wheel_base=0.1, wheel_speed_max=0.3, wheel_accel_max=1.0,

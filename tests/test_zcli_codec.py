@@ -15,7 +15,7 @@ import msgpack
 import pytest
 import zenoh
 
-from fleetctl.router import open_loopback_router
+from vsfleet.fleetctl.router import open_loopback_router
 from vsfleet.wire import FaultMsg, Keys, PoseMsg, StateMsg, decode_fault, encode
 
 POSE = PoseMsg(t=1795378504.397066, seq=42, x=0.125, y=-0.5, th=0.1, src="vgps")

@@ -27,12 +27,12 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from fleetctl.mission_cmd import stamp
-from fleetctl.router import free_loopback_port, open_loopback_router
-from fleetctl.router import wait_listening as wait_port
-from fleetctl.run import child_command
-from fleetctl.scenario_file import load_scenario
-from fleetctl.zconf import RELIABLE_QOS, zenoh_flags
+from vsfleet.fleetctl.mission_cmd import stamp
+from vsfleet.fleetctl.router import free_loopback_port, open_loopback_router
+from vsfleet.fleetctl.router import wait_listening as wait_port
+from vsfleet.fleetctl.run import child_command
+from vsfleet.fleetctl.scenario_file import load_scenario
+from vsfleet.fleetctl.zconf import RELIABLE_QOS, zenoh_flags
 from vsfleet.wire import (
     FrameMsg,
     Keys,

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import zenoh
 
-from fleetctl.deploy import write_deploy
-from fleetctl.run import child_command
+from vsfleet.fleetctl.deploy import write_deploy
+from vsfleet.fleetctl.run import child_command
 
 from .conftest import LoopbackFleet, wait_port
 

@@ -22,9 +22,9 @@ import msgpack
 import pytest
 import zenoh
 
-from fleetctl.deploy import make_certs
-from fleetctl.router import free_loopback_port
-from fleetctl.run import child_command
+from vsfleet.fleetctl.deploy import make_certs
+from vsfleet.fleetctl.router import free_loopback_port
+from vsfleet.fleetctl.run import child_command
 from vsfleet.analysis import agreement
 from vsfleet.wire import (
     CmdMsg,

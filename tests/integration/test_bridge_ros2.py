@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fleetctl.mission_cmd import stamp
-from fleetctl.scenario_file import load_scenario
-from fleetctl import rmw_zenoh as rz
+from vsfleet.fleetctl.mission_cmd import stamp
+from vsfleet.fleetctl.scenario_file import load_scenario
+from vsfleet.fleetctl import rmw_zenoh as rz
 from tests.integration.conftest import LoopbackFleet
 from vsfleet.wire import CmdMsg, decode_frame, decode_pose, encode, encode_mission
 

@@ -50,7 +50,7 @@ def decoded(recs, prefix: str, decode):
 
 def test_vsfleet_run_with_the_camera_tracker_reaches_the_goal_in_formation(tmp_path):
     fleet = "t" + uuid.uuid4().hex[:8]
-    proc = subprocess.Popen([sys.executable, "-m", "fleetctl.cli", "run", str(SCENARIO), "--tracker", "camera",
+    proc = subprocess.Popen([sys.executable, "-m", "vsfleet.fleetctl.cli", "run", str(SCENARIO), "--tracker", "camera",
                              "--fleet", fleet, "--out", str(tmp_path)],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, stdin=subprocess.DEVNULL)
     try:

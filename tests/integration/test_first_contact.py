@@ -1,6 +1,6 @@
 """First contact: every `vsfleet` command without a router, with bad arguments, and waiting on purpose.
 
-Each command runs as a real `vsfleet` child (python -m fleetctl.cli). "No router" is a free loopback
+Each command runs as a real `vsfleet` child (python -m vsfleet.fleetctl.cli). "No router" is a free loopback
 port nobody listens on, multicast scouting off, and a 500 ms connect timeout (zenoh retries for it),
 so each attempt fails fast; the commands of one table run in parallel.
 """
@@ -16,9 +16,9 @@ from pathlib import Path
 
 import pytest
 
-from fleetctl.router import free_loopback_port, wait_listening
-from fleetctl.run import child_command
-from fleetctl.zconf import CONNECT_HINT, START_ROUTER_HINT
+from vsfleet.fleetctl.router import free_loopback_port, wait_listening
+from vsfleet.fleetctl.run import child_command
+from vsfleet.fleetctl.zconf import CONNECT_HINT, START_ROUTER_HINT
 
 from .conftest import Observed, open_client
 
@@ -57,7 +57,7 @@ def files(tmp_path_factory) -> dict[str, Path]:
     sys.path.insert(0, str(ROOT / "tests"))
     from camera_support import save_calibration
 
-    from fleetctl.record import LiveRecorder
+    from vsfleet.fleetctl.record import LiveRecorder
 
     save_calibration(CAMERA, out["calibration"])
     LiveRecorder(out["mcap"]).close()
@@ -288,7 +288,7 @@ def test_a_waiting_agent_logs_every_few_seconds_and_sigterm_stops_it_with_code_0
 
 
 def test_run_names_the_child_that_exited_early_with_its_one_line_error(tmp_path):
-    from fleetctl.run import Children
+    from vsfleet.fleetctl.run import Children
 
     children = Children(tmp_path)
     p = children.start("agent-r1", [sys.executable, "-c",

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from fleetctl.run import run
+from vsfleet.fleetctl.run import run
 from vsfleet.analysis import agreement
 
 from .conftest import E2E, TTL_S, all_halted, halt_bound_s, start_fleet
@@ -114,7 +114,7 @@ def test_mission_set_publishes_a_scenario_mission_that_a_subscriber_decodes(flee
     import threading
     import time
 
-    from fleetctl.run import child_command
+    from vsfleet.fleetctl.run import child_command
     from vsfleet.wire import decode_mission
 
     got: list = []
@@ -144,7 +144,7 @@ def test_mission_set_publishes_a_scenario_mission_that_a_subscriber_decodes(flee
 def test_mission_set_refuses_a_malformed_file_with_a_clear_message(tmp_path):
     import subprocess
 
-    from fleetctl.run import child_command
+    from vsfleet.fleetctl.run import child_command
 
     bad = tmp_path / "bad.toml"
     bad.write_text('schema = 1\n[mission]\nmetric = "l3"\n[robots.r1]\np = [0, 0]\n')
@@ -157,7 +157,7 @@ def test_mission_set_refuses_a_malformed_file_with_a_clear_message(tmp_path):
 def test_mission_set_refuses_a_mission_whose_robots_do_not_match_the_live_agents(fleet):
     import subprocess
 
-    from fleetctl.run import child_command
+    from vsfleet.fleetctl.run import child_command
 
     fleet.start_agent("r1")
     fleet.start_agent("r2")

@@ -16,9 +16,9 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from fleetctl.foxglove_views import seconds_to_ns, structure_points
-from fleetctl.router import free_loopback_port
-from fleetctl.router import wait_listening as wait_port
+from vsfleet.fleetctl.foxglove_views import seconds_to_ns, structure_points
+from vsfleet.fleetctl.router import free_loopback_port
+from vsfleet.fleetctl.router import wait_listening as wait_port
 from tests.foxglove_support import FoxgloveClient
 from vsfleet.wire import WireError, decode_pose
 

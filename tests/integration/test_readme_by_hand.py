@@ -18,9 +18,9 @@ from pathlib import Path
 
 import pytest
 
-from fleetctl.router import free_loopback_port, wait_listening
-from fleetctl.run import SETTLE_S, Recorder, child_command, settled_at_goal
-from fleetctl.scenario_file import load_scenario
+from vsfleet.fleetctl.router import free_loopback_port, wait_listening
+from vsfleet.fleetctl.run import SETTLE_S, Recorder, child_command, settled_at_goal
+from vsfleet.fleetctl.scenario_file import load_scenario
 from vsfleet.wire import Keys
 
 from .conftest import Observed, open_client

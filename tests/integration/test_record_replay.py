@@ -8,13 +8,13 @@ from collections import Counter
 
 import pytest
 
-from fleetctl import replay
-from fleetctl.monitor import FleetModel
-from fleetctl.plot import extract, trajectory_figure
-from fleetctl.record import LIVELINESS, RAW, Recording, read_log
-from fleetctl.router import open_loopback_router
-from fleetctl.run import run
-from fleetctl.zconf import add_zenoh_args, zenoh_config, zenoh_flags
+from vsfleet.fleetctl import replay
+from vsfleet.fleetctl.monitor import FleetModel
+from vsfleet.fleetctl.plot import extract, trajectory_figure
+from vsfleet.fleetctl.record import LIVELINESS, RAW, Recording, read_log
+from vsfleet.fleetctl.router import open_loopback_router
+from vsfleet.fleetctl.run import run
+from vsfleet.fleetctl.zconf import add_zenoh_args, zenoh_config, zenoh_flags
 
 from .test_fleet import E2E
 

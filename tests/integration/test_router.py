@@ -5,7 +5,7 @@ import json
 import pytest
 import zenoh
 
-from fleetctl.router import open_loopback_router
+from vsfleet.fleetctl.router import open_loopback_router
 
 pytestmark = pytest.mark.integration
 

@@ -29,8 +29,8 @@ def fleet_pids(fleet: str) -> dict[str, int]:
         except OSError:
             continue
         args = [a.decode(errors="replace") for a in argv if a]
-        if "fleetctl.cli" in args and fleet in args and "run" not in args:
-            role = args[args.index("fleetctl.cli") + 1]
+        if "vsfleet.fleetctl.cli" in args and fleet in args and "run" not in args:
+            role = args[args.index("vsfleet.fleetctl.cli") + 1]
             if role == "agent":
                 role = "agent-" + args[args.index("--robot") + 1]
             out[role] = int(d.name)
@@ -41,7 +41,7 @@ class Launcher:
     def __init__(self, tmp_path: Path, *extra: str) -> None:
         self.fleet = "t" + uuid.uuid4().hex[:8]
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "fleetctl.cli", "run", str(E2E), "--fleet", self.fleet,
+            [sys.executable, "-m", "vsfleet.fleetctl.cli", "run", str(E2E), "--fleet", self.fleet,
              "--out", str(tmp_path), *extra],
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, stdin=subprocess.DEVNULL,
             env=dict(os.environ, PYTHONUNBUFFERED="1"))
