@@ -46,49 +46,11 @@ import math
 from dataclasses import dataclass, field
 from typing import Mapping
 
-from vsfleet.errors import VsfleetValueError
+from vsfleet import failure
 
 
-@dataclass(frozen=True)
-class FailurePolicy:
-    """Thresholds [m, s on the tracker's clock] and the mode (hold, drop, rejoin)."""
-
-    mode: str = "hold"
-    fail_deviation_m: float = 0.05
-    fail_after_s: float = 2.0
-    rejoin_deviation_m: float = 0.02
-    rejoin_after_s: float = 1.0
-    recover_after_s: float = 0.5
-    min_progress_ratio: float = 0.3
-    min_expected_m: float = 0.05
-
-    def __post_init__(self) -> None:
-        if self.mode not in ("hold", "drop", "rejoin"):
-            raise VsfleetValueError(f"on_failure must be hold, drop or rejoin, got {self.mode!r}")
-        for name in ("fail_deviation_m", "fail_after_s", "rejoin_deviation_m", "rejoin_after_s",
-                     "recover_after_s", "min_progress_ratio", "min_expected_m"):
-            v = getattr(self, name)
-            if not math.isfinite(v) or v < 0.0:
-                raise VsfleetValueError(f"{name} must be finite and >= 0, got {v!r}")
-
-
-@dataclass(frozen=True)
-class Health:
-    """Per robot: since when [s] it has been non-compliant (or compliant, once failed), and its status."""
-
-    since_t: dict[str, float] = field(default_factory=dict)
-    failed: frozenset[str] = frozenset()
-    dropped: frozenset[str] = frozenset()
-
-
-@dataclass(frozen=True)
-class Decision:
-    """A change of a robot's status at frame time t: 'fail', 'drop', 'rejoin' or 'recover' (hold)."""
-
-    t: float
-    robot: str
-    kind: str
-    deviation_m: float
+# The policy, health and decision types are the array code's own (only the rule is re-implemented here).
+FailurePolicy, Health, Decision = failure.FailurePolicy, failure.Health, failure.Decision
 
 
 @dataclass(frozen=True)
