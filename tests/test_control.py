@@ -367,8 +367,8 @@ def test_make_controller_rejects_a_misspelt_gain():
         ("arc", {"horizon_s": math.nan}),
         ("tracking", {"along_gain_per_s": 0.0}),
         ("tracking", {"moving_speed_m_s": "fast"}),
-        ("precision", {"pose_gain": 1.5}),
-        ("precision", {"gain_min": 1.2}),
+        ("precision", {"pose_gain_ratio": 1.5}),
+        ("precision", {"gain_min_ratio": 1.2}),
         ("turn_then_go", {"allow_reverse": 1}),
     ],
 )
@@ -545,7 +545,7 @@ def test_wheel_gain_estimation_removes_a_4_percent_wheel_mismatch():
     assert errs[-150:].max() < 1e-4, errs[-150:].max()
     np.testing.assert_allclose(state.gains[0], (0.96, 1.04), atol=2e-3)
     # the negative control: without the estimation the same mismatch leaves a steady error
-    blind = make_controller("precision", deadband_m=0.0, gain_rate=0.0)
+    blind = make_controller("precision", deadband_m=0.0, gain_rate_ratio=0.0)
     errs_blind, _, _ = delayed_loop(blind, line, gains=(0.96, 1.04))
     assert errs_blind[-150:].min() > 10 * errs[-150:].max()
 

@@ -301,40 +301,40 @@ class Precision:
 
     1. Filter: the last filtered pose is driven forward over one tick by the commands that were
        in effect (the gains estimated applied), then pulled toward the observation by
-       pose_gain / heading_gain. The innovation in wheel travel adapts the gains (normalised
-       LMS, rate gain_rate, kept within [gain_min, gain_max]).
+       pose_gain_ratio / heading_gain_ratio. The innovation in wheel travel adapts the gains (normalised
+       LMS, rate gain_rate_ratio, kept within [gain_min_ratio, gain_max_ratio]).
     2. Age: the filtered pose is driven forward by age_s [s] over the commands already sent.
     3. Target: the structure point at that time (point_now + age f, f = (next - now) / dt_s),
-       smoothed by target_gain around its own prediction; f is smoothed by feed_gain around its
-       prediction as turning at a rate, itself tracked with turn_gain. Both
+       smoothed by target_gain_ratio around its own prediction; f is smoothed by feed_gain_ratio around its
+       prediction as turning at a rate, itself tracked with turn_gain_ratio. Both
        follow the structure's twist, which every robot sees alike, so the smoothing delays the
        formation as a rigid body and does not bend it.
     4. Law: a point offset_m [m] ahead of the axle follows the target's offset point at the
        feed-forward velocity plus position_gain_per_s [1/s] times its error; wheels divided by
        the gains estimated, then the envelope (no windup: only commands sent enter the filter).
-       A robot whose point moves backwards of its heading (cos below -reverse_cos) drives in reverse.
+       A robot whose point moves backwards of its heading (cos below -reverse_cos_ratio) drives in reverse.
     """
 
     position_gain_per_s: float = 2.5
     offset_m: float = 0.025
-    pose_gain: float = 0.15
-    heading_gain: float = 0.1
-    target_gain: float = 0.2
-    feed_gain: float = 0.3
-    turn_gain: float = 0.1
-    reverse_cos: float = 0.2
-    gain_rate: float = 0.01
-    gain_min: float = 0.5
-    gain_max: float = 2.0
+    pose_gain_ratio: float = 0.15
+    heading_gain_ratio: float = 0.1
+    target_gain_ratio: float = 0.2
+    feed_gain_ratio: float = 0.3
+    turn_gain_ratio: float = 0.1
+    reverse_cos_ratio: float = 0.2
+    gain_rate_ratio: float = 0.01
+    gain_min_ratio: float = 0.5
+    gain_max_ratio: float = 2.0
     moving_speed_m_s: float = 0.01
     travel_floor_m: float = 0.0005
-    _allow_zero = ("gain_rate",)
-    _at_most = {"pose_gain": 1.0, "heading_gain": 1.0, "target_gain": 1.0, "feed_gain": 1.0}
+    _allow_zero = ("gain_rate_ratio",)
+    _at_most = {"pose_gain_ratio": 1.0, "heading_gain_ratio": 1.0, "target_gain_ratio": 1.0, "feed_gain_ratio": 1.0}
 
     def __post_init__(self) -> None:
         _check_gains(self)
-        if not self.gain_min <= 1.0 <= self.gain_max:
-            raise ControllerGainError("gain_min <= 1 <= gain_max is required")
+        if not self.gain_min_ratio <= 1.0 <= self.gain_max_ratio:
+            raise ControllerGainError("gain_min_ratio <= 1 <= gain_max_ratio is required")
 
     def initial(self, n: int) -> PrecisionState:
         z2 = np.zeros((n, 2))
@@ -360,10 +360,10 @@ class Precision:
         c, s = np.cos(pred[:, 2]), np.sin(pred[:, 2])
         along = c * nx + s * ny
         d_wheel = columns(along - 0.5 * base * nth, along + 0.5 * base * nth)
-        g_new = g + self.gain_rate * d_wheel * travel / (travel * travel + self.travel_floor_m ** 2) * g
-        g_new = np.clip(g_new, self.gain_min, self.gain_max)
-        est = columns(pred[:, 0] + self.pose_gain * nx, pred[:, 1] + self.pose_gain * ny,
-                        wrap_angles(pred[:, 2] + self.heading_gain * nth))
+        g_new = g + self.gain_rate_ratio * d_wheel * travel / (travel * travel + self.travel_floor_m ** 2) * g
+        g_new = np.clip(g_new, self.gain_min_ratio, self.gain_max_ratio)
+        est = columns(pred[:, 0] + self.pose_gain_ratio * nx, pred[:, 1] + self.pose_gain_ratio * ny,
+                        wrap_angles(pred[:, 2] + self.heading_gain_ratio * nth))
         fresh = ~state.ready
         est = np.where(fresh[:, None], z, est)
         g_new = np.where(fresh[:, None], g, g_new)
@@ -383,15 +383,15 @@ class Precision:
         fp2 = fp[:, 0] ** 2 + fp[:, 1] ** 2
         moving = fp2 > self.moving_speed_m_s ** 2
         turn_nu = np.where(moving, (fp[:, 0] * nu[:, 1] - fp[:, 1] * nu[:, 0]) / np.where(moving, fp2, 1.0), 0.0)
-        turn = np.where(moving, state.turn_rad_s + self.turn_gain * turn_nu / dt,
-                        (1.0 - self.feed_gain) * state.turn_rad_s)
-        f = fp + self.feed_gain * nu
+        turn = np.where(moving, state.turn_rad_s + self.turn_gain_ratio * turn_nu / dt,
+                        (1.0 - self.feed_gain_ratio) * state.turn_rad_s)
+        f = fp + self.feed_gain_ratio * nu
         f = np.where(fresh[:, None], f_raw, f)
         f_filtered = f
         turn = np.where(fresh, 0.0, turn)
         raw = inp.point_now_world + inp.age_s * f_raw
         guess = state.target_world + state.feed_m_s * dt
-        target = np.where(fresh[:, None], raw, guess + self.target_gain * (raw - guess))
+        target = np.where(fresh[:, None], raw, guess + self.target_gain_ratio * (raw - guess))
 
         # 4. offset-point law: the point P = c + l m, m the driving direction (the heading, or its
         # opposite in reverse), follows T + l m_ref, m_ref the point's direction of motion
@@ -406,9 +406,9 @@ class Precision:
         lam = np.minimum(1.0, speed / self.moving_speed_m_s)
         hc = columns(np.cos(th_mid), np.sin(th_mid))
         safe = np.where(speed > 0.0, speed, 1.0)[:, None]
-        # reverse while the point moves backwards of the driving direction (hysteresis: reverse_cos)
+        # reverse while the point moves backwards of the driving direction (hysteresis: reverse_cos_ratio)
         along = (f[:, 0] * hc[:, 0] + f[:, 1] * hc[:, 1]) / safe[:, 0] * state.direction
-        direction = np.where((speed > self.moving_speed_m_s) & (along < -self.reverse_cos), -state.direction,
+        direction = np.where((speed > self.moving_speed_m_s) & (along < -self.reverse_cos_ratio), -state.direction,
                              state.direction)
         direction = np.where(fresh, np.where((speed > 0.0) & (along < 0.0), -1.0, 1.0), direction)
         m_dir = direction[:, None] * hc
