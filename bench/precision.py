@@ -80,7 +80,7 @@ def overshoot_m(run: OfflineRun, scenario: Scenario) -> float:
     return max(0.0, max(((p.x - x0) * ux + (p.y - y0) * uy) / n - n for _, p in run.trace))
 
 
-def precision_row(controller: str, metric: str, seeds, turn: bool = False, duration_s: float = 40.0,
+def precision_row(controller: str, metric: str, seeds, turn: bool = False, duration_s: float = 60.0,
                   noise_xy_m: float = NOISE_XY_M, after_goal_s: float = 3.0,
                   scenario: Scenario | None = None) -> PrecisionRow:
     """One controller and metric over seeds, on the issue's scenario (bench/conditions.py) or on
