@@ -81,6 +81,7 @@ class MissionArrays:
     envelopes: Envelopes
     goal: Goal
     limits: StructureLimits
+    policy: FailurePolicy          # the failure rule's mode and thresholds
 
 
 _ARRAYS: dict[int, tuple[Mission, MissionArrays]] = {}
@@ -95,7 +96,8 @@ def mission_arrays(mission: Mission) -> MissionArrays:
     arrays = MissionArrays(ids=ids, index={r: i for i, r in enumerate(ids)}, template=mission_template(mission),
                            envelopes=mission_envelope_arrays(mission), goal=mission_goal(mission),
                            limits=StructureLimits(speed_max_m_s=mission.speed_max,
-                                                  turn_rate_max_rad_s=mission.turn_rate_max))
+                                                  turn_rate_max_rad_s=mission.turn_rate_max),
+                           policy=mission_policy(mission))
     if len(_ARRAYS) >= 16:
         _ARRAYS.clear()
     _ARRAYS[id(mission)] = (mission, arrays)
@@ -309,13 +311,13 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
         return (replace(state, unnamed=state.unnamed | {mission.version}),
                 StepOutput(notes=(Note("warning", f"mission v{mission.version} does not name robot "
                                                   f"{state.robot}: it stays stopped"),)))
-    policy = mission_policy(mission)
+    arrays = mission_arrays(mission)
+    policy = arrays.policy
     controller = config.controller or mission_controller(mission.controller,
                                                          mission.controller_gains)
     if mission.version != state.mission_version:
         notes.append(Note("info", f"frame {frame.seq}: switching to mission v{mission.version}"))
         state = _enter_mission(state, mission, policy, config)
-    arrays = mission_arrays(mission)
     n = len(arrays.ids)
     wheels_prev, ctrl = state.wheels_m_s, state.ctrl
     if frame.t - state.last_cmd_t > config.ttl_s or ctrl is None:
@@ -353,7 +355,7 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
         f, g = s.fit_pose, s.goal_pose
         err = float(math.hypot(pose[own, 0] - s.points_now[own, 0], pose[own, 1] - s.points_now[own, 1]))
         state_msg = StateMsg(t=frame.t, seq=frame.seq, x=f.x, y=f.y, th=f.th, gx=g.x, gy=g.y, gth=g.th,
-                             cost=s.cost, err=err, used=tuple(r for r, u in zip(arrays.ids, s.used) if u),
+                             cost=s.cost, err=err, used=_used_ids(arrays.ids, s.used),
                              rejected=0, complete=frame.complete, mission=mission.version)
     # the motion test takes only poses of this very frame: a pose held over from an earlier frame
     # would count as "did not move" here and double next frame, and agents that got that pose in
@@ -376,6 +378,11 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
                     last_cmd_t=frame.t, ticks=state.ticks + 1)
     return state, StepOutput(cmd=cmd, state=state_msg, health=health_msg, events=events, notes=tuple(notes),
                              structure=s, wheels_m_s=wheels)
+
+
+def _used_ids(ids: tuple[str, ...], used: np.ndarray) -> tuple[str, ...]:
+    """The ids of the rows used (all of them, usually: no loop then)."""
+    return ids if used.all() else tuple(ids[i] for i in np.flatnonzero(used))
 
 
 def _health(failure: FailureState, ids: tuple[str, ...]) -> Health:
