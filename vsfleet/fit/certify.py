@@ -1,0 +1,170 @@
+"""The certified search over the rotation: sinusoidal minorants, cell bounds, refinement.
+
+An evaluator solves the inner (translation) problem at a batch of angles and returns, for
+each angle, a global minorant m(th) = K - A cos th - B sin th of the fit cost f(th).  The
+search refines the circle until every cell's bound is within CERT_TOL of the best cost.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..geometry import Pose2, wrap_angle
+
+#: Certification tolerance of the l1 and linf searches [weighted m].
+CERT_TOL = 1e-10
+EPS = float(np.finfo(float).eps)
+_GRID = 16  # initial uniform grid of rotations
+_STENCIL = tuple(4.0 ** -k for k in range(1, 12))  # offsets next to the best angle [x grid step]
+_MAX_ROUNDS = 60
+
+
+class Problem:
+    """Centred data: q_i(th) = Q_i - R(th) P_i; the centred translation t maps to the pose."""
+
+    def __init__(self, p: np.ndarray, r: np.ndarray, w):
+        self.n = n = len(p)
+        self.w = np.ones(n) if w is None else w
+        W = float(np.sum(self.w))
+        self.cp = (float(np.sum(self.w * p[:, 0])) / W, float(np.sum(self.w * p[:, 1])) / W)
+        self.cr = (float(np.sum(self.w * r[:, 0])) / W, float(np.sum(self.w * r[:, 1])) / W)
+        self.Px, self.Py = p[:, 0] - self.cp[0], p[:, 1] - self.cp[1]
+        self.Qx, self.Qy = r[:, 0] - self.cr[0], r[:, 1] - self.cr[1]
+        self.rigid = bool((p == p[0]).all() or (r == r[0]).all())  # f does not depend on th
+        # |t| <= bound for every angle's optimal centred translation (it lies in the hull of q)
+        self.bound = float(np.sqrt(self.Qx**2 + self.Qy**2).max() + np.sqrt(self.Px**2 + self.Py**2).max())
+
+    def q(self, c: np.ndarray, s: np.ndarray):
+        """q_i at each angle, (m, n) arrays, from (m,) cosines and sines."""
+        c, s = c[:, None], s[:, None]
+        return self.Qx - (c * self.Px - s * self.Py), self.Qy - (s * self.Px + c * self.Py)
+
+    def minorant(self, kx, ky, rows=None):
+        """(K, A, B) of dual vectors (m, k) on robots ``rows`` (m, k) (default all), K net of slack.
+
+        m(th) = sum k_i . q_i(th) - |sum k_i| bound - 64 eps bound sum |k_i| <= f(th) when every
+        |k_i| is within the metric's dual ball (weak duality; any translation).
+        """
+        Px, Py, Qx, Qy = (self.Px, self.Py, self.Qx, self.Qy) if rows is None else (
+            self.Px[rows], self.Py[rows], self.Qx[rows], self.Qy[rows])
+        K = np.sum(kx * Qx + ky * Qy, axis=1)
+        A = np.sum(kx * Px + ky * Py, axis=1)
+        B = np.sum(ky * Px - kx * Py, axis=1)
+        fx, fy = np.sum(kx, axis=1), np.sum(ky, axis=1)
+        kabs = np.sum(np.sqrt(kx * kx + ky * ky), axis=1)
+        return K - self.bound * (np.sqrt(fx * fx + fy * fy) + 64.0 * EPS * kabs), A, B
+
+    def pose(self, th: float, tx: float, ty: float) -> Pose2:
+        """World pose from rotation th and centred translation t."""
+        th = wrap_angle(th)
+        c, s = math.cos(th), math.sin(th)
+        cpx, cpy = self.cp
+        return Pose2(tx + self.cr[0] - (c * cpx - s * cpy), ty + self.cr[1] - (s * cpx + c * cpy), th)
+
+
+def cell_bounds(ca, sa, cb, sb, Ka, Aa, Ba, Kb, Ab, Bb):
+    """min of max(m_a, m_b) over each arc from angle a to b (< pi), with the argmin (cos, sin).
+
+    The minimum is at an endpoint, a crossing m_a = m_b or an unconstrained minimum of one
+    minorant; all are found with sqrt only.  Never below 0 (f >= 0).
+    """
+    dK, dA, dB = Ka - Kb, Aa - Ab, Ba - Bb  # crossings: dA c + dB s = dK
+    rho2 = dA * dA + dB * dB
+    root = np.sqrt(np.maximum(rho2 - dK * dK, 0.0))
+    inv = 1.0 / rho2
+    na, nb = np.sqrt(Aa * Aa + Ba * Ba), np.sqrt(Ab * Ab + Bb * Bb)
+    cands = [
+        (ca, sa), (cb, sb), (Aa / na, Ba / na), (Ab / nb, Bb / nb),
+        ((dA * dK - dB * root) * inv, (dB * dK + dA * root) * inv),
+        ((dA * dK + dB * root) * inv, (dB * dK - dA * root) * inv),
+    ]
+    best = np.full(ca.shape, np.inf)
+    bc, bs = ca.copy(), sa.copy()
+    for k, (c, s) in enumerate(cands):
+        v = np.maximum(Ka - Aa * c - Ba * s, Kb - Ab * c - Bb * s)
+        ok = v < best
+        if k >= 2:  # interior candidates: inside the arc and real
+            ok &= (ca * s - sa * c >= 0.0) & (c * sb - s * cb >= 0.0) & np.isfinite(v)
+            if k >= 4:
+                ok &= rho2 >= dK * dK
+        best = np.where(ok, v, best)
+        bc, bs = np.where(ok, c, bc), np.where(ok, s, bs)
+    slack = 8.0 * EPS * (np.abs(Ka) + np.abs(Kb) + na + nb)
+    return np.maximum(best - slack, 0.0), bc, bs
+
+
+def translation_at(prob: Problem, evaluate, th: float, l1: bool):
+    """Optimal centred translation at a fixed rotation and the minorant's value there."""
+    c, s = np.array([math.cos(th)]), np.array([math.sin(th)])
+    f, tx, ty, K, A, B = evaluate(prob, c, s, np.zeros(1), np.zeros(1))
+    return float(tx[0]), float(ty[0]), float(K[0] - A[0] * c[0] - B[0] * s[0])
+
+
+class _Angles:
+    """Evaluated angles (wrapped, kept sorted) with cost, translation and minorant."""
+
+    def __init__(self, prob: Problem, evaluate):
+        self.prob, self.evaluate = prob, evaluate
+        self.cols = [np.empty(0) for _ in range(9)]  # th, c, s, f, tx, ty, K, A, B
+
+    def add(self, ths) -> None:
+        th_old = self.cols[0]
+        new = sorted({wrap_angle(t) for t in ths} - set(th_old.tolist()))
+        if not new:
+            return
+        th = np.array(new)
+        c = np.array([math.cos(t) for t in new])
+        s = np.array([math.sin(t) for t in new])
+        if len(th_old):  # warm start: the translation of the nearest evaluated angle
+            gap = np.abs(np.remainder(th[:, None] - th_old + math.pi, 2.0 * math.pi) - math.pi)
+            near = np.argmin(gap, axis=1)
+            t0x, t0y = self.cols[4][near], self.cols[5][near]
+        else:
+            t0x = t0y = np.zeros(len(th))
+        out = self.evaluate(self.prob, c, s, t0x, t0y)
+        cols = [np.concatenate([a, b]) for a, b in zip(self.cols, (th, c, s) + tuple(out))]
+        order = np.argsort(cols[0], kind="stable")
+        self.cols = [a[order] for a in cols]
+
+
+def search(prob: Problem, evaluate, th0: float, tol: float = CERT_TOL):
+    """Certified min over th of f(th): (th, centred tx, ty, lower bound of min f).
+
+    Rounds: evaluate new angles; bound every cell between neighbours; in each cell whose
+    bound is below best - tol add its cut point (the bound's argmin), and next to the best
+    angle the slope-secant point and a geometric stencil, until every cell is certified.
+    """
+    S = _Angles(prob, evaluate)
+    step = 2.0 * math.pi / _GRID
+    S.add([-math.pi + step * k for k in range(_GRID)] + [th0 + d * h for d in (-1e-3, 0.0, 1e-3) for h in (1.0, 1e-3)])
+    lower = 0.0
+    for _ in range(_MAX_ROUNDS):
+        th, c, s, f, tx, ty, K, A, B = S.cols
+        nxt = np.roll(np.arange(len(th)), -1)
+        lb, bc, bs = cell_bounds(c, s, c[nxt], s[nxt], K, A, B, K[nxt], A[nxt], B[nxt])
+        b = int(np.argmin(f))
+        fbest = float(f[b])
+        lower = min(fbest, float(lb.min()))
+        tol_eff = max(tol, 4.0 * 64.0 * EPS * prob.bound * float(np.abs(K).max() + 1.0))
+        bad = np.nonzero(lb < fbest - tol_eff)[0]
+        if len(bad) == 0:
+            break
+        new = [math.atan2(float(bs[i]), float(bc[i])) for i in bad]
+        g = A * s - B * c  # slopes f'(th) of the minorants (exact at smooth inner optima)
+        m = len(th)
+        for side, j in ((1, b), (-1, (b - 1) % m)):  # the cells right and left of the best
+            if lb[j] >= fbest - tol_eff:
+                continue
+            o = (b + side) % m
+            width = abs(math.remainder(float(th[o] - th[b]), 2.0 * math.pi))
+            if g[b] * side < 0.0 < g[o] * side:  # a slope sign change: secant root
+                new.append(th[b] + side * width * abs(g[b]) / (abs(g[b]) + abs(g[o])))
+            if width < 1e-2:
+                new += [th[b] + side * width * h for h in _STENCIL[:6]]
+            else:
+                new.append(th[b] + side * width / 4.0)
+        S.add(new)
+    b = int(np.argmin(S.cols[3]))
+    return float(S.cols[0][b]), float(S.cols[4][b]), float(S.cols[5][b]), lower

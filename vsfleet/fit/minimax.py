@@ -1,0 +1,82 @@
+"""linf: the minimum enclosing circle of the q_i at each angle, exact, with its basis duals."""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+from .certify import EPS
+
+_WS = 6  # working-set size: the circle is solved exactly on these, then checked on every robot
+
+
+@lru_cache(maxsize=8)
+def _subsets(k: int):
+    """Members (S, 3) of every pair (i, j, j) and triple (i, j, l) of range(k)."""
+    pairs = [(i, j, j) for i in range(k) for j in range(i + 1, k)]
+    triples = [(i, j, l) for i in range(k) for j in range(i + 1, k) for l in range(j + 1, k)]
+    return np.array(pairs + triples, dtype=np.intp).reshape(-1, 3), len(pairs)
+
+
+def _circle(X, Y):
+    """Exact smallest circle of each row's points (m, k): centre, radius^2, basis (m, 3), weights.
+
+    The radius is the largest over pairs (half the distance) and triples whose circumcentre
+    lies in the triangle (barycentric weights >= 0: the KKT condition); that subset is the basis.
+    """
+    mem, npair = _subsets(X.shape[1])
+    x, y = X[:, mem], Y[:, mem]  # (m, S, 3)
+    bx, by = x[..., 1] - x[..., 0], y[..., 1] - y[..., 0]
+    ex, ey = x[..., 2] - x[..., 0], y[..., 2] - y[..., 0]
+    det = bx * ey - by * ex
+    b2, e2 = bx * bx + by * by, ex * ex + ey * ey
+    ux, uy = (ey * b2 - by * e2) / (2.0 * det), (bx * e2 - ex * b2) / (2.0 * det)
+    lb, le = (ux * ey - uy * ex) / det, (bx * uy - by * ux) / det  # circumcentre = x0 + lb b + le e
+    la = 1.0 - lb - le
+    ux[:, :npair], uy[:, :npair] = 0.5 * bx[:, :npair], 0.5 * by[:, :npair]
+    la[:, :npair], lb[:, :npair], le[:, :npair] = 0.5, 0.5, 0.0
+    r2 = ux * ux + uy * uy
+    ok = (la >= 0.0) & (lb >= 0.0) & (le >= 0.0) & np.isfinite(r2)
+    r2 = np.where(ok, r2, -1.0)
+    best = np.argmax(r2, axis=1)[:, None]
+    pick = lambda a: np.take_along_axis(a, best, axis=1)[:, 0]  # noqa: E731
+    lam = np.stack([pick(la), pick(lb), pick(le)], axis=1)
+    cx, cy = pick(x[..., 0]) + pick(ux), pick(y[..., 0]) + pick(uy)
+    return cx, cy, pick(r2), mem[best[:, 0]], lam
+
+
+def evaluate(prob, c, s, tx0, ty0):
+    """Minimax centre at each angle: (f, tx, ty, K, A, B), (m,) arrays; see certify.search.
+
+    Active set: solve exactly on a working set (the farthest robots from the warm centre),
+    then add the farthest robots while any lies outside; the radius grows, so it ends.
+    Duals: k_i = w lam_i (q_i - centre)/radius on the basis (lam: its barycentric weights).
+    """
+    qx, qy = prob.q(c, s)
+    m, n = qx.shape
+    k = min(n, _WS)
+    d2 = (qx - tx0[:, None]) ** 2 + (qy - ty0[:, None]) ** 2
+    ws = np.argpartition(-d2, k - 1, axis=1)[:, :k]
+    cx, cy, r2, mem, lam = (np.empty(m), np.empty(m), np.empty(m), np.empty((m, 3), np.intp), np.empty((m, 3)))
+    act = np.arange(m)
+    for _ in range(n):  # each round grows the radius of every active row: at most n rounds
+        rows = act[:, None]
+        out = _circle(qx[rows, ws], qy[rows, ws])
+        cx[act], cy[act], r2[act] = out[:3]
+        mem[act] = np.take_along_axis(ws, out[3], axis=1)
+        lam[act] = out[4]
+        d2 = (qx[act] - cx[act, None]) ** 2 + (qy[act] - cy[act, None]) ** 2
+        out_ = d2.max(axis=1) > r2[act] * (1.0 + 16.0 * EPS)
+        if not out_.any() or k == n:
+            break
+        far = np.argpartition(-d2[out_], k - 4, axis=1)[:, : k - 3]
+        ws, act = np.concatenate([mem[act[out_]], far], axis=1), act[out_]
+    w = prob.w[0]
+    rows = np.arange(m)[:, None]
+    dx, dy = qx[rows, mem] - cx[:, None], qy[rows, mem] - cy[:, None]
+    rad = np.sqrt(r2)
+    scale = np.where(rad > 0.0, w / rad, 0.0)[:, None] * lam
+    K, A, B = prob.minorant(scale * dx, scale * dy, mem)
+    f = w * np.sqrt(((qx - cx[:, None]) ** 2 + (qy - cy[:, None]) ** 2).max(axis=1))
+    return f, cx, cy, K, A, B
