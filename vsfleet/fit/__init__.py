@@ -130,7 +130,7 @@ def fit_structure(template_xy, positions_xy, metric: str = "l2", weights=None) -
         if prob.n == 1:
             th, tx, ty = 0.0, 0.0, 0.0
         elif metric == "l2" or prob.n == 2 or prob.rigid:
-            th = 0.0 if prob.rigid else procrustes.rotation(prob)
+            th = 0.0 if metric != "l2" and prob.rigid else procrustes.rotation(prob)
             tx, ty = 0.0, 0.0
             if metric != "l2":
                 tx, ty, lower = certify.translation_at(prob, _EVALUATORS[metric], th, metric == "l1")

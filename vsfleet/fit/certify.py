@@ -8,6 +8,7 @@ search refines the circle until every cell's bound is within CERT_TOL of the bes
 from __future__ import annotations
 
 import math
+from functools import cached_property
 
 import numpy as np
 
@@ -26,15 +27,26 @@ class Problem:
 
     def __init__(self, p: np.ndarray, r: np.ndarray, w):
         self.n = n = len(p)
+        self.unit = w is None
         self.w = np.ones(n) if w is None else w
-        W = float(np.sum(self.w))
-        self.cp = (float(np.sum(self.w * p[:, 0])) / W, float(np.sum(self.w * p[:, 1])) / W)
-        self.cr = (float(np.sum(self.w * r[:, 0])) / W, float(np.sum(self.w * r[:, 1])) / W)
-        self.Px, self.Py = p[:, 0] - self.cp[0], p[:, 1] - self.cp[1]
-        self.Qx, self.Qy = r[:, 0] - self.cr[0], r[:, 1] - self.cr[1]
-        self.rigid = bool((p == p[0]).all() or (r == r[0]).all())  # f does not depend on th
-        # |t| <= bound for every angle's optimal centred translation (it lies in the hull of q)
-        self.bound = float(np.sqrt(self.Qx**2 + self.Qy**2).max() + np.sqrt(self.Px**2 + self.Py**2).max())
+        if w is None:
+            self.cp, self.cr = p.sum(axis=0) / n, r.sum(axis=0) / n
+        else:
+            W = float(w.sum())
+            self.cp, self.cr = (w[:, None] * p).sum(axis=0) / W, (w[:, None] * r).sum(axis=0) / W
+        self.P, self.Q = p - self.cp, r - self.cr
+        self.Px, self.Py, self.Qx, self.Qy = self.P[:, 0], self.P[:, 1], self.Q[:, 0], self.Q[:, 1]
+
+    @cached_property
+    def rigid(self) -> bool:
+        """All template points or all robots coincide: f does not depend on th."""
+        return bool(((self.Px == self.Px[0]) & (self.Py == self.Py[0])).all()
+                    or ((self.Qx == self.Qx[0]) & (self.Qy == self.Qy[0])).all())
+
+    @cached_property
+    def bound(self) -> float:
+        """|t| <= bound for every angle's optimal centred translation (it lies in the hull of q)."""
+        return float(np.sqrt(self.Qx**2 + self.Qy**2).max() + np.sqrt(self.Px**2 + self.Py**2).max())
 
     def q(self, c: np.ndarray, s: np.ndarray):
         """q_i at each angle, (m, n) arrays, from (m,) cosines and sines."""
@@ -60,8 +72,8 @@ class Problem:
         """World pose from rotation th and centred translation t."""
         th = wrap_angle(th)
         c, s = math.cos(th), math.sin(th)
-        cpx, cpy = self.cp
-        return Pose2(tx + self.cr[0] - (c * cpx - s * cpy), ty + self.cr[1] - (s * cpx + c * cpy), th)
+        cpx, cpy = float(self.cp[0]), float(self.cp[1])
+        return Pose2(tx + float(self.cr[0]) - (c * cpx - s * cpy), ty + float(self.cr[1]) - (s * cpx + c * cpy), th)
 
 
 def cell_bounds(ca, sa, cb, sb, Ka, Aa, Ba, Kb, Ab, Bb):
@@ -75,22 +87,14 @@ def cell_bounds(ca, sa, cb, sb, Ka, Aa, Ba, Kb, Ab, Bb):
     root = np.sqrt(np.maximum(rho2 - dK * dK, 0.0))
     inv = 1.0 / rho2
     na, nb = np.sqrt(Aa * Aa + Ba * Ba), np.sqrt(Ab * Ab + Bb * Bb)
-    cands = [
-        (ca, sa), (cb, sb), (Aa / na, Ba / na), (Ab / nb, Bb / nb),
-        ((dA * dK - dB * root) * inv, (dB * dK + dA * root) * inv),
-        ((dA * dK + dB * root) * inv, (dB * dK - dA * root) * inv),
-    ]
-    best = np.full(ca.shape, np.inf)
-    bc, bs = ca.copy(), sa.copy()
-    for k, (c, s) in enumerate(cands):
-        v = np.maximum(Ka - Aa * c - Ba * s, Kb - Ab * c - Bb * s)
-        ok = v < best
-        if k >= 2:  # interior candidates: inside the arc and real
-            ok &= (ca * s - sa * c >= 0.0) & (c * sb - s * cb >= 0.0) & np.isfinite(v)
-            if k >= 4:
-                ok &= rho2 >= dK * dK
-        best = np.where(ok, v, best)
-        bc, bs = np.where(ok, c, bc), np.where(ok, s, bs)
+    C = np.stack([ca, cb, Aa / na, Ab / nb, (dA * dK - dB * root) * inv, (dA * dK + dB * root) * inv])
+    S = np.stack([sa, sb, Ba / na, Bb / nb, (dB * dK + dA * root) * inv, (dB * dK - dA * root) * inv])
+    v = np.maximum(Ka - Aa * C - Ba * S, Kb - Ab * C - Bb * S)
+    ok = (ca * S - sa * C >= 0.0) & (C * sb - S * cb >= 0.0) & np.isfinite(v)  # inside the arc, real
+    ok[:2] = True
+    ok[4:] &= rho2 >= dK * dK
+    k = np.argmin(np.where(ok, v, np.inf), axis=0)[None]
+    best, bc, bs = (np.take_along_axis(a, k, 0)[0] for a in (v, C, S))
     slack = 8.0 * EPS * (np.abs(Ka) + np.abs(Kb) + na + nb)
     return np.maximum(best - slack, 0.0), bc, bs
 

@@ -38,7 +38,7 @@ def evaluate(prob, c, s, tx0, ty0, iters: int = _ITERS):
     qx, qy = prob.q(c, s)
     w = prob.w
     tx, ty = tx0.astype(float), ty0.astype(float)
-    scale = prob.bound * 1e-15
+    scale = prob.bound * 1e-13
     act = np.arange(len(tx))
     for _ in range(iters):
         x, y = qx[act], qy[act]
