@@ -32,7 +32,7 @@ def evaluate(prob, c, s, tx0, ty0, iters: int = _ITERS):
     """Geometric median at each angle: (f, tx, ty, K, A, B), (m,) arrays; see certify.search.
 
     Each iteration: the cost's gradient g and Hessian H at t (robots on t left out), a Newton
-    step, and the nearest robot point q_j tested exactly (|sum_{i != j} w_i u_i| <= w_j there
+    step, and the nearest robot point q_j tested exactly (|sum_{i != j} w_i u_i| < w_j there
     means t = q_j is optimal); a Newton step that does not lower f falls back to Weiszfeld.
     """
     qx, qy = prob.q(c, s)
@@ -62,7 +62,7 @@ def evaluate(prob, c, s, tx0, ty0, iters: int = _ITERS):
         on = e > 0.0
         ie = np.where(on, w / np.where(on, e, 1.0), 0.0)
         vx, vy = np.sum(ie * ex, axis=1), np.sum(ie * ey, axis=1)
-        vertex = vx * vx + vy * vy <= np.sum(np.where(on, 0.0, w), axis=1) ** 2
+        vertex = vx * vx + vy * vy < np.sum(np.where(on, 0.0, w), axis=1) ** 2
         ndx, ndy = x - nx[:, None], y - ny[:, None]
         fn = np.sum(w * np.sqrt(ndx * ndx + ndy * ndy), axis=1)
         newton = np.isfinite(fn) & (fn <= f0)
