@@ -78,5 +78,13 @@ def evaluate(prob, c, s, tx0, ty0):
     rad = np.sqrt(r2)
     scale = np.where(rad > 0.0, w / rad, 0.0)[:, None] * lam
     K, A, B = prob.minorant(scale * dx, scale * dy, mem)
+    # a pair basis also gives the constant minorant w ||Q_i - Q_j| - |P_i - P_j|| / 2 (every th):
+    # better where it touches, e.g. a pair of coincident robots, whose distance is constant
+    i, j = mem[:, 0], mem[:, 1]
+    dq = np.sqrt((prob.Qx[i] - prob.Qx[j]) ** 2 + (prob.Qy[i] - prob.Qy[j]) ** 2)
+    dp = np.sqrt((prob.Px[i] - prob.Px[j]) ** 2 + (prob.Py[i] - prob.Py[j]) ** 2)
+    cst = 0.5 * w * (np.abs(dq - dp) - 16.0 * EPS * prob.bound)
+    flat = (lam[:, 2] == 0.0) & (cst >= K - A * c - B * s)
+    K, A, B = np.where(flat, cst, K), np.where(flat, 0.0, A), np.where(flat, 0.0, B)
     f = w * np.sqrt(((qx - cx[:, None]) ** 2 + (qy - cy[:, None]) ** 2).max(axis=1))
     return f, cx, cy, K, A, B
