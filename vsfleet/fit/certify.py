@@ -18,7 +18,8 @@ from ..geometry import Pose2, wrap_angle
 CERT_TOL = 1e-10
 EPS = float(np.finfo(float).eps)
 _GRID = 16  # initial uniform grid of rotations
-_STENCIL = tuple(4.0 ** -k for k in range(1, 12))  # offsets next to the best angle [x grid step]
+_STENCIL = tuple(4.0 ** -k for k in range(1, 6))  # offsets around a cell's centre [x distance to its ends]
+_FINE = 5e-2  # cells next to the best angle narrower than this [rad] get stencils
 _MAX_ROUNDS = 60
 
 
@@ -102,22 +103,29 @@ def cell_bounds(ca, sa, cb, sb, Ka, Aa, Ba, Kb, Ab, Bb):
 def translation_at(prob: Problem, evaluate, th: float, l1: bool):
     """Optimal centred translation at a fixed rotation and the minorant's value there."""
     c, s = np.array([math.cos(th)]), np.array([math.sin(th)])
-    f, tx, ty, K, A, B = evaluate(prob, c, s, np.zeros(1), np.zeros(1))
+    f, tx, ty, K, A, B = evaluate(prob, c, s, np.zeros(1), np.zeros(1), np.zeros(1, bool))
     return float(tx[0]), float(ty[0]), float(K[0] - A[0] * c[0] - B[0] * s[0])
 
 
 class _Angles:
-    """Evaluated angles (wrapped, kept sorted) with cost, translation and minorant."""
+    """Evaluated angles (wrapped, kept sorted): th, c, s, f, tx, ty, K, A, B, rough."""
 
     def __init__(self, prob: Problem, evaluate):
         self.prob, self.evaluate = prob, evaluate
-        self.cols = [np.empty(0) for _ in range(9)]  # th, c, s, f, tx, ty, K, A, B
+        self.cols = [np.empty(0) for _ in range(10)]
 
-    def add(self, ths) -> None:
+    def add(self, ths, rough=()) -> None:
+        """Evaluate new angles (``rough``: first-pass ones); rough angles asked again are re-solved."""
         th_old = self.cols[0]
-        new = sorted({wrap_angle(t) for t in ths} - set(th_old.tolist()))
+        redo = set(th_old[self.cols[9] > 0].tolist())
+        rough = {wrap_angle(t) for t in rough}
+        new = sorted(({wrap_angle(t) for t in ths} | rough) - (set(th_old.tolist()) - redo))
         if not new:
             return
+        if redo & set(new):
+            keep = ~np.isin(th_old, new)
+            self.cols = [a[keep] for a in self.cols]
+            th_old = self.cols[0]
         th = np.array(new)
         c = np.array([math.cos(t) for t in new])
         s = np.array([math.sin(t) for t in new])
@@ -127,8 +135,9 @@ class _Angles:
             t0x, t0y = self.cols[4][near], self.cols[5][near]
         else:
             t0x = t0y = np.zeros(len(th))
-        out = self.evaluate(self.prob, c, s, t0x, t0y)
-        cols = [np.concatenate([a, b]) for a, b in zip(self.cols, (th, c, s) + tuple(out))]
+        flag = np.array([t in rough for t in new])
+        out = self.evaluate(self.prob, c, s, t0x, t0y, flag)
+        cols = [np.concatenate([a, b]) for a, b in zip(self.cols, (th, c, s) + tuple(out) + (flag,))]
         order = np.argsort(cols[0], kind="stable")
         self.cols = [a[order] for a in cols]
 
@@ -137,25 +146,29 @@ def search(prob: Problem, evaluate, th0: float, tol: float = CERT_TOL):
     """Certified min over th of f(th): (th, centred tx, ty, lower bound of min f).
 
     Rounds: evaluate new angles; bound every cell between neighbours; in each cell whose
-    bound is below best - tol add its cut point (the bound's argmin), and next to the best
-    angle the slope-secant point and a geometric stencil, until every cell is certified.
+    bound is below best - tol/2 add its cut point (the bound's argmin), re-solve its ends
+    exactly if they came from the rough first pass, and next to the best angle add the
+    slope-secant root and stencils, until every cell is certified.
     """
     S = _Angles(prob, evaluate)
     step = 2.0 * math.pi / _GRID
-    S.add([-math.pi + step * k for k in range(_GRID)] + [th0 + d * h for d in (-1e-3, 0.0, 1e-3) for h in (1.0, 1e-3)])
+    S.add([th0 + d * h for d in (-1e-3, 0.0, 1e-3) for h in (1.0, 1e-3)], [-math.pi + step * k for k in range(_GRID)])
+    levels = _STENCIL[: max(1, min(len(_STENCIL), 400 // prob.n))]
     lower = 0.0
     for _ in range(_MAX_ROUNDS):
-        th, c, s, f, tx, ty, K, A, B = S.cols
+        th, c, s, f, tx, ty, K, A, B, rough = S.cols
         nxt = np.roll(np.arange(len(th)), -1)
         lb, bc, bs = cell_bounds(c, s, c[nxt], s[nxt], K, A, B, K[nxt], A[nxt], B[nxt])
         b = int(np.argmin(f))
         fbest = float(f[b])
         lower = min(fbest, float(lb.min()))
-        tol_eff = max(tol, 4.0 * 64.0 * EPS * prob.bound * float(np.abs(K).max() + 1.0))
+        # half the tolerance: the reported cost is recomputed from the world pose
+        tol_eff = 0.5 * max(tol, 4.0 * 64.0 * EPS * prob.bound * float(np.abs(K).max() + 1.0))
         bad = np.nonzero(lb < fbest - tol_eff)[0]
         if len(bad) == 0:
             break
         new = [math.atan2(float(bs[i]), float(bc[i])) for i in bad]
+        new += [float(th[i]) for i in np.concatenate([bad, nxt[bad]]) if rough[i] > 0]
         g = A * s - B * c  # slopes f'(th) of the minorants (exact at smooth inner optima)
         m = len(th)
         for side, j in ((1, b), (-1, (b - 1) % m)):  # the cells right and left of the best
@@ -163,11 +176,15 @@ def search(prob: Problem, evaluate, th0: float, tol: float = CERT_TOL):
                 continue
             o = (b + side) % m
             width = abs(math.remainder(float(th[o] - th[b]), 2.0 * math.pi))
-            if g[b] * side < 0.0 < g[o] * side:  # a slope sign change: secant root
-                new.append(th[b] + side * width * abs(g[b]) / (abs(g[b]) + abs(g[o])))
-            if width < 1e-2:
-                new += [th[b] + side * width * h for h in _STENCIL[:6]]
-            else:
+            centres = [abs(math.remainder(new[int(np.searchsorted(bad, j))] - float(th[b]), 2.0 * math.pi))]
+            if g[b] * side < 0.0 < g[o] * side:  # a slope sign change: the secant root
+                centres.append(width * abs(g[b]) / (abs(g[b]) + abs(g[o])))
+            for x in centres:  # offsets from th[b] towards o; a stencil on both sides of each centre
+                new.append(th[b] + side * x)
+                if width < _FINE:
+                    d = min(x, width - x)
+                    new += [th[b] + side * (x + e * d * h) for h in levels for e in (-1.0, 1.0)]
+            if width >= _FINE:
                 new.append(th[b] + side * width / 4.0)
         S.add(new)
     b = int(np.argmin(S.cols[3]))

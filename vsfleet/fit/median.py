@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 _ITERS = 40  # inner iterations (Newton converges in a handful from a warm start)
+_ROUGH_ITERS = 2  # a first-pass solve: a valid but looser minorant
 
 
 def _duals(qx, qy, w, tx, ty):
@@ -17,62 +18,79 @@ def _duals(qx, qy, w, tx, ty):
     dx, dy = qx - tx[:, None], qy - ty[:, None]
     d = np.sqrt(dx * dx + dy * dy)
     f = np.sum(w * d, axis=1)
-    j = np.argmin(d, axis=1)[:, None]
-    on = (qx == np.take_along_axis(qx, j, 1)) & (qy == np.take_along_axis(qy, j, 1))
-    iw = np.where(on | (d == 0.0), 0.0, w / np.where(d > 0.0, d, 1.0))
+    rows = np.arange(len(d))
+    j = np.argmin(d, axis=1)
+    on = (qx == qx[rows, j][:, None]) & (qy == qy[rows, j][:, None])
+    iw = np.where(on, 0.0, w / d)  # d > 0 off q_j
     kx, ky = iw * dx, iw * dy
     sx, sy = np.sum(kx, axis=1), np.sum(ky, axis=1)
-    eta = np.sum(np.where(on, w, 0.0), axis=1)
+    won = np.where(on, w, 0.0)
+    eta = np.sum(won, axis=1)
     sn = np.sqrt(sx * sx + sy * sy)
-    share = np.where(on, w, 0.0) * (np.minimum(1.0, eta / np.where(sn > 0.0, sn, 1.0)) / eta)[:, None]
+    share = won * (np.minimum(1.0, eta / np.where(sn > 0.0, sn, 1.0)) / eta)[:, None]
     return f, kx - share * sx[:, None], ky - share * sy[:, None]
 
 
-def evaluate(prob, c, s, tx0, ty0, iters: int = _ITERS):
+def evaluate(prob, c, s, tx0, ty0, rough):
     """Geometric median at each angle: (f, tx, ty, K, A, B), (m,) arrays; see certify.search.
 
-    Each iteration: the cost's gradient g and Hessian H at t (robots on t left out), a Newton
-    step, and the nearest robot point q_j tested exactly (|sum_{i != j} w_i u_i| < w_j there
-    means t = q_j is optimal); a Newton step that does not lower f falls back to Weiszfeld.
+    Each iteration: the cost's gradient g and Hessian H at t (robots on t left out) and a
+    Newton step, kept if it does not raise f, else a Weiszfeld step t - g / sum(w/d).  When the
+    nearest robot point q_j is closer than the step, it is tested exactly:
+    |sum_{i != j} w_i u_i| < w_j there means t = q_j is optimal (Vardi-Zhang).  Rows marked
+    ``rough`` (m,) stop after a few iterations: their minorant is valid, only looser.
     """
     qx, qy = prob.q(c, s)
     w = prob.w
     tx, ty = tx0.astype(float), ty0.astype(float)
-    scale = prob.bound * 1e-13
+    stop = prob.bound * 1e-13
     act = np.arange(len(tx))
-    for _ in range(iters):
-        x, y = qx[act], qy[act]
-        dx, dy = x - tx[act, None], y - ty[act, None]
-        d = np.sqrt(dx * dx + dy * dy)
-        f0 = np.sum(w * d, axis=1)
-        pos = d > 0.0
-        iw = np.where(pos, w / np.where(pos, d, 1.0), 0.0)
-        i3 = iw / np.where(pos, d * d, 1.0)
+    x, y = qx, qy
+    dx, dy = x - tx[:, None], y - ty[:, None]
+    d = np.sqrt(dx * dx + dy * dy)
+    f = np.sum(w * d, axis=1)
+    for it in range(_ITERS):
+        inv = np.where(d > 0.0, 1.0 / d, 0.0)
+        iw = w * inv
         gx, gy = -np.sum(iw * dx, axis=1), -np.sum(iw * dy, axis=1)
-        a, b, cc = np.sum(i3 * dy * dy, axis=1), -np.sum(i3 * dx * dy, axis=1), np.sum(i3 * dx * dx, axis=1)
+        px, py = iw * inv * inv * dx, iw * inv * inv * dy
+        a, b, cc = np.sum(py * dy, axis=1), -np.sum(px * dy, axis=1), np.sum(px * dx, axis=1)
         det = a * cc - b * b
-        nx, ny = tx[act] - (cc * gx - b * gy) / det, ty[act] - (a * gy - b * gx) / det
-        sw = np.sum(iw, axis=1)  # Weiszfeld step t - g / sum(w/d)
-        wx, wy = tx[act] - gx / sw, ty[act] - gy / sw
-        # the nearest robot point, tested exactly
-        j = np.argmin(d, axis=1)[:, None]
-        jx, jy = np.take_along_axis(x, j, 1)[:, 0], np.take_along_axis(y, j, 1)[:, 0]
-        ex, ey = x - jx[:, None], y - jy[:, None]
-        e = np.sqrt(ex * ex + ey * ey)
-        on = e > 0.0
-        ie = np.where(on, w / np.where(on, e, 1.0), 0.0)
-        vx, vy = np.sum(ie * ex, axis=1), np.sum(ie * ey, axis=1)
-        vertex = vx * vx + vy * vy < np.sum(np.where(on, 0.0, w), axis=1) ** 2
-        ndx, ndy = x - nx[:, None], y - ny[:, None]
-        fn = np.sum(w * np.sqrt(ndx * ndx + ndy * ndy), axis=1)
-        newton = np.isfinite(fn) & (fn <= f0)
-        ux = np.where(vertex, jx, np.where(newton, nx, np.where(sw > 0.0, wx, tx[act])))
-        uy = np.where(vertex, jy, np.where(newton, ny, np.where(sw > 0.0, wy, ty[act])))
-        moved = np.abs(ux - tx[act]) + np.abs(uy - ty[act])
-        tx[act], ty[act] = ux, uy
-        act = act[~vertex & (moved > scale)]
-        if not len(act):
+        sx, sy = (cc * gx - b * gy) / det, (a * gy - b * gx) / det  # Newton: t - (sx, sy)
+        t0x, t0y = tx[act], ty[act]
+        ndx, ndy = dx + sx[:, None], dy + sy[:, None]
+        nd = np.sqrt(ndx * ndx + ndy * ndy)
+        fn = np.sum(w * nd, axis=1)
+        ok = fn <= f  # False for NaN (a singular Hessian)
+        step = np.sqrt(sx * sx + sy * sy)
+        if not ok.all():  # Weiszfeld where Newton fails (never raises f)
+            bad = ~ok
+            sw = np.sum(iw[bad], axis=1)
+            wsx, wsy = np.where(sw > 0.0, gx[bad] / sw, 0.0), np.where(sw > 0.0, gy[bad] / sw, 0.0)
+            sx[bad], sy[bad] = wsx, wsy
+            ndx[bad], ndy[bad] = dx[bad] + wsx[:, None], dy[bad] + wsy[:, None]
+            nd[bad] = np.sqrt(ndx[bad] ** 2 + ndy[bad] ** 2)
+            fn[bad] = np.sum(w * nd[bad], axis=1)
+            step[bad] = np.sqrt(wsx * wsx + wsy * wsy)
+        tx[act], ty[act], dx, dy, d, f = t0x - sx, t0y - sy, ndx, ndy, nd, fn
+        done = (step <= stop) | (rough[act] & (it + 1 >= _ROUGH_ITERS))
+        near = np.argmin(d, axis=1)
+        rows = np.arange(len(d))
+        test = np.nonzero(d[rows, near] <= 16.0 * step)[0]  # the nearest robot point is within reach
+        if len(test):
+            jx, jy = x[test, near[test]], y[test, near[test]]
+            ex, ey = x[test] - jx[:, None], y[test] - jy[:, None]
+            e = np.sqrt(ex * ex + ey * ey)
+            ie = np.where(e > 0.0, w / e, 0.0)
+            vx, vy = np.sum(ie * ex, axis=1), np.sum(ie * ey, axis=1)
+            vertex = vx * vx + vy * vy < np.sum(np.where(e > 0.0, 0.0, w), axis=1) ** 2
+            hit = test[vertex]
+            tx[act[hit]], ty[act[hit]] = jx[vertex], jy[vertex]
+            done[hit] = True
+        if done.all():
             break
+        keep = ~done
+        act, x, y, dx, dy, d, f = act[keep], x[keep], y[keep], dx[keep], dy[keep], d[keep], f[keep]
     f, kx, ky = _duals(qx, qy, w, tx, ty)
     K, A, B = prob.minorant(kx, ky)
     return f, tx, ty, K, A, B

@@ -13,7 +13,7 @@ _WS = 6  # working-set size: the circle is solved exactly on these, then checked
 
 @lru_cache(maxsize=8)
 def _subsets(k: int):
-    """Members (S, 3) of every pair (i, j, j) and triple (i, j, l) of range(k)."""
+    """Members (S, 3) of every pair (i, j, j) and triple (i, j, l) of range(k), and the pair count."""
     pairs = [(i, j, j) for i in range(k) for j in range(i + 1, k)]
     triples = [(i, j, l) for i in range(k) for j in range(i + 1, k) for l in range(j + 1, k)]
     return np.array(pairs + triples, dtype=np.intp).reshape(-1, 3), len(pairs)
@@ -26,54 +26,57 @@ def _circle(X, Y):
     lies in the triangle (barycentric weights >= 0: the KKT condition); that subset is the basis.
     """
     mem, npair = _subsets(X.shape[1])
-    x, y = X[:, mem], Y[:, mem]  # (m, S, 3)
-    bx, by = x[..., 1] - x[..., 0], y[..., 1] - y[..., 0]
-    ex, ey = x[..., 2] - x[..., 0], y[..., 2] - y[..., 0]
+    x0, y0 = X[:, mem[:, 0]], Y[:, mem[:, 0]]  # (m, S)
+    bx, by = X[:, mem[:, 1]] - x0, Y[:, mem[:, 1]] - y0
+    ex, ey = X[:, mem[:, 2]] - x0, Y[:, mem[:, 2]] - y0
     det = bx * ey - by * ex
     b2, e2 = bx * bx + by * by, ex * ex + ey * ey
     ux, uy = (ey * b2 - by * e2) / (2.0 * det), (bx * e2 - ex * b2) / (2.0 * det)
     lb, le = (ux * ey - uy * ex) / det, (bx * uy - by * ux) / det  # circumcentre = x0 + lb b + le e
-    la = 1.0 - lb - le
     ux[:, :npair], uy[:, :npair] = 0.5 * bx[:, :npair], 0.5 * by[:, :npair]
-    la[:, :npair], lb[:, :npair], le[:, :npair] = 0.5, 0.5, 0.0
+    lb[:, :npair], le[:, :npair] = 0.5, 0.0
     r2 = ux * ux + uy * uy
-    ok = (la >= 0.0) & (lb >= 0.0) & (le >= 0.0) & np.isfinite(r2)
-    r2 = np.where(ok, r2, -1.0)
-    best = np.argmax(r2, axis=1)[:, None]
-    pick = lambda a: np.take_along_axis(a, best, axis=1)[:, 0]  # noqa: E731
-    lam = np.stack([pick(la), pick(lb), pick(le)], axis=1)
-    cx, cy = pick(x[..., 0]) + pick(ux), pick(y[..., 0]) + pick(uy)
-    return cx, cy, pick(r2), mem[best[:, 0]], lam
+    ok = (lb >= 0.0) & (le >= 0.0) & (lb + le <= 1.0) & np.isfinite(r2)
+    best = np.argmax(np.where(ok, r2, -1.0), axis=1)
+    rows = np.arange(len(X))
+    lb, le = lb[rows, best], le[rows, best]
+    lam = np.stack([1.0 - lb - le, lb, le], axis=1)
+    cx, cy = x0[rows, best] + ux[rows, best], y0[rows, best] + uy[rows, best]
+    return cx, cy, r2[rows, best], mem[best], lam
 
 
-def evaluate(prob, c, s, tx0, ty0):
+def evaluate(prob, c, s, tx0, ty0, rough):
     """Minimax centre at each angle: (f, tx, ty, K, A, B), (m,) arrays; see certify.search.
 
     Active set: solve exactly on a working set (the farthest robots from the warm centre),
     then add the farthest robots while any lies outside; the radius grows, so it ends.
     Duals: k_i = w lam_i (q_i - centre)/radius on the basis (lam: its barycentric weights).
+    ``rough`` (the search's first-pass rows) is ignored: every solve is exact.
     """
     qx, qy = prob.q(c, s)
     m, n = qx.shape
     k = min(n, _WS)
-    d2 = (qx - tx0[:, None]) ** 2 + (qy - ty0[:, None]) ** 2
-    ws = np.argpartition(-d2, k - 1, axis=1)[:, :k]
-    cx, cy, r2, mem, lam = (np.empty(m), np.empty(m), np.empty(m), np.empty((m, 3), np.intp), np.empty((m, 3)))
-    act = np.arange(m)
-    for _ in range(n):  # each round grows the radius of every active row: at most n rounds
-        rows = act[:, None]
-        out = _circle(qx[rows, ws], qy[rows, ws])
-        cx[act], cy[act], r2[act] = out[:3]
-        mem[act] = np.take_along_axis(ws, out[3], axis=1)
-        lam[act] = out[4]
-        d2 = (qx[act] - cx[act, None]) ** 2 + (qy[act] - cy[act, None]) ** 2
-        out_ = d2.max(axis=1) > r2[act] * (1.0 + 16.0 * EPS)
-        if not out_.any() or k == n:
-            break
-        far = np.argpartition(-d2[out_], k - 4, axis=1)[:, : k - 3]
-        ws, act = np.concatenate([mem[act[out_]], far], axis=1), act[out_]
-    w = prob.w[0]
     rows = np.arange(m)[:, None]
+    if k == n:
+        ws = np.broadcast_to(np.arange(n), (m, n))
+    else:
+        ws = np.argpartition((qx - tx0[:, None]) ** 2 + (qy - ty0[:, None]) ** 2, n - k, axis=1)[:, n - k:]
+    cx, cy, r2, mem, lam = _circle(qx[rows, ws], qy[rows, ws])
+    mem = ws[rows, mem]
+    act = np.arange(m)
+    for _ in range(n if k < n else 0):  # each round grows every active row's radius
+        ax, ay = qx[act], qy[act]
+        d2 = (ax - cx[act, None]) ** 2 + (ay - cy[act, None]) ** 2
+        out = d2.max(axis=1) > r2[act] * (1.0 + 16.0 * EPS)
+        if not out.any():
+            break
+        act, d2 = act[out], d2[out]
+        far = np.argpartition(d2, n - k + 3, axis=1)[:, n - k + 3:]
+        ws = np.concatenate([mem[act], far], axis=1)
+        sub = np.arange(len(act))[:, None]
+        cx[act], cy[act], r2[act], m_, lam[act] = _circle(qx[act[:, None], ws], qy[act[:, None], ws])
+        mem[act] = ws[sub, m_]
+    w = prob.w[0]
     dx, dy = qx[rows, mem] - cx[:, None], qy[rows, mem] - cy[:, None]
     rad = np.sqrt(r2)
     scale = np.where(rad > 0.0, w / rad, 0.0)[:, None] * lam
