@@ -114,14 +114,17 @@ class _Angles:
         self.prob, self.evaluate = prob, evaluate
         self.cols = [np.empty(0) for _ in range(10)]
 
-    def add(self, ths, rough=()) -> None:
-        """Evaluate new angles (``rough``: first-pass ones); rough angles asked again are re-solved."""
+    def add(self, ths, rough=()) -> int:
+        """Evaluate new angles (``rough``: first-pass ones); rough angles asked again are re-solved.
+
+        Returns how many angles were evaluated.
+        """
         th_old = self.cols[0]
         redo = set(th_old[self.cols[9] > 0].tolist())
         rough = {wrap_angle(t) for t in rough}
         new = sorted(({wrap_angle(t) for t in ths} | rough) - (set(th_old.tolist()) - redo))
         if not new:
-            return
+            return 0
         if redo & set(new):
             keep = ~np.isin(th_old, new)
             self.cols = [a[keep] for a in self.cols]
@@ -140,6 +143,7 @@ class _Angles:
         cols = [np.concatenate([a, b]) for a, b in zip(self.cols, (th, c, s) + tuple(out) + (flag,))]
         order = np.argsort(cols[0], kind="stable")
         self.cols = [a[order] for a in cols]
+        return len(new)
 
 
 def search(prob: Problem, evaluate, th0: float, tol: float = CERT_TOL):
@@ -186,6 +190,7 @@ def search(prob: Problem, evaluate, th0: float, tol: float = CERT_TOL):
                     new += [th[b] + side * (x + e * d * h) for h in levels for e in (-1.0, 1.0)]
             if width >= _FINE:
                 new.append(th[b] + side * width / 4.0)
-        S.add(new)
+        if not S.add(new):  # the uncertified cells cannot be split in floating point
+            break
     b = int(np.argmin(S.cols[3]))
     return float(S.cols[0][b]), float(S.cols[4][b]), float(S.cols[5][b]), lower

@@ -43,7 +43,8 @@ def evaluate(prob, c, s, tx0, ty0, rough):
     qx, qy = prob.q(c, s)
     w = prob.w
     tx, ty = tx0.astype(float), ty0.astype(float)
-    stop = prob.bound * 1e-13
+    stop = prob.bound * 1e-15  # step [m] at rounding level
+    gtol = (1e-12 / prob.bound) ** 2  # |gradient|^2: the imbalance costs |g| bound <= 1e-12
     act = np.arange(len(tx))
     x, y = qx, qy
     dx, dy = x - tx[:, None], y - ty[:, None]
@@ -53,6 +54,7 @@ def evaluate(prob, c, s, tx0, ty0, rough):
         inv = np.where(d > 0.0, 1.0 / d, 0.0)
         iw = w * inv
         gx, gy = -np.sum(iw * dx, axis=1), -np.sum(iw * dy, axis=1)
+        flat = gx * gx + gy * gy <= gtol  # the duals balance to well within the tolerance
         px, py = iw * inv * inv * dx, iw * inv * inv * dy
         a, b, cc = np.sum(py * dy, axis=1), -np.sum(px * dy, axis=1), np.sum(px * dx, axis=1)
         det = a * cc - b * b
@@ -72,8 +74,9 @@ def evaluate(prob, c, s, tx0, ty0, rough):
             nd[bad] = np.sqrt(ndx[bad] ** 2 + ndy[bad] ** 2)
             fn[bad] = np.sum(w * nd[bad], axis=1)
             step[bad] = np.sqrt(wsx * wsx + wsy * wsy)
+        sx, sy, step = np.where(flat, 0.0, sx), np.where(flat, 0.0, sy), np.where(flat, 0.0, step)
         tx[act], ty[act], dx, dy, d, f = t0x - sx, t0y - sy, ndx, ndy, nd, fn
-        done = (step <= stop) | (rough[act] & (it + 1 >= _ROUGH_ITERS))
+        done = flat | (step <= stop) | (rough[act] & (it + 1 >= _ROUGH_ITERS))
         near = np.argmin(d, axis=1)
         rows = np.arange(len(d))
         test = np.nonzero(d[rows, near] <= 16.0 * step)[0]  # the nearest robot point is within reach
