@@ -19,7 +19,7 @@ CERT_TOL = 1e-10
 EPS = float(np.finfo(float).eps)
 _GRID = 16  # initial uniform grid of rotations
 _STENCIL = tuple(4.0 ** -k for k in range(1, 6))  # offsets around a cell's centre [x distance to its ends]
-_FINE = 5e-2  # cells next to the best angle narrower than this [rad] get stencils
+_FINE = 1.0  # cells next to the best angle narrower than this [rad] get stencils
 _MAX_ROUNDS = 60
 
 
@@ -108,41 +108,36 @@ def translation_at(prob: Problem, evaluate, th: float, l1: bool):
 
 
 class _Angles:
-    """Evaluated angles (wrapped, kept sorted): th, c, s, f, tx, ty, K, A, B, rough."""
+    """Evaluated angles, kept sorted: rows th, c, s, f, tx, ty, K, A, B, rough of ``self.a``."""
 
     def __init__(self, prob: Problem, evaluate):
         self.prob, self.evaluate = prob, evaluate
-        self.cols = [np.empty(0) for _ in range(10)]
+        self.a = np.empty((10, 0))
 
     def add(self, ths, rough=()) -> int:
         """Evaluate new angles (``rough``: first-pass ones); rough angles asked again are re-solved.
 
         Returns how many angles were evaluated.
         """
-        th_old = self.cols[0]
-        redo = set(th_old[self.cols[9] > 0].tolist())
+        old = self.a
         rough = {wrap_angle(t) for t in rough}
-        new = sorted(({wrap_angle(t) for t in ths} | rough) - (set(th_old.tolist()) - redo))
+        known = set(old[0].tolist()) - set(old[0, old[9] > 0].tolist())
+        new = sorted(({wrap_angle(t) for t in ths} | rough) - known)
         if not new:
             return 0
-        if redo & set(new):
-            keep = ~np.isin(th_old, new)
-            self.cols = [a[keep] for a in self.cols]
-            th_old = self.cols[0]
         th = np.array(new)
-        c = np.array([math.cos(t) for t in new])
-        s = np.array([math.sin(t) for t in new])
-        if len(th_old):  # warm start: the translation of the nearest evaluated angle
-            gap = np.abs(np.remainder(th[:, None] - th_old + math.pi, 2.0 * math.pi) - math.pi)
-            near = np.argmin(gap, axis=1)
-            t0x, t0y = self.cols[4][near], self.cols[5][near]
+        if old.shape[1]:
+            if rough_old := known.symmetric_difference(old[0].tolist()) & set(new):  # re-solved
+                old = old[:, [t not in rough_old for t in old[0].tolist()]]
+            gap = np.abs(np.remainder(th[:, None] - old[0] + math.pi, 2.0 * math.pi) - math.pi)
+            t0 = old[4:6, np.argmin(gap, axis=1)]  # warm start: the nearest evaluated angle's t
         else:
-            t0x = t0y = np.zeros(len(th))
+            t0 = np.zeros((2, len(th)))
+        c, s = np.array([[math.cos(t), math.sin(t)] for t in new]).T
         flag = np.array([t in rough for t in new])
-        out = self.evaluate(self.prob, c, s, t0x, t0y, flag)
-        cols = [np.concatenate([a, b]) for a, b in zip(self.cols, (th, c, s) + tuple(out) + (flag,))]
-        order = np.argsort(cols[0], kind="stable")
-        self.cols = [a[order] for a in cols]
+        out = self.evaluate(self.prob, c, s, t0[0], t0[1], flag)
+        a = np.concatenate([old, np.stack((th, c, s) + tuple(out) + (flag,))], axis=1)
+        self.a = a[:, np.argsort(a[0], kind="stable")]
         return len(new)
 
 
@@ -160,8 +155,8 @@ def search(prob: Problem, evaluate, th0: float, tol: float = CERT_TOL):
     levels = _STENCIL[: max(1, min(len(_STENCIL), 400 // prob.n))]
     lower = 0.0
     for _ in range(_MAX_ROUNDS):
-        th, c, s, f, tx, ty, K, A, B, rough = S.cols
-        nxt = np.roll(np.arange(len(th)), -1)
+        th, c, s, f, tx, ty, K, A, B, rough = S.a
+        nxt = np.arange(1, len(th) + 1) % len(th)
         lb, bc, bs = cell_bounds(c, s, c[nxt], s[nxt], K, A, B, K[nxt], A[nxt], B[nxt])
         b = int(np.argmin(f))
         fbest = float(f[b])
@@ -181,8 +176,11 @@ def search(prob: Problem, evaluate, th0: float, tol: float = CERT_TOL):
             o = (b + side) % m
             width = abs(math.remainder(float(th[o] - th[b]), 2.0 * math.pi))
             centres = [abs(math.remainder(new[int(np.searchsorted(bad, j))] - float(th[b]), 2.0 * math.pi))]
-            if g[b] * side < 0.0 < g[o] * side:  # a slope sign change: the secant root
-                centres.append(width * abs(g[b]) / (abs(g[b]) + abs(g[o])))
+            for nb in (o, (b - side) % m):  # secant roots of the slope through either neighbour
+                dth = math.remainder(float(th[nb] - th[b]), 2.0 * math.pi)
+                x = side * float(-g[b] * dth / (g[nb] - g[b]))
+                if 0.0 < x < width:
+                    centres.append(x)
             for x in centres:  # offsets from th[b] towards o; a stencil on both sides of each centre
                 new.append(th[b] + side * x)
                 if width < _FINE:
@@ -192,5 +190,5 @@ def search(prob: Problem, evaluate, th0: float, tol: float = CERT_TOL):
                 new.append(th[b] + side * width / 4.0)
         if not S.add(new):  # the uncertified cells cannot be split in floating point
             break
-    b = int(np.argmin(S.cols[3]))
-    return float(S.cols[0][b]), float(S.cols[4][b]), float(S.cols[5][b]), lower
+    b = int(np.argmin(S.a[3]))
+    return float(S.a[0, b]), float(S.a[4, b]), float(S.a[5, b]), lower

@@ -51,12 +51,13 @@ def evaluate(prob, c, s, tx0, ty0, rough):
     d = np.sqrt(dx * dx + dy * dy)
     f = np.sum(w * d, axis=1)
     for it in range(_ITERS):
-        inv = np.where(d > 0.0, 1.0 / d, 0.0)
-        iw = w * inv
-        gx, gy = -np.sum(iw * dx, axis=1), -np.sum(iw * dy, axis=1)
+        inv = np.divide(1.0, d, out=np.zeros_like(d), where=d > 0.0)  # robots on t left out
+        ux, uy = dx * inv, dy * inv
+        kx, ky = (ux, uy) if prob.unit else (w * ux, w * uy)
+        gx, gy = -np.sum(kx, axis=1), -np.sum(ky, axis=1)
         flat = gx * gx + gy * gy <= gtol  # the duals balance to well within the tolerance
-        px, py = iw * inv * inv * dx, iw * inv * inv * dy
-        a, b, cc = np.sum(py * dy, axis=1), -np.sum(px * dy, axis=1), np.sum(px * dx, axis=1)
+        kx, ky = kx * inv, ky * inv  # Hessian: sum w/d (I - u u^T)
+        a, b, cc = np.sum(ky * uy, axis=1), -np.sum(kx * uy, axis=1), np.sum(kx * ux, axis=1)
         det = a * cc - b * b
         sx, sy = (cc * gx - b * gy) / det, (a * gy - b * gx) / det  # Newton: t - (sx, sy)
         t0x, t0y = tx[act], ty[act]
@@ -67,7 +68,7 @@ def evaluate(prob, c, s, tx0, ty0, rough):
         step = np.sqrt(sx * sx + sy * sy)
         if not ok.all():  # Weiszfeld where Newton fails (never raises f)
             bad = ~ok
-            sw = np.sum(iw[bad], axis=1)
+            sw = np.sum(w * inv[bad], axis=1)
             wsx, wsy = np.where(sw > 0.0, gx[bad] / sw, 0.0), np.where(sw > 0.0, gy[bad] / sw, 0.0)
             sx[bad], sy[bad] = wsx, wsy
             ndx[bad], ndy[bad] = dx[bad] + wsx[:, None], dy[bad] + wsy[:, None]
@@ -77,11 +78,10 @@ def evaluate(prob, c, s, tx0, ty0, rough):
         sx, sy, step = np.where(flat, 0.0, sx), np.where(flat, 0.0, sy), np.where(flat, 0.0, step)
         tx[act], ty[act], dx, dy, d, f = t0x - sx, t0y - sy, ndx, ndy, nd, fn
         done = flat | (step <= stop) | (rough[act] & (it + 1 >= _ROUGH_ITERS))
-        near = np.argmin(d, axis=1)
-        rows = np.arange(len(d))
-        test = np.nonzero(d[rows, near] <= 16.0 * step)[0]  # the nearest robot point is within reach
+        test = np.nonzero(d.min(axis=1) <= 16.0 * step)[0]  # the nearest robot point is within reach
         if len(test):
-            jx, jy = x[test, near[test]], y[test, near[test]]
+            near = np.argmin(d[test], axis=1)
+            jx, jy = x[test, near], y[test, near]
             ex, ey = x[test] - jx[:, None], y[test] - jy[:, None]
             e = np.sqrt(ex * ex + ey * ey)
             ie = np.where(e > 0.0, w / e, 0.0)
