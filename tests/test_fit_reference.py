@@ -9,6 +9,7 @@ from scipy.optimize import minimize
 
 from vsfleet.fit import CERT_TOL, fit_structure, structure_cost
 from vsfleet.fit import certify, median, minimax
+from vsfleet.errors import NonFiniteError, ShapeError
 from vsfleet.geometry import Pose2
 
 GRID = 721  # reference angles: memory GRID * n floats per array (<= 0.6 MB at n = 100)
@@ -134,3 +135,50 @@ def test_the_cell_bound_is_the_minimum_over_the_cell_of_the_larger_minorant():
     brute = np.maximum(v.min(axis=1), 0.0)
     assert (lb <= brute + 1e-12).all()
     assert np.abs(lb - brute).max() <= 2e-4  # the brute grid step is 1.25e-4 rad
+
+
+def test_an_inner_solve_cut_short_still_gives_a_valid_minorant():
+    p, r = _case(30, 8, noise=0.2)
+    prob = certify.Problem(p, r, None)
+    th = np.linspace(-math.pi, math.pi, 12, endpoint=False)
+    c, s = np.cos(th), np.sin(th)
+    exact = median.evaluate(prob, c, s, np.zeros(12), np.zeros(12), np.zeros(12, bool))
+    short = median.evaluate(prob, c, s, np.zeros(12), np.zeros(12), np.zeros(12, bool), iters=1)
+    for f, K, A, B in ((exact[0], *exact[3:]), (short[0], *short[3:])):
+        m = K[:, None] - A[:, None] * c - B[:, None] * s
+        assert (m <= exact[0][None, :] + 1e-12).all()
+    assert (short[0] >= exact[0] - 1e-12).all()  # a true cost at its translation: never below f
+
+
+@pytest.mark.parametrize("max_rounds", [1, 60])
+def test_a_search_that_cannot_certify_stops_and_states_its_gap(max_rounds):
+    p, r = _case(7, 4, noise=0.2)
+    prob = certify.Problem(p, r, None)
+    th0 = fit_structure(p, r, "l2").pose.th
+    for ev in (median.evaluate, minimax.evaluate):
+        th, tx, ty, lower = certify.search(prob, ev, th0, tol=0.0, max_rounds=max_rounds)
+        res = fit_structure(p, r, "l1" if ev is median.evaluate else "linf")
+        assert lower <= res.cost_lower_bound + 1e-12 or lower <= res.cost
+        cost = structure_cost(p, r, prob.pose(th, tx, ty), "l1" if ev is median.evaluate else "linf")
+        assert lower <= cost
+        assert cost <= res.cost + (1.0 if max_rounds == 1 else CERT_TOL)
+
+
+def test_structure_cost_rejects_a_malformed_pose():
+    p = np.array([[0.0, 0.0], [1.0, 0.0]])
+    with pytest.raises(ShapeError):
+        structure_cost(p, p, ("a", 0.0, 0.0), "l2")
+    with pytest.raises(ShapeError):
+        structure_cost(p, p, (0.0, 0.0), "l2")
+    with pytest.raises(NonFiniteError):
+        structure_cost(p, p, (math.nan, 0.0, 0.0), "l2")
+
+
+def test_the_search_stops_when_no_uncertified_cell_can_be_split():
+    def loose(prob, c, s, tx0, ty0, rough):  # f = 1 everywhere, a flat minorant 0.5 below it
+        m = len(c)
+        return np.ones(m), np.zeros(m), np.zeros(m), np.full(m, 0.5), np.zeros(m), np.zeros(m)
+
+    prob = certify.Problem(np.array([[0.0, 0.0], [1.0, 0.0]]), np.array([[0.0, 0.0], [0.0, 1.0]]), None)
+    th, tx, ty, lower = certify.search(prob, loose, 0.3)
+    assert lower == pytest.approx(0.5, abs=1e-12)  # the gap is stated, not hidden

@@ -19,7 +19,6 @@ CERT_TOL = 1e-10
 EPS = float(np.finfo(float).eps)
 _GRID = 16  # initial uniform grid of rotations
 _STENCIL = tuple(4.0 ** -k for k in range(1, 6))  # offsets around a cell's centre [x distance to its ends]
-_FINE = 1.0  # cells next to the best angle narrower than this [rad] get stencils
 _MAX_ROUNDS = 60
 
 
@@ -121,14 +120,14 @@ class _Angles:
         """
         old = self.a
         rough = {wrap_angle(t) for t in rough}
-        known = set(old[0].tolist()) - set(old[0, old[9] > 0].tolist())
-        new = sorted(({wrap_angle(t) for t in ths} | rough) - known)
+        was_rough = set(old[0, old[9] > 0].tolist())
+        new = sorted(({wrap_angle(t) for t in ths} | rough) - (set(old[0].tolist()) - was_rough))
         if not new:
             return 0
         th = np.array(new)
         if old.shape[1]:
-            if rough_old := known.symmetric_difference(old[0].tolist()) & set(new):  # re-solved
-                old = old[:, [t not in rough_old for t in old[0].tolist()]]
+            if redo := was_rough & set(new):  # first-pass angles re-solved exactly
+                old = old[:, [t not in redo for t in old[0].tolist()]]
             gap = np.abs(np.remainder(th[:, None] - old[0] + math.pi, 2.0 * math.pi) - math.pi)
             t0 = old[4:6, np.argmin(gap, axis=1)]  # warm start: the nearest evaluated angle's t
         else:
@@ -141,7 +140,7 @@ class _Angles:
         return len(new)
 
 
-def search(prob: Problem, evaluate, th0: float, tol: float = CERT_TOL):
+def search(prob: Problem, evaluate, th0: float, tol: float = CERT_TOL, max_rounds: int = _MAX_ROUNDS):
     """Certified min over th of f(th): (th, centred tx, ty, lower bound of min f).
 
     Rounds: evaluate new angles; bound every cell between neighbours; in each cell whose
@@ -154,7 +153,7 @@ def search(prob: Problem, evaluate, th0: float, tol: float = CERT_TOL):
     S.add([th0 + d * h for d in (-1e-3, 0.0, 1e-3) for h in (1.0, 1e-3)], [-math.pi + step * k for k in range(_GRID)])
     levels = _STENCIL[: max(1, min(len(_STENCIL), 400 // prob.n))]
     lower = 0.0
-    for _ in range(_MAX_ROUNDS):
+    for _ in range(max_rounds):
         th, c, s, f, tx, ty, K, A, B, rough = S.a
         nxt = np.arange(1, len(th) + 1) % len(th)
         lb, bc, bs = cell_bounds(c, s, c[nxt], s[nxt], K, A, B, K[nxt], A[nxt], B[nxt])
@@ -178,16 +177,10 @@ def search(prob: Problem, evaluate, th0: float, tol: float = CERT_TOL):
             centres = [abs(math.remainder(new[int(np.searchsorted(bad, j))] - float(th[b]), 2.0 * math.pi))]
             for nb in (o, (b - side) % m):  # secant roots of the slope through either neighbour
                 dth = math.remainder(float(th[nb] - th[b]), 2.0 * math.pi)
-                x = side * float(-g[b] * dth / (g[nb] - g[b]))
-                if 0.0 < x < width:
-                    centres.append(x)
-            for x in centres:  # offsets from th[b] towards o; a stencil on both sides of each centre
-                new.append(th[b] + side * x)
-                if width < _FINE:
-                    d = min(x, width - x)
-                    new += [th[b] + side * (x + e * d * h) for h in levels for e in (-1.0, 1.0)]
-            if width >= _FINE:
-                new.append(th[b] + side * width / 4.0)
+                centres.append(side * float(-g[b] * dth / (g[nb] - g[b])))
+            for x in [x for x in centres if 0.0 < x < width]:  # a stencil on both sides of each
+                d = min(x, width - x)
+                new += [th[b] + side * (x + e * d * h) for h in (0.0,) + levels for e in (-1.0, 1.0)]
         if not S.add(new):  # the uncertified cells cannot be split in floating point
             break
     b = int(np.argmin(S.a[3]))

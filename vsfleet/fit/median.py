@@ -31,7 +31,7 @@ def _duals(qx, qy, w, tx, ty):
     return f, kx - share * sx[:, None], ky - share * sy[:, None]
 
 
-def evaluate(prob, c, s, tx0, ty0, rough):
+def evaluate(prob, c, s, tx0, ty0, rough, iters: int = _ITERS):
     """Geometric median at each angle: (f, tx, ty, K, A, B), (m,) arrays; see certify.search.
 
     Each iteration: the cost's gradient g and Hessian H at t (robots on t left out) and a
@@ -50,7 +50,7 @@ def evaluate(prob, c, s, tx0, ty0, rough):
     dx, dy = x - tx[:, None], y - ty[:, None]
     d = np.sqrt(dx * dx + dy * dy)
     f = np.sum(w * d, axis=1)
-    for it in range(_ITERS):
+    for it in range(iters):
         inv = np.divide(1.0, d, out=np.zeros_like(d), where=d > 0.0)  # robots on t left out
         ux, uy = dx * inv, dy * inv
         kx, ky = (ux, uy) if prob.unit else (w * ux, w * uy)
