@@ -77,7 +77,10 @@ def evaluate(prob, c, s, tx0, ty0, rough, iters: int = _ITERS):
             step[bad] = np.sqrt(wsx * wsx + wsy * wsy)
         sx, sy, step = np.where(flat, 0.0, sx), np.where(flat, 0.0, sy), np.where(flat, 0.0, step)
         tx[act], ty[act], dx, dy, d, f = t0x - sx, t0y - sy, ndx, ndy, nd, fn
-        done = flat | (step <= stop) | (rough[act] & (it + 1 >= _ROUGH_ITERS))
+        # after a Newton step the gradient is ~ |H| step^2 / min d (quadratic convergence)
+        sw = np.sum(kx * ux + ky * uy, axis=1)  # trace of H = sum w/d
+        landed = ok & (step * step * sw * prob.bound <= 1e-12 * np.min(d, axis=1))
+        done = flat | landed | (step <= stop) | (rough[act] & (it + 1 >= _ROUGH_ITERS))
         test = np.nonzero(d.min(axis=1) <= 16.0 * step)[0]  # the nearest robot point is within reach
         if len(test):
             near = np.argmin(d[test], axis=1)
