@@ -17,8 +17,8 @@ from ..geometry import Pose2, wrap_angle
 #: Certification tolerance of the l1 and linf searches [weighted m].
 CERT_TOL = 1e-10
 EPS = float(np.finfo(float).eps)
-_GRID = 16  # initial uniform grid of rotations
-_STENCIL = tuple(4.0 ** -k for k in range(1, 6))  # offsets around a cell's centre [x distance to its ends]
+_GRID = 8  # initial uniform grid of rotations
+_STENCIL = tuple(4.0 ** -k for k in range(1, 9))  # offsets around a cell's centre [x distance to its ends]
 _MAX_ROUNDS = 60
 
 
@@ -140,6 +140,28 @@ class _Angles:
         return len(new)
 
 
+def _kink(f, g, th, b: int, o: int, side: int, m: int) -> float:
+    """Where quadratic models of f's two arms, through b and through o, cross (offset from th[b]).
+
+    Each arm's curvature comes from the slopes at its point and at the next point outwards
+    when that slope has the same sign (else the arm is taken as straight: tangent lines).
+    """
+    def curv(i, j):
+        dth = math.remainder(float(th[j] - th[i]), 2.0 * math.pi)
+        return float((g[j] - g[i]) / dth) if g[i] * g[j] > 0.0 else 0.0
+
+    D = math.remainder(float(th[o] - th[b]), 2.0 * math.pi)
+    kb, ko = curv(b, (b - side) % m), curv(o, (o + side) % m)
+    qa = np.float64(0.5 * (kb - ko))  # numpy scalars: a zero divisor gives inf / nan
+    qb = g[b] - g[o] + ko * D
+    qc = f[b] - f[o] + g[o] * D - 0.5 * ko * D * D
+    if abs(qa) * D * D <= 1e-3 * abs(qb * D):  # nearly straight arms: the linear root
+        return float(-qc / qb)
+    disc = np.sqrt(max(qb * qb - 4.0 * qa * qc, 0.0))
+    inside = [x for x in ((-qb - disc) / (2.0 * qa), (-qb + disc) / (2.0 * qa)) if 0.0 < x / D < 1.0]
+    return float(inside[0] if inside else -qc / qb)
+
+
 def search(prob: Problem, evaluate, th0: float, tol: float = CERT_TOL, max_rounds: int = _MAX_ROUNDS):
     """Certified min over th of f(th): (th, centred tx, ty, lower bound of min f).
 
@@ -150,7 +172,7 @@ def search(prob: Problem, evaluate, th0: float, tol: float = CERT_TOL, max_round
     """
     S = _Angles(prob, evaluate)
     step = 2.0 * math.pi / _GRID
-    S.add([th0 + d * h for d in (-1e-3, 0.0, 1e-3) for h in (1.0, 1e-3)], [-math.pi + step * k for k in range(_GRID)])
+    S.add([th0 + e * h for e in (-1.0, 0.0, 1.0) for h in (1e-6, 1e-3, 4e-3, 1.6e-2, 6.4e-2)], [-math.pi + step * k for k in range(_GRID)])
     levels = _STENCIL[: max(1, min(len(_STENCIL), 400 // prob.n))]
     lower = 0.0
     for _ in range(max_rounds):
@@ -175,9 +197,14 @@ def search(prob: Problem, evaluate, th0: float, tol: float = CERT_TOL, max_round
             o = (b + side) % m
             width = abs(math.remainder(float(th[o] - th[b]), 2.0 * math.pi))
             centres = [abs(math.remainder(new[int(np.searchsorted(bad, j))] - float(th[b]), 2.0 * math.pi))]
-            for nb in (o, (b - side) % m):  # secant roots of the slope through either neighbour
-                dth = math.remainder(float(th[nb] - th[b]), 2.0 * math.pi)
-                centres.append(side * float(-g[b] * dth / (g[nb] - g[b])))
+            # roots of the slope interpolated through b, o (a line) and the other neighbour (a parabola)
+            xo = math.remainder(float(th[o] - th[b]), 2.0 * math.pi)
+            xp = math.remainder(float(th[(b - side) % m] - th[b]), 2.0 * math.pi)
+            d1 = (g[o] - g[b]) / xo  # numpy scalars: a zero divisor gives inf / nan, dropped below
+            d2 = ((g[(b - side) % m] - g[b]) / xp - d1) / (xp - xo)
+            disc = np.sqrt(max((d1 - d2 * xo) ** 2 - 4.0 * d2 * g[b], 0.0))
+            centres += [float(side * x) for x in (-g[b] / d1, (d2 * xo - d1 - disc) / (2 * d2), (d2 * xo - d1 + disc) / (2 * d2))]
+            centres.append(side * _kink(f, g, th, b, o, side, m))
             for x in [x for x in centres if 0.0 < x < width]:  # a stencil on both sides of each
                 d = min(x, width - x)
                 new += [th[b] + side * (x + e * d * h) for h in (0.0,) + levels for e in (-1.0, 1.0)]
