@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .certify import EPS
+
 _ITERS = 40  # inner iterations (Newton converges in a handful from a warm start)
 _ROUGH_ITERS = 2  # a first-pass solve: a valid but looser minorant
 
@@ -42,6 +44,7 @@ def evaluate(prob, c, s, tx0, ty0, rough, iters: int = _ITERS):
     """
     qx, qy = prob.q(c, s)
     w = prob.w
+    W = float(np.sum(w))
     tx, ty = tx0.astype(float), ty0.astype(float)
     stop = prob.bound * 1e-15  # step [m] at rounding level
     gtol = (1e-12 / prob.bound) ** 2  # |gradient|^2: the imbalance costs |g| bound <= 1e-12
@@ -64,7 +67,7 @@ def evaluate(prob, c, s, tx0, ty0, rough, iters: int = _ITERS):
         ndx, ndy = dx + sx[:, None], dy + sy[:, None]
         nd = np.sqrt(ndx * ndx + ndy * ndy)
         fn = np.sum(w * nd, axis=1)
-        ok = fn <= f  # False for NaN (a singular Hessian)
+        ok = fn <= f * (1.0 + 4.0 * EPS)  # a tie within rounding is a landing; False for NaN
         step = np.sqrt(sx * sx + sy * sy)
         if not ok.all():  # Weiszfeld where Newton fails (never raises f)
             bad = ~ok
@@ -77,11 +80,11 @@ def evaluate(prob, c, s, tx0, ty0, rough, iters: int = _ITERS):
             step[bad] = np.sqrt(wsx * wsx + wsy * wsy)
         sx, sy, step = np.where(flat, 0.0, sx), np.where(flat, 0.0, sy), np.where(flat, 0.0, step)
         tx[act], ty[act], dx, dy, d, f = t0x - sx, t0y - sy, ndx, ndy, nd, fn
-        # after a Newton step the gradient is ~ |H| step^2 / min d (quadratic convergence)
+        # after a Newton step the gradient is ~ |H| step^2 / d, d ~ W / sum(w/d) (quadratic convergence)
         sw = np.sum(kx * ux + ky * uy, axis=1)  # trace of H = sum w/d
-        landed = ok & (step * step * sw * prob.bound <= 1e-12 * np.min(d, axis=1))
+        landed = ok & (step * step * sw * sw * prob.bound <= 1e-12 * W)
         done = flat | landed | (step <= stop) | (rough[act] & (it + 1 >= _ROUGH_ITERS))
-        test = np.nonzero(d.min(axis=1) <= 16.0 * step)[0]  # the nearest robot point is within reach
+        test = np.nonzero(~ok | (d.min(axis=1) <= 16.0 * step))[0]  # Newton failed, or q_j is near
         if len(test):
             near = np.argmin(d[test], axis=1)
             jx, jy = x[test, near], y[test, near]
