@@ -66,7 +66,7 @@ def evaluate(prob, c, s, tx0, ty0, rough, iters: int = _ITERS):
         t0x, t0y = tx[act], ty[act]
         ndx, ndy = dx + sx[:, None], dy + sy[:, None]
         nd = np.sqrt(ndx * ndx + ndy * ndy)
-        fn = np.sum(w * nd, axis=1)
+        fn = np.sum(nd if prob.unit else w * nd, axis=1)
         ok = fn <= f * (1.0 + 4.0 * EPS)  # a tie within rounding is a landing; False for NaN
         step = np.sqrt(sx * sx + sy * sy)
         if not ok.all():  # Weiszfeld where Newton fails (never raises f)
@@ -81,7 +81,7 @@ def evaluate(prob, c, s, tx0, ty0, rough, iters: int = _ITERS):
         sx, sy, step = np.where(flat, 0.0, sx), np.where(flat, 0.0, sy), np.where(flat, 0.0, step)
         tx[act], ty[act], dx, dy, d, f = t0x - sx, t0y - sy, ndx, ndy, nd, fn
         # after a Newton step the gradient is ~ |H| step^2 / d, d ~ W / sum(w/d) (quadratic convergence)
-        sw = np.sum(kx * ux + ky * uy, axis=1)  # trace of H = sum w/d
+        sw = a + cc  # trace of H = sum w/d
         landed = ok & (step * step * sw * sw * prob.bound <= 1e-12 * W)
         done = flat | landed | (step <= stop) | (rough[act] & (it + 1 >= _ROUGH_ITERS))
         test = np.nonzero(~ok | (d.min(axis=1) <= 16.0 * step))[0]  # Newton failed, or q_j is near
