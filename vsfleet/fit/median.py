@@ -84,7 +84,7 @@ def evaluate(prob, c, s, tx0, ty0, rough, iters: int = _ITERS):
         sw = a + cc  # trace of H = sum w/d
         landed = ok & (step * step * sw * sw * prob.bound <= 1e-12 * W)
         done = flat | landed | (step <= stop) | (rough[act] & (it + 1 >= _ROUGH_ITERS))
-        test = np.nonzero(~ok | (d.min(axis=1) <= 16.0 * step))[0]  # Newton failed, or q_j is near
+        test = np.nonzero(~ok | (d.min(axis=1) <= step))[0]  # Newton failed, or q_j is within a step
         if len(test):
             near = np.argmin(d[test], axis=1)
             jx, jy = x[test, near], y[test, near]
