@@ -205,7 +205,11 @@ def search(prob: Problem, evaluate, th0: float, tol: float = CERT_TOL, max_round
             disc = np.sqrt(max((d1 - d2 * xo) ** 2 - 4.0 * d2 * g[b], 0.0))
             centres += [float(side * x) for x in (-g[b] / d1, (d2 * xo - d1 - disc) / (2 * d2), (d2 * xo - d1 + disc) / (2 * d2))]
             centres.append(side * _kink(f, g, th, b, o, side, m))
-            for x in [x for x in centres if 0.0 < x < width]:  # a stencil on both sides of each
+            kept = []
+            for x in sorted(x for x in centres if 0.0 < x < width):  # distinct centres in the cell
+                if not kept or x - kept[-1] > 1e-3 * min(x, width - x):
+                    kept.append(x)
+            for x in kept:  # a stencil on both sides of each
                 d = min(x, width - x)
                 new += [th[b] + side * (x + e * d * h) for h in (0.0,) + levels for e in (-1.0, 1.0)]
         if not S.add(new):  # the uncertified cells cannot be split in floating point
