@@ -133,7 +133,7 @@ def fit_structure(template_xy, positions_xy, metric: str = "l2", weights=None) -
             th = 0.0 if metric != "l2" and prob.rigid else procrustes.rotation(prob)
             tx, ty = 0.0, 0.0
             if metric != "l2":
-                tx, ty, lower = certify.translation_at(prob, _EVALUATORS[metric], th, metric == "l1")
+                tx, ty, lower = certify.translation_at(prob, _EVALUATORS[metric], th)
         else:
             th, tx, ty, lower = certify.search(prob, _EVALUATORS[metric], procrustes.rotation(prob))
     pose = prob.pose(th, tx, ty)

@@ -99,7 +99,7 @@ def cell_bounds(ca, sa, cb, sb, Ka, Aa, Ba, Kb, Ab, Bb):
     return np.maximum(best - slack, 0.0), bc, bs
 
 
-def translation_at(prob: Problem, evaluate, th: float, l1: bool):
+def translation_at(prob: Problem, evaluate, th: float):
     """Optimal centred translation at a fixed rotation and the minorant's value there."""
     c, s = np.array([math.cos(th)]), np.array([math.sin(th)])
     f, tx, ty, K, A, B = evaluate(prob, c, s, np.zeros(1), np.zeros(1), np.zeros(1, bool))
@@ -140,39 +140,57 @@ class _Angles:
         return len(new)
 
 
-def _kink(f, g, th, b: int, o: int, side: int, m: int) -> float:
-    """Where quadratic models of f's two arms, through b and through o, cross (offset from th[b]).
+def _centres(f, g, th, b: int, side: int, cut: float) -> list:
+    """Distinct guesses of the minimiser in the cell from th[b] towards ``side``, as offsets.
 
-    Each arm's curvature comes from the slopes at its point and at the next point outwards
-    when that slope has the same sign (else the arm is taken as straight: tangent lines).
+    The cut point; the slope's root interpolated through b and the cell's other end o (a line)
+    and through b's other neighbour too (a parabola: a smooth minimum); where quadratic models
+    of f's two arms cross (a kink: the basis changes).  Numpy scalars: a zero divisor gives
+    inf / nan, dropped with every guess outside the cell.
     """
-    def curv(i, j):
+    m = len(th)
+    o, p = (b + side) % m, (b - side) % m
+    xo = math.remainder(float(th[o] - th[b]), 2.0 * math.pi)
+    xp = math.remainder(float(th[p] - th[b]), 2.0 * math.pi)
+    d1 = (g[o] - g[b]) / xo
+    d2 = ((g[p] - g[b]) / xp - d1) / (xp - xo)
+    disc = np.sqrt(max((d1 - d2 * xo) ** 2 - 4.0 * d2 * g[b], 0.0))
+    roots = (-g[b] / d1, (d2 * xo - d1 - disc) / (2.0 * d2), (d2 * xo - d1 + disc) / (2.0 * d2))
+
+    def curv(i, j):  # an arm's curvature from two of its slopes (straight if they differ in sign)
         dth = math.remainder(float(th[j] - th[i]), 2.0 * math.pi)
         return float((g[j] - g[i]) / dth) if g[i] * g[j] > 0.0 else 0.0
 
-    D = math.remainder(float(th[o] - th[b]), 2.0 * math.pi)
-    kb, ko = curv(b, (b - side) % m), curv(o, (o + side) % m)
-    qa = np.float64(0.5 * (kb - ko))  # numpy scalars: a zero divisor gives inf / nan
-    qb = g[b] - g[o] + ko * D
-    qc = f[b] - f[o] + g[o] * D - 0.5 * ko * D * D
-    if abs(qa) * D * D <= 1e-3 * abs(qb * D):  # nearly straight arms: the linear root
-        return float(-qc / qb)
-    disc = np.sqrt(max(qb * qb - 4.0 * qa * qc, 0.0))
-    inside = [x for x in ((-qb - disc) / (2.0 * qa), (-qb + disc) / (2.0 * qa)) if 0.0 < x / D < 1.0]
-    return float(inside[0] if inside else -qc / qb)
+    kb, ko = curv(b, p), curv(o, (o + side) % m)  # arms: b + g_b x + kb x^2/2 and the same at o
+    qa = np.float64(0.5 * (kb - ko))
+    qb = g[b] - g[o] + ko * xo
+    qc = f[b] - f[o] + g[o] * xo - 0.5 * ko * xo * xo
+    if abs(qa) * xo * xo <= 1e-3 * abs(qb * xo):  # nearly straight arms: the tangent lines' crossing
+        kinks = (-qc / qb,)
+    else:
+        dq = np.sqrt(max(qb * qb - 4.0 * qa * qc, 0.0))
+        kinks = ((-qb - dq) / (2.0 * qa), (-qb + dq) / (2.0 * qa))
+    width = abs(xo)
+    kept = []
+    for x in sorted(x for x in [cut] + [float(side * r) for r in roots] + [float(side * k) for k in kinks]
+                    if 0.0 < x < width):
+        if not kept or x - kept[-1] > 1e-3 * min(x, width - x):
+            kept.append(x)
+    return kept
 
 
 def search(prob: Problem, evaluate, th0: float, tol: float = CERT_TOL, max_rounds: int = _MAX_ROUNDS):
     """Certified min over th of f(th): (th, centred tx, ty, lower bound of min f).
 
     Rounds: evaluate new angles; bound every cell between neighbours; in each cell whose
-    bound is below best - tol/2 add its cut point (the bound's argmin), re-solve its ends
-    exactly if they came from the rough first pass, and next to the best angle add the
-    slope-secant root and stencils, until every cell is certified.
+    bound is below best - tol/2 add its cut point (the bound's argmin) and re-solve its ends
+    exactly if they came from the rough first pass; next to the best angle add stencils around
+    the cell's guesses of the minimiser (:func:`_centres`); until every cell is certified.
     """
     S = _Angles(prob, evaluate)
     step = 2.0 * math.pi / _GRID
-    S.add([th0 + e * h for e in (-1.0, 0.0, 1.0) for h in (1e-6, 1e-3, 4e-3, 1.6e-2, 6.4e-2)], [-math.pi + step * k for k in range(_GRID)])
+    local = [th0 + e * h for e in (-1.0, 0.0, 1.0) for h in (1e-6, 1e-3, 4e-3, 1.6e-2, 6.4e-2)]
+    S.add(local, rough=[-math.pi + step * k for k in range(_GRID)])
     levels = _STENCIL[: max(1, min(len(_STENCIL), 400 // prob.n))]
     lower = 0.0
     for _ in range(max_rounds):
@@ -194,22 +212,9 @@ def search(prob: Problem, evaluate, th0: float, tol: float = CERT_TOL, max_round
         for side, j in ((1, b), (-1, (b - 1) % m)):  # the cells right and left of the best
             if lb[j] >= fbest - tol_eff:
                 continue
-            o = (b + side) % m
-            width = abs(math.remainder(float(th[o] - th[b]), 2.0 * math.pi))
-            centres = [abs(math.remainder(new[int(np.searchsorted(bad, j))] - float(th[b]), 2.0 * math.pi))]
-            # roots of the slope interpolated through b, o (a line) and the other neighbour (a parabola)
-            xo = math.remainder(float(th[o] - th[b]), 2.0 * math.pi)
-            xp = math.remainder(float(th[(b - side) % m] - th[b]), 2.0 * math.pi)
-            d1 = (g[o] - g[b]) / xo  # numpy scalars: a zero divisor gives inf / nan, dropped below
-            d2 = ((g[(b - side) % m] - g[b]) / xp - d1) / (xp - xo)
-            disc = np.sqrt(max((d1 - d2 * xo) ** 2 - 4.0 * d2 * g[b], 0.0))
-            centres += [float(side * x) for x in (-g[b] / d1, (d2 * xo - d1 - disc) / (2 * d2), (d2 * xo - d1 + disc) / (2 * d2))]
-            centres.append(side * _kink(f, g, th, b, o, side, m))
-            kept = []
-            for x in sorted(x for x in centres if 0.0 < x < width):  # distinct centres in the cell
-                if not kept or x - kept[-1] > 1e-3 * min(x, width - x):
-                    kept.append(x)
-            for x in kept:  # a stencil on both sides of each
+            width = abs(math.remainder(float(th[(b + side) % m] - th[b]), 2.0 * math.pi))
+            cut = abs(math.remainder(new[int(np.searchsorted(bad, j))] - float(th[b]), 2.0 * math.pi))
+            for x in _centres(f, g, th, b, side, cut):  # a stencil on both sides of each
                 d = min(x, width - x)
                 new += [th[b] + side * (x + e * d * h) for h in (0.0,) + levels for e in (-1.0, 1.0)]
         if not S.add(new):  # the uncertified cells cannot be split in floating point

@@ -12,11 +12,10 @@ def rotation(prob) -> float:
     when |(cross, dot)| <= 1e-13 sqrt(sum w |P|^2 sum w |Q|^2) (>= sum w |P||Q|).
     """
     P, Q = prob.P, prob.Q
-    if not prob.unit:
-        P = prob.w[:, None] * P
-    dot = float((P * Q).sum())
-    cross = float((P[:, 0] * Q[:, 1] - P[:, 1] * Q[:, 0]).sum())
-    mag = math.sqrt(float((P * prob.P).sum()) * float((prob.w[:, None] * Q * Q).sum() if not prob.unit else (Q * Q).sum()))
+    wP = P if prob.unit else prob.w[:, None] * P
+    dot = float((wP * Q).sum())
+    cross = float((wP[:, 0] * Q[:, 1] - wP[:, 1] * Q[:, 0]).sum())
+    mag = math.sqrt(float((wP * P).sum()) * float((Q * Q if prob.unit else prob.w[:, None] * Q * Q).sum()))
     if math.hypot(cross, dot) <= 1e-13 * mag:
         return 0.0
     return math.atan2(cross, dot)
