@@ -45,12 +45,15 @@ class FitResult:
 
 def _as_array(name: str, a, error, ndim: int) -> np.ndarray:
     """A finite float copy of ``a``; ``error`` (a ValueError type) for anything else."""
+    shape = "(n, 2)" if ndim == 2 else "(n,)"
     try:
+        if np.asarray(a).dtype.kind not in "iufO":  # bool, complex, strings...
+            raise TypeError
         arr = np.array(a, dtype=float)
     except (TypeError, ValueError):
-        raise error(f"{name} must be a real numeric array, got {type(a).__name__}") from None
-    if np.asarray(a).dtype.kind not in "iufO" or arr.ndim != ndim or (ndim == 2 and arr.shape[1] != 2):
-        raise error(f"{name} must be a real numeric {'(n, 2)' if ndim == 2 else '(n,)'} array, got {arr.shape}")
+        raise error(f"{name} must be a real numeric {shape} array, got {type(a).__name__}") from None
+    if arr.ndim != ndim or (ndim == 2 and arr.shape[1] != 2):
+        raise error(f"{name} must be a real numeric {shape} array, got shape {arr.shape}")
     if not np.isfinite(arr).all():
         raise NonFiniteError(f"{name} holds NaN or infinity")
     return arr
