@@ -118,26 +118,36 @@ class _Angles:
 
         Returns how many angles were evaluated.
         """
+        ask = np.remainder(np.array(list(ths) + list(rough), dtype=float) + math.pi, 2.0 * math.pi) - math.pi
+        flag = np.arange(len(ask)) >= len(ask) - len(rough)
+        order = np.lexsort((flag, ask))  # exact before rough at equal angles: keep the first
+        ask, flag = ask[order], flag[order]
+        first = np.concatenate([[True], ask[1:] != ask[:-1]])
+        th, flag = ask[first], flag[first]
         old = self.a
-        rough = {wrap_angle(t) for t in rough}
-        was_rough = set(old[0, old[9] > 0].tolist())
-        new = sorted(({wrap_angle(t) for t in ths} | rough) - (set(old[0].tolist()) - was_rough))
-        if not new:
-            return 0
-        th = np.array(new)
         if old.shape[1]:
-            if redo := was_rough & set(new):  # first-pass angles re-solved exactly
-                old = old[:, [t not in redo for t in old[0].tolist()]]
+            at = np.minimum(np.searchsorted(old[0], th), old.shape[1] - 1)
+            known = old[0, at] == th
+            redo = known & (old[9, at] > 0) & ~flag  # first-pass angles re-solved exactly
+            th, flag = th[~known | redo], flag[~known | redo]
+            if redo.any():
+                keep = np.ones(old.shape[1], bool)
+                keep[at[redo]] = False
+                old = old[:, keep]
+        if not len(th):
+            return 0
+        if old.shape[1]:
             gap = np.abs(np.remainder(th[:, None] - old[0] + math.pi, 2.0 * math.pi) - math.pi)
             t0 = old[4:6, np.argmin(gap, axis=1)]  # warm start: the nearest evaluated angle's t
         else:
             t0 = np.zeros((2, len(th)))
-        c, s = np.array([[math.cos(t), math.sin(t)] for t in new]).T
-        flag = np.array([t in rough for t in new])
+        lt = th.tolist()
+        c = np.array([math.cos(t) for t in lt])  # math, not numpy: the same bits on every CPU
+        s = np.array([math.sin(t) for t in lt])
         out = self.evaluate(self.prob, c, s, t0[0], t0[1], flag)
         a = np.concatenate([old, np.stack((th, c, s) + tuple(out) + (flag,))], axis=1)
         self.a = a[:, np.argsort(a[0], kind="stable")]
-        return len(new)
+        return len(th)
 
 
 def _centres(f, g, th, b: int, side: int, cut: float) -> list:
