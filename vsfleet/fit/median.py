@@ -10,18 +10,19 @@ _ITERS = 40  # inner iterations (Newton converges in a handful from a warm start
 _ROUGH_ITERS = 2  # a first-pass solve: a valid but looser minorant
 
 
-def _duals(dx, dy, w):
+def _duals(dx, dy, w, tie: float):
     """f and dual vectors k_i (|k_i| <= w_i) from the offsets q_i - t, balanced at the nearest q_j.
 
-    k_i = w_i (q_i - t)/|q_i - t| for robots off the nearest point q_j; the robots on q_j
-    share -sum(others), clipped to their total weight.  At the optimum this balances exactly,
-    also when the median sits on q_j (the Vardi-Zhang case).
+    k_i = w_i (q_i - t)/|q_i - t| for robots off the nearest point q_j; the robots on q_j (within
+    ``tie`` [m] of it: rounding makes coincident robots differ) share -sum(others), clipped to
+    their total weight.  At the optimum this balances exactly, also when the median sits on q_j
+    (the Vardi-Zhang case); a robot within ``tie`` costs at most 2 w tie of the bound.
     """
     d = np.sqrt(dx * dx + dy * dy)
     f = np.sum(w * d, axis=1)
     rows = np.arange(len(d))
     j = np.argmin(d, axis=1)
-    on = (dx == dx[rows, j][:, None]) & (dy == dy[rows, j][:, None])
+    on = (dx - dx[rows, j][:, None]) ** 2 + (dy - dy[rows, j][:, None]) ** 2 <= tie * tie
     iw = np.where(on, 0.0, w / d)  # d > 0 off q_j
     kx, ky = iw * dx, iw * dy
     sx, sy = np.sum(kx, axis=1), np.sum(ky, axis=1)
@@ -47,8 +48,8 @@ def evaluate(prob, c, s, tx0, ty0, rough, iters: int = _ITERS):
     w = prob.w
     W = float(np.sum(w))
     tx, ty = tx0.astype(float), ty0.astype(float)
-    stop = prob.bound * 1e-15  # step [m] at rounding level
     gtol = (1e-12 / prob.bound) ** 2  # |gradient|^2: the imbalance costs |g| bound <= 1e-12
+    tie = 64.0 * EPS * prob.bound  # robots closer than this to a robot point are taken as on it [m]
     act = np.arange(len(tx))
     dx, dy = qx - tx[:, None], qy - ty[:, None]
     DX, DY = dx.copy(), dy.copy()  # each row's final offsets
@@ -91,16 +92,17 @@ def evaluate(prob, c, s, tx0, ty0, rough, iters: int = _ITERS):
         tx[act], ty[act], dx, dy, d, f = tx[act] - sx, ty[act] - sy, ndx, ndy, nd, fn
         # after a Newton step the gradient is ~ |H| step^2 / d, d ~ W / sum(w/d) (quadratic convergence)
         landed = ok & (step * step * (a + cc) ** 2 * prob.bound <= 1e-12 * W)  # a + cc = sum w/d
-        done = flat | landed | (step <= stop) | (rough[act] & (it + 1 >= _ROUGH_ITERS))
+        stalled = step <= 4.0 * EPS * d.min(axis=1)  # below the resolution of the nearest offset
+        done = flat | landed | stalled | (rough[act] & (it + 1 >= _ROUGH_ITERS))
         test = np.nonzero(done | ~ok | (d.min(axis=1) <= step))[0]  # finishing, Newton failed, or q_j near
         if len(test):
             near = np.argmin(d[test], axis=1)
             jx, jy = dx[test, near], dy[test, near]  # offsets of q_j; q_i - q_j = dx_i - jx
             ex, ey = dx[test] - jx[:, None], dy[test] - jy[:, None]
             e = np.sqrt(ex * ex + ey * ey)
-            ie = np.where(e > 0.0, w / e, 0.0)
+            ie = np.where(e > tie, w / e, 0.0)  # robots within rounding of q_j are on it
             vx, vy = np.sum(ie * ex, axis=1), np.sum(ie * ey, axis=1)
-            eta = np.sum(np.where(e > 0.0, 0.0, w), axis=1)
+            eta = np.sum(np.where(e > tie, 0.0, w), axis=1)
             vn = np.sqrt(vx * vx + vy * vy)
             vertex = vn < eta
             # else the Vardi-Zhang step from q_j: Weiszfeld stalls next to a point that is not optimal
@@ -122,6 +124,6 @@ def evaluate(prob, c, s, tx0, ty0, rough, iters: int = _ITERS):
         act, dx, dy, d, f = act[keep], dx[keep], dy[keep], d[keep], f[keep]
     else:
         DX[act], DY[act] = dx, dy
-    f, kx, ky = _duals(DX, DY, w)
+    f, kx, ky = _duals(DX, DY, w, tie)
     K, A, B = prob.minorant(kx, ky)
     return f, tx, ty, K, A, B
