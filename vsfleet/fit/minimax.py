@@ -78,6 +78,10 @@ def evaluate(prob, c, s, tx0, ty0, rough):
         mem[act] = ws[sub, m_]
     w = prob.w[0]
     dx, dy = qx[rows, mem] - cx[:, None], qy[rows, mem] - cy[:, None]
+    # a triple's multipliers from the radii themselves (lam_i ~ v_j x v_k), so that sum lam_i v_i
+    # vanishes to rounding even where the circumcentre's barycentric weights are ill-conditioned
+    cr = dx[:, [1, 2, 0]] * dy[:, [2, 0, 1]] - dy[:, [1, 2, 0]] * dx[:, [2, 0, 1]]
+    lam = np.where(lam[:, 2:] > 0.0, cr / np.sum(cr, axis=1)[:, None], lam)
     rad = np.sqrt(r2)
     scale = np.where(rad > 0.0, w / rad, 0.0)[:, None] * lam
     K, A, B = prob.minorant(scale * dx, scale * dy, mem)
