@@ -186,3 +186,18 @@ def test_the_search_stops_when_no_uncertified_cell_can_be_split():
     with np.errstate(all="ignore"):  # as fit_structure runs it
         th, tx, ty, lower = certify.search(prob, loose, 0.3)
     assert lower == pytest.approx(0.5, abs=1e-12)  # the gap is stated, not hidden
+
+
+@pytest.mark.parametrize("metric", ["l1", "linf"])
+@pytest.mark.parametrize("n", [4, 5, 8, 13])
+def test_noise_free_robots_with_one_moved_onto_another_are_certified(n, metric):
+    # every q_i but one coincides at the optimum (to rounding): the l1 median sits on a cluster
+    rng = np.random.default_rng(n)
+    p = rng.uniform(-1.0, 1.0, (n, 2))
+    r = Pose2(1.0, -2.0, 2.5).apply(p)
+    r[2] = r[0]
+    for w in (None, rng.uniform(0.1, 3.0, n)) if metric == "l1" else (None,):
+        res = fit_structure(p, r, metric, w)
+        assert res.cost - res.cost_lower_bound <= CERT_TOL
+        if w is None:
+            assert res.cost <= reference(p, r, metric) + CERT_TOL
