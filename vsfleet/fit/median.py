@@ -92,9 +92,11 @@ def evaluate(prob, c, s, tx0, ty0, rough, iters: int = _ITERS):
         tx[act], ty[act], dx, dy, d, f = tx[act] - sx, ty[act] - sy, ndx, ndy, nd, fn
         # after a Newton step the gradient is ~ |H| step^2 / d, d ~ W / sum(w/d) (quadratic convergence)
         landed = ok & (step * step * (a + cc) ** 2 * prob.bound <= 1e-12 * W)  # a + cc = sum w/d
-        stalled = step <= 4.0 * EPS * d.min(axis=1)  # below the resolution of the nearest offset
+        dmin = d.min(axis=1)
+        stalled = step <= 4.0 * EPS * dmin  # below the resolution of the nearest offset
         done = flat | landed | stalled | (rough[act] & (it + 1 >= _ROUGH_ITERS))
-        test = np.nonzero(done | ~ok | (d.min(axis=1) <= step))[0]  # finishing, Newton failed, or q_j near
+        # q_j is near: within a step, or (a row finishing) close next to the others
+        test = np.nonzero(~ok | (dmin <= step) | (done & (dmin * (a + cc) <= 1e-3 * W)))[0]
         if len(test):
             near = np.argmin(d[test], axis=1)
             jx, jy = dx[test, near], dy[test, near]  # offsets of q_j; q_i - q_j = dx_i - jx
