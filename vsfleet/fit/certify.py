@@ -166,6 +166,11 @@ def _centres(f, g, th, b: int, side: int, cut: float) -> list:
     d2 = ((g[p] - g[b]) / xp - d1) / (xp - xo)
     disc = np.sqrt(max((d1 - d2 * xo) ** 2 - 4.0 * d2 * g[b], 0.0))
     roots = (-g[b] / d1, (d2 * xo - d1 - disc) / (2.0 * d2), (d2 * xo - d1 + disc) / (2.0 * d2))
+    # the slope's roots of the cubic Hermite model of f on the cell (f and f' at both ends)
+    sec = (f[o] - f[b]) / xo
+    h2, h3 = (3.0 * sec - 2.0 * g[b] - g[o]) / xo, (g[b] + g[o] - 2.0 * sec) / (xo * xo)
+    dh = np.sqrt(max(h2 * h2 - 3.0 * h3 * g[b], 0.0))
+    roots += ((-h2 - dh) / (3.0 * h3), (-h2 + dh) / (3.0 * h3))
 
     def curv(i, j):  # an arm's curvature from two of its slopes (straight if they differ in sign)
         dth = math.remainder(float(th[j] - th[i]), 2.0 * math.pi)
@@ -215,8 +220,9 @@ def search(prob: Problem, evaluate, th0: float, tol: float = CERT_TOL, max_round
         bad = np.nonzero(lb < fbest - tol_eff)[0]
         if len(bad) == 0:
             break
-        new = [math.atan2(float(bs[i]), float(bc[i])) for i in bad]
-        new += [float(th[i]) for i in np.concatenate([bad, nxt[bad]]) if rough[i] > 0]
+        new = [math.atan2(y, x) for y, x in zip(bs[bad].tolist(), bc[bad].tolist())]
+        ends = np.concatenate([bad, nxt[bad]])
+        new += th[ends[rough[ends] > 0]].tolist()
         g = A * s - B * c  # slopes f'(th) of the minorants (exact at smooth inner optima)
         m = len(th)
         for side, j in ((1, b), (-1, (b - 1) % m)):  # the cells right and left of the best
@@ -224,9 +230,10 @@ def search(prob: Problem, evaluate, th0: float, tol: float = CERT_TOL, max_round
                 continue
             width = abs(math.remainder(float(th[(b + side) % m] - th[b]), 2.0 * math.pi))
             cut = abs(math.remainder(new[int(np.searchsorted(bad, j))] - float(th[b]), 2.0 * math.pi))
+            tb = float(th[b])
             for x in _centres(f, g, th, b, side, cut):  # a stencil on both sides of each
                 d = min(x, width - x)
-                new += [th[b] + side * (x + e * d * h) for h in (0.0,) + levels for e in (-1.0, 1.0)]
+                new += [tb + side * (x + e * d * h) for h in (0.0,) + levels for e in (-1.0, 1.0)]
         if not S.add(new):  # the uncertified cells cannot be split in floating point
             break
     b = int(np.argmin(S.a[3]))
