@@ -9,6 +9,7 @@ import numpy as np
 from .certify import EPS
 
 _WS = 6  # working-set size: the circle is solved exactly on these, then checked on every robot
+_NEXT = np.array([1, 2, 0])  # a basis member's successor (cross products of the radii)
 
 
 @lru_cache(maxsize=8)
@@ -57,12 +58,12 @@ def evaluate(prob, c, s, tx0, ty0, rough):
     m, n = qx.shape
     k = min(n, _WS)
     rows = np.arange(m)[:, None]
-    if k == n:
-        ws = np.broadcast_to(np.arange(n), (m, n))
+    if k == n:  # every robot in the working set: the circle is exact at once
+        cx, cy, r2, mem, lam = _circle(qx, qy)
     else:
         ws = np.argpartition((qx - tx0[:, None]) ** 2 + (qy - ty0[:, None]) ** 2, n - k, axis=1)[:, n - k:]
-    cx, cy, r2, mem, lam = _circle(qx[rows, ws], qy[rows, ws])
-    mem = ws[rows, mem]
+        cx, cy, r2, mem, lam = _circle(qx[rows, ws], qy[rows, ws])
+        mem = ws[rows, mem]
     act = np.arange(m)
     for _ in range(n if k < n else 0):  # each round grows every active row's radius
         ax, ay = qx[act], qy[act]
@@ -80,7 +81,8 @@ def evaluate(prob, c, s, tx0, ty0, rough):
     dx, dy = qx[rows, mem] - cx[:, None], qy[rows, mem] - cy[:, None]
     # a triple's multipliers from the radii themselves (lam_i ~ v_j x v_k), so that sum lam_i v_i
     # vanishes to rounding even where the circumcentre's barycentric weights are ill-conditioned
-    cr = dx[:, [1, 2, 0]] * dy[:, [2, 0, 1]] - dy[:, [1, 2, 0]] * dx[:, [2, 0, 1]]
+    dx1, dy1 = dx[:, _NEXT], dy[:, _NEXT]
+    cr = dx1 * dy1[:, _NEXT] - dy1 * dx1[:, _NEXT]
     lam = np.where(lam[:, 2:] > 0.0, cr / np.sum(cr, axis=1)[:, None], lam)
     rad = np.sqrt(r2)
     scale = np.where(rad > 0.0, w / rad, 0.0)[:, None] * lam
