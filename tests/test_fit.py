@@ -415,3 +415,19 @@ def test_every_error_is_a_value_error():
     for exc in (ShapeError, NonFiniteError, UnknownMetricError, WeightError):
         assert issubclass(exc, VsfleetValueError)
         assert issubclass(exc, ValueError)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_the_linf_triangle_guesses_hold_the_certified_optimum(seed):
+    from vsfleet.fit import certify, minimax, procrustes
+
+    rng = np.random.default_rng(seed)
+    p = TRIANGLE * rng.uniform(0.5, 3.0)
+    r = Pose2(*rng.uniform(-3.0, 3.0, 2), rng.uniform(-math.pi, math.pi)).apply(p)
+    r = r + rng.normal(0.0, (0.01, 0.05, 0.3)[seed % 3], r.shape)
+    prob = certify.Problem(p, r, None)
+    guesses = minimax.guesses(prob, procrustes.rotation(prob))
+    res = fit_structure(p, r, "linf")
+    assert res.cost - res.cost_lower_bound <= CERT_TOL
+    assert min(abs(math.remainder(g - res.pose.th, 2.0 * math.pi)) for g in guesses) <= 1e-7
+    assert minimax.guesses(certify.Problem(np.vstack([p, p[:1]]), np.vstack([r, r[:1]]), None), 0.0) == []

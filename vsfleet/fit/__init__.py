@@ -138,7 +138,9 @@ def fit_structure(template_xy, positions_xy, metric: str = "l2", weights=None) -
             if metric != "l2":
                 tx, ty, lower = certify.translation_at(prob, _EVALUATORS[metric], th)
         else:
-            th, tx, ty, lower = certify.search(prob, _EVALUATORS[metric], procrustes.rotation(prob))
+            th0 = procrustes.rotation(prob)
+            guess, split = (minimax.guesses(prob, th0), minimax.SPLIT) if metric == "linf" else ((), 0)
+            th, tx, ty, lower = certify.search(prob, _EVALUATORS[metric], th0, guess, split)
     pose = prob.pose(th, tx, ty)
     d = _residuals(p, r, pose)
     cost = _cost_of(d, w, metric)

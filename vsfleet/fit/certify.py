@@ -20,6 +20,7 @@ EPS = float(np.finfo(float).eps)
 _GRID = 8  # initial uniform grid of rotations
 _STENCIL = tuple(4.0 ** -k for k in range(1, 9))  # offsets around a cell's centre [x distance to its ends]
 _MAX_ROUNDS = 60
+_LADDER = 11  # first batch: each guess g and g +- 1e-9 4^k, k < _LADDER (certifies a smooth minimum at once)
 
 
 class Problem:
@@ -194,19 +195,25 @@ def _centres(f, g, th, b: int, side: int, cut: float) -> list:
     return kept
 
 
-def search(prob: Problem, evaluate, th0: float, tol: float = CERT_TOL, max_rounds: int = _MAX_ROUNDS):
+def search(prob: Problem, evaluate, th0: float, guesses=(), split: int = 0, tol: float = CERT_TOL,
+           max_rounds: int = _MAX_ROUNDS):
     """Certified min over th of f(th): (th, centred tx, ty, lower bound of min f).
 
     Rounds: evaluate new angles; bound every cell between neighbours; in each cell whose
     bound is below best - tol/2 add its cut point (the bound's argmin) and re-solve its ends
     exactly if they came from the rough first pass; next to the best angle add stencils around
     the cell's guesses of the minimiser (:func:`_centres`); until every cell is certified.
+    ``guesses``: candidate minimisers [rad] for the first batch; ``split``: every uncertified
+    cell also gets 2 (split // n) points at 4^-k of its width from its ends.
     """
     S = _Angles(prob, evaluate)
     step = 2.0 * math.pi / _GRID
     local = [th0 + e * h for e in (-1.0, 0.0, 1.0) for h in (1e-6, 1e-3, 4e-3, 1.6e-2, 6.4e-2)]
+    local += [g + e * 1e-9 * 4.0 ** k for g in guesses for e in (-1.0, 0.0, 1.0) for k in range(_LADDER)]
     S.add(local, rough=[-math.pi + step * k for k in range(_GRID)])
     levels = _STENCIL[: max(1, min(len(_STENCIL), 400 // prob.n))]
+    lv = 4.0 ** -np.arange(1, split // prob.n + 1)  # resolves a cell whose end touches f
+    frac = np.concatenate([lv, 1.0 - lv])
     lower = 0.0
     for _ in range(max_rounds):
         th, c, s, f, tx, ty, K, A, B, rough = S.a
@@ -223,6 +230,8 @@ def search(prob: Problem, evaluate, th0: float, tol: float = CERT_TOL, max_round
         new = [math.atan2(y, x) for y, x in zip(bs[bad].tolist(), bc[bad].tolist())]
         ends = np.concatenate([bad, nxt[bad]])
         new += th[ends[rough[ends] > 0]].tolist()
+        arc = np.remainder(th[nxt[bad]] - th[bad], 2.0 * math.pi)
+        new += (th[bad][:, None] + arc[:, None] * frac).ravel().tolist()
         g = A * s - B * c  # slopes f'(th) of the minorants (exact at smooth inner optima)
         m = len(th)
         for side, j in ((1, b), (-1, (b - 1) % m)):  # the cells right and left of the best

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from functools import lru_cache
 
 import numpy as np
@@ -10,6 +11,8 @@ from .certify import EPS
 
 _WS = 6  # working-set size: the circle is solved exactly on these, then checked on every robot
 _NEXT = np.array([1, 2, 0])  # a basis member's successor (cross products of the radii)
+SPLIT = 24  # search: end points in every uncertified cell (24 // n per end; cheap at small n)
+_GUESS_MAX_N = 3  # the paper triangle: closed-form guesses of the optimal rotation (scalar, cheap)
 
 
 @lru_cache(maxsize=8)
@@ -97,3 +100,57 @@ def evaluate(prob, c, s, tx0, ty0, rough):
     K, A, B = np.where(flat, cst, K), np.where(flat, 0.0, A), np.where(flat, 0.0, B)
     f = w * np.sqrt(((qx - cx[:, None]) ** 2 + (qy - cy[:, None]) ** 2).max(axis=1))
     return f, cx, cy, K, A, B
+
+
+def guesses(prob, th0: float) -> list:
+    """Candidate optimal rotations [rad] for n <= _GUESS_MAX_N (else none): speed only.
+
+    With 3 robots f is the half longest side or the circumradius (C1 where they meet), so
+    its minimum is a pair's alignment (closed form) or a stationary point of the triple's
+    circumradius R = abc / 2X (Newton on ln R^2 from th0; sides^2 and X = 2 area are affine
+    in cos th, sin th).
+    """
+    if prob.n > _GUESS_MAX_N:
+        return []
+    P, Q = prob.P.tolist(), prob.Q.tolist()
+    sides, out = [], []
+    for a, b in ((0, 1), (0, 2), (1, 2)):
+        D = (Q[b][0] - Q[a][0], Q[b][1] - Q[a][1])
+        E = (P[b][0] - P[a][0], P[b][1] - P[a][1])
+        u, v = D[0] * E[0] + D[1] * E[1], E[0] * D[1] - E[1] * D[0]  # |D - R E|^2 = al - 2(c u + s v)
+        sides.append((D[0] ** 2 + D[1] ** 2 + E[0] ** 2 + E[1] ** 2, u, v))
+        out.append(math.atan2(v, u))  # R(th) E along D
+        sides[-1] += (D, E)
+    (_, _, _, D1, E1), (_, _, _, D2, E2) = sides[0], sides[1]
+    kap = D1[0] * D2[1] - D1[1] * D2[0] + E1[0] * E2[1] - E1[1] * E2[0]
+    xc = D1[0] * E2[1] - D1[1] * E2[0] + E1[0] * D2[1] - E1[1] * D2[0]
+    xs = D1[0] * E2[0] + D1[1] * E2[1] - E1[0] * D2[0] - E1[1] * D2[1]  # X = kap - c xc - s xs
+    starts = [th0]
+    for (a1, u1, v1, _, _), (a2, u2, v2, _, _) in ((sides[0], sides[1]), (sides[0], sides[2]), (sides[1], sides[2])):
+        du, dv, h = u1 - u2, v1 - v2, 0.5 * (a1 - a2)  # two sides equal: c du + s dv = h
+        rho = math.hypot(du, dv)
+        if rho > abs(h):
+            base, half = math.atan2(dv, du), math.acos(h / rho)
+            starts += [base - half, base + half]
+    for th in starts:  # Newton from th0 and where two sides are equal (the triple's circle is near)
+        try:
+            for _ in range(12):
+                c, s = math.cos(th), math.sin(th)
+                X = kap - c * xc - s * xs
+                dx = 2.0 * (s * xc - c * xs) / X  # ln R^2 = sum ln a^2 - ln X^2 + const: d/dth, d2/dth2
+                d1, d2 = -dx, 0.5 * dx * dx - 2.0 * (kap - X) / X
+                for al, u, v, _, _ in sides:
+                    a2 = al - 2.0 * (c * u + s * v)
+                    g = 2.0 * (s * u - c * v) / a2
+                    d1, d2 = d1 + g, d2 + (al - a2) / a2 - g * g
+                if not d2 > 0.0:  # concave here: no minimum of R nearby
+                    break
+                step = max(-0.2, min(0.2, d1 / d2))
+                th -= step
+                if abs(step) <= 1e-10:  # quadratic convergence: th is exact to rounding
+                    out.append(th)
+                    break
+        except ZeroDivisionError:  # a degenerate triple (coincident or collinear points)
+            break
+    out.sort()
+    return [x for i, x in enumerate(out) if i == 0 or x - out[i - 1] > 1e-9]
