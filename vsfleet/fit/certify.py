@@ -36,7 +36,8 @@ class Problem:
             W = float(w.sum())
             self.cp, self.cr = (w[:, None] * p).sum(axis=0) / W, (w[:, None] * r).sum(axis=0) / W
         self.P, self.Q = p - self.cp, r - self.cr
-        self.Px, self.Py, self.Qx, self.Qy = self.P[:, 0], self.P[:, 1], self.Q[:, 0], self.Q[:, 1]
+        self.PQ = np.stack([self.P[:, 0], self.P[:, 1], self.Q[:, 0], self.Q[:, 1]])  # one gather for all four
+        self.Px, self.Py, self.Qx, self.Qy = self.PQ
 
     @cached_property
     def rigid(self) -> bool:
@@ -60,8 +61,7 @@ class Problem:
         m(th) = sum k_i . q_i(th) - |sum k_i| bound - 64 eps bound sum |k_i| <= f(th) when every
         |k_i| is within the metric's dual ball (weak duality; any translation).
         """
-        Px, Py, Qx, Qy = (self.Px, self.Py, self.Qx, self.Qy) if rows is None else (
-            self.Px[rows], self.Py[rows], self.Qx[rows], self.Qy[rows])
+        Px, Py, Qx, Qy = self.PQ if rows is None else self.PQ[:, rows]
         K = np.sum(kx * Qx + ky * Qy, axis=1)
         A = np.sum(kx * Px + ky * Py, axis=1)
         B = np.sum(ky * Px - kx * Py, axis=1)

@@ -17,10 +17,11 @@ _GUESS_MAX_N = 3  # the paper triangle: closed-form guesses of the optimal rotat
 
 @lru_cache(maxsize=8)
 def _subsets(k: int):
-    """Members (S, 3) of every pair (i, j, j) and triple (i, j, l) of range(k), and the pair count."""
+    """Members (S, 3) of every pair (i, j, j) and triple (i, j, l) of range(k), its columns, the pair count."""
     pairs = [(i, j, j) for i in range(k) for j in range(i + 1, k)]
     triples = [(i, j, l) for i in range(k) for j in range(i + 1, k) for l in range(j + 1, k)]
-    return np.array(pairs + triples, dtype=np.intp).reshape(-1, 3), len(pairs)
+    mem = np.array(pairs + triples, dtype=np.intp).reshape(-1, 3)
+    return mem, tuple(np.ascontiguousarray(mem[:, i]) for i in range(3)), len(pairs)
 
 
 def _circle(X, Y):
@@ -29,10 +30,10 @@ def _circle(X, Y):
     The radius is the largest over pairs (half the distance) and triples whose circumcentre
     lies in the triangle (barycentric weights >= 0: the KKT condition); that subset is the basis.
     """
-    mem, npair = _subsets(X.shape[1])
-    x0, y0 = X[:, mem[:, 0]], Y[:, mem[:, 0]]  # (m, S)
-    bx, by = X[:, mem[:, 1]] - x0, Y[:, mem[:, 1]] - y0
-    ex, ey = X[:, mem[:, 2]] - x0, Y[:, mem[:, 2]] - y0
+    mem, (i0, i1, i2), npair = _subsets(X.shape[1])
+    x0, y0 = X[:, i0], Y[:, i0]  # (m, S)
+    bx, by = X[:, i1] - x0, Y[:, i1] - y0
+    ex, ey = X[:, i2] - x0, Y[:, i2] - y0
     det = bx * ey - by * ex
     b2, e2 = bx * bx + by * by, ex * ex + ey * ey
     ux, uy = (ey * b2 - by * e2) / (2.0 * det), (bx * e2 - ex * b2) / (2.0 * det)
