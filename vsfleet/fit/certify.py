@@ -20,7 +20,7 @@ EPS = float(np.finfo(float).eps)
 _GRID = 8  # initial uniform grid of rotations
 _STENCIL = tuple(4.0 ** -k for k in range(1, 9))  # offsets around a cell's centre [x distance to its ends]
 _MAX_ROUNDS = 60
-_LADDER = 11  # first batch: each guess g and g +- 1e-9 4^k, k < _LADDER (certifies a smooth minimum at once)
+_LADDER = 6  # first batch: each guess g and g +- 1e-9 32^k, k < _LADDER (certifies a smooth minimum at once)
 
 
 class Problem:
@@ -209,7 +209,7 @@ def search(prob: Problem, evaluate, th0: float, guesses=(), split: int = 0, tol:
     S = _Angles(prob, evaluate)
     step = 2.0 * math.pi / _GRID
     local = [th0 + e * h for e in (-1.0, 0.0, 1.0) for h in (1e-6, 1e-3, 4e-3, 1.6e-2, 6.4e-2)]
-    local += [g + e * 1e-9 * 4.0 ** k for g in guesses for e in (-1.0, 0.0, 1.0) for k in range(_LADDER)]
+    local += [g + e * 1e-9 * 32.0 ** k for g in guesses for e in (-1.0, 0.0, 1.0) for k in range(_LADDER)]
     S.add(local, rough=[-math.pi + step * k for k in range(_GRID)])
     levels = _STENCIL[: max(1, min(len(_STENCIL), 400 // prob.n))]
     lv = 4.0 ** -np.arange(1, split // prob.n + 1)  # resolves a cell whose end touches f

@@ -108,8 +108,8 @@ def guesses(prob, th0: float) -> list:
 
     With 3 robots f is the half longest side or the circumradius (C1 where they meet), so
     its minimum is a pair's alignment (closed form) or a stationary point of the triple's
-    circumradius R = abc / 2X (Newton on ln R^2 from th0; sides^2 and X = 2 area are affine
-    in cos th, sin th).
+    circumradius R = abc / 2X (Newton on ln R^2 from th0 and where two sides are equal;
+    sides^2 and X = 2 area are affine in cos th, sin th).  docs/fit.md.
     """
     if prob.n > _GUESS_MAX_N:
         return []
