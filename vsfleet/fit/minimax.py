@@ -12,7 +12,6 @@ from .certify import EPS
 _WS = 6  # working-set size: the circle is solved exactly on these, then checked on every robot
 _NEXT = np.array([1, 2, 0])  # a basis member's successor (cross products of the radii)
 SPLIT = 9  # search: end points in every uncertified cell (9 // n per end: 3 at n = 3, none from n = 10)
-_GUESS_MAX_N = 3  # the paper triangle: closed-form guesses of the optimal rotation (scalar, cheap)
 
 
 @lru_cache(maxsize=8)
@@ -104,14 +103,14 @@ def evaluate(prob, c, s, tx0, ty0, rough):
 
 
 def guesses(prob, th0: float) -> list:
-    """Candidate optimal rotations [rad] for n <= _GUESS_MAX_N (else none): speed only.
+    """Candidate optimal rotations [rad] for the paper triangle, n = 3 (else none): speed only.
 
     With 3 robots f is the half longest side or the circumradius (C1 where they meet), so
     its minimum is a pair's alignment (closed form) or a stationary point of the triple's
     circumradius R = abc / 2X (Newton on ln R^2 from th0 and where two sides are equal;
     sides^2 and X = 2 area are affine in cos th, sin th).  docs/fit.md.
     """
-    if prob.n > _GUESS_MAX_N:
+    if prob.n != 3:  # the search runs from n = 3
         return []
     P, Q = prob.P.tolist(), prob.Q.tolist()
     sides, out = [], []
