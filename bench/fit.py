@@ -9,14 +9,14 @@ Powell minimises a minimal hand-written numpy objective for each metric (no
 input validation; d = hypot of the residuals, then l1 = sum d, l2 =
 sqrt(sum d^2), linf = max d) from the centroid translation with th = 0, with
 scipy's default tolerances; its reported cost is re-evaluated with
-``structure_cost`` at Powell's pose.  Times are medians per fit; "ratio" is
+``structure_cost`` at Powell's pose.  Times are the minimum over the repeats
+(the least disturbed run on a shared machine; run under ``nice``); "ratio" is
 powell / ours.  Progress goes to stderr; the table to stdout.
 """
 
 from __future__ import annotations
 
 import math
-import statistics
 import sys
 import time
 
@@ -95,8 +95,8 @@ def measure(log=lambda line: print(line, file=sys.stderr, flush=True)) -> list[t
                 xp = run_powell(p, r, metric)
                 t_powell.append(time.perf_counter() - t0)
             powell_cost = structure_cost(p, r, (xp[0], xp[1], xp[2]), metric)
-            mo = statistics.median(t_ours)
-            mp = statistics.median(t_powell)
+            mo = min(t_ours)
+            mp = min(t_powell)
             rows.append((n, metric, mo, mp, mp / mo, ours_cost, powell_cost))
     return rows
 

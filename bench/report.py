@@ -53,7 +53,7 @@ def fit_section(rows) -> str:
         "`vsfleet.fit.fit_structure` against `scipy.optimize.minimize(method=\"Powell\")` (the paper's "
         "direction-set method) on the same cost, as `bench/fit.py` (`make bench-fit`) measures it: one seeded "
         "formation per n (template uniform in [-1, 1]², a random rigid transform, 0.05 m Gaussian noise), "
-        "Powell from the centroid translation with th = 0 and scipy's default tolerances. Times are medians "
+        "Powell from the centroid translation with th = 0 and scipy's default tolerances. Times are minima over repeats "
         "per fit. *Time ratio* = Powell / ours (> 1: ours is faster). *Cost ratio* = Powell's cost / ours "
         "(≥ 1: ours found an equal or lower cost).",
         "",

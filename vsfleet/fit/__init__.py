@@ -1,0 +1,149 @@
+"""Fitting the virtual structure to the robots (Tan & Lewis 1996, section 3.3.1).
+
+Find the rigid pose T = (x, y, th) minimising l1 = sum w_i d_i, l2 = sqrt(sum w_i d_i^2) or
+linf = max w_i d_i, with d_i = |r_i - R(th) p_i - (x, y)| [m].  l2 is closed form; l1 and linf
+are certified global optima (gap <= CERT_TOL weighted m).  Method, certificate, degenerate
+cases and determinism: docs/fit.md.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import NonFiniteError, ShapeError, UnknownMetricError, WeightError
+from ..geometry import Pose2, wrap_angle
+from . import certify, median, minimax, procrustes
+from .certify import CERT_TOL, Problem
+
+__all__ = ["CERT_TOL", "METRICS", "FitResult", "fit_structure", "structure_cost"]
+
+METRICS = ("l1", "l2", "linf")
+_EVALUATORS = {"l1": median.evaluate, "linf": minimax.evaluate}
+
+
+@dataclass(frozen=True, eq=False)
+class FitResult:
+    """Result of :func:`fit_structure`.
+
+    pose: the fitted structure pose (world <- structure).
+    cost: the metric's cost at ``pose`` [weighted m].
+    residuals_m: (n,) unweighted distances d_i = |r_i - pose(p_i)| [m], all robots.
+    metric: 'l1', 'l2' or 'linf'.
+    cost_lower_bound: certified lower bound of the optimal cost [weighted m]
+        (equal to ``cost`` for l2 and closed-form cases).
+    """
+
+    pose: Pose2
+    cost: float
+    residuals_m: np.ndarray
+    metric: str
+    cost_lower_bound: float
+
+
+def _as_array(name: str, a, error, ndim: int) -> np.ndarray:
+    """A finite float copy of ``a``; ``error`` (a ValueError type) for anything else."""
+    shape = "(n, 2)" if ndim == 2 else "(n,)"
+    try:
+        if np.asarray(a).dtype.kind not in "iufO":  # bool, complex, strings...
+            raise TypeError
+        arr = np.array(a, dtype=float)
+    except (TypeError, ValueError):
+        raise error(f"{name} must be a real numeric {shape} array, got {type(a).__name__}") from None
+    if arr.ndim != ndim or (ndim == 2 and arr.shape[1] != 2):
+        raise error(f"{name} must be a real numeric {shape} array, got shape {arr.shape}")
+    if not np.isfinite(arr).all():
+        raise NonFiniteError(f"{name} holds NaN or infinity")
+    return arr
+
+
+def _validate(template_xy, positions_xy, metric, weights):
+    if not isinstance(metric, str) or metric not in METRICS:
+        raise UnknownMetricError(f"metric must be one of {METRICS}, got {metric!r}")
+    p = _as_array("template_xy", template_xy, ShapeError, 2)
+    r = _as_array("positions_xy", positions_xy, ShapeError, 2)
+    if p.shape[0] != r.shape[0]:
+        raise ShapeError(f"template_xy has {p.shape[0]} points but positions_xy has {r.shape[0]}")
+    if p.shape[0] == 0:
+        raise ShapeError("need at least one robot (n = 0)")
+    if weights is None:
+        return p, r, None
+    w = _as_array("weights", weights, WeightError, 1)
+    if w.shape != (p.shape[0],):
+        raise WeightError(f"weights must have shape ({p.shape[0]},), got {w.shape}")
+    if (w < 0.0).any() or not (w > 0.0).any():
+        raise WeightError("weights must be >= 0 and not all zero")
+    pos = w[w > 0.0]
+    if metric == "linf" and (pos != pos[0]).any():
+        raise WeightError("linf takes 0/equal weights only (a robot is in the fit or not)")
+    return p, r, w
+
+
+def _residuals(p: np.ndarray, r: np.ndarray, pose: Pose2) -> np.ndarray:
+    c, s = math.cos(pose.th), math.sin(pose.th)
+    dx = r[:, 0] - (c * p[:, 0] - s * p[:, 1] + pose.x)
+    dy = r[:, 1] - (s * p[:, 0] + c * p[:, 1] + pose.y)
+    return np.sqrt(dx * dx + dy * dy)
+
+
+def _cost_of(d: np.ndarray, w, metric: str) -> float:
+    wd = d if w is None else w * d
+    if metric == "l1":
+        return math.fsum(wd.tolist())
+    if metric == "l2":
+        return math.sqrt(math.fsum((wd * d).tolist()))
+    return float(wd.max())
+
+
+def structure_cost(template_xy, positions_xy, pose, metric: str, weights=None) -> float:
+    """The fit objective at ``pose`` (a Pose2 or an (x, y, th) triple) [weighted m].
+
+    Raises the same typed errors as :func:`fit_structure`.
+    """
+    p, r, w = _validate(template_xy, positions_xy, metric, weights)
+    if not isinstance(pose, Pose2):
+        try:
+            x, y, th = (float(v) for v in pose)
+        except (TypeError, ValueError):
+            raise ShapeError("pose must be a Pose2 or an (x, y, th) triple") from None
+        if not all(math.isfinite(v) for v in (x, y, th)):
+            raise NonFiniteError("pose holds NaN or infinity")
+        pose = Pose2(x, y, th)
+    return _cost_of(_residuals(p, r, pose), w, metric)
+
+
+def fit_structure(template_xy, positions_xy, metric: str = "l2", weights=None) -> FitResult:
+    """The rigid pose (world <- structure) minimising the metric's cost.
+
+    template_xy: (n, 2) structure-frame points p_i [m]; positions_xy: (n, 2) world positions
+    r_i [m]; metric: 'l1', 'l2' or 'linf'; weights: optional (n,) >= 0 (0 drops a robot from
+    the fit; linf takes 0/equal weights only).  Raises ShapeError, NonFiniteError,
+    UnknownMetricError, WeightError.
+    """
+    p, r, w = _validate(template_xy, positions_xy, metric, weights)
+    if w is None or (w > 0.0).all():
+        prob = Problem(p, r, w)
+    else:
+        keep = w > 0.0
+        prob = Problem(p[keep], r[keep], w[keep])
+    lower = None
+    with np.errstate(all="ignore"):
+        if prob.n == 1:
+            th, tx, ty = 0.0, 0.0, 0.0
+        elif metric == "l2" or prob.n == 2 or prob.rigid:
+            th = 0.0 if metric != "l2" and prob.rigid else procrustes.rotation(prob)
+            tx, ty = 0.0, 0.0
+            if metric != "l2":
+                tx, ty, lower = certify.translation_at(prob, _EVALUATORS[metric], th)
+        else:
+            th0 = procrustes.rotation(prob)
+            guess, split = (minimax.guesses(prob, th0), minimax.SPLIT) if metric == "linf" else ((), 0)
+            th, tx, ty, lower = certify.search(prob, _EVALUATORS[metric], th0, guess, split)
+    pose = prob.pose(th, tx, ty)
+    d = _residuals(p, r, pose)
+    cost = _cost_of(d, w, metric)
+    d.flags.writeable = False
+    lower = cost if lower is None else min(lower, cost)
+    return FitResult(pose=pose, cost=cost, residuals_m=d, metric=metric, cost_lower_bound=lower)

@@ -1,0 +1,156 @@
+"""linf: the minimum enclosing circle of the q_i at each angle, exact, with its basis duals."""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+import numpy as np
+
+from .certify import EPS
+
+_WS = 6  # working-set size: the circle is solved exactly on these, then checked on every robot
+_NEXT = np.array([1, 2, 0])  # a basis member's successor (cross products of the radii)
+SPLIT = 9  # search: end points in every uncertified cell (9 // n per end: 3 at n = 3, none from n = 10)
+
+
+@lru_cache(maxsize=8)
+def _subsets(k: int):
+    """Members (S, 3) of every pair (i, j, j) and triple (i, j, l) of range(k), its columns, the pair count."""
+    pairs = [(i, j, j) for i in range(k) for j in range(i + 1, k)]
+    triples = [(i, j, l) for i in range(k) for j in range(i + 1, k) for l in range(j + 1, k)]
+    mem = np.array(pairs + triples, dtype=np.intp).reshape(-1, 3)
+    return mem, tuple(np.ascontiguousarray(mem[:, i]) for i in range(3)), len(pairs)
+
+
+def _circle(X, Y):
+    """Exact smallest circle of each row's points (m, k): centre, radius^2, basis (m, 3), weights.
+
+    The radius is the largest over pairs (half the distance) and triples whose circumcentre
+    lies in the triangle (barycentric weights >= 0: the KKT condition); that subset is the basis.
+    """
+    mem, (i0, i1, i2), npair = _subsets(X.shape[1])
+    x0, y0 = X[:, i0], Y[:, i0]  # (m, S)
+    bx, by = X[:, i1] - x0, Y[:, i1] - y0
+    ex, ey = X[:, i2] - x0, Y[:, i2] - y0
+    det = bx * ey - by * ex
+    b2, e2 = bx * bx + by * by, ex * ex + ey * ey
+    ux, uy = (ey * b2 - by * e2) / (2.0 * det), (bx * e2 - ex * b2) / (2.0 * det)
+    lb, le = (ux * ey - uy * ex) / det, (bx * uy - by * ux) / det  # circumcentre = x0 + lb b + le e
+    ux[:, :npair], uy[:, :npair] = 0.5 * bx[:, :npair], 0.5 * by[:, :npair]
+    lb[:, :npair], le[:, :npair] = 0.5, 0.0
+    r2 = ux * ux + uy * uy
+    ok = (lb >= 0.0) & (le >= 0.0) & (lb + le <= 1.0) & np.isfinite(r2)
+    best = np.argmax(np.where(ok, r2, -1.0), axis=1)
+    rows = np.arange(len(X))
+    lb, le = lb[rows, best], le[rows, best]
+    lam = np.stack([1.0 - lb - le, lb, le], axis=1)
+    cx, cy = x0[rows, best] + ux[rows, best], y0[rows, best] + uy[rows, best]
+    return cx, cy, r2[rows, best], mem[best], lam
+
+
+def evaluate(prob, c, s, tx0, ty0, rough):
+    """Minimax centre at each angle: (f, tx, ty, K, A, B), (m,) arrays; see certify.search.
+
+    Active set: solve exactly on a working set (the farthest robots from the warm centre),
+    then add the farthest robots while any lies outside; the radius grows, so it ends.
+    Duals: k_i = w lam_i (q_i - centre)/radius on the basis (lam: its barycentric weights).
+    ``rough`` (the search's first-pass rows) is ignored: every solve is exact.
+    """
+    qx, qy = prob.q(c, s)
+    m, n = qx.shape
+    k = min(n, _WS)
+    rows = np.arange(m)[:, None]
+    if k == n:  # every robot in the working set: the circle is exact at once
+        cx, cy, r2, mem, lam = _circle(qx, qy)
+    else:
+        ws = np.argpartition((qx - tx0[:, None]) ** 2 + (qy - ty0[:, None]) ** 2, n - k, axis=1)[:, n - k:]
+        cx, cy, r2, mem, lam = _circle(qx[rows, ws], qy[rows, ws])
+        mem = ws[rows, mem]
+    act = np.arange(m)
+    for _ in range(n if k < n else 0):  # each round grows every active row's radius
+        ax, ay = qx[act], qy[act]
+        d2 = (ax - cx[act, None]) ** 2 + (ay - cy[act, None]) ** 2
+        out = d2.max(axis=1) > r2[act] * (1.0 + 16.0 * EPS)
+        if not out.any():
+            break
+        act, d2 = act[out], d2[out]
+        far = np.argpartition(d2, n - k + 3, axis=1)[:, n - k + 3:]
+        ws = np.concatenate([mem[act], far], axis=1)
+        sub = np.arange(len(act))[:, None]
+        cx[act], cy[act], r2[act], m_, lam[act] = _circle(qx[act[:, None], ws], qy[act[:, None], ws])
+        mem[act] = ws[sub, m_]
+    w = prob.w[0]
+    dx, dy = qx[rows, mem] - cx[:, None], qy[rows, mem] - cy[:, None]
+    # a triple's multipliers from the radii themselves (lam_i ~ v_j x v_k), so that sum lam_i v_i
+    # vanishes to rounding even where the circumcentre's barycentric weights are ill-conditioned
+    dx1, dy1 = dx[:, _NEXT], dy[:, _NEXT]
+    cr = dx1 * dy1[:, _NEXT] - dy1 * dx1[:, _NEXT]
+    lam = np.where(lam[:, 2:] > 0.0, cr / np.sum(cr, axis=1)[:, None], lam)
+    rad = np.sqrt(r2)
+    scale = np.where(rad > 0.0, w / rad, 0.0)[:, None] * lam
+    K, A, B = prob.minorant(scale * dx, scale * dy, mem)
+    # a pair basis also gives the constant minorant w ||Q_i - Q_j| - |P_i - P_j|| / 2 (every th):
+    # better where it touches, e.g. a pair of coincident robots, whose distance is constant
+    i, j = mem[:, 0], mem[:, 1]
+    dq = np.sqrt((prob.Qx[i] - prob.Qx[j]) ** 2 + (prob.Qy[i] - prob.Qy[j]) ** 2)
+    dp = np.sqrt((prob.Px[i] - prob.Px[j]) ** 2 + (prob.Py[i] - prob.Py[j]) ** 2)
+    cst = 0.5 * w * (np.abs(dq - dp) - 16.0 * EPS * prob.bound)
+    flat = (lam[:, 2] == 0.0) & (cst >= K - A * c - B * s)
+    K, A, B = np.where(flat, cst, K), np.where(flat, 0.0, A), np.where(flat, 0.0, B)
+    f = w * np.sqrt(((qx - cx[:, None]) ** 2 + (qy - cy[:, None]) ** 2).max(axis=1))
+    return f, cx, cy, K, A, B
+
+
+def guesses(prob, th0: float) -> list:
+    """Candidate optimal rotations [rad] for the paper triangle, n = 3 (else none): speed only.
+
+    With 3 robots f is the half longest side or the circumradius (C1 where they meet), so
+    its minimum is a pair's alignment (closed form) or a stationary point of the triple's
+    circumradius R = abc / 2X (Newton on ln R^2 from th0 and where two sides are equal;
+    sides^2 and X = 2 area are affine in cos th, sin th).  docs/fit.md.
+    """
+    if prob.n != 3:  # the search runs from n = 3
+        return []
+    P, Q = prob.P.tolist(), prob.Q.tolist()
+    sides, out = [], []
+    for a, b in ((0, 1), (0, 2), (1, 2)):
+        D = (Q[b][0] - Q[a][0], Q[b][1] - Q[a][1])
+        E = (P[b][0] - P[a][0], P[b][1] - P[a][1])
+        u, v = D[0] * E[0] + D[1] * E[1], E[0] * D[1] - E[1] * D[0]  # |D - R E|^2 = al - 2(c u + s v)
+        sides.append((D[0] ** 2 + D[1] ** 2 + E[0] ** 2 + E[1] ** 2, u, v))
+        out.append(math.atan2(v, u))  # R(th) E along D
+        sides[-1] += (D, E)
+    (_, _, _, D1, E1), (_, _, _, D2, E2) = sides[0], sides[1]
+    kap = D1[0] * D2[1] - D1[1] * D2[0] + E1[0] * E2[1] - E1[1] * E2[0]
+    xc = D1[0] * E2[1] - D1[1] * E2[0] + E1[0] * D2[1] - E1[1] * D2[0]
+    xs = D1[0] * E2[0] + D1[1] * E2[1] - E1[0] * D2[0] - E1[1] * D2[1]  # X = kap - c xc - s xs
+    starts = [th0]
+    for (a1, u1, v1, _, _), (a2, u2, v2, _, _) in ((sides[0], sides[1]), (sides[0], sides[2]), (sides[1], sides[2])):
+        du, dv, h = u1 - u2, v1 - v2, 0.5 * (a1 - a2)  # two sides equal: c du + s dv = h
+        rho = math.hypot(du, dv)
+        if rho > abs(h):
+            base, half = math.atan2(dv, du), math.acos(h / rho)
+            starts += [base - half, base + half]
+    for th in starts:  # Newton from th0 and where two sides are equal (the triple's circle is near)
+        try:
+            for _ in range(12):
+                c, s = math.cos(th), math.sin(th)
+                X = kap - c * xc - s * xs
+                dx = 2.0 * (s * xc - c * xs) / X  # ln R^2 = sum ln a^2 - ln X^2 + const: d/dth, d2/dth2
+                d1, d2 = -dx, 0.5 * dx * dx - 2.0 * (kap - X) / X
+                for al, u, v, _, _ in sides:
+                    a2 = al - 2.0 * (c * u + s * v)
+                    g = 2.0 * (s * u - c * v) / a2
+                    d1, d2 = d1 + g, d2 + (al - a2) / a2 - g * g
+                if not d2 > 0.0:  # concave here: no minimum of R nearby
+                    break
+                step = max(-0.2, min(0.2, d1 / d2))
+                th -= step
+                if abs(step) <= 1e-10:  # quadratic convergence: th is exact to rounding
+                    out.append(th)
+                    break
+        except ZeroDivisionError:  # a degenerate triple (coincident or collinear points)
+            break
+    out.sort()
+    return [x for i, x in enumerate(out) if i == 0 or x - out[i - 1] > 1e-9]
