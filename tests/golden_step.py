@@ -1,7 +1,7 @@
 """Golden vectors of the agent step: recorded inputs (mission, frames, clock) and outputs as hex floats.
 
 ``python tests/golden_step.py`` records them into tests/data/golden-step.json: the paper
-failure scenario under ``drop`` (r2 halts at 8 s and is dropped) for 12 s of 30 Hz frames,
+failure scenario under ``drop`` (r2 halts at 8 s and is dropped) for 16 s of 30 Hz frames,
 observed with noise, and every agent's outputs. tests/test_golden_step.py replays the
 inputs through vsfleet.step.agent_step and requires the same outputs bit for bit. Record
 again only on purpose (a change of the controller, the advance or the failure rule) and say
@@ -25,7 +25,7 @@ from vsfleet.wire import decode_mission, encode_mission
 
 ROOT = Path(__file__).resolve().parent.parent
 PATH = ROOT / "tests" / "data" / "golden-step.json"
-SECONDS, SEED = 12.0, 7
+SECONDS, SEED = 16.0, 7
 
 
 def hexes(values) -> list[str]:
