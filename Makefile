@@ -14,18 +14,17 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(BIN)/vsfleet run scenarios/paper-triangle.toml
 
-# the whole suite (CI: .ci/run): the unit tier on both cores, then the multi-process tests one at a
-# time (they measure nothing, but a fleet needs the machine to itself to keep its rate);
-# test-unit: every test that starts no process (tests/conftest.py)
+# the whole suite (CI: .ci/run): the unit tier on both cores, then the multi-process tests two files
+# at a time (each file's tests in one worker, in order); test-unit: every test that starts no process
 test: $(STAMP)
 	$(BIN)/python -m pytest -q -m "not integration" -n 2
-	$(BIN)/python -m pytest -q -m integration
+	$(BIN)/python -m pytest -q -m integration -n 2 --dist loadfile
 
 test-unit: $(STAMP)
 	$(BIN)/python -m pytest -q -m "not integration" -n 2
 
 test-integration: $(STAMP)
-	$(BIN)/python -m pytest -q -m integration
+	$(BIN)/python -m pytest -q -m integration -n 2 --dist loadfile
 
 bench-fit: $(STAMP)
 	$(BIN)/python bench/fit.py
