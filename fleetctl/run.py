@@ -69,6 +69,12 @@ def child_command(*args: str) -> list[str]:
     return [sys.executable, "-m", "vsfleet.fleetctl.cli", *args]
 
 
+# How a child that was asked to stop may end: 0 once it is up (it handles SIGTERM and SIGINT itself);
+# 130 (vsfleet's code for Ctrl-C) or killed by SIGINT / SIGTERM when the stop came while it was still
+# starting (a Ctrl-C reaches the whole process group); anything else is a failure.
+STOPPED_CODES = (0, 130, -signal.SIGINT, -signal.SIGTERM)
+
+
 @dataclass
 class Recorder:
     """Every message under vs/<fleet>/**: (receive time [s], key, payload)."""
@@ -166,7 +172,7 @@ class Children:
         return lines[-1] if lines else "(no output)"
 
     def stop(self, names: list[str] | None = None, grace_s: float = 5.0) -> bool:
-        """Terminate (then kill) the named children; True if all exited with code 0 on SIGTERM."""
+        """Terminate (then kill) the named children; True if all stopped cleanly (STOPPED_CODES)."""
         names = list(self.procs) if names is None else names
         for n in names:
             if self.procs[n].poll() is None:
@@ -181,7 +187,7 @@ class Children:
                 p.kill()
                 p.wait()
                 ok = False
-            ok = ok and p.returncode == 0
+            ok = ok and p.returncode in STOPPED_CODES
         return ok
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import base64
 import json
+import threading
 import time
 
 import foxglove.messages
@@ -120,11 +121,17 @@ def test_a_file_recorded_live_by_vsfleet_record_reads_back_with_the_sdks_schemas
 
     router, endpoint = open_loopback_router()
     try:
+        deadline = time.monotonic() + 20.0
         with Recording(client_conf(endpoint), tmp_path / "live.mcap", "vs/lab/**", query_mission=False) as rec:
-            router.put("vs/lab/mission", encode_mission(MISSION))
-            router.put("vs/lab/frame/cam0", encode_frame(frame(1)))
-            router.put("vs/lab/state/r1", encode(StateMsg(t=frame(1).t, seq=1, x=0.01, y=0.02, th=0.1, gx=0.02,
-                                                          gy=0.02, gth=0.1, cost=0.0, err=0.0, used=(), rejected=0)))
+            pubs = {k: router.declare_publisher(k) for k in ("vs/lab/mission", "vs/lab/frame/cam0", "vs/lab/state/r1")}
+            # put only once the recorder's subscription has reached the router (a loaded host is slow to)
+            ready = threading.Event()
+            while not all(p.matching_status.matching for p in pubs.values()):
+                assert not ready.wait(0.01) and time.monotonic() < deadline, "the recorder never subscribed"
+            pubs["vs/lab/mission"].put(encode_mission(MISSION))
+            pubs["vs/lab/frame/cam0"].put(encode_frame(frame(1)))
+            pubs["vs/lab/state/r1"].put(encode(StateMsg(t=frame(1).t, seq=1, x=0.01, y=0.02, th=0.1, gx=0.02,
+                                                        gy=0.02, gth=0.1, cost=0.0, err=0.0, used=(), rejected=0)))
             assert rec.wait_count(3, timeout_s=10), f"{rec.count} of 3 records"
     finally:
         router.close()
