@@ -142,7 +142,7 @@ def test_a_killed_agent_restarted_takes_its_peers_decisions_and_agrees_with_them
     rejoins = fleet.observed.wait_for(
         lambda o: {by: e.seq for _, by, e in o.event if e.kind == "rejoin" and e.robot == "r1"}
         if len({by for _, by, e in o.event if e.kind == "rejoin" and e.robot == "r1"}) == 3 else None,
-        timeout_s=30)
+        timeout_s=60)  # r1 must first catch up with a structure that went on: slower on a loaded host
     print(f"agent r1 killed; dropped by r2, r3 on frames {drops}; restarted agent agreeing with its peers "
           f"on frame {agree_seq}, its {n_states}th state; rejoined on frames {rejoins}")
     assert n_states <= 30  # it took its peers' decisions at once, not after a second of its own
