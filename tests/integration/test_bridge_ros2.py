@@ -253,18 +253,33 @@ def test_pose_bridge_turns_sdk_posestamped_and_odometry_into_frames_and_drops_ma
         assert f2.t == pytest.approx(sec + n + 1.25, abs=1e-6) and set(f2.poses) == {"r1", "r2"}
         assert f2.seq == f.seq + 1
         assert frames.empty()
-        # and each robot of each frame on pose/<robot>, for tools
+        # and each robot of each frame on pose/<robot>, for tools. Those go out best-effort (the
+        # stream QoS drops under congestion, as a tracker's do), so a loaded host may lose one: a
+        # further instant is published until one frame's two poses are both seen, matching it.
         seen = {}
-        want = {(f2.seq, *f2.poses["r1"][:2]), (f2.seq, *f2.poses["r2"][:2])}
+        sent = {f2.seq: f2}
+        last = [n + 1]
 
         def both_seen():
+            deadline = time.monotonic() + 1.0
+            while time.monotonic() < deadline:
+                try:
+                    m = poses.get(timeout=0.1)
+                    seen[(m.seq, m.x, m.y)] = m
+                except queue.Empty:
+                    pass
+                for seq, fr in sent.items():
+                    if {(seq, *fr.poses[r][:2]) for r in ("r1", "r2")} <= set(seen):
+                        return fr
+            last[0] += 1
+            publish_instant(last[0])
             try:
-                m = poses.get(timeout=0.2)
-                seen[(m.seq, m.x, m.y)] = m
+                fr = frames.get(timeout=2.0)
+                sent[fr.seq] = fr
             except queue.Empty:
                 pass
-            return want <= set(seen)
-        wait_until(both_seen, 5.0, "both robots' poses of the last frame")
+            return None
+        wait_until(both_seen, 20.0, "both robots' poses of one frame")
         assert all(m.src == "mocap" for m in seen.values())
     finally:
         sub.undeclare()
