@@ -362,7 +362,9 @@ def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFla
 
         subs = [
             session.declare_subscriber(keys.mission, enqueue("mission")),
-            session.declare_subscriber(keys.frame(), on_frame),
+            # decoded on the zenoh network thread itself (not handed to a Python callback thread
+            # first): one thread hand-off per frame, rx -> the main thread's step
+            session.declare_subscriber(keys.frame(), zenoh.handlers.Callback(on_frame, indirect=False)),
         ]
         queryables = [session.declare_queryable(own_mission, answer_mission, complete=False),
                       session.declare_queryable(own_health, answer_health, complete=False)]

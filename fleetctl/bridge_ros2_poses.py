@@ -27,7 +27,7 @@ from vsfleet.wire import FrameMsg, Keys, PoseMsg, check_name, encode, encode_fra
 from . import rmw_zenoh as rz
 from .bridge_ros2 import open_session, ros_client_config
 from .lifecycle import Rejections, StopFlag
-from .zconf import STREAM_QOS, add_zenoh_args, init_logging, zenoh_config
+from .zconf import BURST_QOS, STREAM_QOS, add_zenoh_args, init_logging, zenoh_config
 
 log = logging.getLogger("vsfleet.bridge.ros2-poses")
 
@@ -187,7 +187,7 @@ def run_pose_bridge(conf: zenoh.Config, topics: dict[str, str], fleet: str = "de
         session = stack.enter_context(open_session(conf))
         ros = stack.enter_context(open_session(ros_conf)) if ros_conf is not None else session
         pub = session.declare_publisher(keys.frame(src), **STREAM_QOS)
-        pose_pubs = {r: session.declare_publisher(keys.pose(r), **STREAM_QOS) for r in topics.values()} \
+        pose_pubs = {r: session.declare_publisher(keys.pose(r), **BURST_QOS) for r in topics.values()} \
             if poses else {}
 
         def emit(frame: FrameMsg) -> None:

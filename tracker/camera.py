@@ -373,7 +373,7 @@ def run_camera_tracker(conf, config: CameraConfig, calibration: FloorCalibration
     liveliness vs/<fleet>/alive/tracker/<src>."""
     import zenoh
 
-    from vsfleet.fleetctl.zconf import STREAM_QOS
+    from vsfleet.fleetctl.zconf import BURST_QOS, STREAM_QOS
     from vsfleet.wire import Keys, decode_truth, encode, encode_frame
 
     stop = stop or StopFlag()
@@ -392,7 +392,7 @@ def run_camera_tracker(conf, config: CameraConfig, calibration: FloorCalibration
 
         def publish(robot: str, msg: PoseMsg) -> None:
             if robot not in pubs:
-                pubs[robot] = session.declare_publisher(keys.pose(robot), **STREAM_QOS)
+                pubs[robot] = session.declare_publisher(keys.pose(robot), **BURST_QOS)
             pubs[robot].put(encode(msg))
 
         if source == "render":

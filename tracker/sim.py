@@ -20,7 +20,7 @@ import numpy as np
 import zenoh
 
 from vsfleet.fleetctl.lifecycle import Rejections, StopFlag, pace, wall_clock
-from vsfleet.fleetctl.zconf import STREAM_QOS, add_zenoh_args, init_logging, open_session, zenoh_config
+from vsfleet.fleetctl.zconf import BURST_QOS, STREAM_QOS, add_zenoh_args, init_logging, open_session, zenoh_config
 from vsfleet.kinematics import wrap_angles
 from vsfleet.scenario import TrackerParams
 from vsfleet.wire import FrameMsg, Keys, PoseMsg, TruthMsg, decode_truth, encode, encode_frame
@@ -93,8 +93,8 @@ def run_tracker(conf: zenoh.Config, params: TrackerParams, fleet: str = "demo", 
         pubs: dict[str, zenoh.Publisher] = {}
         frame_pub = session.declare_publisher(keys.frame(src), **STREAM_QOS)
         token = session.liveliness().declare_token(keys.alive("tracker", src))
-        sub = session.declare_subscriber(keys.truth(), lambda s: tracker.on_truth(
-            keys, str(s.key_expr), s.payload.to_bytes()))
+        sub = session.declare_subscriber(keys.truth(), zenoh.handlers.Callback(  # on the network thread
+            lambda s: tracker.on_truth(keys, str(s.key_expr), s.payload.to_bytes()), indirect=False))
         log.info("tracker %s up at %.1f Hz", src, params.rate_hz)
         next_frame = clock()
         try:
@@ -112,7 +112,7 @@ def run_tracker(conf: zenoh.Config, params: TrackerParams, fleet: str = "demo", 
                     frame_pub.put(encode_frame(msg))
                     for robot, (x, y, th) in msg.poses.items() if poses else ():
                         if robot not in pubs:
-                            pubs[robot] = session.declare_publisher(keys.pose(robot), **STREAM_QOS)
+                            pubs[robot] = session.declare_publisher(keys.pose(robot), **BURST_QOS)
                         pubs[robot].put(encode(PoseMsg(t=msg.t, seq=msg.seq, x=x, y=y, th=th, src=msg.src)))
                 pace(min(next_frame, pending[0][0]) if pending else next_frame, stop, clock)
         finally:
