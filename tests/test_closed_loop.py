@@ -105,9 +105,12 @@ def test_a_robot_slowed_to_half_speed_bends_the_structure_but_is_not_declared_fa
     assert float(run.deviations_m.max()) < 0.03
 
 
-def test_after_a_transient_stall_the_fleet_resumes_and_with_rejoin_the_robot_is_taken_back():
+def test_after_a_transient_stall_under_hold_the_fleet_resumes_and_reaches_the_goal():
     hold = failure_run("hold", "stall", 0.0, 2.0, stop_at_goal=True)  # (the run ends at the goal)
     assert hold.t_goal_s is not None
+
+
+def test_after_a_transient_stall_with_rejoin_the_robot_is_taken_back_and_the_fleet_reaches_the_goal():
     rejoin = failure_run("rejoin", "stall", 0.0, 4.0)
     kinds = [(d.robot, d.kind) for d in rejoin.decisions["r3"]]
     assert kinds == [("r2", "fail"), ("r2", "drop"), ("r2", "rejoin")]
