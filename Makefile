@@ -15,13 +15,15 @@ demo: $(STAMP)
 	$(BIN)/vsfleet run scenarios/paper-triangle.toml
 
 # the whole suite (CI: .ci/run): the unit tier on both cores, then the multi-process tests two files
-# at a time (each file's tests in one worker, in order); test-unit: every test that starts no process
+# at a time (each file's tests in one worker, in order); test-unit: every test that starts no process.
+# The unit tier runs --dist worksteal: plain load scheduling hands a worker one chunk of consecutive
+# tests (all of tests/test_closed_loop.py's offline runs) that the idle worker cannot take back
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -m "not integration" -n 2
+	$(BIN)/python -m pytest -q -m "not integration" -n 2 --dist worksteal
 	$(BIN)/python -m pytest -q -m integration -n 2 --dist loadfile
 
 test-unit: $(STAMP)
-	$(BIN)/python -m pytest -q -m "not integration" -n 2
+	$(BIN)/python -m pytest -q -m "not integration" -n 2 --dist worksteal
 
 test-integration: $(STAMP)
 	$(BIN)/python -m pytest -q -m integration -n 2 --dist loadfile

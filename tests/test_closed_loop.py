@@ -1,5 +1,12 @@
-"""The whole loop in one process (simfleet.offline): controller choice, determinism, a halted robot."""
+"""The whole loop in one process (simfleet.offline): controller choice, determinism, a halted robot.
 
+An offline run is a pure function of its scenario, duration and seed, and nothing in it depends on
+the duration but where it stops: runs are cached (functools.cache) so that tests asking for the
+same run share one, and a test that needs the first seconds of a longer run reads its prefix.
+"""
+
+import dataclasses
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -8,6 +15,7 @@ import pytest
 from vsfleet.fleetctl.scenario_file import load_scenario
 from vsfleet.simfleet.offline import run_offline
 from vsfleet.control import CONTROLLERS, DEFAULT_CONTROLLER
+from vsfleet.scenario import FaultEvent
 from vsfleet.step import frame_arrays, mission_arrays, structure_step
 
 ROOT = Path(__file__).parent.parent
@@ -49,30 +57,32 @@ def test_the_structure_part_of_a_step_is_a_pure_function_of_mission_and_frame():
 
 
 def test_a_halted_robot_bends_the_structure_which_halts_instead_of_leaving_it_behind():
-    run = run_offline(FAILURE, 30.0, seed=2, stop_at_goal=False)
+    # paper-failure.toml as it stands is the hold/stop run below: its first 30 s, seed 2
+    assert FAILURE.mission.on_failure == "hold" and FAILURE.faults == (FaultEvent("r2", 8.0, "stop", 0.0, 0.0),)
+    run = failure_run("hold", "stop", 0.0, 0.0, seconds=60.0)
+    frames = int(round(30.0 * FAILURE.tracker.rate_hz))
+    trace, deviations_m = run.trace[:frames], run.deviations_m[:frames]
     i_fault = int(FAILURE.faults[0].at_s * FAILURE.tracker.rate_hz)
-    t, before = run.trace[i_fault]
-    _, end = run.trace[-1]
+    t, before = trace[i_fault]
+    _, end = trace[-1]
     # the structure moved before the fault, then stopped well short of the goal
-    start = run.trace[0][1]
+    start = trace[0][1]
     assert np.hypot(before.x - start.x, before.y - start.y) > 0.2
-    assert np.hypot(end.x - run.trace[-30][1].x, end.y - run.trace[-30][1].y) < 0.005
+    assert np.hypot(end.x - trace[-30][1].x, end.y - trace[-30][1].y) < 0.005
     goal = FAILURE.mission.goal
     assert np.hypot(goal[0] - end.x, goal[1] - end.y) > 0.5
     # and the formation error stays bounded: nobody is left behind
-    worst = float(run.deviations_m[i_fault:].max())
+    worst = float(deviations_m[i_fault:].max())
     print(f"deviation after the fault: max {100 * worst:.2f} cm")
     assert worst < 0.10
 
 
-def failure_run(mode, kind, factor, duration, seed=2, seconds=60.0):
-    import dataclasses
-
-    from vsfleet.scenario import FaultEvent
-
+@functools.cache
+def failure_run(mode, kind, factor, duration, seed=2, seconds=60.0, stop_at_goal=False):
+    """paper-failure.toml under on_failure ``mode``, r2's fault at 8 s (one run per arguments: cached)."""
     sc = dataclasses.replace(FAILURE, mission=dataclasses.replace(FAILURE.mission, on_failure=mode),
                              faults=(FaultEvent("r2", 8.0, kind, factor, duration),))
-    return run_offline(sc, seconds, seed=seed, stop_at_goal=False)
+    return run_offline(sc, seconds, seed=seed, stop_at_goal=stop_at_goal)
 
 
 def test_with_drop_a_halted_robot_is_dropped_by_every_agent_on_the_same_frame_and_the_rest_carry_on():
@@ -95,9 +105,12 @@ def test_a_robot_slowed_to_half_speed_bends_the_structure_but_is_not_declared_fa
     assert float(run.deviations_m.max()) < 0.03
 
 
-def test_after_a_transient_stall_the_fleet_resumes_and_with_rejoin_the_robot_is_taken_back():
-    hold = failure_run("hold", "stall", 0.0, 2.0)
+def test_after_a_transient_stall_under_hold_the_fleet_resumes_and_reaches_the_goal():
+    hold = failure_run("hold", "stall", 0.0, 2.0, stop_at_goal=True)  # (the run ends at the goal)
     assert hold.t_goal_s is not None
+
+
+def test_after_a_transient_stall_with_rejoin_the_robot_is_taken_back_and_the_fleet_reaches_the_goal():
     rejoin = failure_run("rejoin", "stall", 0.0, 4.0)
     kinds = [(d.robot, d.kind) for d in rejoin.decisions["r3"]]
     assert kinds == [("r2", "fail"), ("r2", "drop"), ("r2", "rejoin")]
@@ -154,11 +167,10 @@ def test_under_hold_a_stopped_robot_never_gets_a_healthy_robot_flagged():
 # commands one frame late, wheel gains within +-4%, a 2.5 m leg at 0.1 m/s; fixed seeds, counted clock
 
 
+@functools.cache
 def issue_run(seed, controller=None, fault=None, mode="hold", seconds=40.0, stop_at_goal=True, turn=False):
-    import dataclasses
-
+    """The issue's conditions for ``seed``; r2's ``fault`` at 8 s (one run per arguments: cached)."""
     from bench.conditions import issue_scenario
-    from vsfleet.scenario import FaultEvent
 
     sc = issue_scenario(seed, turn=turn)
     sc = dataclasses.replace(sc, mission=dataclasses.replace(sc.mission, on_failure=mode),
@@ -171,7 +183,7 @@ def test_the_default_controller_holds_the_triangle_within_a_millimetre_under_noi
     from bench.conditions import ideal_time_s
     from bench.precision import command_smoothness
 
-    sc, run = issue_run(seed)
+    sc, run = issue_run(seed, controller=DEFAULT_CONTROLLER, seconds=50.0)  # (it stops at the goal)
     ts = np.array([t for t, _ in run.trace])
     mean_cm, settled_max_cm = 100 * run.deviations_m.mean(), 100 * run.deviations_m[ts >= 3.0].max()
     jitter, _ = command_smoothness(run, 1 / 30)

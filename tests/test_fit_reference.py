@@ -16,17 +16,22 @@ GRID = 721  # reference angles: memory GRID * n floats per array (<= 0.6 MB at n
 
 
 def _inner(q, metric, iters=200):
-    """Approximate inner optimum for every angle: Weiszfeld (l1), Badoiu-Clarkson (linf)."""
-    t = q.mean(axis=1)
+    """Approximate inner optimum for every angle: Weiszfeld (l1), Badoiu-Clarkson (linf).
+
+    On x and y apart (hypot rather than norm over a last axis of 2: a third of the time)."""
+    qx, qy = q[..., 0], q[..., 1]
+    tx, ty = qx.mean(axis=1), qy.mean(axis=1)
+    rows = np.arange(len(q))
     for k in range(iters):
-        d = np.linalg.norm(q - t[:, None], axis=2)
+        d = np.hypot(qx - tx[:, None], qy - ty[:, None])
         if metric == "l1":
             iw = 1.0 / np.maximum(d, 1e-12)
-            t = (iw[..., None] * q).sum(axis=1) / iw.sum(axis=1)[:, None]
+            w = iw.sum(axis=1)
+            tx, ty = (iw * qx).sum(axis=1) / w, (iw * qy).sum(axis=1) / w
         else:
-            far = q[np.arange(len(q)), np.argmax(d, axis=1)]
-            t = t + (far - t) / (k + 2)
-    d = np.linalg.norm(q - t[:, None], axis=2)
+            far = np.argmax(d, axis=1)
+            tx, ty = tx + (qx[rows, far] - tx) / (k + 2), ty + (qy[rows, far] - ty) / (k + 2)
+    d = np.hypot(qx - tx[:, None], qy - ty[:, None])
     return d.sum(axis=1) if metric == "l1" else d.max(axis=1)
 
 

@@ -42,20 +42,20 @@ def test_a_skewed_tracker_clock_outside_the_window_moves_no_robot_on_any_frame(s
     assert run.t_goal_s is None and all(d == [] for d in run.decisions.values())
 
 
-def test_a_stopped_robot_is_dropped_by_every_agent_on_the_same_frame_whatever_the_command_latency():
+@pytest.mark.parametrize("latency", [1, 2, 3])  # one run each (20 s offline): the workers share them out
+def test_a_stopped_robot_is_dropped_by_every_agent_on_the_same_frame_whatever_the_command_latency(latency):
     sc = dataclasses.replace(FAILURE, mission=dataclasses.replace(FAILURE.mission, on_failure="drop"),
                              faults=(FaultEvent("r2", 8.0, "stop", 0.0, 0.0),))
     frame_s = 1.0 / sc.tracker.rate_hz
-    for latency in (1, 2, 3):
-        run = run_offline(sc, 20.0, seed=2, latency_frames=latency, stop_at_goal=False)
-        made = run.decisions["r1"]
-        assert all(v == made for v in run.decisions.values()), latency  # same decisions, same frames
-        assert [(d.robot, d.kind) for d in made] == [("r2", "fail"), ("r2", "drop")], latency
-        fail, drop = made
-        # within 3 s of the stop, dropped on the very frame it failed (on_failure = drop), a frame time
-        assert 8.0 < fail.t < 8.0 + 3.0, latency
-        assert drop.t == fail.t, latency
-        assert math.isclose(fail.t / frame_s, round(fail.t / frame_s), abs_tol=1e-6), latency
+    run = run_offline(sc, 20.0, seed=2, latency_frames=latency, stop_at_goal=False)
+    made = run.decisions["r1"]
+    assert all(v == made for v in run.decisions.values())  # same decisions, same frames
+    assert [(d.robot, d.kind) for d in made] == [("r2", "fail"), ("r2", "drop")]
+    fail, drop = made
+    # within 3 s of the stop, dropped on the very frame it failed (on_failure = drop), a frame time
+    assert 8.0 < fail.t < 8.0 + 3.0
+    assert drop.t == fail.t
+    assert math.isclose(fail.t / frame_s, round(fail.t / frame_s), abs_tol=1e-6)
 
 
 def test_the_same_seed_gives_the_same_decisions_on_the_same_frames_and_the_same_trace():
