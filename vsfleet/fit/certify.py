@@ -19,6 +19,8 @@ CERT_TOL = 1e-10
 EPS = float(np.finfo(float).eps)
 _GRID = 8  # initial uniform grid of rotations
 _STENCIL = tuple(4.0 ** -k for k in range(1, 9))  # offsets around a cell's centre [x distance to its ends]
+_LOCAL = (1e-6, 1e-3, 4e-3, 1.6e-2, 6.4e-2)  # first batch: th0 and th0 +- these [rad]
+_LEAN = (4, (1e-6, 1e-2))  # the same when th0 is a converged local optimum: (grid, offsets)
 _MAX_ROUNDS = 60
 _LADDER = 6  # first batch: each guess g and g +- 1e-9 32^k, k < _LADDER (certifies a smooth minimum at once)
 
@@ -110,8 +112,8 @@ def translation_at(prob: Problem, evaluate, th: float):
 class _Angles:
     """Evaluated angles, kept sorted: rows th, c, s, f, tx, ty, K, A, B, rough of ``self.a``."""
 
-    def __init__(self, prob: Problem, evaluate):
-        self.prob, self.evaluate = prob, evaluate
+    def __init__(self, prob: Problem, evaluate, t0=(0.0, 0.0)):
+        self.prob, self.evaluate, self.t0 = prob, evaluate, t0
         self.a = np.empty((10, 0))
 
     def add(self, ths, rough=()) -> int:
@@ -141,7 +143,7 @@ class _Angles:
             gap = np.abs(np.remainder(th[:, None] - old[0] + math.pi, 2.0 * math.pi) - math.pi)
             t0 = old[4:6, np.argmin(gap, axis=1)]  # warm start: the nearest evaluated angle's t
         else:
-            t0 = np.zeros((2, len(th)))
+            t0 = np.array(self.t0, dtype=float)[:, None].repeat(len(th), axis=1)  # the caller's start
         lt = th.tolist()
         c = np.array([math.cos(t) for t in lt])  # math, not numpy: the same bits on every CPU
         s = np.array([math.sin(t) for t in lt])
@@ -196,7 +198,7 @@ def _centres(f, g, th, b: int, side: int, cut: float) -> list:
 
 
 def search(prob: Problem, evaluate, th0: float, guesses=(), split: int = 0, tol: float = CERT_TOL,
-           max_rounds: int = _MAX_ROUNDS):
+           max_rounds: int = _MAX_ROUNDS, t0=(0.0, 0.0), lean: bool = False):
     """Certified min over th of f(th): (th, centred tx, ty, lower bound of min f).
 
     Rounds: evaluate new angles; bound every cell between neighbours; in each cell whose
@@ -204,13 +206,16 @@ def search(prob: Problem, evaluate, th0: float, guesses=(), split: int = 0, tol:
     exactly if they came from the rough first pass; next to the best angle add stencils around
     the cell's guesses of the minimiser (:func:`_centres`); until every cell is certified.
     ``guesses``: candidate minimisers [rad] for the first batch; ``split``: every uncertified
-    cell also gets 2 (split // n) points at 4^-k of its width from its ends.
+    cell also gets 2 (split // n) points at 4^-k of its width from its ends.  ``t0``: the
+    first batch's warm start (centred translation); ``lean``: th0 is a converged local
+    optimum (and t0 its translation), so the first batch is smaller (_LEAN).
     """
-    S = _Angles(prob, evaluate)
-    step = 2.0 * math.pi / _GRID
-    local = [th0 + e * h for e in (-1.0, 0.0, 1.0) for h in (1e-6, 1e-3, 4e-3, 1.6e-2, 6.4e-2)]
+    S = _Angles(prob, evaluate, t0)
+    grid, offsets = _LEAN if lean else (_GRID, _LOCAL)
+    step = 2.0 * math.pi / grid
+    local = [th0 + e * h for e in (-1.0, 0.0, 1.0) for h in offsets]
     local += [g + e * 1e-9 * 32.0 ** k for g in guesses for e in (-1.0, 0.0, 1.0) for k in range(_LADDER)]
-    S.add(local, rough=[-math.pi + step * k for k in range(_GRID)])
+    S.add(local, rough=[-math.pi + step * k for k in range(grid)])
     levels = _STENCIL[: max(1, min(len(_STENCIL), 400 // prob.n))]
     lv = 4.0 ** -np.arange(1, split // prob.n + 1)  # resolves a cell whose end touches f
     frac = np.concatenate([lv, 1.0 - lv])
