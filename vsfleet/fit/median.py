@@ -9,7 +9,7 @@ import numpy as np
 from .certify import EPS
 
 _ITERS = 40  # inner iterations (Newton converges in a handful from a warm start)
-_ROUGH_ITERS = 2  # a first-pass solve: a valid but looser minorant
+_ROUGH_ITERS = 1  # a first-pass solve: a valid but looser minorant
 NEWTON_N = 20  # from this n the search starts at newton()'s rotation (smaller fits often sit on a robot)
 
 
