@@ -453,3 +453,26 @@ def test_the_l1_newton_start_lands_on_the_certified_rotation_and_a_bad_start_onl
         th, tx, ty, lower = certify.search(prob, median.evaluate, th, t0=t0, lean=True)
         cost = structure_cost(p, r, prob.pose(th, tx, ty), "l1")
         assert abs(cost - res.cost) <= CERT_TOL and cost - lower <= CERT_TOL
+
+
+@pytest.mark.parametrize("n, seed", [(10, s) for s in range(8)] + [(40, s) for s in range(4)])
+def test_the_linf_basis_hints_land_on_the_certified_optimum(n, seed):
+    from vsfleet.fit import certify, minimax, procrustes
+
+    rng = np.random.default_rng(seed)
+    p = rng.uniform(-1.0, 1.0, (n, 2))
+    r = Pose2(*rng.uniform(-3, 3, 2), rng.uniform(-math.pi, math.pi)).apply(p) + rng.normal(0, 0.05, (n, 2))
+    prob = certify.Problem(p, r, None)
+    hints = []
+
+    def record(*args):
+        out = minimax.kinks(*args)
+        hints.extend(out)
+        return out
+
+    with np.errstate(all="ignore"):
+        th, tx, ty, lower = certify.search(prob, minimax.evaluate, procrustes.rotation(prob), refine=record)
+    cost = structure_cost(p, r, prob.pose(th, tx, ty), "linf")
+    assert cost - lower <= CERT_TOL
+    # a kink (two bases' radii equal) or a basis's stationary point, to within the first ladder step
+    assert min(abs(math.remainder(h - th, 2.0 * math.pi)) for h in hints) <= 2e-9

@@ -105,12 +105,12 @@ def cell_bounds(ca, sa, cb, sb, Ka, Aa, Ba, Kb, Ab, Bb):
 def translation_at(prob: Problem, evaluate, th: float):
     """Optimal centred translation at a fixed rotation and the minorant's value there."""
     c, s = np.array([math.cos(th)]), np.array([math.sin(th)])
-    f, tx, ty, K, A, B = evaluate(prob, c, s, np.zeros(1), np.zeros(1), np.zeros(1, bool))
+    f, tx, ty, K, A, B = evaluate(prob, c, s, np.zeros(1), np.zeros(1), np.zeros(1, bool))[:6]
     return float(tx[0]), float(ty[0]), float(K[0] - A[0] * c[0] - B[0] * s[0])
 
 
 class _Angles:
-    """Evaluated angles, kept sorted: rows th, c, s, f, tx, ty, K, A, B, rough of ``self.a``."""
+    """Evaluated angles, kept sorted: rows th, c, s, f, tx, ty, K, A, B, rough, extras of ``self.a``."""
 
     def __init__(self, prob: Problem, evaluate, t0=(0.0, 0.0)):
         self.prob, self.evaluate, self.t0 = prob, evaluate, t0
@@ -148,7 +148,8 @@ class _Angles:
         c = np.array([math.cos(t) for t in lt])  # math, not numpy: the same bits on every CPU
         s = np.array([math.sin(t) for t in lt])
         out = self.evaluate(self.prob, c, s, t0[0], t0[1], flag)
-        a = np.concatenate([old, np.stack((th, c, s) + tuple(out) + (flag,))], axis=1)
+        a = np.stack((th, c, s) + tuple(out[:6]) + (flag,) + tuple(out[6:]))  # extra rows: the evaluator's
+        a = np.concatenate([old, a], axis=1) if old.shape[1] else a
         self.a = a[:, np.argsort(a[0], kind="stable")]
         return len(th)
 
@@ -198,7 +199,7 @@ def _centres(f, g, th, b: int, side: int, cut: float) -> list:
 
 
 def search(prob: Problem, evaluate, th0: float, guesses=(), split: int = 0, tol: float = CERT_TOL,
-           max_rounds: int = _MAX_ROUNDS, t0=(0.0, 0.0), lean: bool = False):
+           max_rounds: int = _MAX_ROUNDS, t0=(0.0, 0.0), lean: bool = False, refine=None):
     """Certified min over th of f(th): (th, centred tx, ty, lower bound of min f).
 
     Rounds: evaluate new angles; bound every cell between neighbours; in each cell whose
@@ -208,7 +209,9 @@ def search(prob: Problem, evaluate, th0: float, guesses=(), split: int = 0, tol:
     ``guesses``: candidate minimisers [rad] for the first batch; ``split``: every uncertified
     cell also gets 2 (split // n) points at 4^-k of its width from its ends.  ``t0``: the
     first batch's warm start (centred translation); ``lean``: th0 is a converged local
-    optimum (and t0 its translation), so the first batch is smaller (_LEAN).
+    optimum (and t0 its translation), so the first batch is smaller (_LEAN).  ``refine(prob,
+    th_b, extras_b, th_o, extras_o)``: candidate minimisers [rad] in the uncertified cell from
+    the best angle b to its neighbour o (from the evaluator's extra rows); each gets a ladder.
     """
     S = _Angles(prob, evaluate, t0)
     grid, offsets = _LEAN if lean else (_GRID, _LOCAL)
@@ -221,7 +224,7 @@ def search(prob: Problem, evaluate, th0: float, guesses=(), split: int = 0, tol:
     frac = np.concatenate([lv, 1.0 - lv])
     lower = 0.0
     for _ in range(max_rounds):
-        th, c, s, f, tx, ty, K, A, B, rough = S.a
+        th, c, s, f, tx, ty, K, A, B, rough = S.a[:10]
         nxt = np.arange(1, len(th) + 1) % len(th)
         lb, bc, bs = cell_bounds(c, s, c[nxt], s[nxt], K, A, B, K[nxt], A[nxt], B[nxt])
         b = int(np.argmin(f))
@@ -245,7 +248,10 @@ def search(prob: Problem, evaluate, th0: float, guesses=(), split: int = 0, tol:
             width = abs(math.remainder(float(th[(b + side) % m] - th[b]), 2.0 * math.pi))
             cut = abs(math.remainder(new[int(np.searchsorted(bad, j))] - float(th[b]), 2.0 * math.pi))
             tb = float(th[b])
-            for x in _centres(f, g, th, b, side, cut):  # a stencil on both sides of each
+            hints = [] if refine is None else refine(prob, tb, S.a[10:, b], tb + side * width, S.a[10:, (b + side) % m])
+            for r in hints:
+                new += [r + e * 1e-9 * 32.0 ** k for e in (-1.0, 0.0, 1.0) for k in range(_LADDER)]
+            for x in [] if hints else _centres(f, g, th, b, side, cut):  # a stencil on both sides of each
                 d = min(x, width - x)
                 new += [tb + side * (x + e * d * h) for h in (0.0,) + levels for e in (-1.0, 1.0)]
         if not S.add(new):  # the uncertified cells cannot be split in floating point
