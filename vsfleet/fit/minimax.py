@@ -160,17 +160,17 @@ def guesses(prob, th0: float, basis=None) -> list:
     """
     if basis is None and prob.n != 3:  # the search runs from n = 3
         return []
-    i, j, l = (0, 1, 2) if basis is None else basis
-    P, Q = prob.P.tolist(), prob.Q.tolist()
+    rows = [0, 1, 2] if basis is None else list(basis)  # a pair (i, j, j): its second point repeated
+    P, Q = prob.P[rows].tolist(), prob.Q[rows].tolist()
     sides, out = [], []
-    for a, b in ((i, j), (i, l), (j, l)):
+    for a, b in ((0, 1), (0, 2), (1, 2)):
         D = (Q[b][0] - Q[a][0], Q[b][1] - Q[a][1])
         E = (P[b][0] - P[a][0], P[b][1] - P[a][1])
         u, v = D[0] * E[0] + D[1] * E[1], E[0] * D[1] - E[1] * D[0]  # |D - R E|^2 = al - 2(c u + s v)
         sides.append((D[0] ** 2 + D[1] ** 2 + E[0] ** 2 + E[1] ** 2, u, v))
         out.append(math.atan2(v, u))  # R(th) E along D
         sides[-1] += (D, E)
-    if basis is not None and j == l:
+    if basis is not None and basis[1] == basis[2]:
         return out[:1]
     (_, _, _, D1, E1), (_, _, _, D2, E2) = sides[0], sides[1]
     kap = D1[0] * D2[1] - D1[1] * D2[0] + E1[0] * E2[1] - E1[1] * E2[0]
