@@ -90,14 +90,17 @@ def cell_bounds(ca, sa, cb, sb, Ka, Aa, Ba, Kb, Ab, Bb):
     root = np.sqrt(np.maximum(rho2 - dK * dK, 0.0))
     inv = 1.0 / rho2
     na, nb = np.sqrt(Aa * Aa + Ba * Ba), np.sqrt(Ab * Ab + Bb * Bb)
-    C = np.stack([ca, cb, Aa / na, Ab / nb, (dA * dK - dB * root) * inv, (dA * dK + dB * root) * inv])
-    S = np.stack([sa, sb, Ba / na, Bb / nb, (dB * dK + dA * root) * inv, (dB * dK - dA * root) * inv])
+    C, S = np.empty((6, len(ca))), np.empty((6, len(ca)))  # the candidates' cos and sin
+    C[0], C[1], C[2], C[3] = ca, cb, Aa / na, Ab / nb
+    S[0], S[1], S[2], S[3] = sa, sb, Ba / na, Bb / nb
+    C[4], C[5] = (dA * dK - dB * root) * inv, (dA * dK + dB * root) * inv
+    S[4], S[5] = (dB * dK + dA * root) * inv, (dB * dK - dA * root) * inv
     v = np.maximum(Ka - Aa * C - Ba * S, Kb - Ab * C - Bb * S)
     ok = (ca * S - sa * C >= 0.0) & (C * sb - S * cb >= 0.0) & np.isfinite(v)  # inside the arc, real
     ok[:2] = True
     ok[4:] &= rho2 >= dK * dK
-    k = np.argmin(np.where(ok, v, np.inf), axis=0)[None]
-    best, bc, bs = (np.take_along_axis(a, k, 0)[0] for a in (v, C, S))
+    k, cols = np.argmin(np.where(ok, v, np.inf), axis=0), np.arange(len(ca))
+    best, bc, bs = v[k, cols], C[k, cols], S[k, cols]
     slack = 8.0 * EPS * (np.abs(Ka) + np.abs(Kb) + na + nb)
     return np.maximum(best - slack, 0.0), bc, bs
 
