@@ -108,7 +108,10 @@ def _r2(basis, pair: bool, th: float) -> float:
     basis: (Px, Py, Qx, Qy) of its 3 robots (a pair's second one repeated).
     """
     c, s = math.cos(th), math.sin(th)
-    (ax, ay), (bx, by), (ex, ey) = ((Qx - (c * Px - s * Py), Qy - (s * Px + c * Py)) for Px, Py, Qx, Qy in basis)
+    (px, py, qx, qy), (pbx, pby, qbx, qby), (pex, pey, qex, qey) = basis
+    ax, ay = qx - (c * px - s * py), qy - (s * px + c * py)
+    bx, by = qbx - (c * pbx - s * pby), qby - (s * pbx + c * pby)
+    ex, ey = qex - (c * pex - s * pey), qey - (s * pex + c * pey)
     d1 = (bx - ax) ** 2 + (by - ay) ** 2
     if pair:
         return 0.25 * d1
@@ -130,7 +133,7 @@ def kinks(prob, tha: float, ea, thb: float, eb) -> list:
     out = [g for g in guesses(prob, tha, ba) if lo < g < hi]
     if ba == bb:
         return out
-    pa, pb = (tuple(tuple(prob.PQ[:, k].tolist()) for k in bs) for bs in (ba, bb))
+    pa, pb = (prob.PQ[:, list(bs)].T.tolist() for bs in (ba, bb))
     h = lambda th: _r2(pa, ba[1] == ba[2], th) - _r2(pb, bb[1] == bb[2], th)  # noqa: E731
     a, b, fa, fb = tha, thb, h(tha), h(thb)
     if not fa * fb < 0.0 or math.isinf(fa - fb):
