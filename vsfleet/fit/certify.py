@@ -20,7 +20,8 @@ EPS = float(np.finfo(float).eps)
 _GRID = 8  # initial uniform grid of rotations
 _STENCIL = tuple(4.0 ** -k for k in range(1, 9))  # offsets around a cell's centre [x distance to its ends]
 _LOCAL = (1e-6, 1e-3, 4e-3, 1.6e-2, 6.4e-2)  # first batch: th0 and th0 +- these [rad]
-_LEAN = (4, (1e-6, 1e-2))  # the same when th0 is a converged local optimum: (grid, offsets)
+_LEAN = (4, (1e-6, 1e-4, 1e-3, 1e-2), 300)  # the same when th0 is a converged local optimum: grid,
+# offsets, and the n from which only the first and last offsets are kept (every angle costs n)
 _MAX_ROUNDS = 60
 _LADDER = 6  # first batch: each guess g and g +- 1e-9 32^k, k < _LADDER (certifies a smooth minimum at once)
 
@@ -217,7 +218,7 @@ def search(prob: Problem, evaluate, th0: float, guesses=(), split: int = 0, tol:
     the best angle b to its neighbour o (from the evaluator's extra rows); each gets a ladder.
     """
     S = _Angles(prob, evaluate, t0)
-    grid, offsets = _LEAN if lean else (_GRID, _LOCAL)
+    grid, offsets = (_LEAN[0], _LEAN[1][:: 1 if prob.n < _LEAN[2] else 3]) if lean else (_GRID, _LOCAL)
     step = 2.0 * math.pi / grid
     local = [th0 + e * h for e in (-1.0, 0.0, 1.0) for h in offsets]
     local += [g + e * 1e-9 * 32.0 ** k for g in guesses for e in (-1.0, 0.0, 1.0) for k in range(_LADDER)]
