@@ -431,3 +431,49 @@ def test_the_linf_triangle_guesses_hold_the_certified_optimum(seed):
     assert res.cost - res.cost_lower_bound <= CERT_TOL
     assert min(abs(math.remainder(g - res.pose.th, 2.0 * math.pi)) for g in guesses) <= 1e-7
     assert minimax.guesses(certify.Problem(np.vstack([p, p[:1]]), np.vstack([r, r[:1]]), None), 0.0) == []
+
+
+@pytest.mark.parametrize("seed", [0, 2, 3])  # smooth optima (seed 1's has a robot on t: F has a kink there)
+def test_the_l1_newton_start_lands_on_the_certified_rotation_and_a_bad_start_only_costs_rounds(seed):
+    from vsfleet.fit import certify, median, procrustes
+
+    rng = np.random.default_rng(seed)
+    p = rng.uniform(-1.0, 1.0, (200, 2))
+    r = Pose2(*rng.uniform(-3.0, 3.0, 2), rng.uniform(-math.pi, math.pi)).apply(p) + rng.normal(0, 0.05, p.shape)
+    prob = certify.Problem(p, r, None)
+    th0 = procrustes.rotation(prob)
+    res = fit_structure(p, r, "l1")
+    th, (tx, ty), converged = median.newton(prob, th0)
+    assert converged and abs(math.remainder(th - res.pose.th, 2.0 * math.pi)) <= 1e-12
+    assert not median.newton(prob, th0, iters=1)[2]  # one step from the l2 rotation is not enough
+    # from far away (a maximum of f in th, then a slope) Newton gives up; a lean search from there still certifies
+    for start in (th0 + math.pi, th0 + 0.5):
+        th, t0, converged = median.newton(prob, start)
+        assert not converged
+        with np.errstate(all="ignore"):  # as fit_structure runs it
+            th, tx, ty, lower = certify.search(prob, median.evaluate, th, t0=t0, lean=True)
+        cost = structure_cost(p, r, prob.pose(th, tx, ty), "l1")
+        assert abs(cost - res.cost) <= CERT_TOL and cost - lower <= CERT_TOL
+
+
+@pytest.mark.parametrize("n, seed", [(10, s) for s in range(8)] + [(40, s) for s in range(4)])
+def test_the_linf_basis_hints_land_on_the_certified_optimum(n, seed):
+    from vsfleet.fit import certify, minimax, procrustes
+
+    rng = np.random.default_rng(seed)
+    p = rng.uniform(-1.0, 1.0, (n, 2))
+    r = Pose2(*rng.uniform(-3, 3, 2), rng.uniform(-math.pi, math.pi)).apply(p) + rng.normal(0, 0.05, (n, 2))
+    prob = certify.Problem(p, r, None)
+    hints = []
+
+    def record(*args):
+        out = minimax.kinks(*args)
+        hints.extend(out)
+        return out
+
+    with np.errstate(all="ignore"):
+        th, tx, ty, lower = certify.search(prob, minimax.evaluate, procrustes.rotation(prob), refine=record)
+    cost = structure_cost(p, r, prob.pose(th, tx, ty), "linf")
+    assert cost - lower <= CERT_TOL
+    # a kink (two bases' radii equal) or a basis's stationary point, to within the first ladder step
+    assert min(abs(math.remainder(h - th, 2.0 * math.pi)) for h in hints) <= 2e-9

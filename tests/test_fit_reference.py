@@ -123,7 +123,7 @@ def test_the_minorants_are_below_the_cost_at_every_angle():
     c, s = np.cos(th), np.sin(th)
     for ev in (median.evaluate, minimax.evaluate):
         with np.errstate(all="ignore"):  # as fit_structure runs them
-            f, tx, ty, K, A, B = ev(prob, c, s, np.zeros(50), np.zeros(50), np.zeros(50, bool))
+            f, tx, ty, K, A, B = ev(prob, c, s, np.zeros(50), np.zeros(50), np.zeros(50, bool))[:6]
         m = K[:, None] - A[:, None] * c - B[:, None] * s  # minorant of angle i at angle j
         assert (m <= f[None, :] + 1e-12).all()
         assert np.abs(np.diag(m) - f).max() <= 1e-9  # tight where it was made

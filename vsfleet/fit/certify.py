@@ -19,6 +19,9 @@ CERT_TOL = 1e-10
 EPS = float(np.finfo(float).eps)
 _GRID = 8  # initial uniform grid of rotations
 _STENCIL = tuple(4.0 ** -k for k in range(1, 9))  # offsets around a cell's centre [x distance to its ends]
+_LOCAL = (1e-6, 1e-3, 4e-3, 1.6e-2, 6.4e-2)  # first batch: th0 and th0 +- these [rad]
+_LEAN = (4, (1e-6, 1e-4, 1e-3, 1e-2), 300)  # the same when th0 is a converged local optimum: grid,
+# offsets, and the n from which only the first and last offsets are kept (every angle costs n)
 _MAX_ROUNDS = 60
 _LADDER = 6  # first batch: each guess g and g +- 1e-9 32^k, k < _LADDER (certifies a smooth minimum at once)
 
@@ -88,14 +91,17 @@ def cell_bounds(ca, sa, cb, sb, Ka, Aa, Ba, Kb, Ab, Bb):
     root = np.sqrt(np.maximum(rho2 - dK * dK, 0.0))
     inv = 1.0 / rho2
     na, nb = np.sqrt(Aa * Aa + Ba * Ba), np.sqrt(Ab * Ab + Bb * Bb)
-    C = np.stack([ca, cb, Aa / na, Ab / nb, (dA * dK - dB * root) * inv, (dA * dK + dB * root) * inv])
-    S = np.stack([sa, sb, Ba / na, Bb / nb, (dB * dK + dA * root) * inv, (dB * dK - dA * root) * inv])
+    C, S = np.empty((6, len(ca))), np.empty((6, len(ca)))  # the candidates' cos and sin
+    C[0], C[1], C[2], C[3] = ca, cb, Aa / na, Ab / nb
+    S[0], S[1], S[2], S[3] = sa, sb, Ba / na, Bb / nb
+    C[4], C[5] = (dA * dK - dB * root) * inv, (dA * dK + dB * root) * inv
+    S[4], S[5] = (dB * dK + dA * root) * inv, (dB * dK - dA * root) * inv
     v = np.maximum(Ka - Aa * C - Ba * S, Kb - Ab * C - Bb * S)
     ok = (ca * S - sa * C >= 0.0) & (C * sb - S * cb >= 0.0) & np.isfinite(v)  # inside the arc, real
     ok[:2] = True
     ok[4:] &= rho2 >= dK * dK
-    k = np.argmin(np.where(ok, v, np.inf), axis=0)[None]
-    best, bc, bs = (np.take_along_axis(a, k, 0)[0] for a in (v, C, S))
+    k, cols = np.argmin(np.where(ok, v, np.inf), axis=0), np.arange(len(ca))
+    best, bc, bs = v[k, cols], C[k, cols], S[k, cols]
     slack = 8.0 * EPS * (np.abs(Ka) + np.abs(Kb) + na + nb)
     return np.maximum(best - slack, 0.0), bc, bs
 
@@ -103,15 +109,15 @@ def cell_bounds(ca, sa, cb, sb, Ka, Aa, Ba, Kb, Ab, Bb):
 def translation_at(prob: Problem, evaluate, th: float):
     """Optimal centred translation at a fixed rotation and the minorant's value there."""
     c, s = np.array([math.cos(th)]), np.array([math.sin(th)])
-    f, tx, ty, K, A, B = evaluate(prob, c, s, np.zeros(1), np.zeros(1), np.zeros(1, bool))
+    f, tx, ty, K, A, B = evaluate(prob, c, s, np.zeros(1), np.zeros(1), np.zeros(1, bool))[:6]
     return float(tx[0]), float(ty[0]), float(K[0] - A[0] * c[0] - B[0] * s[0])
 
 
 class _Angles:
-    """Evaluated angles, kept sorted: rows th, c, s, f, tx, ty, K, A, B, rough of ``self.a``."""
+    """Evaluated angles, kept sorted: rows th, c, s, f, tx, ty, K, A, B, rough, extras of ``self.a``."""
 
-    def __init__(self, prob: Problem, evaluate):
-        self.prob, self.evaluate = prob, evaluate
+    def __init__(self, prob: Problem, evaluate, t0=(0.0, 0.0)):
+        self.prob, self.evaluate, self.t0 = prob, evaluate, t0
         self.a = np.empty((10, 0))
 
     def add(self, ths, rough=()) -> int:
@@ -141,12 +147,13 @@ class _Angles:
             gap = np.abs(np.remainder(th[:, None] - old[0] + math.pi, 2.0 * math.pi) - math.pi)
             t0 = old[4:6, np.argmin(gap, axis=1)]  # warm start: the nearest evaluated angle's t
         else:
-            t0 = np.zeros((2, len(th)))
+            t0 = np.array(self.t0, dtype=float)[:, None].repeat(len(th), axis=1)  # the caller's start
         lt = th.tolist()
         c = np.array([math.cos(t) for t in lt])  # math, not numpy: the same bits on every CPU
         s = np.array([math.sin(t) for t in lt])
         out = self.evaluate(self.prob, c, s, t0[0], t0[1], flag)
-        a = np.concatenate([old, np.stack((th, c, s) + tuple(out) + (flag,))], axis=1)
+        a = np.stack((th, c, s) + tuple(out[:6]) + (flag,) + tuple(out[6:]))  # extra rows: the evaluator's
+        a = np.concatenate([old, a], axis=1) if old.shape[1] else a
         self.a = a[:, np.argsort(a[0], kind="stable")]
         return len(th)
 
@@ -196,7 +203,7 @@ def _centres(f, g, th, b: int, side: int, cut: float) -> list:
 
 
 def search(prob: Problem, evaluate, th0: float, guesses=(), split: int = 0, tol: float = CERT_TOL,
-           max_rounds: int = _MAX_ROUNDS):
+           max_rounds: int = _MAX_ROUNDS, t0=(0.0, 0.0), lean: bool = False, refine=None):
     """Certified min over th of f(th): (th, centred tx, ty, lower bound of min f).
 
     Rounds: evaluate new angles; bound every cell between neighbours; in each cell whose
@@ -204,19 +211,24 @@ def search(prob: Problem, evaluate, th0: float, guesses=(), split: int = 0, tol:
     exactly if they came from the rough first pass; next to the best angle add stencils around
     the cell's guesses of the minimiser (:func:`_centres`); until every cell is certified.
     ``guesses``: candidate minimisers [rad] for the first batch; ``split``: every uncertified
-    cell also gets 2 (split // n) points at 4^-k of its width from its ends.
+    cell also gets 2 (split // n) points at 4^-k of its width from its ends.  ``t0``: the
+    first batch's warm start (centred translation); ``lean``: th0 is a converged local
+    optimum (and t0 its translation), so the first batch is smaller (_LEAN).  ``refine(prob,
+    th_b, extras_b, th_o, extras_o)``: candidate minimisers [rad] in the uncertified cell from
+    the best angle b to its neighbour o (from the evaluator's extra rows); each gets a ladder.
     """
-    S = _Angles(prob, evaluate)
-    step = 2.0 * math.pi / _GRID
-    local = [th0 + e * h for e in (-1.0, 0.0, 1.0) for h in (1e-6, 1e-3, 4e-3, 1.6e-2, 6.4e-2)]
+    S = _Angles(prob, evaluate, t0)
+    grid, offsets = (_LEAN[0], _LEAN[1][:: 1 if prob.n < _LEAN[2] else 3]) if lean else (_GRID, _LOCAL)
+    step = 2.0 * math.pi / grid
+    local = [th0 + e * h for e in (-1.0, 0.0, 1.0) for h in offsets]
     local += [g + e * 1e-9 * 32.0 ** k for g in guesses for e in (-1.0, 0.0, 1.0) for k in range(_LADDER)]
-    S.add(local, rough=[-math.pi + step * k for k in range(_GRID)])
+    S.add(local, rough=[-math.pi + step * k for k in range(grid)])
     levels = _STENCIL[: max(1, min(len(_STENCIL), 400 // prob.n))]
     lv = 4.0 ** -np.arange(1, split // prob.n + 1)  # resolves a cell whose end touches f
     frac = np.concatenate([lv, 1.0 - lv])
     lower = 0.0
     for _ in range(max_rounds):
-        th, c, s, f, tx, ty, K, A, B, rough = S.a
+        th, c, s, f, tx, ty, K, A, B, rough = S.a[:10]
         nxt = np.arange(1, len(th) + 1) % len(th)
         lb, bc, bs = cell_bounds(c, s, c[nxt], s[nxt], K, A, B, K[nxt], A[nxt], B[nxt])
         b = int(np.argmin(f))
@@ -240,7 +252,10 @@ def search(prob: Problem, evaluate, th0: float, guesses=(), split: int = 0, tol:
             width = abs(math.remainder(float(th[(b + side) % m] - th[b]), 2.0 * math.pi))
             cut = abs(math.remainder(new[int(np.searchsorted(bad, j))] - float(th[b]), 2.0 * math.pi))
             tb = float(th[b])
-            for x in _centres(f, g, th, b, side, cut):  # a stencil on both sides of each
+            hints = [] if refine is None else refine(prob, tb, S.a[10:, b], tb + side * width, S.a[10:, (b + side) % m])
+            for r in hints:
+                new += [r + e * 1e-9 * 32.0 ** k for e in (-1.0, 0.0, 1.0) for k in range(_LADDER)]
+            for x in [] if hints else _centres(f, g, th, b, side, cut):  # a stencil on both sides of each
                 d = min(x, width - x)
                 new += [tb + side * (x + e * d * h) for h in (0.0,) + levels for e in (-1.0, 1.0)]
         if not S.add(new):  # the uncertified cells cannot be split in floating point

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .certify import EPS
 
 _ITERS = 40  # inner iterations (Newton converges in a handful from a warm start)
-_ROUGH_ITERS = 2  # a first-pass solve: a valid but looser minorant
+_ROUGH_ITERS = 1  # a first-pass solve: a valid but looser minorant
+NEWTON_N = 20  # from this n the search starts at newton()'s rotation (smaller fits often sit on a robot)
 
 
 def _duals(dx, dy, w, tie: float):
@@ -129,3 +132,45 @@ def evaluate(prob, c, s, tx0, ty0, rough, iters: int = _ITERS):
     f, kx, ky = _duals(DX, DY, w, tie)
     K, A, B = prob.minorant(kx, ky)
     return f, tx, ty, K, A, B
+
+
+
+def newton(prob, th: float, iters: int = 12):
+    """A local l1 optimum: (th [rad], centred (tx, ty), converged), Newton on (th, t) from (th, 0).
+
+    F = sum w |q_i(th) - t| with its gradient and 3x3 Hessian in closed form (robots on t left
+    out).  Converged: a th step <= 1e-12, or a th step <= 1e-9 that raised F (rounding).
+    Speed only (the search's start).
+    """
+    w, Px, Py, Qx, Qy = prob.w, prob.Px, prob.Py, prob.Qx, prob.Qy
+    z, fold = (th, 0.0, 0.0), math.inf
+    for _ in range(iters):
+        th, tx, ty = z
+        c, s = math.cos(th), math.sin(th)
+        rx, ry = c * Px - s * Py, s * Px + c * Py  # R P: dq/dth = (ry, -rx), d2q/dth2 = R P
+        vx, vy = Qx - rx - tx, Qy - ry - ty
+        d = np.sqrt(vx * vx + vy * vy)
+        f = float(np.sum(w * d))
+        if not f < fold:  # the step raised F (only rounding, if it was tiny): back to the last point
+            return zold[0], zold[1:], abs(h0) <= 1e-9
+        iw = np.divide(w, d, out=np.zeros_like(d), where=d > 0.0)
+        ux, uy = iw * vx, iw * vy  # w u_i
+        ex, ey = vx / np.where(d > 0.0, d, 1.0), vy / np.where(d > 0.0, d, 1.0)
+        mxx, mxy, myy = iw * (1.0 - ex * ex), -iw * ex * ey, iw * (1.0 - ey * ey)  # w/d (I - u u^T)
+        mx, my = mxx * ry - mxy * rx, mxy * ry - myy * rx  # w M dq/dth
+        g = (float(np.sum(ux * ry - uy * rx)), -float(np.sum(ux)), -float(np.sum(uy)))
+        a, b, e = float(np.sum(mx * ry - my * rx + ux * rx + uy * ry)), -float(np.sum(mx)), -float(np.sum(my))
+        xx, xy, yy = float(np.sum(mxx)), float(np.sum(mxy)), float(np.sum(myy))
+        # solve [[a, b, e], [b, xx, xy], [e, xy, yy]] h = g (Cramer)
+        m0, m1, m2 = xx * yy - xy * xy, b * yy - xy * e, b * xy - xx * e
+        det = a * m0 - b * m1 + e * m2
+        if not det > 0.0:  # not a minimum's basin (or singular): keep the best point
+            break
+        h0 = (g[0] * m0 - b * (g[1] * yy - xy * g[2]) + e * (g[1] * xy - xx * g[2])) / det
+        h1 = (a * (g[1] * yy - xy * g[2]) - g[0] * m1 + e * (b * g[2] - g[1] * e)) / det
+        h2 = (a * (xx * g[2] - g[1] * xy) - b * (b * g[2] - g[1] * e) + g[0] * m2) / det
+        zold, fold = z, f
+        z = (th - h0, tx - h1, ty - h2)
+        if abs(h0) <= 1e-12:
+            return z[0], z[1:], True
+    return z[0], z[1:], False

@@ -99,20 +99,72 @@ def evaluate(prob, c, s, tx0, ty0, rough):
     flat = (lam[:, 2] == 0.0) & (cst >= K - A * c - B * s)
     K, A, B = np.where(flat, cst, K), np.where(flat, 0.0, A), np.where(flat, 0.0, B)
     f = w * np.sqrt(((qx - cx[:, None]) ** 2 + (qy - cy[:, None]) ** 2).max(axis=1))
-    return f, cx, cy, K, A, B
+    return (f, cx, cy, K, A, B) + tuple(mem.T.astype(float))  # extra rows: the basis (i, j, j) or (i, j, l)
 
 
-def guesses(prob, th0: float) -> list:
-    """Candidate optimal rotations [rad] for the paper triangle, n = 3 (else none): speed only.
+def _r2(basis, pair: bool, th: float) -> float:
+    """Squared radius of a basis's circle at angle th: half the pair's distance, or the circumradius.
+
+    basis: (Px, Py, Qx, Qy) of its 3 robots (a pair's second one repeated).
+    """
+    c, s = math.cos(th), math.sin(th)
+    (px, py, qx, qy), (pbx, pby, qbx, qby), (pex, pey, qex, qey) = basis
+    ax, ay = qx - (c * px - s * py), qy - (s * px + c * py)
+    bx, by = qbx - (c * pbx - s * pby), qby - (s * pbx + c * pby)
+    ex, ey = qex - (c * pex - s * pey), qey - (s * pex + c * pey)
+    d1 = (bx - ax) ** 2 + (by - ay) ** 2
+    if pair:
+        return 0.25 * d1
+    X = (bx - ax) * (ey - ay) - (by - ay) * (ex - ax)  # twice the area
+    if X == 0.0:  # collinear: no circumcircle
+        return math.inf
+    return d1 * ((ex - ax) ** 2 + (ey - ay) ** 2) * ((ex - bx) ** 2 + (ey - by) ** 2) / (4.0 * X * X)
+
+
+def kinks(prob, tha: float, ea, thb: float, eb) -> list:
+    """Candidate minimisers in the cell (tha, thb): speed only (a search hint).
+
+    ea, eb: the evaluator's extra rows (basis indices) at the ends.  The stationary point of
+    the basis at tha (:func:`guesses`) if it is in the cell; where the two bases have equal
+    radii (f's kink), if their difference changes sign over the cell (Illinois regula falsi).
+    """
+    ba, bb = tuple(sorted(int(v) for v in ea)), tuple(sorted(int(v) for v in eb))
+    lo, hi = min(tha, thb), max(tha, thb)
+    out = [g for g in guesses(prob, tha, ba) if lo < g < hi]
+    if ba == bb:
+        return out
+    pa, pb = (prob.PQ[:, list(bs)].T.tolist() for bs in (ba, bb))
+    h = lambda th: _r2(pa, ba[1] == ba[2], th) - _r2(pb, bb[1] == bb[2], th)  # noqa: E731
+    a, b, fa, fb = tha, thb, h(tha), h(thb)
+    if not fa * fb < 0.0 or math.isinf(fa - fb):
+        return out
+    side, k = 0, 0
+    while abs(b - a) > 1e-15 * (1.0 + abs(b)) and fb != 0.0 and k < 60:
+        x, k = (a * fb - b * fa) / (fb - fa), k + 1
+        fx = h(x)
+        if fx * fb < 0.0:
+            a, fa, side = b, fb, 0
+        elif side:
+            fa *= 0.5
+        else:
+            side = 1
+        b, fb = x, fx
+    return out + [b] if lo < b < hi else out
+
+
+def guesses(prob, th0: float, basis=None) -> list:
+    """Candidate optimal rotations [rad]: speed only.  Without ``basis``: the paper triangle (n = 3, else none).
 
     With 3 robots f is the half longest side or the circumradius (C1 where they meet), so
     its minimum is a pair's alignment (closed form) or a stationary point of the triple's
     circumradius R = abc / 2X (Newton on ln R^2 from th0 and where two sides are equal;
-    sides^2 and X = 2 area are affine in cos th, sin th).  docs/fit.md.
+    sides^2 and X = 2 area are affine in cos th, sin th).  docs/fit.md.  ``basis`` (i, j, j)
+    or (i, j, l): only that pair's alignment, or Newton from th0 on that triple's R.
     """
-    if prob.n != 3:  # the search runs from n = 3
+    if basis is None and prob.n != 3:  # the search runs from n = 3
         return []
-    P, Q = prob.P.tolist(), prob.Q.tolist()
+    rows = [0, 1, 2] if basis is None else list(basis)  # a pair (i, j, j): its second point repeated
+    P, Q = prob.P[rows].tolist(), prob.Q[rows].tolist()
     sides, out = [], []
     for a, b in ((0, 1), (0, 2), (1, 2)):
         D = (Q[b][0] - Q[a][0], Q[b][1] - Q[a][1])
@@ -121,12 +173,15 @@ def guesses(prob, th0: float) -> list:
         sides.append((D[0] ** 2 + D[1] ** 2 + E[0] ** 2 + E[1] ** 2, u, v))
         out.append(math.atan2(v, u))  # R(th) E along D
         sides[-1] += (D, E)
+    if basis is not None and basis[1] == basis[2]:
+        return out[:1]
     (_, _, _, D1, E1), (_, _, _, D2, E2) = sides[0], sides[1]
     kap = D1[0] * D2[1] - D1[1] * D2[0] + E1[0] * E2[1] - E1[1] * E2[0]
     xc = D1[0] * E2[1] - D1[1] * E2[0] + E1[0] * D2[1] - E1[1] * D2[0]
     xs = D1[0] * E2[0] + D1[1] * E2[1] - E1[0] * D2[0] - E1[1] * D2[1]  # X = kap - c xc - s xs
-    starts = [th0]
-    for (a1, u1, v1, _, _), (a2, u2, v2, _, _) in ((sides[0], sides[1]), (sides[0], sides[2]), (sides[1], sides[2])):
+    starts, out = [th0], (out if basis is None else [])
+    equal = () if basis is not None else ((sides[0], sides[1]), (sides[0], sides[2]), (sides[1], sides[2]))
+    for (a1, u1, v1, _, _), (a2, u2, v2, _, _) in equal:
         du, dv, h = u1 - u2, v1 - v2, 0.5 * (a1 - a2)  # two sides equal: c du + s dv = h
         rho = math.hypot(du, dv)
         if rho > abs(h):
