@@ -347,7 +347,7 @@ def main(argv: list[str] | None = None) -> int:
     if "latency" in sections:
         prog.start("latency")
         prog.log("[step] the agent step alone")
-        res["step"] = [step_bench.time_step(n, 300 if n < 1000 else 100) for n in STEP_SIZES]
+        res["step"] = [step_bench.time_step(n, 300 if n < 1000 else 100, paced=90) for n in STEP_SIZES]
         prog.log("[floor] zenoh ping-pong")
         res["floors"] = run_floor(list(cfg["floor"]), log=prog.log)
         res["loops"] = []
