@@ -362,9 +362,7 @@ def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFla
 
         subs = [
             session.declare_subscriber(keys.mission, enqueue("mission")),
-            # decoded on the zenoh network thread itself (not handed to a Python callback thread
-            # first): one thread hand-off per frame, rx -> the main thread's step
-            session.declare_subscriber(keys.frame(), zenoh.handlers.Callback(on_frame, indirect=False)),
+            session.declare_subscriber(keys.frame(), on_frame),
         ]
         queryables = [session.declare_queryable(own_mission, answer_mission, complete=False),
                       session.declare_queryable(own_health, answer_health, complete=False)]

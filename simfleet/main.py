@@ -188,10 +188,8 @@ def run_sim(conf: zenoh.Config, scenario: Scenario, stop: StopFlag | None = None
         pubs = {r: session.declare_publisher(keys.truth(r), **BURST_QOS) for r in fleet.robots}
         token = session.liveliness().declare_token(keys.alive("sim", "simfleet"))
         subs = [
-            # handled on the zenoh network thread (a short, locked update): no hand-off to a
-            # Python callback thread per command, N of them per frame
-            session.declare_subscriber(keys.cmd(), zenoh.handlers.Callback(lambda s: fleet.on_cmd(
-                str(s.key_expr), s.payload.to_bytes(), fleet.t), indirect=False)),
+            session.declare_subscriber(keys.cmd(), lambda s: fleet.on_cmd(
+                str(s.key_expr), s.payload.to_bytes(), fleet.t)),
             session.declare_subscriber(keys.fault(), lambda s: fleet.on_fault(
                 str(s.key_expr), s.payload.to_bytes(), fleet.t)),
         ]

@@ -93,8 +93,8 @@ def run_tracker(conf: zenoh.Config, params: TrackerParams, fleet: str = "demo", 
         pubs: dict[str, zenoh.Publisher] = {}
         frame_pub = session.declare_publisher(keys.frame(src), **STREAM_QOS)
         token = session.liveliness().declare_token(keys.alive("tracker", src))
-        sub = session.declare_subscriber(keys.truth(), zenoh.handlers.Callback(  # on the network thread
-            lambda s: tracker.on_truth(keys, str(s.key_expr), s.payload.to_bytes()), indirect=False))
+        sub = session.declare_subscriber(keys.truth(), lambda s: tracker.on_truth(
+            keys, str(s.key_expr), s.payload.to_bytes()))
         log.info("tracker %s up at %.1f Hz", src, params.rate_hz)
         next_frame = clock()
         try:
