@@ -430,7 +430,27 @@ def test_the_linf_triangle_guesses_hold_the_certified_optimum(seed):
     res = fit_structure(p, r, "linf")
     assert res.cost - res.cost_lower_bound <= CERT_TOL
     assert min(abs(math.remainder(g - res.pose.th, 2.0 * math.pi)) for g in guesses) <= 1e-7
-    assert minimax.guesses(certify.Problem(np.vstack([p, p[:1]]), np.vstack([r, r[:1]]), None), 0.0) == []
+
+
+@pytest.mark.parametrize("n", [4, 10, 30, 100])
+def test_the_linf_descent_from_the_l2_rotation_mostly_lands_on_the_certified_optimum(n):
+    from vsfleet.fit import certify, minimax, procrustes
+
+    landed, once = 0, 0
+    for seed in range(10):
+        rng = np.random.default_rng(seed)
+        p = rng.uniform(-1.0, 1.0, (n, 2))
+        r = Pose2(*rng.uniform(-3, 3, 2), rng.uniform(-math.pi, math.pi)).apply(p) + rng.normal(0, 0.05, (n, 2))
+        prob, calls = certify.Problem(p, r, None), []
+        res = fit_structure(p, r, "linf")
+        with np.errstate(all="ignore"):
+            hint = minimax.guesses(prob, procrustes.rotation(prob))
+            certify.search(prob, lambda *a: calls.append(1) or minimax.evaluate(*a), procrustes.rotation(prob),
+                           hint, minimax.SPLIT, refine=minimax.kinks)
+        assert len(hint) <= 1 and res.cost - res.cost_lower_bound <= CERT_TOL
+        if hint and abs(math.remainder(hint[0] - res.pose.th, 2.0 * math.pi)) <= 2e-9:
+            landed, once = landed + 1, once + (len(calls) == 1)
+    assert landed >= 6 and once >= landed - 1  # a landed hint certifies in the first batch
 
 
 @pytest.mark.parametrize("seed", [0, 2, 3])  # smooth optima (seed 1's has a robot on t: F has a kink there)

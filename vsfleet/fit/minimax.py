@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from functools import lru_cache
+from itertools import combinations
 
 import numpy as np
 
@@ -135,9 +136,15 @@ def kinks(prob, tha: float, ea, thb: float, eb) -> list:
         return out
     pa, pb = (prob.PQ[:, list(bs)].T.tolist() for bs in (ba, bb))
     h = lambda th: _r2(pa, ba[1] == ba[2], th) - _r2(pb, bb[1] == bb[2], th)  # noqa: E731
-    a, b, fa, fb = tha, thb, h(tha), h(thb)
+    b = _root(h, tha, thb)
+    return out + [b] if b is not None and lo < b < hi else out
+
+
+def _root(h, a: float, b: float):
+    """A root of h in [a, b] by Illinois regula falsi; None without a sign change."""
+    fa, fb = h(a), h(b)
     if not fa * fb < 0.0 or math.isinf(fa - fb):
-        return out
+        return None
     side, k = 0, 0
     while abs(b - a) > 1e-15 * (1.0 + abs(b)) and fb != 0.0 and k < 60:
         x, k = (a * fb - b * fa) / (fb - fa), k + 1
@@ -149,8 +156,75 @@ def kinks(prob, tha: float, ea, thb: float, eb) -> list:
         else:
             side = 1
         b, fb = x, fx
-    return out + [b] if lo < b < hi else out
+    return b
 
+
+def _mec(ids, qx, qy):
+    """Basis (i, j, j) or (i, j, l), centre and radius^2 of the smallest circle around robots ``ids`` (sorted, <= 4)."""
+    pts, best = [(i, float(qx[i]), float(qy[i])) for i in ids], (None, 0.0, 0.0, math.inf)
+    for sub in list(combinations(pts, 2)) + list(combinations(pts, 3)):
+        (i, ax, ay), (j, bx, by) = sub[:2]
+        if len(sub) == 2:
+            cx, cy, key = 0.5 * (ax + bx), 0.5 * (ay + by), (i, j, j)  # ids sorted: so is every key
+        else:
+            bx, by, ex, ey = bx - ax, by - ay, sub[2][1] - ax, sub[2][2] - ay
+            det, b2, e2 = 2.0 * (bx * ey - by * ex) or math.inf, bx * bx + by * by, ex * ex + ey * ey  # collinear: a
+            cx, cy, key = ax + (ey * b2 - by * e2) / det, ay + (bx * e2 - ex * b2) / det, (i, j, sub[2][0])
+        r2 = (ax - cx) ** 2 + (ay - cy) ** 2
+        if r2 < best[3] and all((x - cx) ** 2 + (y - cy) ** 2 <= r2 * (1.0 + 1e-12) for _, x, y in pts):
+            best = (key, cx, cy, r2)
+    return best
+
+
+def _basis(prob, ths, basis, last: bool = False):
+    """The enclosing-circle basis at ths[0] [rad] from a warm basis (a hint): add the farthest robot until
+    none is outside.  ``last``: the index of the first of ``ths`` where ``basis`` is not the basis (or len).
+    """
+    qx, qy = prob.q(np.array([math.cos(x) for x in ths]), np.array([math.sin(x) for x in ths]))
+    if last:  # the basis's circle at every angle; a triple must stay acute (its centre inside)
+        (ax, bx, ex), (ay, by, ey) = qx[:, list(basis)].T, qy[:, list(basis)].T
+        bx, by, ex, ey = bx - ax, by - ay, ex - ax, ey - ay
+        det, b2, e2, be = 2.0 * (bx * ey - by * ex), bx * bx + by * by, ex * ex + ey * ey, bx * ex + by * ey
+        pair = basis[1] == basis[2]
+        ux, uy = (0.5 * bx, 0.5 * by) if pair else ((ey * b2 - by * e2) / det, (bx * e2 - ex * b2) / det)
+        d2 = ((qx - (ax + ux)[:, None]) ** 2 + (qy - (ay + uy)[:, None]) ** 2).max(axis=1)
+        bad = d2 > (ux * ux + uy * uy) * (1.0 + 1e-12)
+        bad |= (not pair) & ((be <= 0.0) | (b2 <= be) | (e2 <= be))
+        return int(np.argmax(bad)) if bad.any() else len(ths)
+    ids, r0 = sorted(set(basis)), -1.0
+    while True:  # the radius grows, so it ends
+        basis, cx, cy, r2 = _mec(ids, qx[0], qy[0])
+        d2 = (qx[0] - cx) ** 2 + (qy[0] - cy) ** 2
+        j = int(d2.argmax())
+        if d2[j] <= r2 * (1.0 + 1e-12) or r2 <= r0:
+            return basis
+        ids, r0 = sorted(set(basis) | {j}), r2
+
+
+def descend(prob, th: float, steps: int = 12, samples: int = 16) -> list:
+    """A local minimiser of f near th [rad] (speed only: a search hint), [] if none found.
+
+    Walk downhill on f's pieces: towards the stationary point of the current basis (pair
+    alignment or triple Newton), to the first angle where the basis changes (sampled), then to
+    the kink there (equal radii); a kink where the new basis rises is a local minimum.
+    """
+    rad = lambda b: lambda x, pq=prob.PQ[:, list(b)].T.tolist(): _r2(pq, b[1] == b[2], x)  # noqa: E731
+    basis = _basis(prob, [th], (0, 1, 1))
+    for _ in range(steps):
+        down = -1.0 if (r := rad(basis))(th + 1e-7) > r(th - 1e-7) else 1.0
+        st = [th + math.remainder(g - th, 2.0 * math.pi) for g in guesses(prob, th, basis)]
+        st = [g for g in st if 0.0 < (g - th) * down < 0.5]
+        target = min(st, key=lambda g: abs(g - th)) if st else th + 0.1 * down
+        xs = [th + (target - th) * (k + 1) / samples for k in range(samples)]
+        k = _basis(prob, xs, basis, last=True)
+        if k == samples and st:
+            return [target]
+        rn = rad(nb := basis if k == samples else _basis(prob, [xs[k]], basis))
+        kink = None if k == samples else _root(lambda x: r(x) - rn(x), xs[k - 1] if k else th, xs[min(k, samples - 1)])
+        if kink is not None and rn(kink + 1e-7 * down) >= rn(kink):
+            return [kink]
+        th, basis = (xs[min(k, samples - 1)] if kink is None else kink), nb
+    return []
 
 def guesses(prob, th0: float, basis=None) -> list:
     """Candidate optimal rotations [rad]: speed only.  Without ``basis``: the paper triangle (n = 3, else none).
@@ -162,7 +236,7 @@ def guesses(prob, th0: float, basis=None) -> list:
     or (i, j, l): only that pair's alignment, or Newton from th0 on that triple's R.
     """
     if basis is None and prob.n != 3:  # the search runs from n = 3
-        return []
+        return descend(prob, th0)
     rows = [0, 1, 2] if basis is None else list(basis)  # a pair (i, j, j): its second point repeated
     P, Q = prob.P[rows].tolist(), prob.Q[rows].tolist()
     sides, out = [], []
