@@ -445,8 +445,8 @@ def test_the_linf_descent_from_the_l2_rotation_mostly_lands_on_the_certified_opt
         res = fit_structure(p, r, "linf")
         with np.errstate(all="ignore"):
             hint = minimax.guesses(prob, procrustes.rotation(prob))
-            certify.search(prob, lambda *a: calls.append(1) or minimax.evaluate(*a), procrustes.rotation(prob),
-                           hint, minimax.SPLIT, refine=minimax.kinks)
+            certify.search(prob, lambda *a: calls.append(1) or minimax.evaluate(*a), hint[0], hint, minimax.SPLIT,
+                           lean=True, refine=minimax.kinks)  # as fit_structure runs it
         assert len(hint) <= 1 and res.cost - res.cost_lower_bound <= CERT_TOL
         if hint and abs(math.remainder(hint[0] - res.pose.th, 2.0 * math.pi)) <= 2e-9:
             landed, once = landed + 1, once + (len(calls) == 1)

@@ -142,6 +142,8 @@ def fit_structure(template_xy, positions_xy, metric: str = "l2", weights=None) -
             if metric == "l1" and prob.n >= median.NEWTON_N:  # large n: start the search at a local optimum
                 th0, t0, lean = median.newton(prob, th0)
             guess, split = (minimax.guesses(prob, th0), minimax.SPLIT) if metric == "linf" else ((), 0)
+            if metric == "linf" and prob.n > 3 and guess:  # a local optimum (minimax.descend): lean around it
+                th0, lean = guess[0], True
             th, tx, ty, lower = certify.search(prob, _EVALUATORS[metric], th0, guess, split, t0=t0, lean=lean,
                                               refine=minimax.kinks if metric == "linf" else None)
     pose = prob.pose(th, tx, ty)

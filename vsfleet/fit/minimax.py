@@ -159,10 +159,12 @@ def _root(h, a: float, b: float):
     return b
 
 
-def _mec(ids, qx, qy):
-    """Basis (i, j, j) or (i, j, l), centre and radius^2 of the smallest circle around robots ``ids`` (sorted, <= 4)."""
-    pts, best = [(i, float(qx[i]), float(qy[i])) for i in ids], (None, 0.0, 0.0, math.inf)
-    for sub in list(combinations(pts, 2)) + list(combinations(pts, 3)):
+def _mec(ids, qx, qy, new=None):
+    """Basis (i, j, j) / (i, j, l), centre, radius^2 of the smallest circle around robots ``ids`` (sorted, <= 4);
+    ``new``: a robot outside the others' smallest circle, hence on this one (Welzl)."""
+    pts = [(i, float(qx[i]), float(qy[i])) for i in ids]
+    out = [((ids[0],) * 3, pts[0][1], pts[0][2], 0.0)]  # one robot: itself
+    for sub in (t for k in (2, 3) for t in combinations(pts, k) if new is None or new in (t[0][0], t[1][0], t[-1][0])):
         (i, ax, ay), (j, bx, by) = sub[:2]
         if len(sub) == 2:
             cx, cy, key = 0.5 * (ax + bx), 0.5 * (ay + by), (i, j, j)  # ids sorted: so is every key
@@ -170,14 +172,14 @@ def _mec(ids, qx, qy):
             bx, by, ex, ey = bx - ax, by - ay, sub[2][1] - ax, sub[2][2] - ay
             det, b2, e2 = 2.0 * (bx * ey - by * ex) or math.inf, bx * bx + by * by, ex * ex + ey * ey  # collinear: a
             cx, cy, key = ax + (ey * b2 - by * e2) / det, ay + (bx * e2 - ex * b2) / det, (i, j, sub[2][0])
-        r2 = (ax - cx) ** 2 + (ay - cy) ** 2
-        if r2 < best[3] and all((x - cx) ** 2 + (y - cy) ** 2 <= r2 * (1.0 + 1e-12) for _, x, y in pts):
-            best = (key, cx, cy, r2)
-    return best
+        out.append((key, cx, cy, (ax - cx) ** 2 + (ay - cy) ** 2))
+    out.sort(key=lambda o: o[3])
+    inside = lambda o: all((x - o[1]) ** 2 + (y - o[2]) ** 2 <= o[3] * (1.0 + 1e-12) for _, x, y in pts)  # noqa: E731
+    return next((o for o in out if inside(o)), out[-1])
 
 
 def _basis(prob, ths, basis, last: bool = False):
-    """The enclosing-circle basis at ths[0] [rad] from a warm basis (a hint): add the farthest robot until
+    """The enclosing-circle basis at ths[0] [rad] from a warm basis or () (a hint): add the farthest robot until
     none is outside.  ``last``: the index of the first of ``ths`` where ``basis`` is not the basis (or len).
     """
     qx, qy = prob.q(np.array([math.cos(x) for x in ths]), np.array([math.sin(x) for x in ths]))
@@ -188,28 +190,24 @@ def _basis(prob, ths, basis, last: bool = False):
         pair = basis[1] == basis[2]
         ux, uy = (0.5 * bx, 0.5 * by) if pair else ((ey * b2 - by * e2) / det, (bx * e2 - ex * b2) / det)
         d2 = ((qx - (ax + ux)[:, None]) ** 2 + (qy - (ay + uy)[:, None]) ** 2).max(axis=1)
-        bad = d2 > (ux * ux + uy * uy) * (1.0 + 1e-12)
-        bad |= (not pair) & ((be <= 0.0) | (b2 <= be) | (e2 <= be))
+        bad = (d2 > (ux * ux + uy * uy) * (1.0 + 1e-12)) | ((not pair) & ((be <= 0.0) | (b2 <= be) | (e2 <= be)))
         return int(np.argmax(bad)) if bad.any() else len(ths)
-    ids, r0 = sorted(set(basis)), -1.0
+    ids, r0 = sorted(set(basis)) or [int((qx[0] ** 2 + qy[0] ** 2).argmax())], -1.0
     while True:  # the radius grows, so it ends
-        basis, cx, cy, r2 = _mec(ids, qx[0], qy[0])
+        basis, cx, cy, r2 = _mec(ids, qx[0], qy[0], None if r0 < 0.0 else j)
         d2 = (qx[0] - cx) ** 2 + (qy[0] - cy) ** 2
-        j = int(d2.argmax())
-        if d2[j] <= r2 * (1.0 + 1e-12) or r2 <= r0:
+        if d2[j := int(d2.argmax())] <= r2 * (1.0 + 1e-12) or r2 <= r0:
             return basis
         ids, r0 = sorted(set(basis) | {j}), r2
 
 
 def descend(prob, th: float, steps: int = 12, samples: int = 16) -> list:
-    """A local minimiser of f near th [rad] (speed only: a search hint), [] if none found.
-
-    Walk downhill on f's pieces: towards the stationary point of the current basis (pair
-    alignment or triple Newton), to the first angle where the basis changes (sampled), then to
-    the kink there (equal radii); a kink where the new basis rises is a local minimum.
-    """
+    """A local minimiser of f near th [rad] (speed only: a search hint), [] if none found.  Walk downhill
+    on f's pieces: towards the stationary point of the current basis (pair alignment or triple Newton), to
+    the first sampled angle where the basis changes, to the kink there (equal radii); a kink where the new
+    basis rises is a local minimum."""
     rad = lambda b: lambda x, pq=prob.PQ[:, list(b)].T.tolist(): _r2(pq, b[1] == b[2], x)  # noqa: E731
-    basis = _basis(prob, [th], (0, 1, 1))
+    basis = _basis(prob, [th], ())  # from the robot farthest from the centroid
     for _ in range(steps):
         down = -1.0 if (r := rad(basis))(th + 1e-7) > r(th - 1e-7) else 1.0
         st = [th + math.remainder(g - th, 2.0 * math.pi) for g in guesses(prob, th, basis)]
@@ -225,6 +223,7 @@ def descend(prob, th: float, steps: int = 12, samples: int = 16) -> list:
             return [kink]
         th, basis = (xs[min(k, samples - 1)] if kink is None else kink), nb
     return []
+
 
 def guesses(prob, th0: float, basis=None) -> list:
     """Candidate optimal rotations [rad]: speed only.  Without ``basis``: the paper triangle (n = 3, else none).
