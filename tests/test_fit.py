@@ -430,6 +430,7 @@ def test_the_linf_triangle_guesses_hold_the_certified_optimum(seed):
     res = fit_structure(p, r, "linf")
     assert res.cost - res.cost_lower_bound <= CERT_TOL
     assert min(abs(math.remainder(g - res.pose.th, 2.0 * math.pi)) for g in guesses) <= 1e-7
+    assert minimax.guesses(certify.Problem(np.vstack([p, p[:1]]), np.vstack([r, r[:1]]), None), 0.0) == []
 
 
 @pytest.mark.parametrize("n", [4, 10, 30, 100])
@@ -444,11 +445,12 @@ def test_the_linf_descent_from_the_l2_rotation_mostly_lands_on_the_certified_opt
         prob, calls = certify.Problem(p, r, None), []
         res = fit_structure(p, r, "linf")
         with np.errstate(all="ignore"):
-            hint = minimax.guesses(prob, procrustes.rotation(prob))
-            certify.search(prob, lambda *a: calls.append(1) or minimax.evaluate(*a), hint[0], hint, minimax.SPLIT,
-                           lean=True, refine=minimax.kinks)  # as fit_structure runs it
-        assert len(hint) <= 1 and res.cost - res.cost_lower_bound <= CERT_TOL
-        if hint and abs(math.remainder(hint[0] - res.pose.th, 2.0 * math.pi)) <= 2e-9:
+            th, t0, found = minimax.descend(prob, procrustes.rotation(prob))
+            if found:  # as fit_structure runs it: a lean first batch around the local minimum
+                certify.search(prob, lambda *a: calls.append(1) or minimax.evaluate(*a), th, [th], minimax.SPLIT,
+                               t0=t0, lean=True, refine=minimax.kinks)
+        assert res.cost - res.cost_lower_bound <= CERT_TOL
+        if found and abs(math.remainder(th - res.pose.th, 2.0 * math.pi)) <= 2e-9:
             landed, once = landed + 1, once + (len(calls) == 1)
     assert landed >= 6 and once >= landed - 1  # a landed hint certifies in the first batch
 

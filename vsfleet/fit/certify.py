@@ -221,7 +221,7 @@ def search(prob: Problem, evaluate, th0: float, guesses=(), split: int = 0, tol:
     grid, offsets = (_LEAN[0], _LEAN[1][:: 1 if prob.n < _LEAN[2] else 3]) if lean else (_GRID, _LOCAL)
     step = 2.0 * math.pi / grid
     local = [th0 + e * h for e in (-1.0, 0.0, 1.0) for h in offsets]
-    local += [g + e * 1e-9 * 32.0 ** k for g in guesses for e in (-1.0, 0.0, 1.0) for k in range(_LADDER)]
+    local += [g + e * 1e-9 * 32.0 ** k for g in guesses for e in (-1.0, 0.0, 1.0) for k in range(_LADDER - lean)]
     S.add(local, rough=[-math.pi + step * k for k in range(grid)])
     levels = _STENCIL[: max(1, min(len(_STENCIL), 400 // prob.n))]
     lv = 4.0 ** -np.arange(1, split // prob.n + 1)  # resolves a cell whose end touches f

@@ -56,7 +56,7 @@ def evaluate(prob, c, s, tx0, ty0, rough):
     Active set: solve exactly on a working set (the farthest robots from the warm centre),
     then add the farthest robots while any lies outside; the radius grows, so it ends.
     Duals: k_i = w lam_i (q_i - centre)/radius on the basis (lam: its barycentric weights).
-    ``rough`` (the search's first-pass rows) is ignored: every solve is exact.
+    ``rough`` (the search's first-pass rows): the working set's circle only (a looser minorant).
     """
     qx, qy = prob.q(c, s)
     m, n = qx.shape
@@ -68,7 +68,7 @@ def evaluate(prob, c, s, tx0, ty0, rough):
         ws = np.argpartition((qx - tx0[:, None]) ** 2 + (qy - ty0[:, None]) ** 2, n - k, axis=1)[:, n - k:]
         cx, cy, r2, mem, lam = _circle(qx[rows, ws], qy[rows, ws])
         mem = ws[rows, mem]
-    act = np.arange(m)
+    act = np.nonzero(~rough)[0]  # rough rows keep the working set's circle: valid duals, f at its centre
     for _ in range(n if k < n else 0):  # each round grows every active row's radius
         ax, ay = qx[act], qy[act]
         d2 = (ax - cx[act, None]) ** 2 + (ay - cy[act, None]) ** 2
@@ -179,7 +179,7 @@ def _mec(ids, qx, qy, new=None):
 
 
 def _basis(prob, ths, basis, last: bool = False):
-    """The enclosing-circle basis at ths[0] [rad] from a warm basis or () (a hint): add the farthest robot until
+    """The enclosing circle's basis and centre at ths[0] [rad] from a warm basis or (): add the farthest robot until
     none is outside.  ``last``: the index of the first of ``ths`` where ``basis`` is not the basis (or len).
     """
     qx, qy = prob.q(np.array([math.cos(x) for x in ths]), np.array([math.sin(x) for x in ths]))
@@ -197,17 +197,17 @@ def _basis(prob, ths, basis, last: bool = False):
         basis, cx, cy, r2 = _mec(ids, qx[0], qy[0], None if r0 < 0.0 else j)
         d2 = (qx[0] - cx) ** 2 + (qy[0] - cy) ** 2
         if d2[j := int(d2.argmax())] <= r2 * (1.0 + 1e-12) or r2 <= r0:
-            return basis
+            return basis, cx, cy
         ids, r0 = sorted(set(basis) | {j}), r2
 
 
-def descend(prob, th: float, steps: int = 12, samples: int = 16) -> list:
-    """A local minimiser of f near th [rad] (speed only: a search hint), [] if none found.  Walk downhill
-    on f's pieces: towards the stationary point of the current basis (pair alignment or triple Newton), to
-    the first sampled angle where the basis changes, to the kink there (equal radii); a kink where the new
-    basis rises is a local minimum."""
+def descend(prob, th0: float, steps: int = 12, samples: int = 16):
+    """A local minimum of f near th0 [rad] (speed only): (th, its centre (tx, ty), found); (th0, 0, False) if
+    none.  Walk downhill on f's pieces: towards the stationary point of the current basis (pair alignment or
+    triple Newton), to the first sampled angle where the basis changes, to the kink there (equal radii); a
+    kink where the new basis rises is a local minimum."""
     rad = lambda b: lambda x, pq=prob.PQ[:, list(b)].T.tolist(): _r2(pq, b[1] == b[2], x)  # noqa: E731
-    basis = _basis(prob, [th], ())  # from the robot farthest from the centroid
+    th, basis = th0, _basis(prob, [th0], ())[0]  # from the robot farthest from the centroid
     for _ in range(steps):
         down = -1.0 if (r := rad(basis))(th + 1e-7) > r(th - 1e-7) else 1.0
         st = [th + math.remainder(g - th, 2.0 * math.pi) for g in guesses(prob, th, basis)]
@@ -215,14 +215,13 @@ def descend(prob, th: float, steps: int = 12, samples: int = 16) -> list:
         target = min(st, key=lambda g: abs(g - th)) if st else th + 0.1 * down
         xs = [th + (target - th) * (k + 1) / samples for k in range(samples)]
         k = _basis(prob, xs, basis, last=True)
-        if k == samples and st:
-            return [target]
-        rn = rad(nb := basis if k == samples else _basis(prob, [xs[k]], basis))
+        rn = rad(nb := basis if k == samples else _basis(prob, [xs[k]], basis)[0])
         kink = None if k == samples else _root(lambda x: r(x) - rn(x), xs[k - 1] if k else th, xs[min(k, samples - 1)])
-        if kink is not None and rn(kink + 1e-7 * down) >= rn(kink):
-            return [kink]
+        if (k == samples and st) or (kink is not None and rn(kink + 1e-7 * down) >= rn(kink)):
+            th = target if kink is None else kink
+            return th, _basis(prob, [th], nb)[1:], True
         th, basis = (xs[min(k, samples - 1)] if kink is None else kink), nb
-    return []
+    return th0, (0.0, 0.0), False
 
 
 def guesses(prob, th0: float, basis=None) -> list:
@@ -234,18 +233,16 @@ def guesses(prob, th0: float, basis=None) -> list:
     sides^2 and X = 2 area are affine in cos th, sin th).  docs/fit.md.  ``basis`` (i, j, j)
     or (i, j, l): only that pair's alignment, or Newton from th0 on that triple's R.
     """
-    if basis is None and prob.n != 3:  # the search runs from n = 3
-        return descend(prob, th0)
+    if basis is None and prob.n != 3:  # the search runs from n = 3 (larger n: descend)
+        return []
     rows = [0, 1, 2] if basis is None else list(basis)  # a pair (i, j, j): its second point repeated
     P, Q = prob.P[rows].tolist(), prob.Q[rows].tolist()
     sides, out = [], []
     for a, b in ((0, 1), (0, 2), (1, 2)):
-        D = (Q[b][0] - Q[a][0], Q[b][1] - Q[a][1])
-        E = (P[b][0] - P[a][0], P[b][1] - P[a][1])
+        D, E = (Q[b][0] - Q[a][0], Q[b][1] - Q[a][1]), (P[b][0] - P[a][0], P[b][1] - P[a][1])
         u, v = D[0] * E[0] + D[1] * E[1], E[0] * D[1] - E[1] * D[0]  # |D - R E|^2 = al - 2(c u + s v)
-        sides.append((D[0] ** 2 + D[1] ** 2 + E[0] ** 2 + E[1] ** 2, u, v))
+        sides.append((D[0] ** 2 + D[1] ** 2 + E[0] ** 2 + E[1] ** 2, u, v, D, E))
         out.append(math.atan2(v, u))  # R(th) E along D
-        sides[-1] += (D, E)
     if basis is not None and basis[1] == basis[2]:
         return out[:1]
     (_, _, _, D1, E1), (_, _, _, D2, E2) = sides[0], sides[1]
