@@ -135,8 +135,7 @@ def kinks(prob, tha: float, ea, thb: float, eb) -> list:
     if ba == bb:
         return out
     pa, pb = (prob.PQ[:, list(bs)].T.tolist() for bs in (ba, bb))
-    h = lambda th: _r2(pa, ba[1] == ba[2], th) - _r2(pb, bb[1] == bb[2], th)  # noqa: E731
-    b = _root(h, tha, thb)
+    b = _root(lambda th: _r2(pa, ba[1] == ba[2], th) - _r2(pb, bb[1] == bb[2], th), tha, thb)
     return out + [b] if b is not None and lo < b < hi else out
 
 
@@ -162,7 +161,7 @@ def _root(h, a: float, b: float):
 def _mec(ids, qx, qy, new=None):
     """Basis (i, j, j) / (i, j, l), centre, radius^2 of the smallest circle around robots ``ids`` (sorted, <= 4);
     ``new``: a robot outside the others' smallest circle, hence on this one (Welzl)."""
-    pts = [(i, float(qx[i]), float(qy[i])) for i in ids]
+    pts = list(zip(ids, qx[ids].tolist(), qy[ids].tolist()))
     out = [((ids[0],) * 3, pts[0][1], pts[0][2], 0.0)]  # one robot: itself
     for sub in (t for k in (2, 3) for t in combinations(pts, k) if new is None or new in (t[0][0], t[1][0], t[-1][0])):
         (i, ax, ay), (j, bx, by) = sub[:2]
@@ -178,24 +177,28 @@ def _mec(ids, qx, qy, new=None):
     return next((o for o in out if inside(o)), out[-1])
 
 
-def _basis(prob, ths, basis, last: bool = False):
-    """The enclosing circle's basis and centre at ths[0] [rad] from a warm basis or (): add the farthest robot until
-    none is outside.  ``last``: the index of the first of ``ths`` where ``basis`` is not the basis (or len).
-    """
-    qx, qy = prob.q(np.array([math.cos(x) for x in ths]), np.array([math.sin(x) for x in ths]))
+def _basis(prob, ths, basis, last: bool = False, new: int = -1):
+    """The enclosing circle's basis and centre at ths[0] [rad] from a warm basis or () (and a robot ``new`` outside
+    it): add the farthest robot until none is outside.  ``last``: the first index of ``ths`` where ``basis`` is
+    not the basis (or len) and the farthest robot there if it is outside (else -1)."""
     if last:  # the basis's circle at every angle; a triple must stay acute (its centre inside)
+        qx, qy = prob.q(np.array([math.cos(x) for x in ths]), np.array([math.sin(x) for x in ths]))
         (ax, bx, ex), (ay, by, ey) = qx[:, list(basis)].T, qy[:, list(basis)].T
         bx, by, ex, ey = bx - ax, by - ay, ex - ax, ey - ay
         det, b2, e2, be = 2.0 * (bx * ey - by * ex), bx * bx + by * by, ex * ex + ey * ey, bx * ex + by * ey
         pair = basis[1] == basis[2]
         ux, uy = (0.5 * bx, 0.5 * by) if pair else ((ey * b2 - by * e2) / det, (bx * e2 - ex * b2) / det)
-        d2 = ((qx - (ax + ux)[:, None]) ** 2 + (qy - (ay + uy)[:, None]) ** 2).max(axis=1)
-        bad = (d2 > (ux * ux + uy * uy) * (1.0 + 1e-12)) | ((not pair) & ((be <= 0.0) | (b2 <= be) | (e2 <= be)))
-        return int(np.argmax(bad)) if bad.any() else len(ths)
-    ids, r0 = sorted(set(basis)) or [int((qx[0] ** 2 + qy[0] ** 2).argmax())], -1.0
+        d2 = (qx - (ax + ux)[:, None]) ** 2 + (qy - (ay + uy)[:, None]) ** 2
+        out = d2.max(axis=1) > (ux * ux + uy * uy) * (1.0 + 1e-12)
+        bad = out | ((not pair) & ((be <= 0.0) | (b2 <= be) | (e2 <= be)))
+        k = int(np.argmax(bad)) if bad.any() else len(ths)
+        return k, int(d2[k].argmax()) if k < len(ths) and out[k] else -1
+    c, s = math.cos(ths[0]), math.sin(ths[0])
+    qx, qy = prob.Qx - (c * prob.Px - s * prob.Py), prob.Qy - (s * prob.Px + c * prob.Py)
+    ids, j, r0 = sorted(set(basis) | ({new} - {-1})) or [int((qx * qx + qy * qy).argmax())], new, -1.0
     while True:  # the radius grows, so it ends
-        basis, cx, cy, r2 = _mec(ids, qx[0], qy[0], None if r0 < 0.0 else j)
-        d2 = (qx[0] - cx) ** 2 + (qy[0] - cy) ** 2
+        basis, cx, cy, r2 = _mec(ids, qx, qy, None if j < 0 else j)
+        d2 = (qx - cx) ** 2 + (qy - cy) ** 2
         if d2[j := int(d2.argmax())] <= r2 * (1.0 + 1e-12) or r2 <= r0:
             return basis, cx, cy
         ids, r0 = sorted(set(basis) | {j}), r2
@@ -214,8 +217,8 @@ def descend(prob, th0: float, steps: int = 12, samples: int = 16):
         st = [g for g in st if 0.0 < (g - th) * down < 0.5]
         target = min(st, key=lambda g: abs(g - th)) if st else th + 0.1 * down
         xs = [th + (target - th) * (k + 1) / samples for k in range(samples)]
-        k = _basis(prob, xs, basis, last=True)
-        rn = rad(nb := basis if k == samples else _basis(prob, [xs[k]], basis)[0])
+        k, j = _basis(prob, xs, basis, last=True)
+        rn = rad(nb := basis if k == samples else _basis(prob, [xs[k]], basis, new=j)[0])
         kink = None if k == samples else _root(lambda x: r(x) - rn(x), xs[k - 1] if k else th, xs[min(k, samples - 1)])
         if (k == samples and st) or (kink is not None and rn(kink + 1e-7 * down) >= rn(kink)):
             th = target if kink is None else kink
