@@ -65,11 +65,9 @@ class Problem:
         |k_i| is within the metric's dual ball (weak duality; any translation).
         """
         Px, Py, Qx, Qy = self.PQ if rows is None else self.PQ[:, rows]
-        K = np.sum(kx * Qx + ky * Qy, axis=1)
-        A = np.sum(kx * Px + ky * Py, axis=1)
-        B = np.sum(ky * Px - kx * Py, axis=1)
-        fx, fy = np.sum(kx, axis=1), np.sum(ky, axis=1)
-        kabs = np.sum(np.sqrt(kx * kx + ky * ky), axis=1)
+        add = np.add.reduce  # np.sum's own reduction, without its Python wrapper
+        K, A, B = add(kx * Qx + ky * Qy, axis=1), add(kx * Px + ky * Py, axis=1), add(ky * Px - kx * Py, axis=1)
+        fx, fy, kabs = add(kx, axis=1), add(ky, axis=1), add(np.sqrt(kx * kx + ky * ky), axis=1)
         return K - self.bound * (np.sqrt(fx * fx + fy * fy) + 64.0 * EPS * kabs), A, B
 
     def pose(self, th: float, tx: float, ty: float) -> Pose2:
@@ -218,7 +216,7 @@ def search(prob: Problem, evaluate, th0: float, guesses=(), split: int = 0, tol:
     the best angle b to its neighbour o (from the evaluator's extra rows); each gets a ladder.
     """
     S = _Angles(prob, evaluate, t0)
-    grid, offsets = (_LEAN[0], _LEAN[1][:: 1 if prob.n < _LEAN[2] else 3]) if lean else (_GRID, _LOCAL)
+    grid, offsets = (_LEAN[0], _LEAN[1][:: 1 if prob.n < _LEAN[2] and not guesses else 3]) if lean else (_GRID, _LOCAL)
     step = 2.0 * math.pi / grid
     local = [th0 + e * h for e in (-1.0, 0.0, 1.0) for h in offsets]
     local += [g + e * 1e-9 * 32.0 ** k for g in guesses for e in (-1.0, 0.0, 1.0) for k in range(_LADDER - lean)]

@@ -45,7 +45,7 @@ def _circle(X, Y):
     best = np.argmax(np.where(ok, r2, -1.0), axis=1)
     rows = np.arange(len(X))
     lb, le = lb[rows, best], le[rows, best]
-    lam = np.stack([1.0 - lb - le, lb, le], axis=1)
+    lam = np.array([1.0 - lb - le, lb, le]).T
     cx, cy = x0[rows, best] + ux[rows, best], y0[rows, best] + uy[rows, best]
     return cx, cy, r2[rows, best], mem[best], lam
 
@@ -93,9 +93,9 @@ def evaluate(prob, c, s, tx0, ty0, rough):
     K, A, B = prob.minorant(scale * dx, scale * dy, mem)
     # a pair basis also gives the constant minorant w ||Q_i - Q_j| - |P_i - P_j|| / 2 (every th):
     # better where it touches, e.g. a pair of coincident robots, whose distance is constant
-    i, j = mem[:, 0], mem[:, 1]
-    dq = np.sqrt((prob.Qx[i] - prob.Qx[j]) ** 2 + (prob.Qy[i] - prob.Qy[j]) ** 2)
-    dp = np.sqrt((prob.Px[i] - prob.Px[j]) ** 2 + (prob.Py[i] - prob.Py[j]) ** 2)
+    D = prob.PQ[:, mem[:, 0]] - prob.PQ[:, mem[:, 1]]
+    D *= D
+    dq, dp = np.sqrt(D[2] + D[3]), np.sqrt(D[0] + D[1])
     cst = 0.5 * w * (np.abs(dq - dp) - 16.0 * EPS * prob.bound)
     flat = (lam[:, 2] == 0.0) & (cst >= K - A * c - B * s)
     K, A, B = np.where(flat, cst, K), np.where(flat, 0.0, A), np.where(flat, 0.0, B)
