@@ -39,7 +39,7 @@ class Problem:
             W = float(w.sum())
             self.cp, self.cr = (w[:, None] * p).sum(axis=0) / W, (w[:, None] * r).sum(axis=0) / W
         self.P, self.Q = p - self.cp, r - self.cr
-        self.PQ = np.stack([self.P[:, 0], self.P[:, 1], self.Q[:, 0], self.Q[:, 1]])  # one gather for all four
+        self.PQ = np.concatenate([self.P.T, self.Q.T])  # rows Px, Py, Qx, Qy: one gather for all four
         self.Px, self.Py, self.Qx, self.Qy = self.PQ
 
     @cached_property
@@ -150,7 +150,7 @@ class _Angles:
         c = np.array([math.cos(t) for t in lt])  # math, not numpy: the same bits on every CPU
         s = np.array([math.sin(t) for t in lt])
         out = self.evaluate(self.prob, c, s, t0[0], t0[1], flag)
-        a = np.stack((th, c, s) + tuple(out[:6]) + (flag,) + tuple(out[6:]))  # extra rows: the evaluator's
+        a = np.array((th, c, s) + tuple(out[:6]) + (flag,) + tuple(out[6:]), dtype=float)  # extra rows: the evaluator's
         a = np.concatenate([old, a], axis=1) if old.shape[1] else a
         self.a = a[:, np.argsort(a[0], kind="stable")]
         return len(th)

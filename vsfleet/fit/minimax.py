@@ -222,7 +222,9 @@ def descend(prob, th0: float, steps: int = 12, samples: int = 16):
         kink = None if k == samples else _root(lambda x: r(x) - rn(x), xs[k - 1] if k else th, xs[min(k, samples - 1)])
         if (k == samples and st) or (kink is not None and rn(kink + 1e-7 * down) >= rn(kink)):
             th = target if kink is None else kink
-            return th, _basis(prob, [th], nb)[1:], True
+            c, s = math.cos(th), math.sin(th)  # the centre: nb's circle at th
+            qx, qy = prob.Qx - (c * prob.Px - s * prob.Py), prob.Qy - (s * prob.Px + c * prob.Py)
+            return th, _mec(sorted(set(nb)), qx, qy)[1:3], True
         th, basis = (xs[min(k, samples - 1)] if kink is None else kink), nb
     return th0, (0.0, 0.0), False
 
