@@ -434,7 +434,7 @@ def test_the_linf_triangle_guesses_hold_the_certified_optimum(seed):
 
 
 @pytest.mark.parametrize("n", [4, 10, 30, 100])
-def test_the_linf_descent_from_the_l2_rotation_mostly_lands_on_the_certified_optimum(n):
+def test_the_linf_descent_from_the_l2_rotation_lands_on_the_certified_optimum(n):
     from vsfleet.fit import certify, minimax, procrustes
 
     landed, once = 0, 0
@@ -452,7 +452,7 @@ def test_the_linf_descent_from_the_l2_rotation_mostly_lands_on_the_certified_opt
         assert res.cost - res.cost_lower_bound <= CERT_TOL
         if found and abs(math.remainder(th - res.pose.th, 2.0 * math.pi)) <= 2e-9:
             landed, once = landed + 1, once + (len(calls) == 1)
-    assert landed >= 6 and once >= landed - 1  # a landed hint certifies in the first batch
+    assert landed >= 9 and once >= landed - 1  # a landed hint certifies in the first batch
 
 
 @pytest.mark.parametrize("seed", [0, 2, 3])  # smooth optima (seed 1's has a robot on t: F has a kink there)

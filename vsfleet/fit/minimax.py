@@ -131,9 +131,7 @@ def kinks(prob, tha: float, ea, thb: float, eb) -> list:
     """
     ba, bb = tuple(sorted(int(v) for v in ea)), tuple(sorted(int(v) for v in eb))
     lo, hi = min(tha, thb), max(tha, thb)
-    out = [g for g in guesses(prob, tha, ba) if lo < g < hi]
-    if ba == bb:
-        return out
+    out = [g for g in guesses(prob, tha, ba) if lo < g < hi]  # the same basis: h = 0, no root
     pa, pb = (prob.PQ[:, list(bs)].T.tolist() for bs in (ba, bb))
     b = _root(lambda th: _r2(pa, ba[1] == ba[2], th) - _r2(pb, bb[1] == bb[2], th), tha, thb)
     return out + [b] if b is not None and lo < b < hi else out
@@ -207,8 +205,8 @@ def _basis(prob, ths, basis, last: bool = False, new: int = -1):
 def descend(prob, th0: float, steps: int = 12, samples: int = 16):
     """A local minimum of f near th0 [rad] (speed only): (th, its centre (tx, ty), found); (th0, 0, False) if
     none.  Walk downhill on f's pieces: towards the stationary point of the current basis (pair alignment or
-    triple Newton), to the first sampled angle where the basis changes, to the kink there (equal radii); a
-    kink where the new basis rises is a local minimum."""
+    triple Newton), to the first sampled angle where the basis changes, to the kink there (equal radii).  A
+    stationary point, or a kink where the new basis rises, is a minimum if that basis holds just past it."""
     rad = lambda b: lambda x, pq=prob.PQ[:, list(b)].T.tolist(): _r2(pq, b[1] == b[2], x)  # noqa: E731
     th, basis = th0, _basis(prob, [th0], ())[0]  # from the robot farthest from the centroid
     for _ in range(steps):
@@ -220,12 +218,11 @@ def descend(prob, th0: float, steps: int = 12, samples: int = 16):
         k, j = _basis(prob, xs, basis, last=True)
         rn = rad(nb := basis if k == samples else _basis(prob, [xs[k]], basis, new=j)[0])
         kink = None if k == samples else _root(lambda x: r(x) - rn(x), xs[k - 1] if k else th, xs[min(k, samples - 1)])
+        x, b2 = (target if kink is None else kink), (nb,)
         if (k == samples and st) or (kink is not None and rn(kink + 1e-7 * down) >= rn(kink)):
-            th = target if kink is None else kink
-            c, s = math.cos(th), math.sin(th)  # the centre: nb's circle at th
-            qx, qy = prob.Qx - (c * prob.Px - s * prob.Py), prob.Qy - (s * prob.Px + c * prob.Py)
-            return th, _mec(sorted(set(nb)), qx, qy)[1:3], True
-        th, basis = (xs[min(k, samples - 1)] if kink is None else kink), nb
+            if (b2 := _basis(prob, [x + 1e-9 * down], nb))[0] == nb:  # nb really is the basis past x
+                return x, b2[1:], True
+        th, basis = (xs[min(k, samples - 1)] if kink is None else kink), b2[0]
     return th0, (0.0, 0.0), False
 
 
