@@ -216,7 +216,8 @@ def search(prob: Problem, evaluate, th0: float, guesses=(), split: int = 0, tol:
     the best angle b to its neighbour o (from the evaluator's extra rows); each gets a ladder.
     """
     S = _Angles(prob, evaluate, t0)
-    grid, offsets = (_LEAN[0], _LEAN[1][:: 1 if prob.n < _LEAN[2] and not guesses else 3]) if lean else (_GRID, _LOCAL)
+    few = _LEAN[1][-1:] if guesses else _LEAN[1][:: 1 if prob.n < _LEAN[2] else 3]  # with a guess: its ladder
+    grid, offsets = (_LEAN[0], few) if lean else (_GRID, _LOCAL)
     step = 2.0 * math.pi / grid
     local = [th0 + e * h for e in (-1.0, 0.0, 1.0) for h in offsets]
     local += [g + e * 1e-9 * 32.0 ** k for g in guesses for e in (-1.0, 0.0, 1.0) for k in range(_LADDER - lean)]
