@@ -68,8 +68,10 @@ def evaluate(prob, c, s, tx0, ty0, rough):
         ws = np.argpartition((qx - tx0[:, None]) ** 2 + (qy - ty0[:, None]) ** 2, n - k, axis=1)[:, n - k:]
         cx, cy, r2, mem, lam = _circle(qx[rows, ws], qy[rows, ws])
         mem = ws[rows, mem]
-    act = np.nonzero(~rough)[0]  # rough rows keep the working set's circle: valid duals, f at its centre
-    for _ in range(n if k < n else 0):  # each round grows every active row's radius
+    d2max = lambda: ((qx - cx[:, None]) ** 2 + (qy - cy[:, None]) ** 2).max(axis=1)  # noqa: E731
+    dmax = d2max()  # rough rows keep the working set's circle: valid duals, f at its centre
+    act = act0 = np.nonzero((dmax > r2 * (1.0 + 16.0 * EPS)) & ~rough)[0]
+    for _ in range(n if k < n and len(act) else 0):  # each round grows every active row's radius
         ax, ay = qx[act], qy[act]
         d2 = (ax - cx[act, None]) ** 2 + (ay - cy[act, None]) ** 2
         out = d2.max(axis=1) > r2[act] * (1.0 + 16.0 * EPS)
@@ -99,7 +101,7 @@ def evaluate(prob, c, s, tx0, ty0, rough):
     cst = 0.5 * w * (np.abs(dq - dp) - 16.0 * EPS * prob.bound)
     flat = (lam[:, 2] == 0.0) & (cst >= K - A * c - B * s)
     K, A, B = np.where(flat, cst, K), np.where(flat, 0.0, A), np.where(flat, 0.0, B)
-    f = w * np.sqrt(((qx - cx[:, None]) ** 2 + (qy - cy[:, None]) ** 2).max(axis=1))
+    f = w * np.sqrt(d2max() if k < n and len(act0) else dmax)
     return (f, cx, cy, K, A, B) + tuple(mem.T.astype(float))  # extra rows: the basis (i, j, j) or (i, j, l)
 
 
