@@ -433,6 +433,28 @@ def test_the_linf_triangle_guesses_hold_the_certified_optimum(seed):
     assert minimax.guesses(certify.Problem(np.vstack([p, p[:1]]), np.vstack([r, r[:1]]), None), 0.0) == []
 
 
+@pytest.mark.parametrize("n", [4, 10, 30, 100])
+def test_the_linf_descent_from_the_l2_rotation_lands_on_the_certified_optimum(n):
+    from vsfleet.fit import certify, minimax, procrustes
+
+    landed, once = 0, 0
+    for seed in range(10):
+        rng = np.random.default_rng(seed)
+        p = rng.uniform(-1.0, 1.0, (n, 2))
+        r = Pose2(*rng.uniform(-3, 3, 2), rng.uniform(-math.pi, math.pi)).apply(p) + rng.normal(0, 0.05, (n, 2))
+        prob, calls = certify.Problem(p, r, None), []
+        res = fit_structure(p, r, "linf")
+        with np.errstate(all="ignore"):
+            th, t0, found = minimax.descend(prob, procrustes.rotation(prob))
+            if found:  # as fit_structure runs it: a lean first batch around the local minimum
+                certify.search(prob, lambda *a: calls.append(1) or minimax.evaluate(*a), th, [th], minimax.SPLIT,
+                               t0=t0, lean=True, refine=minimax.kinks)
+        assert res.cost - res.cost_lower_bound <= CERT_TOL
+        if found and abs(math.remainder(th - res.pose.th, 2.0 * math.pi)) <= 2e-9:
+            landed, once = landed + 1, once + (len(calls) == 1)
+    assert landed >= 9 and once >= landed - 1  # a landed hint certifies in the first batch
+
+
 @pytest.mark.parametrize("seed", [0, 2, 3])  # smooth optima (seed 1's has a robot on t: F has a kink there)
 def test_the_l1_newton_start_lands_on_the_certified_rotation_and_a_bad_start_only_costs_rounds(seed):
     from vsfleet.fit import certify, median, procrustes

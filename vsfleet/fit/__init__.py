@@ -141,7 +141,9 @@ def fit_structure(template_xy, positions_xy, metric: str = "l2", weights=None) -
             th0, t0, lean = procrustes.rotation(prob), (0.0, 0.0), False
             if metric == "l1" and prob.n >= median.NEWTON_N:  # large n: start the search at a local optimum
                 th0, t0, lean = median.newton(prob, th0)
-            guess, split = (minimax.guesses(prob, th0), minimax.SPLIT) if metric == "linf" else ((), 0)
+            elif metric == "linf" and prob.n > 3:  # a local minimum and its centre: a lean first batch, laddered
+                th0, t0, lean = minimax.descend(prob, th0)
+            guess, split = (minimax.guesses(prob, th0) or [th0] * lean, minimax.SPLIT) if metric == "linf" else ((), 0)
             th, tx, ty, lower = certify.search(prob, _EVALUATORS[metric], th0, guess, split, t0=t0, lean=lean,
                                               refine=minimax.kinks if metric == "linf" else None)
     pose = prob.pose(th, tx, ty)

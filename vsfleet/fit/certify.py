@@ -39,7 +39,7 @@ class Problem:
             W = float(w.sum())
             self.cp, self.cr = (w[:, None] * p).sum(axis=0) / W, (w[:, None] * r).sum(axis=0) / W
         self.P, self.Q = p - self.cp, r - self.cr
-        self.PQ = np.stack([self.P[:, 0], self.P[:, 1], self.Q[:, 0], self.Q[:, 1]])  # one gather for all four
+        self.PQ = np.concatenate([self.P.T, self.Q.T])  # rows Px, Py, Qx, Qy: one gather for all four
         self.Px, self.Py, self.Qx, self.Qy = self.PQ
 
     @cached_property
@@ -65,11 +65,9 @@ class Problem:
         |k_i| is within the metric's dual ball (weak duality; any translation).
         """
         Px, Py, Qx, Qy = self.PQ if rows is None else self.PQ[:, rows]
-        K = np.sum(kx * Qx + ky * Qy, axis=1)
-        A = np.sum(kx * Px + ky * Py, axis=1)
-        B = np.sum(ky * Px - kx * Py, axis=1)
-        fx, fy = np.sum(kx, axis=1), np.sum(ky, axis=1)
-        kabs = np.sum(np.sqrt(kx * kx + ky * ky), axis=1)
+        add = np.add.reduce  # np.sum's own reduction, without its Python wrapper
+        K, A, B = add(kx * Qx + ky * Qy, axis=1), add(kx * Px + ky * Py, axis=1), add(ky * Px - kx * Py, axis=1)
+        fx, fy, kabs = add(kx, axis=1), add(ky, axis=1), add(np.sqrt(kx * kx + ky * ky), axis=1)
         return K - self.bound * (np.sqrt(fx * fx + fy * fy) + 64.0 * EPS * kabs), A, B
 
     def pose(self, th: float, tx: float, ty: float) -> Pose2:
@@ -152,7 +150,7 @@ class _Angles:
         c = np.array([math.cos(t) for t in lt])  # math, not numpy: the same bits on every CPU
         s = np.array([math.sin(t) for t in lt])
         out = self.evaluate(self.prob, c, s, t0[0], t0[1], flag)
-        a = np.stack((th, c, s) + tuple(out[:6]) + (flag,) + tuple(out[6:]))  # extra rows: the evaluator's
+        a = np.array((th, c, s) + tuple(out[:6]) + (flag,) + tuple(out[6:]), dtype=float)  # extra rows: the evaluator's
         a = np.concatenate([old, a], axis=1) if old.shape[1] else a
         self.a = a[:, np.argsort(a[0], kind="stable")]
         return len(th)
@@ -218,10 +216,11 @@ def search(prob: Problem, evaluate, th0: float, guesses=(), split: int = 0, tol:
     the best angle b to its neighbour o (from the evaluator's extra rows); each gets a ladder.
     """
     S = _Angles(prob, evaluate, t0)
-    grid, offsets = (_LEAN[0], _LEAN[1][:: 1 if prob.n < _LEAN[2] else 3]) if lean else (_GRID, _LOCAL)
+    few = _LEAN[1][-1:] if guesses else _LEAN[1][:: 1 if prob.n < _LEAN[2] else 3]  # with a guess: its ladder
+    grid, offsets = (_LEAN[0], few) if lean else (_GRID, _LOCAL)
     step = 2.0 * math.pi / grid
     local = [th0 + e * h for e in (-1.0, 0.0, 1.0) for h in offsets]
-    local += [g + e * 1e-9 * 32.0 ** k for g in guesses for e in (-1.0, 0.0, 1.0) for k in range(_LADDER)]
+    local += [g + e * 1e-9 * 32.0 ** k for g in guesses for e in (-1.0, 0.0, 1.0) for k in range(_LADDER - lean)]
     S.add(local, rough=[-math.pi + step * k for k in range(grid)])
     levels = _STENCIL[: max(1, min(len(_STENCIL), 400 // prob.n))]
     lv = 4.0 ** -np.arange(1, split // prob.n + 1)  # resolves a cell whose end touches f

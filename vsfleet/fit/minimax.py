@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from functools import lru_cache
+from itertools import combinations
 
 import numpy as np
 
@@ -44,7 +45,7 @@ def _circle(X, Y):
     best = np.argmax(np.where(ok, r2, -1.0), axis=1)
     rows = np.arange(len(X))
     lb, le = lb[rows, best], le[rows, best]
-    lam = np.stack([1.0 - lb - le, lb, le], axis=1)
+    lam = np.array([1.0 - lb - le, lb, le]).T
     cx, cy = x0[rows, best] + ux[rows, best], y0[rows, best] + uy[rows, best]
     return cx, cy, r2[rows, best], mem[best], lam
 
@@ -55,7 +56,7 @@ def evaluate(prob, c, s, tx0, ty0, rough):
     Active set: solve exactly on a working set (the farthest robots from the warm centre),
     then add the farthest robots while any lies outside; the radius grows, so it ends.
     Duals: k_i = w lam_i (q_i - centre)/radius on the basis (lam: its barycentric weights).
-    ``rough`` (the search's first-pass rows) is ignored: every solve is exact.
+    ``rough`` (the search's first-pass rows): the working set's circle only (a looser minorant).
     """
     qx, qy = prob.q(c, s)
     m, n = qx.shape
@@ -67,8 +68,10 @@ def evaluate(prob, c, s, tx0, ty0, rough):
         ws = np.argpartition((qx - tx0[:, None]) ** 2 + (qy - ty0[:, None]) ** 2, n - k, axis=1)[:, n - k:]
         cx, cy, r2, mem, lam = _circle(qx[rows, ws], qy[rows, ws])
         mem = ws[rows, mem]
-    act = np.arange(m)
-    for _ in range(n if k < n else 0):  # each round grows every active row's radius
+    d2max = lambda: ((qx - cx[:, None]) ** 2 + (qy - cy[:, None]) ** 2).max(axis=1)  # noqa: E731
+    dmax = d2max()  # rough rows keep the working set's circle: valid duals, f at its centre
+    act = act0 = np.nonzero((dmax > r2 * (1.0 + 16.0 * EPS)) & ~rough)[0]
+    for _ in range(n if k < n and len(act) else 0):  # each round grows every active row's radius
         ax, ay = qx[act], qy[act]
         d2 = (ax - cx[act, None]) ** 2 + (ay - cy[act, None]) ** 2
         out = d2.max(axis=1) > r2[act] * (1.0 + 16.0 * EPS)
@@ -92,13 +95,13 @@ def evaluate(prob, c, s, tx0, ty0, rough):
     K, A, B = prob.minorant(scale * dx, scale * dy, mem)
     # a pair basis also gives the constant minorant w ||Q_i - Q_j| - |P_i - P_j|| / 2 (every th):
     # better where it touches, e.g. a pair of coincident robots, whose distance is constant
-    i, j = mem[:, 0], mem[:, 1]
-    dq = np.sqrt((prob.Qx[i] - prob.Qx[j]) ** 2 + (prob.Qy[i] - prob.Qy[j]) ** 2)
-    dp = np.sqrt((prob.Px[i] - prob.Px[j]) ** 2 + (prob.Py[i] - prob.Py[j]) ** 2)
+    D = prob.PQ[:, mem[:, 0]] - prob.PQ[:, mem[:, 1]]
+    D *= D
+    dq, dp = np.sqrt(D[2] + D[3]), np.sqrt(D[0] + D[1])
     cst = 0.5 * w * (np.abs(dq - dp) - 16.0 * EPS * prob.bound)
     flat = (lam[:, 2] == 0.0) & (cst >= K - A * c - B * s)
     K, A, B = np.where(flat, cst, K), np.where(flat, 0.0, A), np.where(flat, 0.0, B)
-    f = w * np.sqrt(((qx - cx[:, None]) ** 2 + (qy - cy[:, None]) ** 2).max(axis=1))
+    f = w * np.sqrt(d2max() if k < n and len(act0) else dmax)
     return (f, cx, cy, K, A, B) + tuple(mem.T.astype(float))  # extra rows: the basis (i, j, j) or (i, j, l)
 
 
@@ -130,14 +133,17 @@ def kinks(prob, tha: float, ea, thb: float, eb) -> list:
     """
     ba, bb = tuple(sorted(int(v) for v in ea)), tuple(sorted(int(v) for v in eb))
     lo, hi = min(tha, thb), max(tha, thb)
-    out = [g for g in guesses(prob, tha, ba) if lo < g < hi]
-    if ba == bb:
-        return out
+    out = [g for g in guesses(prob, tha, ba) if lo < g < hi]  # the same basis: h = 0, no root
     pa, pb = (prob.PQ[:, list(bs)].T.tolist() for bs in (ba, bb))
-    h = lambda th: _r2(pa, ba[1] == ba[2], th) - _r2(pb, bb[1] == bb[2], th)  # noqa: E731
-    a, b, fa, fb = tha, thb, h(tha), h(thb)
+    b = _root(lambda th: _r2(pa, ba[1] == ba[2], th) - _r2(pb, bb[1] == bb[2], th), tha, thb)
+    return out + [b] if b is not None and lo < b < hi else out
+
+
+def _root(h, a: float, b: float):
+    """A root of h in [a, b] by Illinois regula falsi; None without a sign change."""
+    fa, fb = h(a), h(b)
     if not fa * fb < 0.0 or math.isinf(fa - fb):
-        return out
+        return None
     side, k = 0, 0
     while abs(b - a) > 1e-15 * (1.0 + abs(b)) and fb != 0.0 and k < 60:
         x, k = (a * fb - b * fa) / (fb - fa), k + 1
@@ -149,7 +155,77 @@ def kinks(prob, tha: float, ea, thb: float, eb) -> list:
         else:
             side = 1
         b, fb = x, fx
-    return out + [b] if lo < b < hi else out
+    return b
+
+
+def _mec(ids, qx, qy, new=None):
+    """Basis (i, j, j) / (i, j, l), centre, radius^2 of the smallest circle around robots ``ids`` (sorted, <= 4);
+    ``new``: a robot outside the others' smallest circle, hence on this one (Welzl)."""
+    pts = list(zip(ids, qx[ids].tolist(), qy[ids].tolist()))
+    out = [((ids[0],) * 3, pts[0][1], pts[0][2], 0.0)]  # one robot: itself
+    for sub in (t for k in (2, 3) for t in combinations(pts, k) if new is None or new in (t[0][0], t[1][0], t[-1][0])):
+        (i, ax, ay), (j, bx, by) = sub[:2]
+        if len(sub) == 2:
+            cx, cy, key = 0.5 * (ax + bx), 0.5 * (ay + by), (i, j, j)  # ids sorted: so is every key
+        else:
+            bx, by, ex, ey = bx - ax, by - ay, sub[2][1] - ax, sub[2][2] - ay
+            det, b2, e2 = 2.0 * (bx * ey - by * ex) or math.inf, bx * bx + by * by, ex * ex + ey * ey  # collinear: a
+            cx, cy, key = ax + (ey * b2 - by * e2) / det, ay + (bx * e2 - ex * b2) / det, (i, j, sub[2][0])
+        out.append((key, cx, cy, (ax - cx) ** 2 + (ay - cy) ** 2))
+    out.sort(key=lambda o: o[3])
+    inside = lambda o: all((x - o[1]) ** 2 + (y - o[2]) ** 2 <= o[3] * (1.0 + 1e-12) for _, x, y in pts)  # noqa: E731
+    return next((o for o in out if inside(o)), out[-1])
+
+
+def _basis(prob, ths, basis, last: bool = False, new: int = -1):
+    """The enclosing circle's basis and centre at ths[0] [rad] from a warm basis or () (and a robot ``new`` outside
+    it): add the farthest robot until none is outside.  ``last``: the first index of ``ths`` where ``basis`` is
+    not the basis (or len) and the farthest robot there if it is outside (else -1)."""
+    if last:  # the basis's circle at every angle; a triple must stay acute (its centre inside)
+        qx, qy = prob.q(np.array([math.cos(x) for x in ths]), np.array([math.sin(x) for x in ths]))
+        (ax, bx, ex), (ay, by, ey) = qx[:, list(basis)].T, qy[:, list(basis)].T
+        bx, by, ex, ey = bx - ax, by - ay, ex - ax, ey - ay
+        det, b2, e2, be = 2.0 * (bx * ey - by * ex), bx * bx + by * by, ex * ex + ey * ey, bx * ex + by * ey
+        pair = basis[1] == basis[2]
+        ux, uy = (0.5 * bx, 0.5 * by) if pair else ((ey * b2 - by * e2) / det, (bx * e2 - ex * b2) / det)
+        d2 = (qx - (ax + ux)[:, None]) ** 2 + (qy - (ay + uy)[:, None]) ** 2
+        out = d2.max(axis=1) > (ux * ux + uy * uy) * (1.0 + 1e-12)
+        bad = out | ((not pair) & ((be <= 0.0) | (b2 <= be) | (e2 <= be)))
+        k = int(np.argmax(bad)) if bad.any() else len(ths)
+        return k, int(d2[k].argmax()) if k < len(ths) and out[k] else -1
+    c, s = math.cos(ths[0]), math.sin(ths[0])
+    qx, qy = prob.Qx - (c * prob.Px - s * prob.Py), prob.Qy - (s * prob.Px + c * prob.Py)
+    ids, j, r0 = sorted(set(basis) | ({new} - {-1})) or [int((qx * qx + qy * qy).argmax())], new, -1.0
+    while True:  # the radius grows, so it ends
+        basis, cx, cy, r2 = _mec(ids, qx, qy, None if j < 0 else j)
+        d2 = (qx - cx) ** 2 + (qy - cy) ** 2
+        if d2[j := int(d2.argmax())] <= r2 * (1.0 + 1e-12) or r2 <= r0:
+            return basis, cx, cy
+        ids, r0 = sorted(set(basis) | {j}), r2
+
+
+def descend(prob, th0: float, steps: int = 12, samples: int = 16):
+    """A local minimum of f near th0 [rad] (speed only): (th, its centre (tx, ty), found); (th0, 0, False) if
+    none.  Walk downhill on f's pieces: towards the stationary point of the current basis (pair alignment or
+    triple Newton), to the first sampled angle where the basis changes, to the kink there (equal radii).  A
+    stationary point, or a kink where the new basis rises, is a minimum if that basis holds just past it."""
+    rad = lambda b: lambda x, pq=prob.PQ[:, list(b)].T.tolist(): _r2(pq, b[1] == b[2], x)  # noqa: E731
+    th, basis = th0, _basis(prob, [th0], ())[0]  # from the robot farthest from the centroid
+    for _ in range(steps):
+        down = -1.0 if (r := rad(basis))(th + 1e-7) > r(th - 1e-7) else 1.0
+        st = [th + math.remainder(g - th, 2.0 * math.pi) for g in guesses(prob, th, basis)]
+        st = [g for g in st if 0.0 < (g - th) * down < 0.5]
+        target = min(st, key=lambda g: abs(g - th)) if st else th + 0.1 * down
+        xs = [th + (target - th) * (k + 1) / samples for k in range(samples)]
+        k, j = _basis(prob, xs, basis, last=True)
+        rn = rad(nb := basis if k == samples else _basis(prob, [xs[k]], basis, new=j)[0])
+        kink = None if k == samples else _root(lambda x: r(x) - rn(x), xs[k - 1] if k else th, xs[min(k, samples - 1)])
+        x, b2 = (target if kink is None else kink), (nb,)
+        if (k == samples and st) or (kink is not None and rn(kink + 1e-7 * down) >= rn(kink)):
+            if (b2 := _basis(prob, [x + 1e-9 * down], nb))[0] == nb:  # nb really is the basis past x
+                return x, b2[1:], True
+        th, basis = (xs[min(k, samples - 1)] if kink is None else kink), b2[0]
+    return th0, (0.0, 0.0), False
 
 
 def guesses(prob, th0: float, basis=None) -> list:
@@ -161,18 +237,16 @@ def guesses(prob, th0: float, basis=None) -> list:
     sides^2 and X = 2 area are affine in cos th, sin th).  docs/fit.md.  ``basis`` (i, j, j)
     or (i, j, l): only that pair's alignment, or Newton from th0 on that triple's R.
     """
-    if basis is None and prob.n != 3:  # the search runs from n = 3
+    if basis is None and prob.n != 3:  # the search runs from n = 3 (larger n: descend)
         return []
     rows = [0, 1, 2] if basis is None else list(basis)  # a pair (i, j, j): its second point repeated
     P, Q = prob.P[rows].tolist(), prob.Q[rows].tolist()
     sides, out = [], []
     for a, b in ((0, 1), (0, 2), (1, 2)):
-        D = (Q[b][0] - Q[a][0], Q[b][1] - Q[a][1])
-        E = (P[b][0] - P[a][0], P[b][1] - P[a][1])
+        D, E = (Q[b][0] - Q[a][0], Q[b][1] - Q[a][1]), (P[b][0] - P[a][0], P[b][1] - P[a][1])
         u, v = D[0] * E[0] + D[1] * E[1], E[0] * D[1] - E[1] * D[0]  # |D - R E|^2 = al - 2(c u + s v)
-        sides.append((D[0] ** 2 + D[1] ** 2 + E[0] ** 2 + E[1] ** 2, u, v))
+        sides.append((D[0] ** 2 + D[1] ** 2 + E[0] ** 2 + E[1] ** 2, u, v, D, E))
         out.append(math.atan2(v, u))  # R(th) E along D
-        sides[-1] += (D, E)
     if basis is not None and basis[1] == basis[2]:
         return out[:1]
     (_, _, _, D1, E1), (_, _, _, D2, E2) = sides[0], sides[1]
