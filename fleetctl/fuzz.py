@@ -134,45 +134,15 @@ def target_key(keys: Keys, kind: str, category: str, robots: list[str], rng: ran
     return getattr(keys, kind)(robot)
 
 
-# the kinds the fleet's own processes subscribe to (agents: frames and the mission; simfleet: cmd
-# and fault); pose/<robot> is for tools, which may not be running
-FLEET_READS = ("frame", "mission", "cmd", "fault")
-
-
-def wait_for_routes(session: zenoh.Session, keys: Keys, kinds: tuple[str, ...], robots: list[str],
-                    timeout_s: float, stop: StopFlag, clock=wall_clock) -> bool:
-    """Wait (up to timeout_s [s]) until the key of each kind the fleet reads has a subscriber this
-    session knows of.
-
-    A session that has just opened may not yet have heard the router's subscriber declarations, and
-    puts made before then go nowhere: a flood that starts at once loses its first messages, and the
-    receivers' counts fall short of what was sent. True if every kind had a route in time."""
-    pubs = [session.declare_publisher(target_key(keys, kind, "random_bytes", robots[:1], random.Random(0)))
-            for kind in kinds if kind in FLEET_READS]
-    deadline = clock() + timeout_s
-    try:
-        while not all(p.matching_status.matching for p in pubs):
-            if clock() >= deadline or stop.wait(0.01):
-                log.warning("no subscriber for %s after %.1f s; fuzzing anyway",
-                            [str(p.key_expr) for p in pubs if not p.matching_status.matching], timeout_s)
-                return False
-        return True
-    finally:
-        for p in pubs:
-            p.undeclare()
-
-
 def run_fuzz(conf: zenoh.Config, fleet: str, robots: list[str], kinds: tuple[str, ...], rate_hz: float,
              duration_s: float, seed: int = 0, stop: StopFlag | None = None,
-             clock=wall_clock, wait_subscribers_s: float = 5.0) -> Counter:
-    """Publish ``rate_hz`` invalid messages per second per key kind for ``duration_s``, once each
-    kind's key has a subscriber (or after wait_subscribers_s [s])."""
+             clock=wall_clock) -> Counter:
+    """Publish ``rate_hz`` invalid messages per second per key kind for ``duration_s``."""
     stop = stop or StopFlag()
     rng = random.Random(seed)
     keys = Keys(fleet)
     sent: Counter = Counter()
     with open_session(conf) as session:
-        wait_for_routes(session, keys, kinds, robots, wait_subscribers_s, stop, clock)
         t0 = clock()
         period = 1.0 / rate_hz
         k = 0
