@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import importlib
 import importlib.metadata
+import logging
+import os
 import sys
 import threading
 import traceback
@@ -81,6 +83,11 @@ def run_command(name: str, module_name: str, args: list[str], verbose: bool) -> 
         return 2
     except StoppedWaiting as exc:
         _say(name, str(exc))
+        if exc.open_pending:  # a zenoh.open still blocks in the background: exit without waiting on it
+            logging.shutdown()
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(0)
         return 0
     except SystemExit as exc:  # argparse (int codes, its message already printed) or SystemExit("text")
         if exc.code is None or isinstance(exc.code, int):

@@ -111,7 +111,12 @@ class SessionError(ConnectionError):
 
 
 class StoppedWaiting(Exception):
-    """SIGTERM or SIGINT arrived while the program was waiting for its router: nothing was opened."""
+    """SIGTERM or SIGINT arrived while the program was waiting for its router: nothing was opened.
+
+    open_pending: zenoh.open still blocks in its worker thread; the interpreter's normal exit can
+    then hang on zenoh's runtime, so the program should end with os._exit once it has said why."""
+
+    open_pending = False
 
 
 def _get(conf: zenoh.Config, key: str, mode: str):
@@ -226,8 +231,10 @@ def _open_waiting(conf: zenoh.Config, log_every_s: float) -> zenoh.Session:
                  CONNECT_HINT)
         while not done.wait(log_every_s):
             log.info("still waiting for a zenoh router (%s): %.0f s so far", target, time.monotonic() - t0)
-    except BaseException:
+    except BaseException as exc:
         abandoned.set()
+        if isinstance(exc, StoppedWaiting):
+            exc.open_pending = not done.is_set()
         raise
     finally:
         for s, handler in previous.items():
