@@ -28,8 +28,7 @@ STREAM_QOS = dict(congestion_control=zenoh.CongestionControl.DROP, express=True,
                   priority=zenoh.Priority.REAL_TIME)
 TELEMETRY_QOS = dict(congestion_control=zenoh.CongestionControl.DROP, express=True,
                      priority=zenoh.Priority.DATA)
-# Per-robot messages that go out N at a time, once per frame (a tracker's pose/<robot>, the
-# simulated fleet's truth/<robot>): batched (not express), so a burst of 100 is one or a few
+# Per-robot messages that go out N at a time, once per frame (a tracker's pose/<robot>): batched (not express), so a burst of 100 is one or a few
 # writes instead of 100 express batches that overflow the 2-batch queue and are dropped.
 BURST_QOS = dict(congestion_control=zenoh.CongestionControl.DROP, express=False,
                  priority=zenoh.Priority.DATA)
