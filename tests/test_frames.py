@@ -30,6 +30,26 @@ def test_a_frame_missing_a_robot_from_the_only_source_runs_at_once_and_the_robot
     assert set(out.poses) == {"r1"} and not out.complete  # r2's pose is 0.3 s old: missing
 
 
+def test_a_pose_held_over_from_the_same_sources_earlier_frame_is_never_of_the_instant_so_copies_agree():
+    # a stalled truth feed: frame 2 is 5 ms after frame 1 and lacks r2. Agent a ran frame 1, agent b
+    # never saw it (a newer frame replaced it in b's slot). Were r2's pose from frame 1 "of the
+    # instant" (5 ms < half the deadline), a would run frame 2 complete with it and b incomplete with
+    # frame 0's: both call it incomplete, and fresh is only what frame 2 lists
+    a, b = (FrameMerger(("r1", "r2"), deadline_s=0.033) for _ in range(2))
+    for fm in (a, b):
+        fm.offer(frame(0, 9.967, x=0.0), 9.97)
+        fm.ready(9.97)
+    a.offer(frame(1, 10.0, x=1.0), 10.0)
+    a.ready(10.0)
+    runs = []
+    for fm in (a, b):
+        fm.offer(frame(2, 10.005, robots=("r1",), x=2.0), 10.01)
+        runs.append(fm.ready(10.01))
+    assert [r.seq for r in runs] == [2, 2] and not any(r.complete for r in runs)
+    assert all(r.fresh == {"r1"} for r in runs)
+    assert runs[0].poses["r2"][0] == 1.0 and runs[1].poses["r2"][0] == 0.0   # held over: in the fit only
+
+
 def test_duplicate_and_out_of_order_frames_are_dropped_and_counted():
     fm = FrameMerger(("r1",), deadline_s=0.02)
     assert fm.offer(frame(5, 10.0, ("r1",)), 10.0)

@@ -4,9 +4,11 @@ Frame rule (docs/protocol.md, "Frames"):
 - Every source publishes one message per frame on ``vs/<fleet>/frame/<src>``.
   Each robot's freshest pose, by ``(t, seq)``, is held, whichever source it
   came from; an older or equal pose is dropped (counted).
-- A frame is run when it arrives if every mission robot has a pose held from
-  the same instant (at most half of ``deadline_s`` older than the frame, from
-  any source; then the frame is "complete"), or if its source is the only one heard from within ``max_age_s``.
+- A frame is run when it arrives if every mission robot has a pose of its
+  instant (listed in the frame itself, or in another source's frame at most
+  half of ``deadline_s`` older; then the frame is "complete"), or if its source
+  is the only one heard from within ``max_age_s``. A pose held over from an
+  earlier frame of the same source is never of the instant.
   Otherwise the agent waits ``deadline_s`` (for the other cameras' frames of
   the same instant), then runs the newest frame with the freshest poses held.
 - A frame runs with each robot's freshest pose, left out if it is older than
@@ -30,9 +32,9 @@ from .wire import FrameMsg, Mission
 class Frame:
     """Merged poses (x, y, th) [m, rad; world] for frame ``seq`` of ``src`` at tracker time ``t`` [s].
 
-    fresh: the robots whose pose is of this frame's instant, from any source (at most half the
-    deadline older; the failure rule's motion test takes only those, never a pose held over from
-    an earlier frame); complete: every robot asked for is fresh.
+    fresh: the robots whose pose is of this frame's instant: listed in it, or in another source's
+    frame at most half the deadline older (the failure rule's motion test takes only those, never a
+    pose held over from an earlier frame of the same source); complete: every robot asked for is fresh.
     """
 
     seq: int
@@ -108,27 +110,36 @@ class FrameMerger:
         msg = self.pending
         if msg is None or not self.robots:
             return None
-        listed = self._instant(msg.t)
+        listed = self._instant(msg)
         alone = all(s == msg.src or t < msg.t - self.max_age_s for s, t in self.heard.items())
         if not (listed or alone) and self.deadline_at is not None and now < self.deadline_at:
             return None
         self.pending, self.deadline_at = None, None
         self.done = (msg.t, msg.seq)
-        oldest, instant = msg.t - self.max_age_s, msg.t - 0.5 * self.deadline_s
+        oldest = msg.t - self.max_age_s
         poses, fresh = {}, []
         for r in self.robots:
             held = self.held.get(r)
             if held is None or held[0] < oldest:
                 continue
             poses[r] = held[3]
-            if held[0] >= instant:
+            if self._of_instant(held, msg):
                 fresh.append(r)
         return Frame(seq=msg.seq, t=msg.t, poses=poses, complete=listed, fresh=frozenset(fresh), src=msg.src)
 
-    def _instant(self, t: float) -> bool:
-        """Every robot has a pose of the instant t: at most half the deadline older, from any camera."""
-        since = t - 0.5 * self.deadline_s
-        return all(r in self.held and self.held[r][0] >= since for r in self.robots)
+    def _of_instant(self, held: tuple[float, int, str, tuple[float, float, float]], msg: FrameMsg) -> bool:
+        """A held pose is of msg's instant if msg itself brought it, or another source's frame at most
+        half the deadline older did. Never a pose held over from an earlier frame of msg's own source:
+        one source's frames are distinct instants, and which of them an agent got (a newer frame
+        replaces one not yet run) differs between agents, so such a pose would make copies disagree."""
+        if held[2] == msg.src:
+            return held[0] == msg.t and held[1] == msg.seq
+        return held[0] >= msg.t - 0.5 * self.deadline_s
+
+    def _instant(self, msg: FrameMsg) -> bool:
+        """Every robot has a pose of msg's instant (_of_instant)."""
+        held = self.held
+        return all(r in held and self._of_instant(held[r], msg) for r in self.robots)
 
 
 class MissionBook:
