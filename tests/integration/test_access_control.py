@@ -150,18 +150,21 @@ def attack(fleet: SecuredFleet, session: zenoh.Session, who: str) -> tuple[int, 
     returns (tried, tokens)."""
     tried = 0
     cmd = rogue_messages(fleet, who)[0][1]
+    # blocking, one priority: no put is dropped in the client's own queue under load (a default put
+    # may be), and the sentinel cannot overtake the rogue messages before it
+    block = dict(congestion_control=zenoh.CongestionControl.BLOCK, priority=zenoh.Priority.DATA)
     for _ in range(TRIES_PER_KEY):
         for key, payload in rogue_messages(fleet, who):
-            session.put(key, payload)
+            session.put(key, payload, **block)
             tried += 1
         for key in (fleet.keys.cmd("*"), fleet.keys.everything):
-            session.put(key, cmd)
+            session.put(key, cmd, **block)
             tried += 1
-        session.delete(fleet.keys.cmd("r1"))
+        session.delete(fleet.keys.cmd("r1"), **block)
         tried += 1
     tokens = [session.liveliness().declare_token(fleet.keys.alive("agent", r)) for r in ("r1", "r9")]
     tried += len(tokens)
-    session.put(*sentinel(fleet, who))
+    session.put(*sentinel(fleet, who), **block)
     return tried, tokens
 
 

@@ -88,28 +88,41 @@ def test_a_foxglove_client_decodes_poses_and_the_scene_that_match_the_fleets_tru
             states = {(r, m.seq): m for _, r, m in fleet.observed.state}
             newest_truth_t = max(m.t for _, _, m in fleet.observed.truth)
 
-        # every truth pose the viewer shows is simfleet's, to the bit, in frame world, stamped with its t
-        n_truth = 0
+        # every truth pose the viewer shows is simfleet's, to the bit, in frame world, stamped with its t.
+        # truth and state are best-effort telemetry (docs/protocol.md), dropped per subscriber on a loaded
+        # host: one the test's own observer never got cannot be checked, and may be only a few
+        n_truth, unheard = 0, 0
         for r, topic in zip(ROBOTS, truth_topics):
             for t_ns, msg in list(client.messages[topic]):
-                m = truth[(r, t_ns)]
+                m = truth.get((r, t_ns))
+                if m is None:
+                    unheard += 1
+                    continue
                 assert msg["frame_id"] == "world"
                 assert msg["pose"]["position"] == {"x": m.x, "y": m.y, "z": 0.0}
                 assert msg["pose"]["orientation"] == quaternion(m.th)
                 n_truth += 1
+        assert n_truth >= 90 and unheard <= 0.05 * (n_truth + unheard), (n_truth, unheard)
 
         # every fitted/advanced structure drawn is an agent's state of that frame, with the mission's template
         mission = fleet.mission
+        n_structures, unheard_states = 0, 0
         for t_ns, update in structures(client):
             ents = {e["id"]: e for e in update["entities"]}
             meta = {kv["key"]: kv["value"] for kv in ents["fitted"]["metadata"]}
-            s = states[(meta["by"], int(meta["seq"]))]
+            s = states.get((meta["by"], int(meta["seq"])))
+            if s is None:
+                unheard_states += 1
+                continue
+            n_structures += 1
             assert t_ns == seconds_to_ns(s.t)
             assert xy(ents["fitted"]["arrows"][0]) == (s.x, s.y)
             assert [xy(p) for p in ents["fitted"]["spheres"]] == \
                 [(x, y) for x, y, _ in structure_points(mission, s.x, s.y, s.th)]
             assert [xy(p) for p in ents["advanced"]["spheres"]] == \
                 [(x, y) for x, y, _ in structure_points(mission, s.gx, s.gy, s.gth)]
+        assert n_structures >= 19 and unheard_states <= 0.05 * (n_structures + unheard_states), \
+            (n_structures, unheard_states)
 
         # the robots are drawn where the tracker saw them in the frame the entity names
         matched = 0
@@ -132,7 +145,8 @@ def test_a_foxglove_client_decodes_poses_and_the_scene_that_match_the_fleets_tru
         times = list(client.times)
         assert len(times) >= 10 and times == sorted(times)
         assert abs(times[-1] * 1e-9 - newest_truth_t) < 2.0
-        print(f"checked {n_truth} truth poses, {len(structures(client))} structures, {matched} robot frames, "
+        print(f"checked {n_truth} truth poses ({unheard} the observer missed), {n_structures} structures "
+              f"({unheard_states} missed), {matched} robot frames, "
               f"{len(times)} time broadcasts")
     finally:
         if client is not None:
