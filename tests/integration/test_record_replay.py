@@ -99,7 +99,18 @@ def test_the_run_writes_its_plots_with_one_trajectory_per_robot_and_no_fault_fig
 
 def test_the_monitor_model_on_the_recorded_run_shows_three_live_agents_that_agree_and_reject_nothing(recorded_run):
     _, records = recorded_run
-    middle = (records[0].log_time_ns + records[-1].log_time_ns) // 2
+    # halfway between every agent's first state and the first agent's token going away (on a loaded
+    # host the agents come up late in the run: the middle of the whole record may precede them)
+    first_state: dict[str, int] = {}
+    for r in records:
+        if r.role == RAW and r.key.startswith("vs/e2e/state/"):
+            first_state.setdefault(r.key.rsplit("/", 1)[1], r.log_time_ns)
+    assert sorted(first_state) == ROBOTS
+    all_up = max(first_state.values())
+    gone = min((r.log_time_ns for r in records if r.role == LIVELINESS and not r.alive and r.log_time_ns > all_up
+                and r.key.startswith("vs/e2e/alive/agent/")), default=records[-1].log_time_ns)
+    assert gone - all_up >= 1e9, "at least a second of the run with every agent up"
+    middle = (all_up + gone) // 2
     model = FleetModel("e2e")
     for r in records:
         if r.log_time_ns > middle:
