@@ -54,7 +54,7 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
                 metric: str | None = None, noise_xy_m: float | None = None,
                 noise_th_rad: float | None = None, latency_frames: int = 1, seed: int = 0,
                 goal_tol_m: float = 0.005, stop_at_goal: bool = True, tracker_clock_ahead_s: float = 0.0,
-                **gains: float) -> OfflineRun:
+                share_structures: bool = True, **gains: float) -> OfflineRun:
     mission = scenario.mission
     if metric is not None:
         mission = dataclasses.replace(mission, metric=metric)
@@ -82,11 +82,15 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
     keys = Keys(scenario.fleet)
     sent: dict[str, tuple[float, float]] = {}
     agents = {}
+    # the agents share the structures they compute: an agent whose frame, mission and failure masks equal
+    # another's takes that agent's structure (the same pure function of the same inputs) instead of
+    # fitting again; everything else (controller, failure rule, state) each agent computes on its own
+    shared: dict | None = {} if share_structures else None
     for r in robots:  # one agent per robot, each with its own state, as in the fleet
         agents[r] = Agent(r, keys, put_cmd=lambda b, r=r: sent.__setitem__(r, _wheels(b)),
                           put_state=lambda b: None, dt_s=dt,
                           clock=lambda: t - tracker_clock_ahead_s, controller=ctrl,
-                          command_age_s=latency_frames * dt)
+                          command_age_s=latency_frames * dt, shared_structures=shared)
         agents[r].on_mission(keys.mission, encode_mission(mission))
     for k in range(int(round(duration_s / dt))):
         poses = {r: (s.pose.x + rng.normal(0.0, nxy), s.pose.y + rng.normal(0.0, nxy),

@@ -58,13 +58,46 @@ def test_a_stopped_robot_is_dropped_by_every_agent_on_the_same_frame_whatever_th
     assert math.isclose(fail.t / frame_s, round(fail.t / frame_s), abs_tol=1e-6)
 
 
-def test_the_same_seed_gives_the_same_decisions_on_the_same_frames_and_the_same_trace():
+def test_the_same_seed_gives_the_same_run_bit_for_bit_whether_or_not_the_agents_share_their_structures():
+    # b computes every agent's structure itself; a lets an agent take the structure another agent
+    # computed on equal inputs (the offline default): the same decisions on the same frames, the same
+    # trace, commands and deviations, through a fail, a drop and a rejoin (failure masks that change)
     sc = dataclasses.replace(FAILURE, mission=dataclasses.replace(FAILURE.mission, on_failure="rejoin"),
                              faults=(FaultEvent("r2", 8.0, "stall", 0.0, 4.0),))
     a = run_offline(sc, 25.0, seed=5, stop_at_goal=False)
-    b = run_offline(sc, 25.0, seed=5, stop_at_goal=False)
+    b = run_offline(sc, 25.0, seed=5, stop_at_goal=False, share_structures=False)
     assert a.decisions == b.decisions and a.trace == b.trace
+    assert a.commands_m_s.tobytes() == b.commands_m_s.tobytes()
+    assert a.deviations_m.tobytes() == b.deviations_m.tobytes()
     assert [(d.robot, d.kind) for d in a.decisions["r1"]] == [("r2", "fail"), ("r2", "drop"), ("r2", "rejoin")]
+
+
+def test_a_shared_structure_is_taken_only_on_equal_inputs_and_is_read_only():
+    import numpy as np
+
+    from vsfleet.step import _shared_structure_step, mission_arrays, structure_step
+    mission = FAILURE.mission
+    arrays = mission_arrays(mission)
+    n = len(mission.robot_ids)
+    pose = np.array([[r.start[0] + 0.01 * i, r.start[1], r.start[2]] for i, r in enumerate(FAILURE.robots)])
+    seen, none = np.ones(n, dtype=bool), np.zeros(n, dtype=bool)
+    apart = none.copy()
+    apart[1] = True
+    shared: dict = {}
+    first = _shared_structure_step(shared, mission, arrays, pose, seen, none, none, 1.0, 1 / 30)
+    assert _shared_structure_step(shared, mission, arrays, pose.copy(), seen, none, none, 1.0, 1 / 30) is first
+    assert not first.deviations_m.flags.writeable and not first.points_now.flags.writeable
+    # any input that differs is computed afresh, and equals the unshared step
+    for args in ((pose, seen, none, apart, 1.0), (pose, seen, apart, none, 1.0), (pose, seen, none, none, 2.0),
+                 (pose + 1e-9, seen, none, none, 1.0)):
+        got = _shared_structure_step(shared, mission, arrays, *args, 1 / 30)
+        want = structure_step(arrays, mission.metric, *args, 1 / 30)
+        assert got is not first
+        assert (got.fit_pose, got.goal_pose) == (want.fit_pose, want.goal_pose)
+        assert got.deviations_m.tobytes() == want.deviations_m.tobytes()
+    other = dataclasses.replace(mission, speed_max=mission.speed_max / 2)
+    assert _shared_structure_step(shared, other, mission_arrays(other), pose, seen, none, none, 1.0, 1 / 30) \
+        is not first
 
 
 def test_a_robot_whose_commands_stop_expires_exactly_ttl_after_the_last_and_is_at_rest_within_the_bound():
