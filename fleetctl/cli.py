@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import importlib
 import importlib.metadata
-import logging
 import os
 import sys
 import threading
@@ -84,9 +83,12 @@ def run_command(name: str, module_name: str, args: list[str], verbose: bool) -> 
     except StoppedWaiting as exc:
         _say(name, str(exc))
         if exc.open_pending:  # a zenoh.open still blocks in the background: exit without waiting on it
-            logging.shutdown()
-            sys.stdout.flush()
-            sys.stderr.flush()
+            # (no logging.shutdown: it takes every handler's lock, and each record was flushed as written)
+            for stream in (sys.stdout, sys.stderr):
+                try:
+                    stream.flush()
+                except (OSError, ValueError):
+                    pass
             os._exit(0)
         return 0
     except SystemExit as exc:  # argparse (int codes, its message already printed) or SystemExit("text")

@@ -224,16 +224,17 @@ def _open_waiting(conf: zenoh.Config, log_every_s: float) -> zenoh.Session:
     in_main = threading.current_thread() is threading.main_thread()
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)} if in_main else {}
     t0 = time.monotonic()
+    worker = threading.Thread(target=work, name="zenoh-open", daemon=True)
     try:
-        threading.Thread(target=work, name="zenoh-open", daemon=True).start()
+        worker.start()
         log.info("waiting for a zenoh router (%s); %s, %s; Ctrl-C to stop", target, START_ROUTER_HINT,
                  CONNECT_HINT)
         while not done.wait(log_every_s):
             log.info("still waiting for a zenoh router (%s): %.0f s so far", target, time.monotonic() - t0)
     except BaseException as exc:
         abandoned.set()
-        if isinstance(exc, StoppedWaiting):
-            exc.open_pending = not done.is_set()
+        if isinstance(exc, StoppedWaiting):  # the worker may be inside zenoh.open, or closing what it opened
+            exc.open_pending = worker.is_alive() or not done.is_set()
         raise
     finally:
         for s, handler in previous.items():

@@ -283,6 +283,7 @@ def test_a_waiting_agent_logs_every_few_seconds_and_sigterm_stops_it_with_code_0
         if p.poll() is None:
             p.kill()
             p.wait()
+        print("".join(lines.seen))  # shown if the test fails
     assert last.strip() == f"vsfleet agent: stopped by SIGTERM while waiting for a zenoh router (mode client, at {endpoint})"
     assert not any("Traceback" in line for line in lines.seen)
 
