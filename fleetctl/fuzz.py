@@ -5,8 +5,10 @@ Keys fuzzed: ``pose/<robot>`` and ``mission`` (agents), ``fault/<robot>`` and
 by construction (a test decodes each one), so a correct fleet rejects, counts
 and logs it and keeps formation. Categories: random bytes, truncated msgpack,
 wrong types, NaN/inf, huge numbers, unknown robot ids, oversized payloads; the
-rate (per key) is set so that a flood is 10x the tracker's rate. At exit it prints
-one JSON line: what it sent, per key kind and category.
+rate (per key) is set so that a flood is 10x the tracker's rate. Before it closes,
+it waits until the router has routed every put (RouterBarrier). At exit it prints
+one JSON line: what it sent, per key kind and category, and whether the router
+confirmed it routed all of it.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import argparse
 import json
 import logging
 import random
+import threading
 from collections import Counter
 
 import msgpack
@@ -136,13 +139,15 @@ def target_key(keys: Keys, kind: str, category: str, robots: list[str], rng: ran
 
 def run_fuzz(conf: zenoh.Config, fleet: str, robots: list[str], kinds: tuple[str, ...], rate_hz: float,
              duration_s: float, seed: int = 0, stop: StopFlag | None = None,
-             clock=wall_clock) -> Counter:
-    """Publish ``rate_hz`` invalid messages per second per key kind for ``duration_s``."""
+             clock=wall_clock) -> tuple[Counter, bool]:
+    """Publish ``rate_hz`` invalid messages per second per key kind for ``duration_s``; returns what
+    was sent (by kind/category) and whether the router confirmed it routed all of it (RouterBarrier)."""
     stop = stop or StopFlag()
     rng = random.Random(seed)
     keys = Keys(fleet)
     sent: Counter = Counter()
     with open_session(conf) as session:
+        barrier = RouterBarrier(conf)  # declared before the flood, so the router knows its subscriber
         t0 = clock()
         period = 1.0 / rate_hz
         k = 0
@@ -156,7 +161,33 @@ def run_fuzz(conf: zenoh.Config, fleet: str, robots: list[str], kinds: tuple[str
                 sent[f"{kind}/{category}"] += 1
             k += 1
             pace(t0 + k * period, stop, clock)
-    return sent
+        routed = barrier.wait(session)
+        barrier.close()
+        log.info("the router %s every put before closing", "has routed" if routed else "did not confirm it routed")
+    return sent, routed
+
+
+class RouterBarrier:
+    """Proof that the router has routed every put a session made: a marker put after them, on the same
+    priority and blocking, that comes back through the router to a second session of this program.
+    One link, read in order: once the marker is routed, every put before it is in the router's
+    queues to its subscribers (blocking, so none is dropped there). Closing the session at once
+    instead could lose puts still queued in it on a loaded host."""
+
+    def __init__(self, conf: zenoh.Config) -> None:
+        self.echo = zenoh.open(conf)
+        self.key = f"vsfuzz/{self.echo.zid()}/barrier"
+        self.arrived = threading.Event()
+        self.sub = self.echo.declare_subscriber(self.key, lambda _sample: self.arrived.set())
+
+    def wait(self, session: zenoh.Session, timeout_s: float = 10.0) -> bool:
+        """Put the marker on ``session`` and wait for it (False if it did not come within timeout_s)."""
+        session.put(self.key, b"", **RELIABLE_QOS)
+        return self.arrived.wait(timeout_s)
+
+    def close(self) -> None:
+        self.sub.undeclare()
+        self.echo.close()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -190,11 +221,11 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:
         log.error("%s", exc)
         return 2
-    sent = run_fuzz(zenoh_config(args), args.fleet, robots, kinds, args.rate, args.duration, args.seed)
+    sent, routed = run_fuzz(zenoh_config(args), args.fleet, robots, kinds, args.rate, args.duration, args.seed)
     by_kind = Counter()
     for name, n in sent.items():
         by_kind[name.split("/")[0]] += n
-    print(json.dumps({"sent": dict(sorted(sent.items())), "by_kind": dict(by_kind)}), flush=True)
+    print(json.dumps({"sent": dict(sorted(sent.items())), "by_kind": dict(by_kind), "routed": routed}), flush=True)
     log.info("sent %d invalid messages", sum(sent.values()))
     return 0
 

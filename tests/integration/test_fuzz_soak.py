@@ -20,7 +20,9 @@ def fuzz(fleet: LoopbackFleet, kinds: str, duration_s: float) -> dict:
     assert p.wait(timeout=duration_s + 60) == 0, fleet.logs()
     line = next(ln for ln in reversed((fleet.log_dir / "fuzz.log").read_text().splitlines())
                 if ln.startswith("{"))
-    return json.loads(line)
+    summary = json.loads(line)
+    assert summary["routed"] is True  # the router routed every put before the fuzzer closed
+    return summary
 
 
 def sim_rejected(fleet: LoopbackFleet, expected: int, timeout_s: float = 20.0) -> int:
