@@ -175,7 +175,7 @@ class RouterBarrier:
     instead could lose puts still queued in it on a loaded host."""
 
     def __init__(self, conf: zenoh.Config) -> None:
-        self.echo = zenoh.open(conf)
+        self.echo = open_session(conf)
         self.key = f"vsfuzz/{self.echo.zid()}/barrier"
         self.arrived = threading.Event()
         self.sub = self.echo.declare_subscriber(self.key, lambda _sample: self.arrived.set())
