@@ -103,6 +103,7 @@ def init_logging(verbose: bool = False) -> None:
 START_ROUTER_HINT = "start one with `vsfleet router --listen tcp/0.0.0.0:7447`"
 CONNECT_HINT = "point at one with `--connect tcp/HOST:7447`"
 WAIT_LOG_EVERY_S = 5.0
+SIGNAL_POLL_S = 0.05  # how often a program waiting for its router looks at whether it was asked to stop
 
 
 class SessionError(ConnectionError):
@@ -217,9 +218,16 @@ def _open_waiting(conf: zenoh.Config, log_every_s: float) -> zenoh.Session:
             break
         done.set()
 
+    stopped: list[int] = []  # the signal that asked to stop; the handler only records it
+
     def on_signal(signum, _frame) -> None:
-        raise StoppedWaiting(f"stopped by {signal.Signals(signum).name} while waiting for a zenoh router "
-                             f"({target})")
+        # never raise here: the signal may land inside a log call, and logging swallows what its
+        # handlers raise (it printed "--- Logging error ---" and the program waited on)
+        stopped.append(signum)
+
+    def stop() -> StoppedWaiting:
+        return StoppedWaiting(f"stopped by {signal.Signals(stopped[0]).name} while waiting for a zenoh router "
+                              f"({target})")
 
     in_main = threading.current_thread() is threading.main_thread()
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)} if in_main else {}
@@ -229,8 +237,17 @@ def _open_waiting(conf: zenoh.Config, log_every_s: float) -> zenoh.Session:
         worker.start()
         log.info("waiting for a zenoh router (%s); %s, %s; Ctrl-C to stop", target, START_ROUTER_HINT,
                  CONNECT_HINT)
-        while not done.wait(log_every_s):
-            log.info("still waiting for a zenoh router (%s): %.0f s so far", target, time.monotonic() - t0)
+        next_log = t0 + log_every_s
+        while not done.wait(SIGNAL_POLL_S):
+            if stopped:
+                raise stop()
+            if time.monotonic() >= next_log:
+                next_log += log_every_s
+                log.info("still waiting for a zenoh router (%s): %.0f s so far", target, time.monotonic() - t0)
+        if stopped:  # asked to stop as the session opened: close it
+            if "session" in result:
+                result.pop("session").close()
+            raise stop()
     except BaseException as exc:
         abandoned.set()
         if isinstance(exc, StoppedWaiting):  # the worker may be inside zenoh.open, or closing what it opened

@@ -141,3 +141,58 @@ def test_every_program_opens_its_session_through_open_session():
 def test_help_prints_the_usage_and_exits_0(capsys):
     assert cli.main(["--help"]) == 0
     assert capsys.readouterr().err.startswith("usage: vsfleet [--version] [--verbose] COMMAND")
+
+
+def test_a_signal_that_lands_inside_a_log_call_while_waiting_still_stops_the_wait(caplog):
+    """SIGTERM delivered while the waiting loop writes its "still waiting" line: logging swallows what
+    a handler raises, so a signal handler that raised lost the stop and the program waited on (seen in
+    two CI rehearsals). The handler only records the signal; the loop then stops within a poll."""
+    import logging
+    import os
+    import signal
+    import threading
+    import time
+
+    from vsfleet.fleetctl.router import free_loopback_port
+    from vsfleet.fleetctl.zconf import StoppedWaiting, _open_waiting
+
+    port = free_loopback_port()
+    signalled: list[float] = []
+
+    class SignalInsideEmit(logging.Handler):
+        def emit(self, record):
+            try:  # as logging.StreamHandler does: whatever emit raises goes to handleError
+                if "still waiting" in record.getMessage() and not signalled:
+                    signalled.append(time.monotonic())
+                    os.kill(os.getpid(), signal.SIGTERM)
+                    for _ in range(10_000):  # the signal is handled here, inside emit
+                        pass
+            except Exception:  # noqa: BLE001
+                self.handleError(record)
+
+    logger = logging.getLogger("vsfleet.fleetctl.zconf")
+    handler = SignalInsideEmit()
+    logger.addHandler(handler)
+    logger.setLevel(logging.INFO)
+    # a second SIGTERM 3 s later, outside any log call: a wait that lost the first one ends then, late
+    watchdog = threading.Timer(3.0, lambda: os.kill(os.getpid(), signal.SIGTERM))
+    router = None
+    try:
+        watchdog.start()
+        with pytest.raises(StoppedWaiting) as stopped:
+            _open_waiting(config("--mode", "client", "--connect", f"tcp/127.0.0.1:{port}",
+                                 "--no-multicast-scouting", "--wait"), log_every_s=0.2)
+        took_s = time.monotonic() - signalled[0]
+        watchdog.cancel()
+        assert took_s < 1.0, f"stopped {took_s:.2f} s after the first SIGTERM"
+        assert "stopped by SIGTERM" in str(stopped.value) and stopped.value.open_pending
+    finally:
+        watchdog.cancel()
+        logger.removeHandler(handler)
+        # let the abandoned zenoh.open connect, so that its worker closes the session and ends
+        router = zenoh.open(config("--mode", "router", "--listen", f"tcp/127.0.0.1:{port}",
+                                   "--no-multicast-scouting"))
+        for worker in [t for t in threading.enumerate() if t.name == "zenoh-open"]:
+            worker.join(timeout=30)
+        router.close()
+    assert not any(t.name == "zenoh-open" for t in threading.enumerate())
