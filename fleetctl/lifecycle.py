@@ -12,26 +12,44 @@ log = logging.getLogger(__name__)
 
 
 class StopFlag:
-    """Set by SIGTERM or SIGINT (or by a test); programs poll or wait on it."""
+    """Set by SIGTERM or SIGINT (or by a test); programs poll or wait on it.
+
+    The signal handler only records the signal. Setting the event there (it takes the event's lock)
+    would deadlock when the signal lands while the main thread holds that lock, inside a wait; and
+    logging there can re-enter a stream the main thread is writing. The first is_set or wait after
+    the signal sets the event and logs it; wait looks every POLL_S [s].
+    """
+
+    POLL_S = 0.05
 
     def __init__(self, install_signals: bool = True) -> None:
         self.event = threading.Event()
+        self.signalled: int | None = None
         if install_signals and threading.current_thread() is threading.main_thread():
             signal.signal(signal.SIGTERM, self._on_signal)
             signal.signal(signal.SIGINT, self._on_signal)
 
     def _on_signal(self, signum, _frame) -> None:
-        log.info("signal %s: stopping", signal.Signals(signum).name)
-        self.event.set()
+        self.signalled = signum
 
     def set(self) -> None:
         self.event.set()
 
     def is_set(self) -> bool:
+        if self.signalled is not None and not self.event.is_set():
+            log.info("signal %s: stopping", signal.Signals(self.signalled).name)
+            self.event.set()
         return self.event.is_set()
 
     def wait(self, timeout_s: float) -> bool:
-        return self.event.wait(timeout_s)
+        """True once set (or signalled), False after timeout_s [s]."""
+        deadline = time.monotonic() + timeout_s
+        while not self.is_set():
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return False
+            self.event.wait(min(remaining, self.POLL_S))
+        return True
 
 
 class Rejections:

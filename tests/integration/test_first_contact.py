@@ -298,3 +298,21 @@ def test_run_names_the_child_that_exited_early_with_its_one_line_error(tmp_path)
     assert p.wait(timeout=30) == 2
     assert children.dead() == ["agent-r1"]
     assert children.last_line("agent-r1") == "vsfleet agent: no zenoh router reachable"
+
+
+STOP_WHILE_LOCKED = """
+import os, signal
+from vsfleet.fleetctl.lifecycle import StopFlag
+flag = StopFlag()
+with flag.event._cond:  # as the main thread holds it inside Event.wait, between taking it and waiting
+    os.kill(os.getpid(), signal.SIGTERM)
+    for _ in range(100_000):  # the signal handler runs here, with the lock held
+        pass
+print("stopping" if flag.wait(5.0) else "not stopped", flush=True)
+"""
+
+
+def test_sigterm_while_the_main_thread_holds_the_stop_flags_lock_stops_the_program():
+    # the handler used to set the event itself, taking the lock the main thread held: a deadlock
+    out = subprocess.run([sys.executable, "-c", STOP_WHILE_LOCKED], capture_output=True, text=True, timeout=20)
+    assert out.returncode == 0 and out.stdout.strip() == "stopping", out
