@@ -148,21 +148,23 @@ def run_fuzz(conf: zenoh.Config, fleet: str, robots: list[str], kinds: tuple[str
     sent: Counter = Counter()
     with open_session(conf) as session:
         barrier = RouterBarrier(conf)  # declared before the flood, so the router knows its subscriber
-        t0 = clock()
-        period = 1.0 / rate_hz
-        k = 0
-        while not stop.is_set() and clock() - t0 < duration_s:
-            for kind in kinds:
-                # oversized missions are 1 MiB: send one in 50 so the flood stays a flood of messages
-                cats = [c for c in CATEGORIES if not (c == "oversized" and kind == "mission" and k % 50)]
-                category = rng.choice(cats)
-                key = target_key(keys, kind, category, robots, rng)
-                session.put(key, bad_payload(kind, category, clock(), rng), **RELIABLE_QOS)
-                sent[f"{kind}/{category}"] += 1
-            k += 1
-            pace(t0 + k * period, stop, clock)
-        routed = barrier.wait(session)
-        barrier.close()
+        try:
+            t0 = clock()
+            period = 1.0 / rate_hz
+            k = 0
+            while not stop.is_set() and clock() - t0 < duration_s:
+                for kind in kinds:
+                    # oversized missions are 1 MiB: send one in 50 so the flood stays a flood of messages
+                    cats = [c for c in CATEGORIES if not (c == "oversized" and kind == "mission" and k % 50)]
+                    category = rng.choice(cats)
+                    key = target_key(keys, kind, category, robots, rng)
+                    session.put(key, bad_payload(kind, category, clock(), rng), **RELIABLE_QOS)
+                    sent[f"{kind}/{category}"] += 1
+                k += 1
+                pace(t0 + k * period, stop, clock)
+            routed = barrier.wait(session)
+        finally:
+            barrier.close()
         log.info("the router %s every put before closing", "has routed" if routed else "did not confirm it routed")
     return sent, routed
 

@@ -28,8 +28,9 @@ STREAM_QOS = dict(congestion_control=zenoh.CongestionControl.DROP, express=True,
                   priority=zenoh.Priority.REAL_TIME)
 TELEMETRY_QOS = dict(congestion_control=zenoh.CongestionControl.DROP, express=True,
                      priority=zenoh.Priority.DATA)
-# Per-robot messages that go out N at a time, once per frame (a tracker's pose/<robot>): batched (not express), so a burst of 100 is one or a few
-# writes instead of 100 express batches that overflow the 2-batch queue and are dropped.
+# Per-robot messages that go out N at a time, once per frame (a tracker's pose/<robot>): batched (not
+# express), so a burst of 100 is one or a few writes instead of 100 express batches that overflow the
+# 2-batch queue and are dropped.
 BURST_QOS = dict(congestion_control=zenoh.CongestionControl.DROP, express=False,
                  priority=zenoh.Priority.DATA)
 RELIABLE_QOS = dict(congestion_control=zenoh.CongestionControl.BLOCK,
@@ -251,7 +252,7 @@ def _open_waiting(conf: zenoh.Config, log_every_s: float) -> zenoh.Session:
     except BaseException as exc:
         abandoned.set()
         if isinstance(exc, StoppedWaiting):  # the worker may be inside zenoh.open, or closing what it opened
-            exc.open_pending = worker.is_alive() or not done.is_set()
+            exc.open_pending = worker.is_alive()
         raise
     finally:
         for s, handler in previous.items():
