@@ -7,36 +7,47 @@ STAMP := $(VENV)/.installed
 # PYTHONDONTWRITEBYTECODE=1, so each one compiled the project again: ~0.3 s of CPU per process).
 unexport PYTHONDONTWRITEBYTECODE
 
-.PHONY: demo test test-unit test-integration bench bench-fit clean
+.PHONY: demo test test-unit test-integration bench bench-fit clean core
 
-$(STAMP): pyproject.toml
+CORE_SRC := $(wildcard vsfleet/_core/*.c vsfleet/_core/*.h) setup.py
+
+$(STAMP): pyproject.toml setup.py
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install --upgrade pip >/dev/null
 	$(BIN)/pip install -e '.[dev,camera]'
 	touch $(STAMP)
 
-demo: $(STAMP)
+# the compiled core (vsfleet/_core -> vsfleet/_core*.so beside the sources), rebuilt when a source
+# changes; flock: several shells may build at once
+CORE_SO := vsfleet/.core-built
+$(CORE_SO): $(STAMP) $(CORE_SRC)
+	flock /tmp/vsfleet-core.lock $(BIN)/python setup.py -q build_ext --inplace
+	touch $(CORE_SO)
+
+core: $(CORE_SO)
+
+demo: $(STAMP) $(CORE_SO)
 	$(BIN)/vsfleet run scenarios/paper-triangle.toml
 
 # the whole suite (CI: .ci/run): the unit tier on both cores, then the multi-process tests two files
 # at a time (each file's tests in one worker, in order); test-unit: every test that starts no process.
 # The unit tier runs --dist worksteal: plain load scheduling hands a worker one chunk of consecutive
 # tests (all of tests/test_closed_loop.py's offline runs) that the idle worker cannot take back
-test: $(STAMP)
+test: $(STAMP) $(CORE_SO)
 	$(BIN)/python -m pytest -q -m "not integration" -n 2 --dist worksteal
 	$(BIN)/python -m pytest -q -m integration -n 2 --dist loadfile
 
-test-unit: $(STAMP)
+test-unit: $(STAMP) $(CORE_SO)
 	$(BIN)/python -m pytest -q -m "not integration" -n 2 --dist worksteal
 
-test-integration: $(STAMP)
+test-integration: $(STAMP) $(CORE_SO)
 	$(BIN)/python -m pytest -q -m integration -n 2 --dist loadfile
 
-bench-fit: $(STAMP)
+bench-fit: $(STAMP) $(CORE_SO)
 	$(BIN)/python bench/fit.py
 
 # every benchmark -> docs/benchmarks.md + docs/bench/*.png (20-40 min; BENCH_ARGS=--quick for a short run)
-bench: $(STAMP)
+bench: $(STAMP) $(CORE_SO)
 	$(BIN)/python -m bench.run_all $(BENCH_ARGS)
 
 clean:
