@@ -23,8 +23,8 @@ from typing import Callable
 
 import zenoh
 
-from vsfleet.fleetctl.lifecycle import Rejections, StopFlag, wall_clock
-from vsfleet.fleetctl.zconf import (
+from vsfleet.zglue.lifecycle import Rejections, StopFlag, wall_clock
+from vsfleet.zglue.zconf import (
     RELIABLE_QOS,
     STREAM_QOS,
     TELEMETRY_QOS,

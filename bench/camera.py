@@ -95,7 +95,7 @@ def measure_end_to_end(config_path: str, n_frames: int, seed: int = 2) -> dict:
     """frames / wall time of `vsfleet tracker camera` on a rendered FFV1 video: decode + detect + publish."""
     from vsfleet.fleetctl.router import open_loopback_router
     from vsfleet.fleetctl.run import child_command
-    from vsfleet.fleetctl.zconf import zenoh_flags
+    from vsfleet.zglue.zconf import zenoh_flags
     from vsfleet.wire import Keys
 
     config = load_config(config_path)

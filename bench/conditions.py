@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vsfleet.fleetctl.scenario_file import load_scenario
+from vsfleet.zglue.scenario_file import load_scenario
 from vsfleet.scenario import Scenario
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -21,7 +21,7 @@ import numpy as np
 from vsfleet.fleetctl import rmw_zenoh as rz
 from vsfleet.fleetctl.mission_cmd import stamp
 from vsfleet.fleetctl.router import free_loopback_port, wait_listening
-from vsfleet.fleetctl.scenario_file import load_scenario
+from vsfleet.zglue.scenario_file import load_scenario
 from tests.integration.harness import open_client
 from vsfleet.wire import CmdMsg, Keys, encode, encode_mission
 

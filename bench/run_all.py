@@ -26,7 +26,7 @@ import sys
 import time
 from pathlib import Path
 
-from vsfleet.fleetctl.scenario_file import load_scenario
+from vsfleet.zglue.scenario_file import load_scenario
 from vsfleet.wire import FrameMsg, encode_frame
 
 from . import fit as fit_bench

@@ -19,7 +19,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from vsfleet.fleetctl.scenario_file import load_scenario  # noqa: E402
+from vsfleet.zglue.scenario_file import load_scenario  # noqa: E402
 from vsfleet.simfleet.offline import run_offline  # noqa: E402
 
 

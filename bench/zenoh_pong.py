@@ -12,8 +12,8 @@ import argparse
 
 import zenoh
 
-from vsfleet.fleetctl.lifecycle import StopFlag
-from vsfleet.fleetctl.zconf import STREAM_QOS, add_zenoh_args, init_logging, open_session, zenoh_config
+from vsfleet.zglue.lifecycle import StopFlag
+from vsfleet.zglue.zconf import STREAM_QOS, add_zenoh_args, init_logging, open_session, zenoh_config
 from vsfleet.wire import Keys
 
 

@@ -1,5 +1,7 @@
-"""Program glue shared by every vsfleet process: zenoh flags and config, QoS,
-process lifecycle, the embedded router and the localhost fleet launcher.
+"""Operator tools (installed as ``vsfleet.fleetctl``): the ``vsfleet`` command, the router, the
+localhost fleet launcher, recording, replay, plots, monitor, Foxglove, fuzzing, deploy configs
+and the ROS 2 bridges.
 
-This is the I/O edge. The pure math lives in ``vsfleet``.
+Tools import the pure core ``vsfleet`` and the Zenoh glue ``vsfleet.zglue``; a program
+(agent, simfleet, tracker) is started as a child process through ``vsfleet``, never imported.
 """

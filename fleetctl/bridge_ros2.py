@@ -26,9 +26,9 @@ from vsfleet.quorum import majority
 from vsfleet.wire import Keys, Mission, WireError, check_name, decode_cmd, decode_mission
 
 from . import rmw_zenoh as rz
-from . import zconf
-from .lifecycle import Rejections, StopFlag
-from .zconf import add_zenoh_args, init_logging, zenoh_config
+from vsfleet.zglue import zconf
+from vsfleet.zglue.lifecycle import Rejections, StopFlag
+from vsfleet.zglue.zconf import add_zenoh_args, init_logging, zenoh_config
 
 log = logging.getLogger("vsfleet.bridge.ros2")
 

@@ -26,8 +26,8 @@ from vsfleet.wire import FrameMsg, Keys, PoseMsg, check_name, encode, encode_fra
 
 from . import rmw_zenoh as rz
 from .bridge_ros2 import open_session, ros_client_config
-from .lifecycle import Rejections, StopFlag
-from .zconf import BURST_QOS, STREAM_QOS, add_zenoh_args, init_logging, zenoh_config
+from vsfleet.zglue.lifecycle import Rejections, StopFlag
+from vsfleet.zglue.zconf import BURST_QOS, STREAM_QOS, add_zenoh_args, init_logging, zenoh_config
 
 log = logging.getLogger("vsfleet.bridge.ros2-poses")
 

@@ -30,8 +30,8 @@ COMMANDS = {
     "monitor": ("vsfleet.fleetctl.monitor", "live terminal view of a running fleet"),
     "foxglove": ("vsfleet.fleetctl.foxglove_live", "live Foxglove WebSocket server on a fleet's key space"),
     "fuzz": ("vsfleet.fleetctl.fuzz", "throw invalid messages at every key the fleet subscribes to"),
-    "bridge ros2": ("fleetctl.bridge_ros2", "one robot's commands -> geometry_msgs/Twist over rmw_zenoh"),
-    "bridge ros2-poses": ("fleetctl.bridge_ros2_poses", "mocap PoseStamped/Odometry over rmw_zenoh -> frames"),
+    "bridge ros2": ("vsfleet.fleetctl.bridge_ros2", "one robot's commands -> geometry_msgs/Twist over rmw_zenoh"),
+    "bridge ros2-poses": ("vsfleet.fleetctl.bridge_ros2_poses", "mocap PoseStamped/Odometry over rmw_zenoh -> frames"),
 }
 
 USAGE = ("usage: vsfleet [--version] [--verbose] COMMAND [ARGS...]\n\ncommands:\n" + "\n".join(
@@ -58,7 +58,7 @@ def _one_line(exc: BaseException) -> str:
 
 def run_command(name: str, module_name: str, args: list[str], verbose: bool) -> int:
     """Run one program's main; every error becomes one line (and exit code 2, or 1 if unexpected)."""
-    from vsfleet.fleetctl.zconf import SessionError, StoppedWaiting, ZenohConfigError
+    from vsfleet.zglue.zconf import SessionError, StoppedWaiting, ZenohConfigError
 
     def thread_hook(hook_args) -> None:  # a crashed worker thread: one line, the traceback only if verbose
         if verbose:

@@ -25,7 +25,7 @@ from typing import Iterator
 
 from vsfleet.wire import Keys, WireError, check_name
 
-from .scenario_file import load_scenario
+from vsfleet.zglue.scenario_file import load_scenario
 
 log = logging.getLogger("vsfleet.deploy")
 

@@ -31,10 +31,10 @@ from foxglove.websocket import Capability
 from vsfleet.wire import Keys, WireError, check_name
 
 from .foxglove_views import FleetViews, View
-from .lifecycle import StopFlag
-from .peers import current_missions
+from vsfleet.zglue.lifecycle import StopFlag
+from vsfleet.zglue.peers import current_missions
 from .record import json_mirror, payload_time_ns
-from .zconf import add_zenoh_args, init_logging, open_session, zenoh_config
+from vsfleet.zglue.zconf import add_zenoh_args, init_logging, open_session, zenoh_config
 
 log = logging.getLogger("vsfleet.foxglove")
 

@@ -38,8 +38,8 @@ from vsfleet.wire import (
     encode_mission,
 )
 
-from .lifecycle import StopFlag, pace, wall_clock
-from .zconf import RELIABLE_QOS, add_zenoh_args, init_logging, open_session, zenoh_config
+from vsfleet.zglue.lifecycle import StopFlag, pace, wall_clock
+from vsfleet.zglue.zconf import RELIABLE_QOS, add_zenoh_args, init_logging, open_session, zenoh_config
 
 log = logging.getLogger("vsfleet.fuzz")
 

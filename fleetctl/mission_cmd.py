@@ -23,9 +23,9 @@ import zenoh
 
 from vsfleet.wire import Keys, Mission, encode_mission, mission_from_dict
 
-from .lifecycle import wall_clock
-from .scenario_file import load_scenario
-from .zconf import RELIABLE_QOS, add_zenoh_args, init_logging, open_session, zenoh_config
+from vsfleet.zglue.lifecycle import wall_clock
+from vsfleet.zglue.scenario_file import load_scenario
+from vsfleet.zglue.zconf import RELIABLE_QOS, add_zenoh_args, init_logging, open_session, zenoh_config
 
 log = logging.getLogger("vsfleet.mission")
 

@@ -39,10 +39,10 @@ from vsfleet.wire import (
     unpack_map,
 )
 
-from .lifecycle import StopFlag
-from .peers import current_missions
+from vsfleet.zglue.lifecycle import StopFlag
+from vsfleet.zglue.peers import current_missions
 from .record import split_key
-from .zconf import add_zenoh_args, init_logging, open_session, zenoh_config
+from vsfleet.zglue.zconf import add_zenoh_args, init_logging, open_session, zenoh_config
 
 log = logging.getLogger("vsfleet.monitor")
 

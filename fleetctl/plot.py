@@ -332,7 +332,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         timeline = ()
         if args.scenario:
-            from .scenario_file import load_scenario
+            from vsfleet.zglue.scenario_file import load_scenario
             timeline = load_scenario(args.scenario).faults
         result = plot_file(args.file, args.out, args.fleet, timeline)
     except (OSError, ValueError, McapError) as exc:

@@ -25,7 +25,7 @@ Layout of the file (one channel per key and role; channel metadata
 
 At start the recorder also queries the mission (``vsfleet run`` answers as the
 operator on ``vs/<fleet>/mission``; agents answer under ``vs/<fleet>/peer/<robot>/mission``,
-and their majority answer is taken, see fleetctl.peers), so a recording started
+and their majority answer is taken, see zglue.peers), so a recording started
 after the mission was published still has it, on ``vs/<fleet>/mission``.
 """
 
@@ -51,10 +51,10 @@ from vsfleet.wire import Keys, check_name
 
 from .foxglove_views import FleetViews, seconds_to_ns, structure_points  # noqa: F401 (re-exported)
 
-from .lifecycle import StopFlag
-from .peers import current_missions
+from vsfleet.zglue.lifecycle import StopFlag
+from vsfleet.zglue.peers import current_missions
 from .zcli_codec import jsonable
-from .zconf import SessionError, add_zenoh_args, init_logging, open_session, zenoh_config
+from vsfleet.zglue.zconf import SessionError, add_zenoh_args, init_logging, open_session, zenoh_config
 
 log = logging.getLogger("vsfleet.record")
 

@@ -34,9 +34,9 @@ from mcap.exceptions import McapError
 
 from vsfleet.wire import FrameMsg, WireError, check_name, decode_pose, encode_frame
 
-from .lifecycle import StopFlag
+from vsfleet.zglue.lifecycle import StopFlag
 from .record import LIVELINESS, RAW, LogRecord, read_log, seconds_to_ns, split_key
-from .zconf import SessionError, add_zenoh_args, init_logging, open_session, zenoh_config
+from vsfleet.zglue.zconf import SessionError, add_zenoh_args, init_logging, open_session, zenoh_config
 
 log = logging.getLogger("vsfleet.replay")
 

@@ -15,8 +15,8 @@ import time
 
 import zenoh
 
-from .lifecycle import StopFlag
-from .zconf import add_zenoh_args, init_logging, open_session, zenoh_config
+from vsfleet.zglue.lifecycle import StopFlag
+from vsfleet.zglue.zconf import add_zenoh_args, init_logging, open_session, zenoh_config
 
 log = logging.getLogger("vsfleet.router")
 

@@ -48,13 +48,13 @@ from vsfleet.geometry import angle_diff
 from vsfleet.scenario import Scenario
 from vsfleet.wire import Keys, Mission, WireError, decode_state, decode_truth, encode_mission
 
-from .lifecycle import StopFlag, wall_clock
+from vsfleet.zglue.lifecycle import StopFlag, wall_clock
 from .mission_cmd import stamp
 from .plot import plot_file
 from .record import LiveRecorder
 from .router import open_loopback_router
-from .scenario_file import load_scenario
-from .zconf import RELIABLE_QOS, init_logging, zenoh_flags
+from vsfleet.zglue.scenario_file import load_scenario
+from vsfleet.zglue.zconf import RELIABLE_QOS, init_logging, zenoh_flags
 
 log = logging.getLogger("vsfleet.run")
 

@@ -20,9 +20,9 @@ from typing import Callable
 import numpy as np
 import zenoh
 
-from vsfleet.fleetctl.lifecycle import Rejections, StopFlag, pace, wall_clock
-from vsfleet.fleetctl.scenario_file import load_scenario
-from vsfleet.fleetctl.zconf import TELEMETRY_QOS, add_zenoh_args, init_logging, open_session, zenoh_config
+from vsfleet.zglue.lifecycle import Rejections, StopFlag, pace, wall_clock
+from vsfleet.zglue.scenario_file import load_scenario
+from vsfleet.zglue.zconf import TELEMETRY_QOS, add_zenoh_args, init_logging, open_session, zenoh_config
 from vsfleet.geometry import Pose2
 from vsfleet.scenario import Scenario
 from vsfleet.wire import Keys, TruthMsg, decode_cmd, decode_fault, encode

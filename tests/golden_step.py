@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vsfleet.fleetctl.scenario_file import load_scenario
+from vsfleet.zglue.scenario_file import load_scenario
 from vsfleet.simfleet.physics import Fault, RobotState, step_fleet
 from vsfleet.frames import Frame
 from vsfleet.geometry import Pose2

@@ -12,7 +12,7 @@ import pytest
 from vsfleet.fleetctl import rmw_zenoh as rz
 from vsfleet.fleetctl.bridge_ros2 import CmdBridge, build_parser as cmd_parser, main as cmd_main
 from vsfleet.fleetctl.bridge_ros2_poses import FrameAssembler, MapError, PoseBridge, main as poses_main, parse_map
-from vsfleet.fleetctl.lifecycle import Rejections
+from vsfleet.zglue.lifecycle import Rejections
 from vsfleet.wire import CmdMsg, Mission, RobotSpec, encode, encode_mission
 
 

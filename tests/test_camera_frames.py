@@ -19,9 +19,9 @@ from camera_support import (  # noqa: E402, F401 - the fixtures calibration, con
     config_fixture,
     renderer_fixture,
 )
-from vsfleet.fleetctl.lifecycle import StopFlag  # noqa: E402
+from vsfleet.zglue.lifecycle import StopFlag  # noqa: E402
 from vsfleet.fleetctl.run import DEFAULT_CAMERA, tracker_args  # noqa: E402
-from vsfleet.fleetctl.scenario_file import load_scenario  # noqa: E402
+from vsfleet.zglue.scenario_file import load_scenario  # noqa: E402
 from vsfleet.tracker.calib import FloorCalibration  # noqa: E402
 from vsfleet.tracker.camera import build_parser, render_loop_args, run_loop  # noqa: E402
 from vsfleet.tracker.markers import CameraTracker, ConfigError  # noqa: E402

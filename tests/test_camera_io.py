@@ -18,7 +18,7 @@ from camera_support import (  # noqa: E402, F401 - the fixtures calibration, con
     renderer_fixture,
     run_cli,
 )
-from vsfleet.fleetctl.lifecycle import StopFlag  # noqa: E402
+from vsfleet.zglue.lifecycle import StopFlag  # noqa: E402
 from vsfleet.tracker import calibrate as calibrate_cmd  # noqa: E402
 from vsfleet.tracker import render as render_cmd  # noqa: E402
 from vsfleet.tracker.calib import FloorCalibration  # noqa: E402

@@ -14,7 +14,7 @@ import pytest
 import zenoh
 
 from vsfleet.fleetctl import cli
-from vsfleet.fleetctl.zconf import (CONNECT_HINT, START_ROUTER_HINT, SessionError, ZenohConfigError, add_zenoh_args,
+from vsfleet.zglue.zconf import (CONNECT_HINT, START_ROUTER_HINT, SessionError, ZenohConfigError, add_zenoh_args,
                             describe_failure, describe_target, waits_for_router, zenoh_config)
 
 
@@ -31,7 +31,7 @@ def test_version_prints_the_installed_packages_version(capsys):
 
 FAKE = '''
 import sys
-from vsfleet.fleetctl.zconf import SessionError, StoppedWaiting
+from vsfleet.zglue.zconf import SessionError, StoppedWaiting
 
 def main(argv):
     kind = argv[0]
@@ -154,7 +154,7 @@ def test_a_signal_that_lands_inside_a_log_call_while_waiting_still_stops_the_wai
     import time
 
     from vsfleet.fleetctl.router import free_loopback_port
-    from vsfleet.fleetctl.zconf import StoppedWaiting, _open_waiting
+    from vsfleet.zglue.zconf import StoppedWaiting, _open_waiting
 
     port = free_loopback_port()
     signalled: list[float] = []
@@ -170,7 +170,7 @@ def test_a_signal_that_lands_inside_a_log_call_while_waiting_still_stops_the_wai
             except Exception:  # noqa: BLE001
                 self.handleError(record)
 
-    logger = logging.getLogger("vsfleet.fleetctl.zconf")
+    logger = logging.getLogger("vsfleet.zglue.zconf")
     handler = SignalInsideEmit()
     logger.addHandler(handler)
     logger.setLevel(logging.INFO)

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vsfleet.fleetctl.scenario_file import load_scenario
+from vsfleet.zglue.scenario_file import load_scenario
 from vsfleet.simfleet.offline import run_offline
 from vsfleet.control import CONTROLLERS, DEFAULT_CONTROLLER
 from vsfleet.scenario import FaultEvent

@@ -17,7 +17,7 @@ import zenoh
 
 from vsfleet.fleetctl import deploy
 from vsfleet.fleetctl.cli import COMMANDS
-from vsfleet.fleetctl.scenario_file import load_scenario
+from vsfleet.zglue.scenario_file import load_scenario
 from vsfleet.wire import Keys
 
 ROOT = Path(__file__).parent.parent

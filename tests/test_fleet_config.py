@@ -15,7 +15,7 @@ import pytest
 
 from vsfleet.fleetctl import deploy
 from vsfleet.fleetctl.mission_cmd import load_mission
-from vsfleet.fleetctl.scenario_file import load_scenario
+from vsfleet.zglue.scenario_file import load_scenario
 from vsfleet.control import make_controller
 from vsfleet.failure import FailurePolicy
 from vsfleet.scenario import ROBOT_DEFAULTS, ScenarioError, UnknownKeyError, scenario_from_dict

@@ -19,7 +19,7 @@ from bench.leader_follower import (  # noqa: E402
     run_leader_follower,
     slot_for,
 )
-from vsfleet.fleetctl.scenario_file import load_scenario  # noqa: E402
+from vsfleet.zglue.scenario_file import load_scenario  # noqa: E402
 from vsfleet.geometry import Pose2  # noqa: E402
 from vsfleet.kinematics import integrate_arc, wheels_from_twist  # noqa: E402
 

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from vsfleet.fleetctl.scenario_file import load_scenario
+from vsfleet.zglue.scenario_file import load_scenario
 from vsfleet.simfleet.main import Fleet
 from vsfleet.simfleet.offline import run_offline
 from vsfleet.scenario import FaultEvent

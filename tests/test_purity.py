@@ -22,7 +22,7 @@ def test_core_module_imports_no_io(path):
     assert not imported & FORBIDDEN, f"{path.name} imports {imported & FORBIDDEN}"
 
 
-PROGRAMS = ("agent", "simfleet", "tracker", "fleetctl")  # installed as vsfleet.agent, vsfleet.fleetctl, ...
+PROGRAMS = ("agent", "simfleet", "tracker", "fleetctl", "zglue")  # installed as vsfleet.agent, vsfleet.fleetctl, ...
 SOURCES = sorted(p for d in ("vsfleet", *PROGRAMS, "bench", "tests") for p in (ROOT / d).rglob("*.py"))
 
 

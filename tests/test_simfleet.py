@@ -11,7 +11,7 @@ from vsfleet.tracker.sim import SimTracker
 from vsfleet.geometry import Pose2
 from vsfleet.scenario import SimRobot, TrackerParams
 from vsfleet.wire import CmdMsg, FaultMsg, Keys, TruthMsg, encode
-from vsfleet.fleetctl.scenario_file import load_scenario
+from vsfleet.zglue.scenario_file import load_scenario
 from pathlib import Path
 
 ROBOT = SimRobot("r1", (0.0, 0.0, 0.0), wheel_base=0.1, wheel_speed_max=0.3, wheel_accel_max=1.0,

@@ -85,7 +85,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from vsfleet.fleetctl.zconf import init_logging
+    from vsfleet.zglue.zconf import init_logging
 
     args = build_parser().parse_args(argv)
     init_logging(args.verbose)

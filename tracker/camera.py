@@ -31,7 +31,7 @@ from typing import Callable, Protocol
 import cv2
 import numpy as np
 
-from vsfleet.fleetctl.lifecycle import StopFlag, pace, wall_clock
+from vsfleet.zglue.lifecycle import StopFlag, pace, wall_clock
 from vsfleet.wire import FrameMsg, PoseMsg
 
 from .calib import CalibrationError, FloorCalibration
@@ -373,13 +373,13 @@ def run_camera_tracker(conf, config: CameraConfig, calibration: FloorCalibration
     liveliness vs/<fleet>/alive/tracker/<src>."""
     import zenoh
 
-    from vsfleet.fleetctl.zconf import BURST_QOS, STREAM_QOS
+    from vsfleet.zglue.zconf import BURST_QOS, STREAM_QOS
     from vsfleet.wire import Keys, decode_truth, encode, encode_frame
 
     stop = stop or StopFlag()
     keys = Keys(fleet)
     tracker = CameraTracker(config, calibration, src)
-    from vsfleet.fleetctl.zconf import open_session
+    from vsfleet.zglue.zconf import open_session
 
     with open_session(conf) as session:
         pubs: dict[str, zenoh.Publisher] = {}
@@ -462,7 +462,7 @@ def render_loop_args(camera: str | Path, robots: tuple[str, ...], out_dir: Path)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from vsfleet.fleetctl.zconf import add_zenoh_args
+    from vsfleet.zglue.zconf import add_zenoh_args
 
     p = argparse.ArgumentParser(prog="vsfleet tracker camera", description=__doc__.splitlines()[0])
     p.add_argument("--camera", required=True, help="camera config TOML (src, dictionary, marker -> robot map)")
@@ -526,7 +526,7 @@ def check_source_args(args: argparse.Namespace) -> bool:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from vsfleet.fleetctl.zconf import init_logging, zenoh_config
+    from vsfleet.zglue.zconf import init_logging, zenoh_config
     from vsfleet.wire import Keys, WireError, check_name
 
     args = build_parser().parse_args(argv)

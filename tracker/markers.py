@@ -20,7 +20,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from vsfleet.fleetctl.lifecycle import Rejections
+from vsfleet.zglue.lifecycle import Rejections
 from vsfleet.geometry import wrap_angle
 from vsfleet.wire import PoseMsg, WireError, check_name
 

@@ -266,7 +266,7 @@ def write_video(path: Path, fps: float, size: tuple[int, int]) -> cv2.VideoWrite
 def record_video(book: TruthBook, renderer: Renderer, config: CameraConfig, out: Path, fps: float,
                  duration_s: float, stop, clock: Callable[[], float]) -> int:
     """Render the latest truth at ``fps`` into ``out`` until ``duration_s`` or stop; returns frames written."""
-    from vsfleet.fleetctl.lifecycle import pace
+    from vsfleet.zglue.lifecycle import pace
 
     spec = renderer.spec
     writer = write_video(out, fps, (spec.width_px, spec.height_px))
@@ -299,7 +299,7 @@ def record_video(book: TruthBook, renderer: Renderer, config: CameraConfig, out:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from vsfleet.fleetctl.zconf import add_zenoh_args
+    from vsfleet.zglue.zconf import add_zenoh_args
 
     p = argparse.ArgumentParser(prog="vsfleet render", description=__doc__.splitlines()[0])
     p.add_argument("--camera", required=True, help="camera config TOML (its [sim_camera] table)")
@@ -315,7 +315,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from vsfleet.fleetctl.zconf import init_logging
+    from vsfleet.zglue.zconf import init_logging
 
     args = build_parser().parse_args(argv)
     init_logging(args.verbose)
@@ -349,8 +349,8 @@ def main(argv: list[str] | None = None) -> int:
 def run_render(args: argparse.Namespace, config: CameraConfig, renderer: Renderer) -> int:
     import zenoh
 
-    from vsfleet.fleetctl.lifecycle import Rejections, StopFlag, wall_clock
-    from vsfleet.fleetctl.zconf import open_session, zenoh_config
+    from vsfleet.zglue.lifecycle import Rejections, StopFlag, wall_clock
+    from vsfleet.zglue.zconf import open_session, zenoh_config
     from vsfleet.wire import Keys, decode_truth
 
     keys = Keys(args.fleet)

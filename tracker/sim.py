@@ -19,8 +19,8 @@ from typing import Callable
 import numpy as np
 import zenoh
 
-from vsfleet.fleetctl.lifecycle import Rejections, StopFlag, pace, wall_clock
-from vsfleet.fleetctl.zconf import BURST_QOS, STREAM_QOS, add_zenoh_args, init_logging, open_session, zenoh_config
+from vsfleet.zglue.lifecycle import Rejections, StopFlag, pace, wall_clock
+from vsfleet.zglue.zconf import BURST_QOS, STREAM_QOS, add_zenoh_args, init_logging, open_session, zenoh_config
 from vsfleet.kinematics import wrap_angles
 from vsfleet.scenario import TrackerParams
 from vsfleet.wire import FrameMsg, Keys, PoseMsg, TruthMsg, decode_truth, encode, encode_frame

@@ -31,8 +31,8 @@ from vsfleet.fleetctl.mission_cmd import stamp
 from vsfleet.fleetctl.router import free_loopback_port, open_loopback_router
 from vsfleet.fleetctl.router import wait_listening as wait_port
 from vsfleet.fleetctl.run import child_command
-from vsfleet.fleetctl.scenario_file import load_scenario
-from vsfleet.fleetctl.zconf import RELIABLE_QOS, zenoh_flags
+from vsfleet.zglue.scenario_file import load_scenario
+from vsfleet.zglue.zconf import RELIABLE_QOS, zenoh_flags
 from vsfleet.wire import (
     FrameMsg,
     Keys,

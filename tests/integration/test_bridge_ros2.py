@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from vsfleet.fleetctl.mission_cmd import stamp
-from vsfleet.fleetctl.scenario_file import load_scenario
+from vsfleet.zglue.scenario_file import load_scenario
 from vsfleet.fleetctl import rmw_zenoh as rz
 from tests.integration.conftest import LoopbackFleet
 from vsfleet.wire import CmdMsg, decode_frame, decode_pose, encode, encode_mission

@@ -18,7 +18,7 @@ import pytest
 
 from vsfleet.fleetctl.router import free_loopback_port, wait_listening
 from vsfleet.fleetctl.run import child_command
-from vsfleet.fleetctl.zconf import CONNECT_HINT, START_ROUTER_HINT
+from vsfleet.zglue.zconf import CONNECT_HINT, START_ROUTER_HINT
 
 from .conftest import Observed, open_client
 
@@ -302,7 +302,7 @@ def test_run_names_the_child_that_exited_early_with_its_one_line_error(tmp_path)
 
 STOP_WHILE_LOCKED = """
 import os, signal
-from vsfleet.fleetctl.lifecycle import StopFlag
+from vsfleet.zglue.lifecycle import StopFlag
 flag = StopFlag()
 with flag.event._cond:  # as the main thread holds it inside Event.wait, between taking it and waiting
     os.kill(os.getpid(), signal.SIGTERM)

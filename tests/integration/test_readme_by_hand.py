@@ -20,7 +20,7 @@ import pytest
 
 from vsfleet.fleetctl.router import free_loopback_port, wait_listening
 from vsfleet.fleetctl.run import SETTLE_S, Recorder, child_command, settled_at_goal
-from vsfleet.fleetctl.scenario_file import load_scenario
+from vsfleet.zglue.scenario_file import load_scenario
 from vsfleet.wire import Keys
 
 from .conftest import Observed, open_client

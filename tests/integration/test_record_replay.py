@@ -14,7 +14,7 @@ from vsfleet.fleetctl.plot import extract, trajectory_figure
 from vsfleet.fleetctl.record import LIVELINESS, RAW, Recording, read_log
 from vsfleet.fleetctl.router import open_loopback_router
 from vsfleet.fleetctl.run import run
-from vsfleet.fleetctl.zconf import add_zenoh_args, zenoh_config, zenoh_flags
+from vsfleet.zglue.zconf import add_zenoh_args, zenoh_config, zenoh_flags
 
 from .test_fleet import E2E
 
