@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed
 # PYTHONDONTWRITEBYTECODE=1, so each one compiled the project again: ~0.3 s of CPU per process).
 unexport PYTHONDONTWRITEBYTECODE
 
-.PHONY: demo test test-unit test-integration bench bench-fit clean core
+.PHONY: demo test test-unit test-integration bench bench-fit clean core test-cross test-sanitize
 
 CORE_SRC := $(wildcard vsfleet/_core/*.c vsfleet/_core/*.h) setup.py
 
@@ -42,6 +42,26 @@ test-unit: $(STAMP) $(CORE_SO)
 
 test-integration: $(STAMP) $(CORE_SO)
 	$(BIN)/python -m pytest -q -m integration -n 2 --dist loadfile
+
+# The core's golden vectors on aarch64: the core and a plain C driver cross-compiled (static, so
+# qemu needs no sysroot), run under qemu-aarch64 (Debian: gcc-aarch64-linux-gnu libc6-dev-arm64-cross
+# qemu-user; .ci/run installs them)
+CORE_C := $(filter-out vsfleet/_core/py_%.c vsfleet/_core/module.c,$(wildcard vsfleet/_core/*.c))
+CORE_CFLAGS := -std=c99 -O2 -ffp-contract=off -fno-fast-math -Wall -Wextra -Wno-unused-parameter -Ivsfleet/_core
+GOLDEN := tests/data/golden-core.txt
+test-cross:
+	mkdir -p build
+	aarch64-linux-gnu-gcc $(CORE_CFLAGS) -static -o build/golden-aarch64 $(CORE_C) tests/cdriver/golden_driver.c -lm
+	qemu-aarch64 build/golden-aarch64 $(GOLDEN)
+
+# The core under AddressSanitizer and UBSan: the golden vectors, then a fuzz of every C entry point
+SAN := -fsanitize=address,undefined -fno-sanitize-recover=all -fno-omit-frame-pointer -g
+test-sanitize:
+	mkdir -p build
+	gcc $(CORE_CFLAGS) $(SAN) -o build/golden-san $(CORE_C) tests/cdriver/golden_driver.c -lm
+	ASAN_OPTIONS=detect_leaks=1 build/golden-san $(GOLDEN)
+	gcc $(CORE_CFLAGS) $(SAN) -o build/fuzz-san $(CORE_C) tests/cdriver/fuzz_driver.c -lm
+	ASAN_OPTIONS=detect_leaks=1 build/fuzz-san 20000
 
 bench-fit: $(STAMP) $(CORE_SO)
 	$(BIN)/python bench/fit.py

@@ -43,7 +43,7 @@ import zenoh
 from vsfleet.fleetctl.mission_cmd import stamp
 from vsfleet.fleetctl.router import free_loopback_port, open_loopback_router, wait_listening
 from vsfleet.fleetctl.run import Children, child_command
-from vsfleet.fleetctl.zconf import RELIABLE_QOS, STREAM_QOS, add_zenoh_args, zenoh_config, zenoh_flags
+from vsfleet.zglue.zconf import RELIABLE_QOS, STREAM_QOS, add_zenoh_args, zenoh_config, zenoh_flags
 from vsfleet.geometry import Pose2
 from vsfleet.kinematics import integrate_arc
 from vsfleet.wire import (
@@ -151,6 +151,8 @@ class LoopRun:
     bench_cpu_s_per_frame: float       # this process (tracker, sim side) and the router process
     others_cores: float                # CPU cores busy with other processes of the machine meanwhile
     wall_s: float
+    startup_s: float = math.nan        # from starting the agents to every agent's first command
+    agent_kind: str = "vsfleet"
 
     @property
     def period_s(self) -> float:
@@ -224,9 +226,23 @@ def _router_child(children: Children) -> str:
     return f"tcp/127.0.0.1:{port}"
 
 
+def agent_command(kind: str, robot: str, fleet: str, period_s: float, endpoint: str,
+                  deadline_s: float | None = None) -> list[str]:
+    """The command line of one agent of the bench fleet: ``vsfleet`` (the real agent) or ``trivial``
+    (bench/trivial_agent.py: decode the frame, answer a command and a state; the floor)."""
+    if kind == "trivial":
+        return [sys.executable, "-m", "bench.trivial_agent", "--robot", robot, "--fleet", fleet,
+                *zenoh_flags(endpoint)]
+    if kind != "vsfleet":
+        raise ValueError(f"agent kind must be 'vsfleet' or 'trivial', got {kind!r}")
+    return child_command("agent", "--robot", robot, "--fleet", fleet, "--dt", repr(period_s),
+                         *(["--deadline", repr(deadline_s)] if deadline_s else []), *zenoh_flags(endpoint))
+
+
 def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2.0, seed: int = 0,
-             label: str = "loop", router_process: bool = True, deadline_s: float | None = None) -> LoopRun:
-    """Start n agents, warm up, then measure `frames` frames at rate_hz.
+             label: str = "loop", router_process: bool = True, deadline_s: float | None = None,
+             agent_kind: str = "vsfleet") -> LoopRun:
+    """Start n agents (``agent_kind``: see agent_command), warm up, then measure `frames` frames at rate_hz.
 
     The router is its own `vsfleet router` process, as on a deployment (or, with router_process=False,
     embedded in this process's session, whose Python callbacks then share zenoh's threads with routing)."""
@@ -262,10 +278,10 @@ def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2
                 sim_s.declare_subscriber(keys.state(), sink.on_state)]
         ids = mission.robot_ids
         frame_pub = tracker_s.declare_publisher(keys.frame("bench"), **STREAM_QOS)
+        t_spawn = time.monotonic()
         for r in ids:
-            procs[r] = children.start(f"agent-{r}", child_command(
-                "agent", "--robot", r, "--fleet", fleet, "--dt", repr(period),
-                *(["--deadline", repr(deadline_s)] if deadline_s else []), *zenoh_flags(endpoint)), cwd=ROOT)
+            procs[r] = children.start(f"agent-{r}", agent_command(agent_kind, r, fleet, period, endpoint,
+                                                                  deadline_s), cwd=ROOT)
         t_start = time.monotonic()
         want = {keys.alive("agent", r) for r in ids}
         _wait(lambda: want <= alive or any(p.poll() is not None for p in procs.values()),
@@ -309,6 +325,8 @@ def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2
             next_t = frame(next_t)
             if time.monotonic() > deadline:
                 raise TimeoutError(f"only {len(sink.wheels)}/{n} agents answered; logs in {log_dir}")
+        startup_s = time.monotonic() - t_spawn
+        log(f"[{label}] every agent answered {startup_s:.1f} s after they were started")
         for _ in range(int(warmup_s * rate_hz)):
             next_t = frame(next_t)
 
@@ -390,7 +408,8 @@ def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2
         states=n_states, agreed_frames=agreed, all_ran_frames=len(all_ran), agent_cpu_s_per_tick=np.array([(cpu1[r] - cpu0[r]) / measured for r in procs]),
         agent_cpu_s_per_answer=np.array([(cpu1[r] - cpu0[r]) / max(1, per_robot[r]) for r in procs]),
         agent_rss_mib=rss, bench_cpu_s_per_frame=bench_cpu / measured,
-        others_cores=max(0.0, (busy1 - busy0) - own) / max(wall_cores, 1e-9), wall_s=wall)
+        others_cores=max(0.0, (busy1 - busy0) - own) / max(wall_cores, 1e-9), wall_s=wall,
+        startup_s=startup_s, agent_kind=agent_kind)
 
 
 # ---------------------------------------------------------------- the zenoh floor
@@ -481,16 +500,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--rate", type=float, default=30.0)
     p.add_argument("--frames", type=int, default=300)
     p.add_argument("--floor", action="store_true", help="also measure the zenoh floor")
+    p.add_argument("--agent", choices=("vsfleet", "trivial"), default="vsfleet",
+                   help="the agents: vsfleet's own, or the trivial floor (bench/trivial_agent.py)")
     a = p.parse_args(argv)
     if a.floor:
         for f in run_floor([("back to back", None, 2000), ("30 Hz", 30.0, 300)]):
             print(f.label, {k: round(v * 1e3, 3) for k, v in percentiles_s(f.rtt_s).items()}, "lost", f.lost)
-    r = run_loop(a.robots, a.rate, a.frames)
-    print({k: round(v * 1e3, 3) for k, v in percentiles_s(r.latency_s).items()}, "ms; missed", r.missed,
+    r = run_loop(a.robots, a.rate, a.frames, agent_kind=a.agent)
+    print(a.agent, {k: round(v * 1e3, 3) for k, v in percentiles_s(r.latency_s).items()}, "ms; missed", r.missed,
           "late", r.late, "incomplete", r.incomplete, "/", r.states, "cpu/tick ms",
           round(1e3 * float(r.agent_cpu_s_per_tick.mean()), 3), "rss MiB", round(float(r.agent_rss_mib.mean()), 1),
           "bench cpu/frame ms", round(1e3 * r.bench_cpu_s_per_frame, 3), "others cores", round(r.others_cores, 2),
-          "agree", f"{r.agreed_frames}/{r.all_ran_frames} of {r.frames}", "holds", r.holds)
+          "agree", f"{r.agreed_frames}/{r.all_ran_frames} of {r.frames}", "holds", r.holds, "startup s", round(r.startup_s, 1))
     return 0
 
 

@@ -44,3 +44,35 @@ PyMethodDef vs_py_math_methods[] = {
     {"wrap_angle", (PyCFunction)(void (*)(void))py_wrap, METH_FASTCALL, "wrap_angle(th) -> [-pi, pi)."},
     {NULL, NULL, 0, NULL},
 };
+
+#include "vs_golden.h"
+
+/* golden_call(name, inputs) -> list of floats: one flat golden entry (vs_golden.c). */
+static PyObject *py_golden_call(PyObject *m, PyObject *const *args, Py_ssize_t nargs)
+{
+    (void)m;
+    if (nargs != 2 || !PyUnicode_Check(args[0])) {
+        PyErr_SetString(PyExc_TypeError, "golden_call(name: str, inputs: float64 buffer)");
+        return NULL;
+    }
+    const golden_entry *e = golden_find(PyUnicode_AsUTF8(args[0]));
+    if (e == NULL) return PyErr_Format(PyExc_ValueError, "no golden entry %R", args[0]);
+    Py_buffer v;
+    if (vs_py_doubles(args[1], &v, -1, 0, "inputs") < 0) return NULL;
+    long n_in = (long)(v.len / 8), cap = n_in * 4 + 4096;
+    double *out = PyMem_Malloc(sizeof(double) * (size_t)cap);
+    if (out == NULL) { PyBuffer_Release(&v); return PyErr_NoMemory(); }
+    long n_out = e->run((const double *)v.buf, n_in, out, cap);
+    PyBuffer_Release(&v);
+    if (n_out < 0) { PyMem_Free(out); return PyErr_Format(PyExc_ValueError, "golden entry %R refused its inputs", args[0]); }
+    PyObject *list = PyList_New(n_out);
+    for (long i = 0; list && i < n_out; i++) PyList_SET_ITEM(list, i, PyFloat_FromDouble(out[i]));
+    PyMem_Free(out);
+    return list;
+}
+
+PyMethodDef vs_py_golden_methods[] = {
+    {"golden_call", (PyCFunction)(void (*)(void))py_golden_call, METH_FASTCALL,
+     "golden_call(name, inputs) -> list: one flat entry of the golden vectors (vs_golden.c)."},
+    {NULL, NULL, 0, NULL},
+};

@@ -53,7 +53,7 @@ static int rem_pio2(double x, double y[2])
 {
     double fn = x * invpio2 + 0x1.8p52;
     fn = fn - 0x1.8p52;                       /* round to nearest, no libm */
-    int n = (int)(int64_t)fn;
+    int n = (int)((int64_t)fn & 3);           /* the quadrant is all the callers use */
     double r = x - fn * pio2_1, w = fn * pio2_1t;
     int j = (int)((high_word(x) >> 20) & 0x7ff);
     y[0] = r - w;

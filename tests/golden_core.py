@@ -1,0 +1,76 @@
+"""Golden vectors of the compiled core: flat calls and their outputs as C99 hex floats.
+
+``python tests/golden_core.py`` records tests/data/golden-core.txt from the core as built
+here (vsfleet._core.golden_call). Each line is ``<entry> <n_in> <in...> <n_out> <out...>``
+(vsfleet/_core/vs_golden.c packs and unpacks them). tests/test_core_golden.py replays them
+through the binding, through a plain C driver built at -O0, -O2 and -O3, and with numpy's
+AVX-512 paths off; ``make test-cross`` replays them on aarch64 under qemu. Record again only
+on purpose (a change of the core's arithmetic), and say so in the commit.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+PATH = ROOT / "tests" / "data" / "golden-core.txt"
+
+
+def trig_records(seed: int = 11) -> list[tuple[str, list[float]]]:
+    """Arguments for the core's own elementary functions: random, special and huge values."""
+    rng = random.Random(seed)
+    special = [0.0, -0.0, 1e-300, -1e-300, 2.0 ** -30, math.pi / 4, math.pi / 2, math.pi, -math.pi,
+               2 * math.pi, 1e6, -1e6, 1e15, 1e300, -1e300]
+    angles = special + [rng.uniform(-10.0, 10.0) for _ in range(2000)] + [rng.uniform(-1e5, 1e5) for _ in range(200)]
+    pairs: list[float] = []
+    for y, x in [(0.0, -1.0), (-0.0, -1.0), (0.0, 0.0), (1.0, 0.0), (-1.0, 0.0), (1e-300, 1e300),
+                 (1e300, 1e-300), (-1e300, -1e-300), (1.0, 1.0), (1.0, -1.0)]:
+        pairs += [y, x]
+    for _ in range(2000):
+        pairs += [rng.gauss(0.0, 1.0), rng.gauss(0.0, 1.0)]
+    return [("sin", angles), ("cos", angles), ("atan2", pairs), ("wrap_angle", angles)]
+
+
+def records() -> list[tuple[str, list[float]]]:
+    """Every recorded call: (entry, flat inputs)."""
+    from step_core_records import step_records  # noqa: PLC0415 - the step's records (tests/)
+    return trig_records() + step_records()
+
+
+def line(entry: str, inputs, outputs) -> str:
+    return " ".join([entry, str(len(inputs)), *(float(v).hex() for v in inputs),
+                     str(len(outputs)), *(float(v).hex() for v in outputs)])
+
+
+def read(path: Path = PATH) -> list[tuple[str, list[float], list[float]]]:
+    """The recorded (entry, inputs, outputs)."""
+    out = []
+    for text in path.read_text().splitlines():
+        if not text or text.startswith("#"):
+            continue
+        f = text.split()
+        n_in = int(f[1])
+        ins = [float.fromhex(v) for v in f[2:2 + n_in]]
+        n_out = int(f[2 + n_in])
+        outs = [float.fromhex(v) for v in f[3 + n_in:3 + n_in + n_out]]
+        out.append((f[0], ins, outs))
+    return out
+
+
+def main() -> None:
+    from vsfleet import _core
+    lines = ["# golden vectors of vsfleet's compiled core: tests/golden_core.py (entry n_in in... n_out out...)"]
+    for entry, inputs in records():
+        lines.append(line(entry, inputs, _core.golden_call(entry, np.asarray(inputs, dtype=float))))
+    PATH.write_text("\n".join(lines) + "\n")
+    print(f"wrote {len(lines) - 1} records to {PATH}")
+
+
+if __name__ == "__main__":
+    import sys
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    main()

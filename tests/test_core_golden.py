@@ -1,0 +1,65 @@
+"""One set of golden vectors for the compiled core (tests/data/golden-core.txt), reproduced bit for bit:
+through the Python binding as built, through a plain C driver built at -O0, -O2 and -O3, and with
+numpy's AVX-512 paths switched off (`make test-cross` replays the same file on aarch64 under qemu)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from vsfleet import _core
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from golden_core import PATH, read  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+CORE = ROOT / "vsfleet" / "_core"
+PURE_C = sorted(p for p in CORE.glob("*.c") if not p.name.startswith("py_") and p.name != "module.c")
+RECORDS = read(PATH)
+
+
+def test_the_golden_file_covers_every_entry_the_core_offers():
+    names = {r[0] for r in RECORDS}
+    assert {"sin", "cos", "atan2", "wrap_angle"} <= names
+    assert len(RECORDS) >= 4
+
+
+@pytest.mark.parametrize("index", range(len(RECORDS)), ids=[f"{r[0]}-{i}" for i, r in enumerate(RECORDS)])
+def test_the_binding_as_built_reproduces_every_record_bit_for_bit(index):
+    entry, inputs, want = RECORDS[index]
+    got = _core.golden_call(entry, np.asarray(inputs, dtype=float))
+    assert len(got) == len(want)
+    bad = [i for i, (g, w) in enumerate(zip(got, want)) if g.hex() != w.hex()]
+    assert not bad, f"{entry}: {len(bad)} outputs differ, first #{bad[0]}: {got[bad[0]].hex()} != {want[bad[0]].hex()}"
+
+
+@pytest.mark.integration  # starts gcc and the driver
+@pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
+@pytest.mark.parametrize("opt", ["-O0", "-O2", "-O3"])
+def test_a_plain_c_driver_built_at_each_optimisation_level_reproduces_the_records(opt, tmp_path):
+    exe = tmp_path / f"golden{opt}"
+    subprocess.run(["gcc", "-std=c99", opt, "-ffp-contract=off", "-fno-fast-math", f"-I{CORE}", "-o", str(exe),
+                    *map(str, PURE_C), str(ROOT / "tests" / "cdriver" / "golden_driver.c"), "-lm"],
+                   check=True, capture_output=True, timeout=120)
+    run = subprocess.run([str(exe), str(PATH)], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert f"{len(RECORDS)} records, 0 mismatched" in run.stdout
+
+
+@pytest.mark.integration  # a child interpreter
+def test_the_records_hold_with_numpys_avx512_paths_switched_off():
+    """numpy reads NPY_DISABLE_CPU_FEATURES once, at import: a child interpreter replays the records."""
+    env = dict(os.environ, NPY_DISABLE_CPU_FEATURES="X86_V4 AVX512_ICL AVX512_SPR")
+    code = ("import sys, numpy as np; sys.path.insert(0, 'tests'); from golden_core import read, PATH;"
+            "from vsfleet import _core;"
+            "bad = [e for e, i, w in read(PATH) if [g.hex() for g in _core.golden_call(e, np.asarray(i, dtype=float))]"
+            " != [v.hex() for v in w]]; print('mismatched', len(bad), bad[:3])")
+    run = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    assert "mismatched 0 " in run.stdout, run.stdout
