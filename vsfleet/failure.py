@@ -51,7 +51,9 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
+from . import _core
 from .errors import VsfleetValueError
+from .wire import EVENT_KINDS as _EVENT_KINDS
 
 
 @dataclass(frozen=True)
@@ -219,6 +221,37 @@ def failure_step(policy: FailurePolicy, state: FailureState, robots: Sequence[st
                  expected_step_m: np.ndarray, step_s: float | None = None,
                  max_gap_s: float = math.inf) -> tuple[FailureState, list[Decision]]:
     """Advance the failure rule by one frame at tracker time t [s], for every robot at once.
+
+    The compiled core (vsfleet/_core/vs_failure.c) runs the rule of :func:`failure_step_reference`,
+    which documents the arguments; it computes the same bits. It also refuses what the reference
+    would carry along: a non-finite t, step_s or max_gap_s, a NaN deviation of a seen robot, a
+    non-finite (NonFiniteError) or beyond 1e9 m (VsfleetValueError) position or expected step of
+    a fresh robot, step_s <= 0 and max_gap_s < 0 (VsfleetValueError).
+    """
+    n = len(robots)
+    seen = np.ascontiguousarray(seen, dtype=bool)
+    fresh = np.ascontiguousarray(fresh, dtype=bool)
+    xy = np.ascontiguousarray(xy_world, dtype=float)
+    dev = np.ascontiguousarray(deviations_m, dtype=float)
+    exp_m = np.ascontiguousarray(expected_step_m, dtype=float)
+    if (seen.shape != (n,) or fresh.shape != (n,) or xy.shape != (n, 2) or dev.shape != (n,)
+            or exp_m.shape != (n, 2)):
+        raise VsfleetValueError("failure_step: arrays must have n rows, one per robot")
+    # the new state: one copy of each array, updated in place by the core
+    new = [a.copy() for a in (state.since_t, state.failed, state.dropped, state.last_t, state.last_xy,
+                              state.last_expected, state.window_t, state.window_nm, state.head,
+                              state.in_window, state.sums_nm)]
+    made = _core.failure_step(policy, t, seen, fresh, xy, dev, exp_m, step_s, max_gap_s, *new)
+    decisions = [Decision(t, robots[i], _EVENT_KINDS[k], d) for i, k, d in made] if made else []
+    return FailureState(*new), decisions
+
+
+def failure_step_reference(policy: FailurePolicy, state: FailureState, robots: Sequence[str], t: float,
+                           seen: np.ndarray, fresh: np.ndarray, xy_world: np.ndarray, deviations_m: np.ndarray,
+                           expected_step_m: np.ndarray, step_s: float | None = None,
+                           max_gap_s: float = math.inf) -> tuple[FailureState, list[Decision]]:
+    """Advance the failure rule by one frame at tracker time t [s], for every robot at once
+    (numpy; the readable reference of the compiled core behind :func:`failure_step`).
 
     seen (n,): in the frame; fresh (n,): its pose is of this very frame (only those enter the
     motion test); xy_world (n, 2) [m]; deviations_m (n,) [m]: distance to the point it is judged
