@@ -223,13 +223,20 @@ def tracker_args(scenario: Scenario, scenario_path: str, kind: str | None, camer
                 "--latency", str(tr.latency_s), "--drop", str(tr.drop_prob)]
     if kind != "camera":
         raise ValueError(f"--tracker must be sim or camera, got {kind!r}")
-    try:
-        from vsfleet.tracker.camera import render_loop_args
-    except ImportError as exc:
-        raise ValueError(f"--tracker camera needs OpenCV (pip install -e '.[camera]'): {exc}") from None
     if camera is None:
         camera = (Path(scenario_path).parent / tr.camera).resolve() if tr.camera is not None else DEFAULT_CAMERA
-    return ["camera", *render_loop_args(camera, scenario.mission.robot_ids, run_dir), *common]
+    calibration = Path(run_dir) / "calibration.json"
+    # the tracker's own command calibrates the synthetic camera on its rendered references (a tool
+    # starts programs, it does not import them): its one-line error (no OpenCV, no [sim_camera],
+    # a robot no marker maps to) is this run's
+    done = subprocess.run(child_command("tracker", "calibrate", "--camera", str(camera), "--source", "render",
+                                        "--robots", ",".join(scenario.mission.robot_ids), "--out", str(calibration)),
+                          capture_output=True, text=True, stdin=subprocess.DEVNULL, timeout=120)
+    if done.returncode != 0:
+        lines = [line for line in done.stderr.splitlines() if line.strip()]
+        raise ValueError(f"--tracker camera: {lines[-1] if lines else f'calibration failed ({done.returncode})'}")
+    log.info("%s", done.stdout.strip().replace("\n", "; "))
+    return ["camera", "--camera", str(camera), "--calibration", str(calibration), "--source", "render", *common]
 
 
 def run(scenario_path: str, duration_s: float | None = None, out_dir: str = "runs",

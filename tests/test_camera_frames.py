@@ -23,7 +23,8 @@ from vsfleet.zglue.lifecycle import StopFlag  # noqa: E402
 from vsfleet.fleetctl.run import DEFAULT_CAMERA, tracker_args  # noqa: E402
 from vsfleet.zglue.scenario_file import load_scenario  # noqa: E402
 from vsfleet.tracker.calib import FloorCalibration  # noqa: E402
-from vsfleet.tracker.camera import build_parser, render_loop_args, run_loop  # noqa: E402
+from vsfleet.tracker.calibrate import calibrate_render  # noqa: E402
+from vsfleet.tracker.camera import build_parser, run_loop  # noqa: E402
 from vsfleet.tracker.markers import CameraTracker, ConfigError  # noqa: E402
 from vsfleet.tracker.render import robot_scene  # noqa: E402
 from vsfleet.scenario import ScenarioError, scenario_from_dict  # noqa: E402
@@ -74,21 +75,24 @@ def test_every_camera_frame_is_published_once_as_a_frame_with_the_poses_it_gave(
             assert abs(math.remainder(f.poses[r][2] - th, math.tau)) < 0.02
 
 
+@pytest.mark.integration  # `vsfleet tracker calibrate --source render` runs as a child
 def test_the_render_loop_is_calibrated_on_the_rendered_references_and_runs_as_the_camera_tracker(tmp_path):
-    args = render_loop_args(CONFIG, ("r1", "r2", "r3"), tmp_path)
+    sim = load_scenario(SIM_SCENARIO)
+    args = tracker_args(sim, str(SIM_SCENARIO), "camera", str(CONFIG), tmp_path)  # `vsfleet tracker calibrate`
     cal = FloorCalibration.load(tmp_path / "calibration.json")
     assert cal.error_mm["max"] < 3.0  # mm on the floor (measured 1.7 mm)
-    parsed = build_parser().parse_args([*args, "--fleet", "demo"])
+    parsed = build_parser().parse_args(args[1:])
     assert (parsed.source, Path(parsed.camera), Path(parsed.calibration)) == (
         "render", CONFIG, tmp_path / "calibration.json")
 
 
 def test_the_render_loop_refuses_a_robot_the_camera_cannot_see(tmp_path):
     with pytest.raises(ConfigError, match=r"no marker maps to robot\(s\) \['r9'\]"):
-        render_loop_args(CONFIG, ("r1", "r9"), tmp_path)
-    assert not (tmp_path / "calibration.json").exists()
+        calibrate_render(CONFIG, ("r1", "r9"))
+    assert calibrate_render(CONFIG, ("r1", "r2", "r3")).error_mm["max"] < 3.0
 
 
+@pytest.mark.integration  # `vsfleet tracker calibrate --source render` runs as a child
 def test_vsfleet_run_starts_the_scenarios_tracker_unless_told_otherwise(tmp_path):
     cam = load_scenario(CAMERA_SCENARIO)
     assert cam.tracker.kind == "camera"

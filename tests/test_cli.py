@@ -196,3 +196,14 @@ def test_a_signal_that_lands_inside_a_log_call_while_waiting_still_stops_the_wai
             worker.join(timeout=30)
         router.close()
     assert not any(t.name == "zenoh-open" for t in threading.enumerate())
+
+
+def test_every_command_dispatches_to_an_installed_vsfleet_module():
+    """Each target is a vsfleet.* module the wheel installs (a top-level ``fleetctl.bridge_ros2`` imported
+    only from the checkout's root), found without importing it, in a program or a tool."""
+    import importlib.util
+
+    for name, (module, _) in cli.COMMANDS.items():
+        assert module.split(".")[:2] in (["vsfleet", room] for room in ("agent", "simfleet", "tracker", "fleetctl")), \
+            (name, module)
+        assert importlib.util.find_spec(module) is not None, (name, module)

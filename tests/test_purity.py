@@ -36,3 +36,92 @@ def test_programs_are_imported_under_the_vsfleet_namespace(path):
                  else [node.module] if isinstance(node, ast.ImportFrom) and node.module and node.level == 0 else [])
         bad += [n for n in names if n.split(".")[0] in PROGRAMS]
     assert not bad, f"{path.relative_to(ROOT)} imports {bad}: use vsfleet.{bad[0]}"
+
+
+# ---------------------------------------------------------------- the rooms and what each may import
+# (docs/architecture.md). Every import counts, also one inside a function.
+
+ROOMS = {  # room -> its folder in the repository, installed as vsfleet.<room> (the core: vsfleet itself)
+    "core": "vsfleet", "zglue": "zglue", "agent": "agent", "simfleet": "simfleet", "tracker": "tracker",
+    "fleetctl": "fleetctl",
+}
+MAY_IMPORT = {
+    "core": {"core"},                          # the pure core (and its compiled part vsfleet._core)
+    "zglue": {"core", "zglue"},                # the Zenoh glue: sessions, lifecycle, peers, scenario files
+    "agent": {"core", "zglue", "agent"},       # programs: the core, the glue and their own modules
+    "simfleet": {"core", "zglue", "simfleet"},
+    "tracker": {"core", "zglue", "tracker"},
+    "fleetctl": {"core", "zglue", "fleetctl"},  # tools start programs as processes, never import them
+}
+# the one program that composes another: simfleet.offline runs the agents' own code in one process
+# (offline runs, bench and tests), without zenoh
+EXCEPTIONS = {("simfleet/offline.py", "agent")}
+
+
+def module_name(path: Path) -> str:
+    rel = path.relative_to(ROOT).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts if parts[0] == "vsfleet" else ["vsfleet", *parts])
+
+
+def room_of(module: str) -> str | None:
+    """The room of an absolute vsfleet.* module name (None: not vsfleet's)."""
+    parts = module.split(".")
+    if parts[0] != "vsfleet":
+        return None
+    return parts[1] if len(parts) > 1 and parts[1] in ROOMS and parts[1] != "core" else "core"
+
+
+def vsfleet_imports(path: Path, text: str | None = None) -> set[str]:
+    """Every vsfleet.* module ``path`` (or ``text`` as if it were there) imports, relative imports resolved."""
+    name = module_name(path)
+    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text() if text is None else text)):
+        if isinstance(node, ast.Import):
+            out |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            base = package.split(".")
+            if node.level:
+                base = base[:len(base) - node.level + 1]
+                module = ".".join(base + ([node.module] if node.module else []))
+            else:
+                module = node.module
+            out.add(module)
+            out |= {f"{module}.{a.name}" for a in node.names}  # `from . import zconf` imports a module
+    return {m for m in out if m.split(".")[0] == "vsfleet"}
+
+
+ROOM_SOURCES = sorted((room, p) for room, d in ROOMS.items() for p in (ROOT / d).rglob("*.py"))
+
+
+@pytest.mark.parametrize("room,path", ROOM_SOURCES, ids=lambda x: str(x.relative_to(ROOT)) if isinstance(x, Path) else x)
+def test_each_room_imports_only_what_it_may(room, path):
+    rel = str(path.relative_to(ROOT))
+    bad = sorted(m for m in vsfleet_imports(path)
+                 if room_of(m) not in MAY_IMPORT[room] and (rel, room_of(m)) not in EXCEPTIONS)
+    assert not bad, f"{rel} ({room}) imports {bad}: it may import only {sorted(MAY_IMPORT[room])}"
+
+
+@pytest.mark.parametrize("room", [r for r in ROOMS if r != "core"])
+def test_no_two_modules_of_a_room_import_each_other(room):
+    """No import cycle inside a program, a tool or the glue (tracker.calibrate and tracker.camera did)."""
+    files = {module_name(p): p for p in (ROOT / ROOMS[room]).rglob("*.py")}
+    graph = {m: {i for i in vsfleet_imports(p) if i in files and i != m} for m, p in files.items()}
+
+    def reaches(start: str, goal: str, seen: set[str]) -> bool:
+        return any(n == goal or (n not in seen and not seen.add(n) and reaches(n, goal, seen)) for n in graph[start])
+
+    package = f"vsfleet.{room}"
+    cycles = sorted((a, b) for a in graph for b in graph[a] if package not in (a, b) and reaches(b, a, set()))
+    assert not cycles, f"import cycles in {room}: {cycles}"
+
+
+def test_the_import_rules_catch_a_program_importing_a_tool():
+    """The rules above do fail: a program's module that imports a tool (here inside a function) is refused."""
+    imported = vsfleet_imports(ROOT / "agent" / "probe.py",
+                               "def f():\n    from vsfleet.fleetctl import run\n    from ..fleetctl import plot\n")
+    assert {"vsfleet.fleetctl.run", "vsfleet.fleetctl.plot"} <= imported
+    assert {room_of(m) for m in imported} - MAY_IMPORT["agent"] == {"fleetctl"}

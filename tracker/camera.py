@@ -22,7 +22,6 @@ import argparse
 import json
 import logging
 import math
-import re
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -37,22 +36,21 @@ from vsfleet.wire import FrameMsg, PoseMsg
 from .calib import CalibrationError, FloorCalibration
 from .markers import CameraConfig, CameraTracker, ConfigError, FrameError, load_config
 from .render import Renderer, TruthBook, robot_scene, sim_camera_from_dict
+from .sources import (  # noqa: F401 (IMAGE_SUFFIXES and gstreamer_available: re-exported)
+    IMAGE_SUFFIXES,
+    CameraOpenError,
+    gstreamer_available,
+    is_live,
+    open_capture,
+    quiet_opencv,
+    source_kind,
+)
 
 log = logging.getLogger("vsfleet.tracker.camera")
 
 TRUTH_MAX_AGE_S = 0.1
 STATS_EVERY_S = 10.0
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".pgm", ".ppm")
-_INDEX = re.compile(r"[0-9]+")
-_PIPELINE = re.compile(r"!\s*appsink\b")
 
-
-class CameraOpenError(RuntimeError):
-    """The camera, file or stream cannot be opened. ``fatal``: do not retry (a video file)."""
-
-    def __init__(self, message: str, fatal: bool = False) -> None:
-        super().__init__(message)
-        self.fatal = fatal
 
 
 class FrameReadError(RuntimeError):
@@ -70,41 +68,6 @@ class BrokenVideo(RuntimeError):
 class Source(Protocol):
     def read(self) -> tuple[np.ndarray, float] | None: ...  # (frame, capture time [s]); None: no frame now
     def close(self) -> None: ...
-
-
-def source_kind(spec: str) -> str:
-    """What ``--source`` names: 'render', 'index', 'device', 'pipeline', 'url' or 'file'."""
-    if spec == "render":
-        return "render"
-    if _INDEX.fullmatch(spec):
-        return "index"
-    if spec.startswith("/dev/"):
-        return "device"
-    if _PIPELINE.search(spec):
-        return "pipeline"
-    if "://" in spec:
-        return "url"
-    return "file"
-
-
-def is_live(spec: str, force: bool = False) -> bool:
-    """A live source: its frames are timed by the clock at grab, and a failure is a disconnect (retried).
-    Everything but a video file is live; ``force`` (``--live``) makes any source live."""
-    return force or source_kind(spec) != "file"
-
-
-def gstreamer_available() -> bool:
-    return bool(cv2.videoio_registry.hasBackend(cv2.CAP_GSTREAMER))
-
-
-def open_capture(spec: str) -> cv2.VideoCapture:
-    """cv2.VideoCapture of a camera index, a GStreamer pipeline, or a device, URL or file path."""
-    kind = source_kind(spec)
-    if kind == "index":
-        return cv2.VideoCapture(int(spec))
-    if kind == "pipeline":
-        return cv2.VideoCapture(spec, cv2.CAP_GSTREAMER)
-    return cv2.VideoCapture(spec)
 
 
 class VideoSource:
@@ -342,12 +305,6 @@ def run_loop(open_source: Callable[[], Source], tracker: CameraTracker,
     return stats
 
 
-def quiet_opencv(verbose: bool) -> None:
-    """OpenCV's own warnings (a camera that does not open, ...) only with --verbose; ours say it once."""
-    if not verbose:
-        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
-
-
 def video_t0(spec: str, t0_s: float | None) -> float | None:
     """The capture time of a video's frame 0: ``t0_s``, else its ``<video>.json`` sidecar, else None."""
     if t0_s is not None or is_live(spec):
@@ -430,35 +387,6 @@ def run_camera_tracker(conf, config: CameraConfig, calibration: FloorCalibration
     log.info("camera tracker %s stopping after %s, %d rejected", tracker.src, stats.summary(),
              tracker.rejections.count)
     return stats
-
-
-def render_loop_args(camera: str | Path, robots: tuple[str, ...], out_dir: Path) -> list[str]:
-    """Prepare the camera loop over the synthetic camera of ``camera`` (render -> detect -> frames).
-
-    Calibrates that camera on its rendered reference markers, writes out_dir/calibration.json,
-    and returns the arguments of `vsfleet tracker camera` (without --fleet, --rate and the zenoh
-    flags). ConfigError when the config has no [sim_camera] or maps no marker to one of ``robots``.
-    """
-    from .calibrate import calibrate_frames
-    from .render import reference_scene
-
-    config = load_config(camera)
-    if config.sim_camera is None:
-        raise ConfigError(f"{camera}: no [sim_camera] table, so nothing to render for the camera loop")
-    mapped = {m.robot for m in config.markers.values()}
-    missing = sorted(set(robots) - mapped)
-    if missing:
-        raise ConfigError(f"{camera}: no marker maps to robot(s) {missing} (its [markers] map "
-                          f"{sorted(mapped)}): the camera could not see them")
-    renderer = Renderer(sim_camera_from_dict(config.sim_camera, f"{camera}: [sim_camera]"), config.dictionary)
-    calibration = calibrate_frames([renderer.render(reference_scene(config), 0.0)], config,
-                                   renderer.camera.intrinsics)
-    out = Path(out_dir) / "calibration.json"
-    calibration.save(out)
-    e = calibration.error_mm
-    log.info("camera %s calibrated on its rendered references: reprojection error mean %.2f mm, max %.2f mm",
-             config.src, e["mean"], e["max"])
-    return ["--camera", str(camera), "--calibration", str(out), "--source", "render"]
 
 
 def build_parser() -> argparse.ArgumentParser:
