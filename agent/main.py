@@ -26,7 +26,7 @@ import zenoh
 from vsfleet.zglue.lifecycle import Rejections, StopFlag, wall_clock
 from vsfleet.zglue.zconf import (
     RELIABLE_QOS,
-    STREAM_QOS,
+    COMMAND_QOS,
     TELEMETRY_QOS,
     add_zenoh_args,
     init_logging,
@@ -340,7 +340,7 @@ def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFla
         return cb
 
     with open_session(conf) as session:
-        cmd_pub = session.declare_publisher(keys.cmd(robot), **STREAM_QOS)
+        cmd_pub = session.declare_publisher(keys.cmd(robot), **COMMAND_QOS)
         state_pub = session.declare_publisher(keys.state(robot), **TELEMETRY_QOS)
         event_pub = session.declare_publisher(keys.event(robot), **RELIABLE_QOS)
         agent = Agent(robot, keys, cmd_pub.put, state_pub.put, dt_s=dt_s, ttl_s=ttl_s,

@@ -230,11 +230,12 @@ def agent_command(kind: str, robot: str, fleet: str, period_s: float, endpoint: 
                   deadline_s: float | None = None) -> list[str]:
     """The command line of one agent of the bench fleet: ``vsfleet`` (the real agent) or ``trivial``
     (bench/trivial_agent.py: decode the frame, answer a command and a state; the floor)."""
-    if kind == "trivial":
+    express = {"trivial": "agent", "trivial-express": "on", "trivial-batched": "off"}
+    if kind in express:  # trivial-express / -batched: the commands' and states' QoS forced (fan-in runs)
         return [sys.executable, "-m", "bench.trivial_agent", "--robot", robot, "--fleet", fleet,
-                *zenoh_flags(endpoint)]
+                "--express", express[kind], *zenoh_flags(endpoint)]
     if kind != "vsfleet":
-        raise ValueError(f"agent kind must be 'vsfleet' or 'trivial', got {kind!r}")
+        raise ValueError(f"agent kind must be 'vsfleet' or 'trivial[-express|-batched]', got {kind!r}")
     return child_command("agent", "--robot", robot, "--fleet", fleet, "--dt", repr(period_s),
                          *(["--deadline", repr(deadline_s)] if deadline_s else []), *zenoh_flags(endpoint))
 
@@ -500,7 +501,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--rate", type=float, default=30.0)
     p.add_argument("--frames", type=int, default=300)
     p.add_argument("--floor", action="store_true", help="also measure the zenoh floor")
-    p.add_argument("--agent", choices=("vsfleet", "trivial"), default="vsfleet",
+    p.add_argument("--agent", choices=("vsfleet", "trivial", "trivial-express", "trivial-batched"), default="vsfleet",
                    help="the agents: vsfleet's own, or the trivial floor (bench/trivial_agent.py)")
     a = p.parse_args(argv)
     if a.floor:

@@ -22,7 +22,7 @@ import zenoh
 
 from vsfleet.zglue.lifecycle import Rejections, StopFlag, pace, wall_clock
 from vsfleet.zglue.scenario_file import load_scenario
-from vsfleet.zglue.zconf import TELEMETRY_QOS, add_zenoh_args, init_logging, open_session, zenoh_config
+from vsfleet.zglue.zconf import TRUTH_QOS, add_zenoh_args, init_logging, open_session, zenoh_config
 from vsfleet.geometry import Pose2
 from vsfleet.scenario import Scenario
 from vsfleet.wire import Keys, TruthMsg, decode_cmd, decode_fault, encode
@@ -185,7 +185,7 @@ def run_sim(conf: zenoh.Config, scenario: Scenario, stop: StopFlag | None = None
     fleet = Fleet(scenario, keys, t0=clock())
     truth_every = max(1, round(scenario.sim.rate_hz / scenario.sim.truth_rate_hz))
     with open_session(conf) as session:
-        pubs = {r: session.declare_publisher(keys.truth(r), **TELEMETRY_QOS) for r in fleet.robots}
+        pubs = {r: session.declare_publisher(keys.truth(r), **TRUTH_QOS) for r in fleet.robots}
         token = session.liveliness().declare_token(keys.alive("sim", "simfleet"))
         subs = [
             session.declare_subscriber(keys.cmd(), lambda s: fleet.on_cmd(
