@@ -34,8 +34,9 @@ COMMANDS = {
     "bridge ros2-poses": ("vsfleet.fleetctl.bridge_ros2_poses", "mocap PoseStamped/Odometry over rmw_zenoh -> frames"),
 }
 
+_WIDTH = max(map(len, COMMANDS))
 USAGE = ("usage: vsfleet [--version] [--verbose] COMMAND [ARGS...]\n\ncommands:\n" + "\n".join(
-    f"  {name:<14} {doc}" for name, (_, doc) in COMMANDS.items())
+    f"  {name:<{_WIDTH}}  {doc}" for name, (_, doc) in COMMANDS.items())
     + "\n\nvsfleet COMMAND --help describes a command's flags.")
 
 
