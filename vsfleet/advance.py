@@ -22,6 +22,7 @@ from typing import Sequence, Union
 
 import numpy as np
 
+from . import _core
 from .envelope import Envelope, Envelopes
 from .errors import ShapeError, VsfleetValueError
 from .geometry import Pose2, angle_diff
@@ -311,11 +312,12 @@ def compliance_scale(deviations_m, limits: StructureLimits) -> float:
     return min(1.0, max(0.0, (limits.comply_stop_m - worst) / span))
 
 
-def advance_structure(pose_fit: Pose2, goal: Goal, dt_s: float, limits: StructureLimits,
-                      template_xy: np.ndarray, envelopes: Envelopes | Sequence[Envelope],
-                      twist_prev: Twist2 | None = None, elapsed_s: float | None = None,
-                      headings_rad=None, deviations_m=None) -> AdvanceResult:
-    """Next desired structure pose, one ``dt_s`` after the fitted pose (paper eq 7).
+def advance_structure_reference(pose_fit: Pose2, goal: Goal, dt_s: float, limits: StructureLimits,
+                                template_xy: np.ndarray, envelopes: Envelopes | Sequence[Envelope],
+                                twist_prev: Twist2 | None = None, elapsed_s: float | None = None,
+                                headings_rad=None, deviations_m=None) -> AdvanceResult:
+    """Next desired structure pose, one ``dt_s`` after the fitted pose (paper eq 7): the readable
+    numpy reference of :func:`advance_structure` (which runs the compiled core, vs_advance.c).
 
     template_xy (n, 2) are the robots' points [m; structure frame], envelopes their limits
     (same order). Acceleration is bounded in one of two ways:
@@ -389,3 +391,92 @@ def advance_structure(pose_fit: Pose2, goal: Goal, dt_s: float, limits: Structur
     nxt = Pose2(pose_fit.x + twist.vx_m_s * dt_s, pose_fit.y + twist.vy_m_s * dt_s,
                 pose_fit.th + twist.w_rad_s * dt_s)
     return AdvanceResult(pose=nxt, twist=twist, scale=scale, at_goal=at_goal)
+
+
+# --- the compiled core behind advance_structure ------------------------------------------
+
+_GOAL_POSE, _GOAL_PATH, _GOAL_TWIST = 0, 1, 2   # vs_advance.h VS_GOAL_*
+_LIMIT_FIELDS = ("speed_max_m_s", "turn_rate_max_rad_s", "position_tolerance_m", "heading_tolerance_rad",
+                 "path_lookahead_m", "comply_full_m", "comply_stop_m", "settle_s", "turn_settle_s")
+_CACHE = "_vs_core"   # a frozen goal's / limits' packed form for the core, kept in its __dict__ (not a field)
+
+
+def _core_goal(goal) -> tuple[int, np.ndarray]:
+    """(VS_GOAL_* kind, float64 array of 3 * k doubles) of a goal, computed once per goal object."""
+    packed = goal.__dict__.get(_CACHE) if hasattr(goal, "__dict__") else None
+    if packed is not None:
+        return packed
+    if isinstance(goal, GoalTwist):
+        packed = (_GOAL_TWIST, np.array([goal.vx_m_s, goal.vy_m_s, goal.w_rad_s], dtype=float))
+    elif isinstance(goal, GoalPose):
+        packed = (_GOAL_POSE, np.array(goal.pose.as_tuple(), dtype=float))
+    elif isinstance(goal, GoalPath):
+        packed = (_GOAL_PATH, np.array([w.as_tuple() for w in goal.waypoints], dtype=float).reshape(-1))
+    else:
+        raise GoalError(f"unknown goal type {type(goal).__name__}")
+    packed[1].flags.writeable = False
+    object.__setattr__(goal, _CACHE, packed)
+    return packed
+
+
+def _core_limits(limits: StructureLimits) -> tuple:
+    packed = limits.__dict__.get(_CACHE)
+    if packed is None:
+        packed = tuple(float(getattr(limits, f)) for f in _LIMIT_FIELDS)
+        object.__setattr__(limits, _CACHE, packed)
+    return packed
+
+
+def _f64(a) -> np.ndarray:
+    """a as a C-contiguous float64 array, not copied when it already is one."""
+    if type(a) is np.ndarray and a.dtype == np.float64 and a.flags.c_contiguous:
+        return a
+    return np.ascontiguousarray(a, dtype=float)
+
+
+def _pose(x: float, y: float, th: float) -> Pose2:
+    """A Pose2 of an already wrapped th (the core wraps it once, as Pose2 does), without re-wrapping."""
+    p = object.__new__(Pose2)
+    p.__dict__.update(x=x, y=y, th=th)
+    return p
+
+
+def advance_structure(pose_fit: Pose2, goal: Goal, dt_s: float, limits: StructureLimits,
+                      template_xy: np.ndarray, envelopes: Envelopes | Sequence[Envelope],
+                      twist_prev: Twist2 | None = None, elapsed_s: float | None = None,
+                      headings_rad=None, deviations_m=None) -> AdvanceResult:
+    """Next desired structure pose, one ``dt_s`` after the fitted pose (paper eq 7), computed by the
+    compiled core (vsfleet/_core/vs_advance.c): arguments, errors and result as
+    :func:`advance_structure_reference` (within 1e-9 of it, the same at_goal), except that a
+    non-finite goal, template, twist_prev or elapsed_s, or an infinite heading or deviation (NaN
+    marks an unseen robot), is refused with NonFiniteError instead of spreading into the result.
+    """
+    tpl = _f64(template_xy)
+    if tpl.ndim != 2 or tpl.shape[1] != 2 or tpl.shape[0] == 0:
+        raise ShapeError(f"template_xy must have shape (n, 2) with n >= 1, got {tpl.shape}")
+    n = tpl.shape[0]
+    if type(envelopes) is not Envelopes:
+        envelopes = _as_envelopes(envelopes)
+    if len(envelopes) != n:
+        raise ShapeError(f"{len(envelopes)} envelopes for {n} template points")
+    if not (math.isfinite(dt_s) and dt_s > 0.0):
+        raise VsfleetValueError(f"dt_s must be finite and > 0, got {dt_s!r}")
+    x, y, th = pose_fit.x, pose_fit.y, pose_fit.th
+    if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(th)):
+        raise VsfleetValueError(f"pose_fit must be finite, got {pose_fit}")
+    kind, goal_v = _core_goal(goal)
+    if headings_rad is not None:
+        if type(headings_rad) is np.ndarray and headings_rad.dtype == np.float64 and headings_rad.flags.c_contiguous:
+            if headings_rad.shape != (n,):
+                raise ShapeError(f"headings_rad must have shape ({n},), got {headings_rad.shape}")
+        else:
+            headings_rad = _headings(headings_rad, n)
+    if deviations_m is not None:
+        deviations_m = _f64(deviations_m)
+        if deviations_m.shape != (n,):
+            raise ShapeError(f"deviations_m must have shape ({n},), got {deviations_m.shape}")
+    prev = None if twist_prev is None else (twist_prev.vx_m_s, twist_prev.vy_m_s, twist_prev.w_rad_s)
+    r = _core.advance(x, y, th, kind, goal_v, dt_s, _core_limits(limits), tpl, envelopes.wheel_base_m,
+                      envelopes.wheel_speed_max_m_s, envelopes.wheel_accel_max_m_s2, prev,
+                      None if elapsed_s is None else float(elapsed_s), headings_rad, deviations_m)
+    return AdvanceResult(pose=_pose(r[0], r[1], r[2]), twist=Twist2(r[3], r[4], r[5]), scale=r[6], at_goal=r[7])
