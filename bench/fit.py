@@ -23,11 +23,10 @@ import time
 import numpy as np
 from scipy.optimize import minimize
 
-from vsfleet.fit import fit_structure, structure_cost
+from vsfleet.fit import METRICS, fit_structure, structure_cost
 from vsfleet.geometry import Pose2
 
 SIZES = (3, 10, 100, 1000)
-METRICS = ("l1", "l2", "linf")
 # repetitions (ours, powell) per size: keeps the whole run well under two minutes
 REPS = {3: (500, 40), 10: (500, 40), 100: (60, 10), 1000: (10, 5)}
 NOISE_M = 0.05

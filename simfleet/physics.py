@@ -18,8 +18,10 @@ import numpy as np
 from vsfleet.geometry import Pose2
 from vsfleet.kinematics import integrate_arcs, wrap_angles
 from vsfleet.scenario import SimRobot
+from vsfleet.wire import FAULT_KINDS
 
-FAULT_CODES = {"none": 0, "stop": 1, "stall": 2, "slow": 3, "wheel": 4}
+FAULT_CODES = {kind: code for code, kind in enumerate(FAULT_KINDS)}  # the wire's order: none 0, stop 1, ...
+_STOP, _SLOW, _STALL, _WHEEL = (FAULT_CODES[k] for k in ("stop", "slow", "stall", "wheel"))
 
 
 @dataclass(frozen=True)
@@ -86,10 +88,10 @@ def step_robots(pose_world: np.ndarray, wheels_m_s: np.ndarray, cmd_m_s: np.ndar
     """
     u = np.where(np.asarray(cmd_fresh, dtype=bool)[:, None], cmd_m_s, 0.0) * params.gain
     active = (faults.kind != 0) & (t < faults.until_t)
-    halted = active & ((faults.kind == 1) | (faults.kind == 2))
+    halted = active & ((faults.kind == _STOP) | (faults.kind == _STALL))
     u = np.where(halted[:, None], 0.0, u)
-    u = np.where((active & (faults.kind == 3))[:, None], u * faults.factor[:, None], u)
-    u[:, 0] = np.where(active & (faults.kind == 4), u[:, 0] * faults.factor, u[:, 0])
+    u = np.where((active & (faults.kind == _SLOW))[:, None], u * faults.factor[:, None], u)
+    u[:, 0] = np.where(active & (faults.kind == _WHEEL), u[:, 0] * faults.factor, u[:, 0])
     vmax = params.speed_max_m_s[:, None]
     u = np.clip(u, -vmax, vmax)
     # a halted robot halts now (motor cut), not after a ramp

@@ -19,7 +19,7 @@ from vsfleet.errors import (
 from vsfleet.fit import CERT_TOL, FitResult, fit_structure, structure_cost
 from vsfleet.geometry import Pose2, angle_diff
 
-METRICS = ("l1", "l2", "linf")
+from vsfleet.fit import METRICS
 FAST = settings(max_examples=25, deadline=None)
 SLOW = settings(max_examples=12, deadline=None)
 

@@ -23,7 +23,9 @@ from typing import Any, Mapping
 import msgpack
 import numpy as np
 
+from .control import CONTROLLERS
 from .errors import VsfleetValueError
+from .fit import METRICS  # noqa: F401 (a mission's metric: one of the fit's; re-exported)
 
 NAME_RE = re.compile(r"^[A-Za-z0-9_-]+$")
 MAX_PAYLOAD_BYTES = 4096          # pose, cmd, state, truth, fault, event
@@ -32,9 +34,8 @@ MAX_FRAME_BYTES = 1 << 16         # a frame lists every robot a tracker sees (10
 MAX_ROBOTS = 1000
 MAX_ABS = 1e6           # any number field: |v| <= 1e6 (metres, seconds apart from t, m/s, rad)
 MAX_TTL_S = 5.0         # a command may keep a robot moving for at most this long
-CONTROLLER_NAMES = ("arc", "precision", "tracking", "turn_then_go")  # vsfleet.control.CONTROLLERS
+CONTROLLER_NAMES = tuple(sorted(CONTROLLERS))  # a mission's controller: one of vsfleet.control's
 FAULT_KINDS = ("none", "stop", "slow", "stall", "wheel")
-METRICS = ("l1", "l2", "linf")
 ON_FAILURE = ("hold", "drop", "rejoin")
 PROTOCOL_V = 1          # the telemetry version (field ``v``) this code writes and reads in full
 
