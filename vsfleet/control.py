@@ -25,9 +25,16 @@ from typing import Callable
 
 import numpy as np
 
+from . import _core
 from .envelope import Envelopes
 from .errors import ShapeError, VsfleetValueError
-from .kinematics import columns, integrate_arcs, limit_wheels_v, sinc_v, wrap_angles
+from .kinematics import (
+    columns,
+    integrate_arcs_reference as integrate_arcs,
+    limit_wheels_v_reference,
+    sinc_v_reference as sinc_v,
+    wrap_angles_reference as wrap_angles,
+)
 
 
 class UnknownControllerError(VsfleetValueError):
@@ -144,13 +151,49 @@ def _finish(wheels: np.ndarray, inp: ControlInput) -> np.ndarray:
     """Envelope-limited wheels (n, 2) [m/s]; inactive rows zero."""
     w = np.where(inp.active[:, None] & np.isfinite(wheels), wheels, 0.0)
     env = inp.envelopes
-    out = limit_wheels_v(w, inp.wheels_prev_m_s, inp.dt_s, env.wheel_speed_max_m_s, env.wheel_accel_max_m_s2)
+    out = limit_wheels_v_reference(w, inp.wheels_prev_m_s, inp.dt_s, env.wheel_speed_max_m_s,
+                                   env.wheel_accel_max_m_s2)
     return np.where(inp.active[:, None], out, 0.0)
 
 
 def _wheels(v: np.ndarray, w: np.ndarray, base: np.ndarray) -> np.ndarray:
     half = 0.5 * w * base
     return columns(v - half, v + half)
+
+
+# --------------------------------------------------------------------------- the compiled core
+# Each controller's __call__ runs the compiled core (vsfleet/_core/vs_control.c), which computes the
+# rule of its ``reference`` method (numpy, below) within 1e-9, with the same discrete decisions. The
+# core refuses what the reference carries along: NaN or infinity anywhere in the input or the state
+# (NonFiniteError; the reference zeroes such a row's wheels and lets NaN into its state), and, for
+# Precision, a new state that would overflow. dt_s and age_s are checked by ControlInput.
+
+
+def _input_args(inp: ControlInput) -> tuple:
+    env = inp.envelopes
+    return (inp.pose_world, inp.point_now_world, inp.point_next_world, inp.wheels_prev_m_s, inp.dt_s, inp.age_s,
+            env.wheel_base_m, env.wheel_speed_max_m_s, env.wheel_accel_max_m_s2, inp.active)
+
+
+def _contiguous(a):
+    """a as a C-contiguous array of its dtype class (bool stays bool, anything else float64)."""
+    a = np.asarray(a)
+    return np.ascontiguousarray(a, dtype=bool if a.dtype == bool else float)
+
+
+def _core_call(fn, head: tuple, inp: ControlInput, tail: tuple) -> None:
+    """fn(*head, *input arrays, *tail); arrays that are not C-contiguous float64 (or bool) are
+    converted and the call made again (the core reads buffers as they are, and refuses others)."""
+    args = _input_args(inp)
+    try:
+        fn(*head, *args, *tail)
+    except TypeError:
+        fn(*(_contiguous(a) if isinstance(a, np.ndarray) else a for a in head),
+           *(_contiguous(a) if isinstance(a, np.ndarray) else a for a in args), *tail)
+
+
+def _core_gains(obj, values) -> None:
+    object.__setattr__(obj, "_core", np.array(values, dtype=float))
 
 
 # --------------------------------------------------------------------------- the paper's two
@@ -174,11 +217,19 @@ class TurnThenGo:
 
     def __post_init__(self) -> None:
         _check_gains(self)
+        _core_gains(self, (self.turn_gain_m_s_per_rad, self.d_max_m, self.horizon_s, self.turn_fade_radius_m,
+                           1.0 if self.allow_reverse else 0.0))
 
     def initial(self, n: int) -> Stateless:
         return Stateless()
 
     def __call__(self, state: Stateless, inp: ControlInput) -> tuple[Stateless, np.ndarray]:
+        wheels = np.empty((len(inp.active), 2))
+        _core_call(_core.control_turn_then_go, (self._core,), inp, (wheels,))
+        return state, wheels
+
+    def reference(self, state: Stateless, inp: ControlInput) -> tuple[Stateless, np.ndarray]:
+        """:meth:`__call__` in numpy (the reference of the compiled core)."""
         h = max(1.0, self.horizon_s / inp.dt_s)
         dx, dy = _robot_frame(inp.pose_world, _ahead(inp.point_now_world, inp.point_next_world, h))
         dist = np.hypot(dx, dy)
@@ -209,6 +260,12 @@ class Arc:
         return Stateless()
 
     def __call__(self, state: Stateless, inp: ControlInput) -> tuple[Stateless, np.ndarray]:
+        wheels = np.empty((len(inp.active), 2))
+        _core_call(_core.control_arc, (self.horizon_s,), inp, (wheels,))
+        return state, wheels
+
+    def reference(self, state: Stateless, inp: ControlInput) -> tuple[Stateless, np.ndarray]:
+        """:meth:`__call__` in numpy (the reference of the compiled core)."""
         h = max(1.0, self.horizon_s / inp.dt_s)
         t_s = h * inp.dt_s
         dx, dy = _robot_frame(inp.pose_world, _ahead(inp.point_now_world, inp.point_next_world, h))
@@ -241,11 +298,18 @@ class Tracking:
 
     def __post_init__(self) -> None:
         _check_gains(self)
+        _core_gains(self, [getattr(self, f.name) for f in fields(self)])
 
     def initial(self, n: int) -> Stateless:
         return Stateless()
 
     def __call__(self, state: Stateless, inp: ControlInput) -> tuple[Stateless, np.ndarray]:
+        wheels = np.empty((len(inp.active), 2))
+        _core_call(_core.control_tracking, (self._core,), inp, (wheels,))
+        return state, wheels
+
+    def reference(self, state: Stateless, inp: ControlInput) -> tuple[Stateless, np.ndarray]:
+        """:meth:`__call__` in numpy (the reference of the compiled core)."""
         pose, env = inp.pose_world, inp.envelopes
         kx = self.along_gain_per_s
         ex, ey = _robot_frame(pose, inp.point_now_world)
@@ -335,6 +399,7 @@ class Precision:
         _check_gains(self)
         if not self.gain_min_ratio <= 1.0 <= self.gain_max_ratio:
             raise ControllerGainError("gain_min_ratio <= 1 <= gain_max_ratio is required")
+        _core_gains(self, [getattr(self, f.name) for f in fields(self)])   # vs_precision_gains' order
 
     def initial(self, n: int) -> PrecisionState:
         z2 = np.zeros((n, 2))
@@ -342,6 +407,17 @@ class Precision:
                               z2, z2, np.zeros(n), np.ones(n), np.zeros(n, dtype=bool))
 
     def __call__(self, state: PrecisionState, inp: ControlInput) -> tuple[PrecisionState, np.ndarray]:
+        n = len(inp.active)
+        new = (np.empty((n, 3)), np.empty((n, 2)), np.empty((n, _HISTORY, 2)), np.empty((n, 2)), np.empty((n, 2)),
+               np.empty(n), np.empty(n), np.empty(n, dtype=bool))
+        wheels = np.empty((n, 2))
+        old = (state.pose_world, state.gains, state.history_m_s, state.target_world, state.feed_m_s,
+               state.turn_rad_s, state.direction, state.ready)
+        _core_call(_core.control_precision, (self._core, *old), inp, (*new, wheels))
+        return PrecisionState(*new), wheels
+
+    def reference(self, state: PrecisionState, inp: ControlInput) -> tuple[PrecisionState, np.ndarray]:
+        """:meth:`__call__` in numpy (the reference of the compiled core)."""
         dt, env, act = inp.dt_s, inp.envelopes, inp.active
         base = env.wheel_base_m
         z = inp.pose_world
@@ -464,16 +540,28 @@ class Held:
 
     def __call__(self, state, inp: ControlInput):
         state, wheels = self.inner(state, inp)
+        if type(self.inner) not in _IN_CORE:   # the wheels are the core's fresh array only then
+            wheels = np.array(wheels, dtype=float, order="C")
+        _core_call(_core.control_hold, (self.deadband_m, self.still_speed_m_s), inp, (wheels,))
+        return state, wheels
+
+    def reference(self, state, inp: ControlInput):
+        """:meth:`__call__` in numpy (the reference of the compiled core), the inner's reference too."""
+        inner = getattr(self.inner, "reference", self.inner)
+        state, wheels = inner(state, inp)
         step = np.hypot(*(inp.point_next_world - inp.point_now_world).T)
         dist = np.hypot(*(inp.point_now_world - inp.pose_world[:, :2]).T)
         held = (step <= self.still_speed_m_s * inp.dt_s) & (dist <= self.deadband_m)
         if np.any(held):
             env = inp.envelopes
-            stop = limit_wheels_v(np.zeros_like(wheels), inp.wheels_prev_m_s, inp.dt_s,
-                                  env.wheel_speed_max_m_s, env.wheel_accel_max_m_s2)
+            stop = limit_wheels_v_reference(np.zeros_like(wheels), inp.wheels_prev_m_s, inp.dt_s,
+                                            env.wheel_speed_max_m_s, env.wheel_accel_max_m_s2)
             wheels = np.where((held & inp.active)[:, None], stop, wheels)
         return state, wheels
 
+
+# the controllers whose __call__ returns a fresh wheels array of the core's
+_IN_CORE = (TurnThenGo, Arc, Tracking, Precision)
 
 CONTROLLERS: dict[str, Callable[..., object]] = {
     "turn_then_go": TurnThenGo,

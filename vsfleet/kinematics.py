@@ -16,8 +16,9 @@ import math
 
 import numpy as np
 
+from . import _core
 from .envelope import Envelope
-from .errors import NonFiniteError, VsfleetValueError
+from .errors import NonFiniteError, ShapeError, VsfleetValueError
 from .geometry import Pose2
 
 # Below this |x| the series of sin(x)/x is used; its error there is < 1e-24.
@@ -197,15 +198,89 @@ def columns(*cols: np.ndarray) -> np.ndarray:
     return np.array(cols, dtype=float).T
 
 
+def _f8(a) -> np.ndarray:
+    """a as a C-contiguous float64 array (no copy when it already is one)."""
+    return np.ascontiguousarray(a, dtype=float)
+
+
+# The compiled core (vsfleet/_core/vs_kin.c) computes the functions below by the rule of their
+# ``*_reference`` (numpy) versions, within 1e-9 (its own sin/cos/atan2: not bit-equal to numpy's).
+# It refuses what the references would carry along: NaN or infinity in any input, and a result
+# that would not be finite (an overflow, a zero wheel base), with NonFiniteError.
+
+
 def wrap_angles(th_rad: np.ndarray) -> np.ndarray:
     """Wrap angles (any shape) to [-pi, pi), elementwise, as :func:`vsfleet.geometry.wrap_angle`."""
+    th = _f8(th_rad)
+    out = np.empty(th.shape)
+    _core.wrap_angles(th, out)
+    return out if out.ndim else out[()]
+
+
+def sinc_v(x: np.ndarray) -> np.ndarray:
+    """sin(x)/x elementwise, smooth through 0 (the series of :func:`_sinc` below 1e-4)."""
+    x = _f8(x)
+    out = np.empty(x.shape)
+    _core.sinc_v(x, out)
+    return out if out.ndim else out[()]
+
+
+def integrate_arcs(pose_world: np.ndarray, wheels_m_s: np.ndarray, dt_s: float | np.ndarray,
+                   wheel_base_m: np.ndarray) -> np.ndarray:
+    """Poses (n, 3) [m, m, rad; world] after driving wheels (n, 2) (vl, vr) [m/s] for dt_s [s].
+
+    The exact arc of :func:`integrate_arc` for every row (heading not wrapped). dt_s may be any
+    finite number (0 gives the poses back); an array dt_s runs the numpy reference.
+    """
+    out = np.empty((len(pose_world), 3))
+    try:
+        _core.integrate_arcs(pose_world, wheels_m_s, dt_s, wheel_base_m, out)
+    except TypeError:   # not C-contiguous float64 arrays (a list, a scalar wheel base, an array dt_s)
+        if np.ndim(dt_s) != 0:
+            return integrate_arcs_reference(pose_world, wheels_m_s, dt_s, wheel_base_m)
+        p, u = _f8(pose_world), _f8(wheels_m_s)
+        n = len(p)
+        if p.shape != (n, 3) or u.shape != (n, 2):
+            raise ShapeError(f"integrate_arcs: pose_world (n, 3) and wheels_m_s (n, 2), got {p.shape}, {u.shape}")
+        base = np.broadcast_to(_f8(wheel_base_m), (n,)).copy()
+        _core.integrate_arcs(p, u, float(dt_s), base, out)
+    return out
+
+
+def limit_wheels_v(wheels_m_s: np.ndarray, wheels_prev_m_s: np.ndarray, dt_s: float,
+                   speed_max_m_s: np.ndarray, accel_max_m_s2: np.ndarray) -> np.ndarray:
+    """:func:`limit_wheels` for every row: commands (n, 2) [m/s] clipped to each robot's envelope.
+
+    Same rule (the ray s u with the largest s <= 1, else the smallest s > 1; else the box corner
+    nearest in angle within 90 deg; else the point nearest zero), checked equal in the tests.
+    """
+    dt_s = _check_dt(dt_s)
+    out = np.empty((len(wheels_m_s), 2))
+    try:
+        _core.limit_wheels(wheels_m_s, wheels_prev_m_s, dt_s, speed_max_m_s, accel_max_m_s2, out)
+    except TypeError:   # not C-contiguous float64 arrays
+        u, p = _f8(wheels_m_s), _f8(wheels_prev_m_s)
+        n = len(u)
+        if u.shape != (n, 2) or p.shape != (n, 2):
+            raise ShapeError(f"limit_wheels_v: commands (n, 2), got {u.shape}, {p.shape}") from None
+        vmax = np.broadcast_to(_f8(speed_max_m_s), (n,)).copy()
+        amax = np.broadcast_to(_f8(accel_max_m_s2), (n,)).copy()
+        _core.limit_wheels(u, p, dt_s, vmax, amax, out)
+    return out
+
+
+# --- the numpy references of the compiled functions above -------------------------------------
+
+
+def wrap_angles_reference(th_rad: np.ndarray) -> np.ndarray:
+    """:func:`wrap_angles` in numpy (the reference of the compiled core)."""
     w = np.fmod(np.asarray(th_rad, dtype=float) + math.pi, 2.0 * math.pi)
     w = np.where(w < 0.0, w + 2.0 * math.pi, w)
     return w - math.pi
 
 
-def sinc_v(x: np.ndarray) -> np.ndarray:
-    """sin(x)/x elementwise, smooth through 0 (the series of :func:`_sinc` below 1e-4)."""
+def sinc_v_reference(x: np.ndarray) -> np.ndarray:
+    """:func:`sinc_v` in numpy (the reference of the compiled core)."""
     x = np.asarray(x, dtype=float)
     x2 = x * x
     series = 1.0 - x2 / 6.0 * (1.0 - x2 / 20.0)
@@ -214,11 +289,12 @@ def sinc_v(x: np.ndarray) -> np.ndarray:
     return np.where(np.abs(x) < _SINC_SERIES_BELOW, series, direct)
 
 
-def integrate_arcs(pose_world: np.ndarray, wheels_m_s: np.ndarray, dt_s: float | np.ndarray,
+def integrate_arcs_reference(pose_world: np.ndarray, wheels_m_s: np.ndarray, dt_s: float | np.ndarray,
                    wheel_base_m: np.ndarray) -> np.ndarray:
     """Poses (n, 3) [m, m, rad; world] after driving wheels (n, 2) (vl, vr) [m/s] for dt_s [s].
 
-    The exact arc of :func:`integrate_arc` for every row (heading not wrapped).
+    The exact arc of :func:`integrate_arc` for every row (heading not wrapped); numpy, the
+    reference of the compiled core behind :func:`integrate_arcs`.
     """
     p = np.asarray(pose_world, dtype=float)
     u = np.asarray(wheels_m_s, dtype=float)
@@ -231,12 +307,13 @@ def integrate_arcs(pose_world: np.ndarray, wheels_m_s: np.ndarray, dt_s: float |
                      p[:, 2] + w * dt_s)
 
 
-def limit_wheels_v(wheels_m_s: np.ndarray, wheels_prev_m_s: np.ndarray, dt_s: float,
+def limit_wheels_v_reference(wheels_m_s: np.ndarray, wheels_prev_m_s: np.ndarray, dt_s: float,
                    speed_max_m_s: np.ndarray, accel_max_m_s2: np.ndarray) -> np.ndarray:
     """:func:`limit_wheels` for every row: commands (n, 2) [m/s] clipped to each robot's envelope.
 
     Same rule (the ray s u with the largest s <= 1, else the smallest s > 1; else the box corner
-    nearest in angle within 90 deg; else the point nearest zero), checked equal in the tests.
+    nearest in angle within 90 deg; else the point nearest zero), checked equal in the tests;
+    numpy, the reference of the compiled core behind :func:`limit_wheels_v`.
     """
     dt_s = _check_dt(dt_s)
     u = np.asarray(wheels_m_s, dtype=float)
@@ -255,7 +332,7 @@ def limit_wheels_v(wheels_m_s: np.ndarray, wheels_prev_m_s: np.ndarray, dt_s: fl
 
 
 def _limit_rows(u: np.ndarray, p: np.ndarray, vmax: np.ndarray, step: np.ndarray) -> np.ndarray:
-    """The clipping rule of :func:`limit_wheels_v` for rows that need it (all infeasible)."""
+    """The clipping rule of :func:`limit_wheels_v_reference` for rows that need it (all infeasible)."""
     lo = np.maximum(p - step, -vmax)
     hi = np.minimum(p + step, vmax)
     pinned = lo > hi
