@@ -4,6 +4,10 @@ Find the rigid pose T = (x, y, th) minimising l1 = sum w_i d_i, l2 = sqrt(sum w_
 linf = max w_i d_i, with d_i = |r_i - R(th) p_i - (x, y)| [m].  l2 is closed form; l1 and linf
 are certified global optima (gap <= CERT_TOL weighted m).  Method, certificate, degenerate
 cases and determinism: docs/fit.md.
+
+``fit_structure`` and ``structure_cost`` run the compiled core (vsfleet/_core/vs_fit.c, a port of
+this package's numpy code); ``fit_structure_reference`` and ``structure_cost_reference`` are the
+numpy code, kept as the readable reference (tests/test_core_fit.py holds the two together).
 """
 
 from __future__ import annotations
@@ -13,15 +17,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .. import _core
 from ..errors import NonFiniteError, ShapeError, UnknownMetricError, WeightError
 from ..geometry import Pose2, wrap_angle
 from . import certify, median, minimax, procrustes
 from .certify import CERT_TOL, Problem
 
-__all__ = ["CERT_TOL", "METRICS", "FitResult", "fit_structure", "structure_cost"]
+__all__ = ["CERT_TOL", "METRICS", "FitResult", "fit_structure", "fit_structure_reference", "structure_cost",
+           "structure_cost_reference"]
 
 METRICS = ("l1", "l2", "linf")
 _EVALUATORS = {"l1": median.evaluate, "linf": minimax.evaluate}
+_CODES = {"l1": 0, "l2": 1, "linf": 2}  # vs_fit.h: VS_METRIC_L1, _L2, _LINF
 
 
 @dataclass(frozen=True, eq=False)
@@ -97,25 +104,55 @@ def _cost_of(d: np.ndarray, w, metric: str) -> float:
     return float(wd.max())
 
 
+def _as_pose(pose) -> Pose2:
+    if isinstance(pose, Pose2):
+        return pose
+    try:
+        x, y, th = (float(v) for v in pose)
+    except (TypeError, ValueError):
+        raise ShapeError("pose must be a Pose2 or an (x, y, th) triple") from None
+    if not all(math.isfinite(v) for v in (x, y, th)):
+        raise NonFiniteError("pose holds NaN or infinity")
+    return Pose2(x, y, th)
+
+
 def structure_cost(template_xy, positions_xy, pose, metric: str, weights=None) -> float:
     """The fit objective at ``pose`` (a Pose2 or an (x, y, th) triple) [weighted m].
 
-    Raises the same typed errors as :func:`fit_structure`.
+    Raises the same typed errors as :func:`fit_structure`.  Computed by the compiled core (sums
+    in index order), so ``fit_structure(...).cost == structure_cost(..., fit.pose, ...)`` exactly.
     """
     p, r, w = _validate(template_xy, positions_xy, metric, weights)
-    if not isinstance(pose, Pose2):
-        try:
-            x, y, th = (float(v) for v in pose)
-        except (TypeError, ValueError):
-            raise ShapeError("pose must be a Pose2 or an (x, y, th) triple") from None
-        if not all(math.isfinite(v) for v in (x, y, th)):
-            raise NonFiniteError("pose holds NaN or infinity")
-        pose = Pose2(x, y, th)
-    return _cost_of(_residuals(p, r, pose), w, metric)
+    pose = _as_pose(pose)
+    return _core.fit_cost(p, r, w, _CODES[metric], pose.x, pose.y, pose.th)
+
+
+def structure_cost_reference(template_xy, positions_xy, pose, metric: str, weights=None) -> float:
+    """:func:`structure_cost` in numpy (math.fsum): the reference."""
+    p, r, w = _validate(template_xy, positions_xy, metric, weights)
+    return _cost_of(_residuals(p, r, _as_pose(pose)), w, metric)
 
 
 def fit_structure(template_xy, positions_xy, metric: str = "l2", weights=None) -> FitResult:
-    """The rigid pose (world <- structure) minimising the metric's cost.
+    """The rigid pose (world <- structure) minimising the metric's cost: the compiled core (vs_fit).
+
+    template_xy: (n, 2) structure-frame points p_i [m]; positions_xy: (n, 2) world positions
+    r_i [m]; metric: 'l1', 'l2' or 'linf'; weights: optional (n,) >= 0 (0 drops a robot from
+    the fit; linf takes 0/equal weights only).  Raises ShapeError, NonFiniteError,
+    UnknownMetricError, WeightError.  The same mathematics and search as
+    :func:`fit_structure_reference` (poses within 1e-9 m / rad of it where the optimum is unique;
+    docs/fit.md).  ``cost - cost_lower_bound`` is the certified gap (<= CERT_TOL unless the core's
+    work cap was hit).
+    """
+    p, r, w = _validate(template_xy, positions_xy, metric, weights)
+    d = np.empty(len(p))
+    x, y, th, cost, lower, _rounds = _core.fit(p, r, w, _CODES[metric], d)
+    d.flags.writeable = False
+    return FitResult(pose=Pose2(x, y, th), cost=cost, residuals_m=d, metric=metric, cost_lower_bound=lower)
+
+
+def fit_structure_reference(template_xy, positions_xy, metric: str = "l2", weights=None) -> FitResult:
+    """The rigid pose (world <- structure) minimising the metric's cost: the numpy reference.
 
     template_xy: (n, 2) structure-frame points p_i [m]; positions_xy: (n, 2) world positions
     r_i [m]; metric: 'l1', 'l2' or 'linf'; weights: optional (n,) >= 0 (0 drops a robot from
