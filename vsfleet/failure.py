@@ -45,6 +45,7 @@ Everything runs on arrays of all robots (rows in the mission's sorted id order):
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Mapping, Sequence
@@ -243,7 +244,14 @@ def failure_step(policy: FailurePolicy, state: FailureState, robots: Sequence[st
                               state.in_window, state.sums_nm)]
     made = _core.failure_step(policy, t, seen, fresh, xy, dev, exp_m, step_s, max_gap_s, *new)
     decisions = [Decision(t, robots[i], _EVENT_KINDS[k], d) for i, k, d in made] if made else []
-    return FailureState(*new), decisions
+    # FailureState(*new) without the frozen dataclass's __init__ (eleven object.__setattr__: 1.2 us of a
+    # 7 us call at n = 3); the fields are the same
+    out = object.__new__(FailureState)
+    out.__dict__.update(zip(_STATE_FIELDS, new))
+    return out, decisions
+
+
+_STATE_FIELDS = tuple(f.name for f in dataclasses.fields(FailureState))
 
 
 def failure_step_reference(policy: FailurePolicy, state: FailureState, robots: Sequence[str], t: float,

@@ -101,17 +101,21 @@ static int motion_step(const vs_failure_policy *p, vs_failure_state *s, const vs
     const double t = in->t;
     const double expire_before = t - p->fail_after_s;
     const int had = fresh && vs_isfinite(s->last_t[i]);
-    for (size_t j = 0; j < W; j++) {               /* items that left the window */
-        if (inw[j] && !(wt[j] > expire_before)) {
+    /* one pass: items that left the window go (and, with an item to write, the slot it takes: a
+     * full ring overwrites its oldest item); the earliest frame time of those that stay */
+    const size_t at = had ? (size_t)((uint64_t)s->head[i] % (uint64_t)W) : W;
+    double first_t = INFINITY;
+    for (size_t j = 0; j < W; j++) {
+        if (!inw[j]) continue;
+        if (j == at || !(wt[j] > expire_before)) {
             for (int k = 0; k < 4; k++) sums[k] = sub_i64(sums[k], nm[4 * j + k]);
             inw[j] = 0;
+        } else if (wt[j] < first_t) {
+            first_t = wt[j];
         }
     }
+    int stuck = 0;
     if (had) {
-        size_t at = (size_t)((uint64_t)s->head[i] % (uint64_t)W);
-        if (inw[at]) {                             /* a full ring overwrites its oldest item */
-            for (int k = 0; k < 4; k++) sums[k] = sub_i64(sums[k], nm[4 * at + k]);
-        }
         double item[4];
         motion_item(s, in, i, item);
         wt[at] = t;
@@ -122,15 +126,10 @@ static int motion_step(const vs_failure_policy *p, vs_failure_state *s, const vs
         }
         inw[at] = 1;
         s->head[i] += 1;
-    }
-    int stuck = 0;
-    if (had) {
+        if (t < first_t) first_t = t;
         double sx = (double)sums[0] / NM_PER_M, sy = (double)sums[1] / NM_PER_M;
         double ox = (double)sums[2] / NM_PER_M, oy = (double)sums[3] / NM_PER_M;
         double e2 = sx * sx + sy * sy;
-        double first_t = INFINITY;
-        for (size_t j = 0; j < W; j++)
-            if (inw[j] && wt[j] < first_t) first_t = wt[j];
         int known = (t - first_t >= 0.8 * p->fail_after_s) && (e2 >= p->min_expected_m2);
         if (known && e2 != 0.0) {                  /* e2 == 0: the ratio is not finite */
             double ratio = (ox * sx + oy * sy) / e2;
