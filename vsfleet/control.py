@@ -175,21 +175,23 @@ def _input_args(inp: ControlInput) -> tuple:
             env.wheel_base_m, env.wheel_speed_max_m_s, env.wheel_accel_max_m_s2, inp.active)
 
 
-def _contiguous(a):
-    """a as a C-contiguous array of its dtype class (bool stays bool, anything else float64)."""
-    a = np.asarray(a)
-    return np.ascontiguousarray(a, dtype=bool if a.dtype == bool else float)
+def _contiguous(a, flags: bool = False):
+    """a as a C-contiguous float64 array (bool with flags); numbers as they are."""
+    if isinstance(a, (float, int)):
+        return a
+    return np.ascontiguousarray(a, dtype=bool if flags else float)
 
 
-def _core_call(fn, head: tuple, inp: ControlInput, tail: tuple) -> None:
-    """fn(*head, *input arrays, *tail); arrays that are not C-contiguous float64 (or bool) are
-    converted and the call made again (the core reads buffers as they are, and refuses others)."""
+def _core_call(fn, head: tuple, inp: ControlInput, tail: tuple, head_flags: tuple[int, ...] = ()) -> None:
+    """fn(*head, *input arrays, *tail); arrays that are not C-contiguous float64 (bool: inp.active and
+    head[i] for i in head_flags) are converted and the call made again (the core takes buffers as
+    they are, and refuses others)."""
     args = _input_args(inp)
     try:
         fn(*head, *args, *tail)
     except TypeError:
-        fn(*(_contiguous(a) if isinstance(a, np.ndarray) else a for a in head),
-           *(_contiguous(a) if isinstance(a, np.ndarray) else a for a in args), *tail)
+        fn(*(_contiguous(a, i in head_flags) for i, a in enumerate(head)),
+           *(_contiguous(a, i == 9) for i, a in enumerate(args)), *tail)
 
 
 def _core_gains(obj, values) -> None:
@@ -413,7 +415,7 @@ class Precision:
         wheels = np.empty((n, 2))
         old = (state.pose_world, state.gains, state.history_m_s, state.target_world, state.feed_m_s,
                state.turn_rad_s, state.direction, state.ready)
-        _core_call(_core.control_precision, (self._core, *old), inp, (*new, wheels))
+        _core_call(_core.control_precision, (self._core, *old), inp, (*new, wheels), head_flags=(8,))
         return PrecisionState(*new), wheels
 
     def reference(self, state: PrecisionState, inp: ControlInput) -> tuple[PrecisionState, np.ndarray]:

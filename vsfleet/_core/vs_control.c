@@ -211,7 +211,7 @@ int vs_control_precision(const vs_precision_gains *g, const vs_precision_state *
         double fa[2] = {ca * f[0] - sa * f[1], sa * f[0] + ca * f[1]};
         double w_last = (gn[1] * seq[0][1] - gn[0] * seq[0][0]) / base;
         double th_mid = p[2] + 0.5 * dt * w_last;
-        double speed = vs_hypot(fa[0], fa[1]);
+        double speed = vs_hypot_safe(fa[0], fa[1]);
         double lam = mind(1.0, speed / ms);
         double hc[2];
         vs_sincos(th_mid, &hc[1], &hc[0]);
@@ -224,7 +224,7 @@ int vs_control_precision(const vs_precision_gains *g, const vs_precision_state *
         double hr[2], hb[2];
         for (int k = 0; k < 2; k++) hr[k] = speed > 0.0 ? fa[k] / safe : m_dir[k];
         for (int k = 0; k < 2; k++) hb[k] = lam * hr[k] + (1.0 - lam) * m_dir[k];
-        double hb_n = vs_hypot(hb[0], hb[1]);
+        double hb_n = vs_hypot_safe(hb[0], hb[1]);
         for (int k = 0; k < 2; k++) hb[k] = hb_n > 1e-9 ? hb[k] / hb_n : m_dir[k];
         double nr[2] = {-hb[1], hb[0]};
         double u[2];
@@ -285,7 +285,7 @@ int vs_control_turn_then_go(const vs_turn_then_go_gains *g, const vs_control_inp
         const double *now = in->point_now_world + 2 * i, *nxt = in->point_next_world + 2 * i;
         double dx, dy;
         robot_frame(in->pose_world + 3 * i, now[0] + h * (nxt[0] - now[0]), now[1] + h * (nxt[1] - now[1]), &dx, &dy);
-        double dist = vs_hypot(dx, dy);
+        double dist = vs_hypot_safe(dx, dy);
         double w0 = 0.0, w1 = 0.0;
         if (dist != 0.0) {
             double th_err = g->allow_reverse ? half_plane_angle(dy, dx) : vs_atan2(dy, dx);
@@ -310,7 +310,7 @@ int vs_control_arc(double horizon_s, const vs_control_input *in, double *wheels_
         const double *now = in->point_now_world + 2 * i, *nxt = in->point_next_world + 2 * i;
         double dx, dy;
         robot_frame(in->pose_world + 3 * i, now[0] + h * (nxt[0] - now[0]), now[1] + h * (nxt[1] - now[1]), &dx, &dy);
-        double dist = vs_hypot(dx, dy);
+        double dist = vs_hypot_safe(dx, dy);
         double w0 = 0.0, w1 = 0.0;
         if (dist != 0.0) {
             int forward = dx >= 0.0;
@@ -343,7 +343,7 @@ int vs_control_tracking(const vs_tracking_gains *g, const vs_control_input *in, 
         vs_sincos(pose[2], &s, &c);
         double fw0 = (nxt[0] - now[0]) / dt, fw1 = (nxt[1] - now[1]) / dt;
         double fx = c * fw0 + s * fw1, fy = -s * fw0 + c * fw1;
-        double v_ref = vs_hypot(fx, fy);
+        double v_ref = vs_hypot_safe(fx, fy);
         double lam = mind(1.0, v_ref / g->moving_speed_m_s);
         double v = fx + kx * ex;
         double e_th = vs_atan2(fy, fx);
@@ -352,7 +352,7 @@ int vs_control_tracking(const vs_tracking_gains *g, const vs_control_input *in, 
         double heading = sin_e + lam4 * (2.0 * vs_sin(0.5 * e_th) - sin_e);
         double w = lam > 0.0 ? lam * v_ref * (g->lateral_gain_per_m2 * ey + g->heading_gain_per_m * heading) : 0.0;
         double ux = v, uy = fy + kx * ey;
-        double u = vs_hypot(ux, uy);
+        double u = vs_hypot_safe(ux, uy);
         double alpha = half_plane_angle(uy, ux);
         double half_b = 0.5 * base;
         if (lam < 1.0 && u > 0.0) {
@@ -378,8 +378,8 @@ int vs_control_hold(double deadband_m, double still_speed_m_s, const vs_control_
     for (size_t i = 0; i < in->n; i++) {
         const double *pose = in->pose_world + 3 * i;
         const double *now = in->point_now_world + 2 * i, *nxt = in->point_next_world + 2 * i;
-        double step = vs_hypot(nxt[0] - now[0], nxt[1] - now[1]);
-        double dist = vs_hypot(now[0] - pose[0], now[1] - pose[1]);
+        double step = vs_hypot_safe(nxt[0] - now[0], nxt[1] - now[1]);
+        double dist = vs_hypot_safe(now[0] - pose[0], now[1] - pose[1]);
         if (in->active[i] && step <= still && dist <= deadband_m) {
             double stop[2];
             double p0 = in->wheels_prev_m_s[2 * i], p1 = in->wheels_prev_m_s[2 * i + 1];

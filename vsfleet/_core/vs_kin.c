@@ -15,6 +15,22 @@ int vs_all_finite(const double *x, size_t n)
     return 1;
 }
 
+double vs_hypot_safe(double x, double y)
+{
+    double ax = vs_fabs(x), ay = vs_fabs(y), m = ax > ay ? ax : ay;
+    if (m > 0x1p+500 && vs_isfinite(m)) {
+        x *= 0x1p-600;
+        y *= 0x1p-600;
+        return sqrt(x * x + y * y) * 0x1p+600;
+    }
+    if (m < 0x1p-500 && m > 0.0) {
+        x *= 0x1p+600;
+        y *= 0x1p+600;
+        return sqrt(x * x + y * y) * 0x1p-600;
+    }
+    return sqrt(x * x + y * y);
+}
+
 double vs_sinc(double x)
 {
     if (vs_fabs(x) < VS_SINC_SERIES_BELOW) {
@@ -107,7 +123,7 @@ void vs_limit_row(double u0, double u1, double p0, double p1, double vmax, doubl
         double ang[4], dist[4];
         for (int j = 0; j < 4; j++) {
             ang[j] = vs_fabs(vs_atan2(u[0] * cy[j] - u[1] * cx[j], u[0] * cx[j] + u[1] * cy[j]));
-            dist[j] = vs_hypot(cx[j] - u[0], cy[j] - u[1]);
+            dist[j] = vs_hypot_safe(cx[j] - u[0], cy[j] - u[1]);
         }
         int best = 0;
         for (int j = 1; j < 4; j++)

@@ -49,6 +49,10 @@ void vs_limit_row(double u0, double u1, double p0, double p1, double speed_max_m
 int vs_limit_wheels(const double *wheels_m_s, const double *wheels_prev_m_s, double dt_s,
                     const double *wheel_speed_max_m_s, const double *wheel_accel_max_m_s2, size_t n, double *out);
 
+/* sqrt(x^2 + y^2) without overflow or underflow of the squares (scaled by powers of two beyond
+ * 2^+-500), as numpy's hypot; equal to vs_hypot(x, y) within that range. */
+double vs_hypot_safe(double x, double y);
+
 /* 1 if all n values are finite. */
 int vs_all_finite(const double *x, size_t n);
 
