@@ -163,19 +163,24 @@ static int angles_add(angles_t *S, const double *ths, size_t nt, const double *r
     for (size_t i = 0; i < k; i++) {
         double th = ask[i].th, tx0 = S->t0x, ty0 = S->t0y;
         if (m) {
+            /* the nearest kept angle on the circle (the first index among equal gaps): the table is
+             * sorted, so it is one of th's neighbours, or an end (across the wrap) */
+            size_t lo = 0, hi = m;
+            while (lo < hi) { size_t mid = (lo + hi) / 2; if (S->a[mid].th < th) lo = mid + 1; else hi = mid; }
+            size_t cand[4] = {0, lo > 0 ? lo - 1 : 0, lo < m ? lo : m - 1, m - 1};
             size_t best = 0;
             double bg = 0.0;
-            for (size_t o = 0; o < m; o++) {
+            for (int q = 0; q < 4; q++) {
+                size_t o = cand[q];
                 double gap = vs_fabs(vs_fit_npmod(th - S->a[o].th + VS_PI, 2.0 * VS_PI) - VS_PI);
-                if (o == 0 || gap < bg) { bg = gap; best = o; }
+                if (q == 0 || gap < bg || (gap == bg && o < best)) { bg = gap; best = o; }
             }
             tx0 = S->a[best].tx;
             ty0 = S->a[best].ty;
         }
         vs_ang *o = &S->tmp[i];
         o->th = th;
-        o->c = vs_cos(th);
-        o->s = vs_sin(th);
+        vs_sincos(th, &o->s, &o->c);
         o->e[0] = o->e[1] = o->e[2] = 0.0;
         S->ev(S->pr, o->c, o->s, tx0, ty0, ask[i].rough, o);
         o->rough = ask[i].rough ? 1.0 : 0.0;
@@ -437,7 +442,8 @@ int vs_fit_residuals(const double *p, const double *r, size_t n, double x, doubl
 {
     if (!vs_isfinite(x) || !vs_isfinite(y) || !vs_isfinite(th) || !check_finite(p, 2 * n) || !check_finite(r, 2 * n))
         return VS_ENONFINITE;
-    double c = vs_cos(th), s = vs_sin(th);
+    double c, s;
+        vs_sincos(th, &s, &c);
     for (size_t i = 0; i < n; i++) {
         double px = p[2 * i], py = p[2 * i + 1];
         double dx = r[2 * i] - (c * px - s * py + x);
@@ -540,7 +546,8 @@ int vs_fit(const double *tpl, const double *pos, const double *weights, size_t n
         th = (metric != VS_METRIC_L2 && rigid) ? 0.0 : l2_rotation(&pr);
         if (metric != VS_METRIC_L2) {
             vs_ang a;
-            double c = vs_cos(th), s = vs_sin(th);
+            double c, s;
+        vs_sincos(th, &s, &c);
             a.e[0] = a.e[1] = a.e[2] = 0.0;
             ev(&pr, c, s, 0.0, 0.0, 0, &a);
             tx = a.tx; ty = a.ty;
@@ -569,7 +576,8 @@ int vs_fit(const double *tpl, const double *pos, const double *weights, size_t n
         /* wrapped until wrapping keeps it (Pose2 wraps again: the cost is at the angle it keeps) */
         double thw = vs_wrap_angle(th);
         for (int k = 0; k < 4 && vs_wrap_angle(thw) != thw; k++) thw = vs_wrap_angle(thw);
-        double c = vs_cos(thw), s = vs_sin(thw);
+        double c, s;
+        vs_sincos(thw, &s, &c);
         double x = tx + pr.crx - (c * pr.cpx - s * pr.cpy);
         double y = ty + pr.cry - (s * pr.cpx + c * pr.cpy);
         /* the cost at the world pose, over every robot (zero weights add nothing) */

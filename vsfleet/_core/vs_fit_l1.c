@@ -102,6 +102,7 @@ void vs_fit_eval_l1(const vs_prob *pr, double c, double s, double tx0, double ty
             double vx = 0.0, vy = 0.0, eta = 0.0, sie = 0.0, zf = 0.0;
             for (size_t i = 0; i < n; i++) {
                 double ex = dx[i] - jx, ey = dy[i] - jy, e = sqrt(ex * ex + ey * ey);
+                zd[i] = e;   /* the offsets from q_j: the vertex's (lam = 0) */
                 double ie = e > tie ? w[i] / e : 0.0;
                 vx += ie * ex;
                 vy += ie * ey;
@@ -115,7 +116,7 @@ void vs_fit_eval_l1(const vs_prob *pr, double c, double s, double tx0, double ty
                 double ex = dx[i] - jx, ey = dy[i] - jy;
                 zdx[i] = ex - lam * vx;
                 zdy[i] = ey - lam * vy;
-                zd[i] = sqrt(zdx[i] * zdx[i] + zdy[i] * zdy[i]);
+                if (!vertex) zd[i] = sqrt(zdx[i] * zdx[i] + zdy[i] * zdy[i]);   /* else ex - 0 vx = ex */
                 zf += w[i] * zd[i];
             }
             if (vertex || zf < f) {
@@ -131,8 +132,7 @@ void vs_fit_eval_l1(const vs_prob *pr, double c, double s, double tx0, double ty
     /* _duals: f and dual vectors balanced at the nearest q_j */
     double fd = 0.0;
     size_t j = 0;
-    for (size_t i = 0; i < n; i++) {
-        d[i] = sqrt(dx[i] * dx[i] + dy[i] * dy[i]);
+    for (size_t i = 0; i < n; i++) {   /* d[i] is already sqrt(dx^2 + dy^2) of these offsets */
         fd += w[i] * d[i];
         if (d[i] < d[j]) j = i;
     }
@@ -170,7 +170,8 @@ int vs_fit_l1_newton(const vs_prob *pr, double th, double *th_out, double *tx_ou
     int have_old = 0;
     for (int it = 0; it < 12; it++) {
         double t = z0, tx = z1, ty = z2;
-        double c = vs_cos(t), s = vs_sin(t);
+        double c, s;
+        vs_sincos(t, &s, &c);
         double f = 0.0;
         double g0 = 0.0, g1 = 0.0, g2 = 0.0, a = 0.0, b = 0.0, e = 0.0, xx = 0.0, xy = 0.0, yy = 0.0;
         for (size_t i = 0; i < n; i++) {

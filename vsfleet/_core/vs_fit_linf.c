@@ -156,7 +156,8 @@ static void basis_load(const vs_prob *pr, const int *b, basis_pq *o)
 
 static double r2_at(const basis_pq *b, double th)
 {
-    double c = vs_cos(th), s = vs_sin(th);
+    double c, s;
+        vs_sincos(th, &s, &c);
     double ax = b->qx[0] - (c * b->px[0] - s * b->py[0]), ay = b->qy[0] - (s * b->px[0] + c * b->py[0]);
     double bx = b->qx[1] - (c * b->px[1] - s * b->py[1]), by = b->qy[1] - (s * b->px[1] + c * b->py[1]);
     double ex = b->qx[2] - (c * b->px[2] - s * b->py[2]), ey = b->qy[2] - (s * b->px[2] + c * b->py[2]);
@@ -250,7 +251,8 @@ int vs_fit_linf_guesses(const vs_prob *pr, double th0, const int *basis, double 
         double th = starts[q];
         int broke = 0;
         for (int it = 0; it < 12; it++) {
-            double c = vs_cos(th), s = vs_sin(th);
+            double c, s;
+        vs_sincos(th, &s, &c);
             double X = kap - c * xc - s * xs;
             if (X == 0.0) { broke = 1; break; }
             double dx = 2.0 * (s * xc - c * xs) / X;
@@ -368,7 +370,8 @@ static void basis_at(const vs_prob *pr, double th, const int *basis, int new_, i
 {
     size_t n = pr->n;
     double *qx = pr->sc, *qy = qx + n;
-    double c = vs_cos(th), s = vs_sin(th);
+    double c, s;
+        vs_sincos(th, &s, &c);
     for (size_t i = 0; i < n; i++) {
         qx[i] = pr->Qx[i] - (c * pr->Px[i] - s * pr->Py[i]);
         qy[i] = pr->Qy[i] - (s * pr->Px[i] + c * pr->Py[i]);
@@ -413,7 +416,8 @@ static int basis_last(const vs_prob *pr, const double *xs, int ns, const int *ba
     size_t n = pr->n;
     int pair = basis[1] == basis[2];
     for (int q = 0; q < ns; q++) {
-        double c = vs_cos(xs[q]), s = vs_sin(xs[q]);
+        double c, s;
+        vs_sincos(xs[q], &s, &c);
         double qa[3][2];
         for (int i = 0; i < 3; i++) {
             int r = basis[i];

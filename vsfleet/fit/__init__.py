@@ -144,11 +144,30 @@ def fit_structure(template_xy, positions_xy, metric: str = "l2", weights=None) -
     docs/fit.md).  ``cost - cost_lower_bound`` is the certified gap (<= CERT_TOL unless the core's
     work cap was hit).
     """
-    p, r, w = _validate(template_xy, positions_xy, metric, weights)
-    d = np.empty(len(p))
-    x, y, th, cost, lower, _rounds = _core.fit(p, r, w, _CODES[metric], d)
+    code = _CODES.get(metric) if isinstance(metric, str) else None
+    if code is not None and weights is None and _clean(template_xy) and _clean(positions_xy) \
+            and len(template_xy) == len(positions_xy) and len(template_xy):
+        p, r, w = template_xy, positions_xy, None  # float64 (n, 2) arrays: read in place, not copied
+        try:
+            d = np.empty(len(p))
+            x, y, th, cost, lower, _rounds = _core.fit(p, r, None, code, d)
+        except NonFiniteError:  # the core refuses NaN / inf; the full validation says which input
+            _validate(template_xy, positions_xy, metric, weights)
+            raise
+    else:
+        p, r, w = _validate(template_xy, positions_xy, metric, weights)
+        d = np.empty(len(p))
+        x, y, th, cost, lower, _rounds = _core.fit(p, r, w, _CODES[metric], d)
     d.flags.writeable = False
     return FitResult(pose=Pose2(x, y, th), cost=cost, residuals_m=d, metric=metric, cost_lower_bound=lower)
+
+
+def _clean(a) -> bool:
+    """A C-contiguous float64 (n, 2) ndarray (the core reads it as it is)."""
+    return type(a) is np.ndarray and a.dtype == _F64 and a.ndim == 2 and a.shape[1] == 2 and a.flags.c_contiguous
+
+
+_F64 = np.dtype(np.float64)
 
 
 def fit_structure_reference(template_xy, positions_xy, metric: str = "l2", weights=None) -> FitResult:
