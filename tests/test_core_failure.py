@@ -257,6 +257,21 @@ def test_values_the_rule_does_not_read_are_not_refused():
     assert made == [] and np.isnan(core.last_t[1])
 
 
+def test_one_fresh_flag_for_all_robots_is_taken_as_by_the_reference():
+    policy = FailurePolicy("hold")
+    core = ref = FailureState.initial(3, policy, 0.1)
+    for k in range(3):
+        core, ref, _ = both(policy, core, ref, ("a", "b", "c"), 0.1 * k, np.ones(3, bool), True,
+                            np.full((3, 2), 0.01 * k), np.zeros(3), np.full((3, 2), 0.01), 0.1)
+    assert (core.head == 2).all()
+
+
+def test_a_state_of_another_size_is_refused_with_a_value_error():
+    policy = FailurePolicy("hold")
+    with pytest.raises(VsfleetValueError):
+        call(state=FailureState.initial(3, policy, 0.1))
+
+
 def test_the_binding_refuses_arrays_of_the_wrong_kind():
     policy = FailurePolicy("hold")
     s = FailureState.initial(1, policy, 0.1)

@@ -232,11 +232,15 @@ def failure_step(policy: FailurePolicy, state: FailureState, robots: Sequence[st
     n = len(robots)
     seen = np.ascontiguousarray(seen, dtype=bool)
     fresh = np.ascontiguousarray(fresh, dtype=bool)
+    if fresh.shape != (n,):                           # one flag for all, as the reference takes it
+        try:
+            fresh = np.ascontiguousarray(np.broadcast_to(fresh, (n,)))
+        except ValueError:
+            raise VsfleetValueError("failure_step: arrays must have n rows, one per robot") from None
     xy = np.ascontiguousarray(xy_world, dtype=float)
     dev = np.ascontiguousarray(deviations_m, dtype=float)
     exp_m = np.ascontiguousarray(expected_step_m, dtype=float)
-    if (seen.shape != (n,) or fresh.shape != (n,) or xy.shape != (n, 2) or dev.shape != (n,)
-            or exp_m.shape != (n, 2)):
+    if seen.shape != (n,) or xy.shape != (n, 2) or dev.shape != (n,) or exp_m.shape != (n, 2):
         raise VsfleetValueError("failure_step: arrays must have n rows, one per robot")
     # the new state: one copy of each array, updated in place by the core
     new = [a.copy() for a in (state.since_t, state.failed, state.dropped, state.last_t, state.last_xy,

@@ -8,7 +8,15 @@ enum { BUF_F64, BUF_BOOL, BUF_I64 };
 /* A C-contiguous buffer of count items of the kind (float64, bool, int64), or -1 with an error set. */
 static int get_buf(PyObject *obj, Py_buffer *view, int kind, Py_ssize_t count, int writable, const char *name)
 {
-    if (kind == BUF_F64) return vs_py_doubles(obj, view, count, writable, name);
+    if (kind == BUF_F64) {
+        if (vs_py_doubles(obj, view, -1, writable, name) < 0) return -1;
+        if (view->len / 8 != count) {
+            PyErr_Format(vs_ValueError, "failure_step: %s must hold %zd values, got %zd", name, count, view->len / 8);
+            PyBuffer_Release(view);
+            return -1;
+        }
+        return 0;
+    }
     int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
     if (PyObject_GetBuffer(obj, view, flags) < 0) {
         PyErr_Format(PyExc_TypeError, "%s must be a C-contiguous%s %s buffer", name, writable ? " writable" : "",
@@ -25,7 +33,8 @@ static int get_buf(PyObject *obj, Py_buffer *view, int kind, Py_ssize_t count, i
         return -1;
     }
     if (view->len / view->itemsize != count) {
-        PyErr_Format(PyExc_ValueError, "%s must hold %zd items, got %zd", name, count, view->len / view->itemsize);
+        PyErr_Format(vs_ValueError, "failure_step: %s must hold %zd values, got %zd", name, count,
+                     view->len / view->itemsize);
         PyBuffer_Release(view);
         return -1;
     }
