@@ -359,6 +359,7 @@ class PrecisionState:
 
 # Commands kept besides the last one sent: an age of up to this many ticks is compensated.
 _HISTORY = 5
+_STATE_FIELDS = tuple(f.name for f in fields(PrecisionState))
 
 
 @dataclass(frozen=True)
@@ -416,7 +417,9 @@ class Precision:
         old = (state.pose_world, state.gains, state.history_m_s, state.target_world, state.feed_m_s,
                state.turn_rad_s, state.direction, state.ready)
         _core_call(_core.control_precision, (self._core, *old), inp, (*new, wheels), head_flags=(8,))
-        return PrecisionState(*new), wheels
+        out = object.__new__(PrecisionState)   # the dataclass without its __init__ (1 us of 5 at n = 3)
+        out.__dict__.update(zip(_STATE_FIELDS, new))
+        return out, wheels
 
     def reference(self, state: PrecisionState, inp: ControlInput) -> tuple[PrecisionState, np.ndarray]:
         """:meth:`__call__` in numpy (the reference of the compiled core)."""
