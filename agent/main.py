@@ -81,13 +81,13 @@ class Agent:
                  clock: Callable[[], float] = wall_clock,
                  put_event: Callable[[bytes], None] = lambda payload: None,
                  controller: Controller | None = None, command_age_s: float | None = None,
-                 shared_structures: dict | None = None) -> None:
+                 shared_structures: dict | None = None, reference: bool = False) -> None:
         self.robot = check_name(robot, "robot")
         self.keys = keys
         self.put_cmd, self.put_state, self.put_event = put_cmd, put_state, put_event
         self.clock = clock
         self.config = StepConfig(dt_s=dt_s, ttl_s=ttl_s, controller=controller, command_age_s=command_age_s,
-                                 shared_structures=shared_structures)
+                                 shared_structures=shared_structures, reference=reference)
         self.state = AgentState(robot)
         self.missions = MissionBook()
         self.merger = FrameMerger((), dt_s if deadline_s is None else deadline_s, max_age_s)

@@ -54,7 +54,10 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
                 metric: str | None = None, noise_xy_m: float | None = None,
                 noise_th_rad: float | None = None, latency_frames: int = 1, seed: int = 0,
                 goal_tol_m: float = 0.005, stop_at_goal: bool = True, tracker_clock_ahead_s: float = 0.0,
-                share_structures: bool = True, **gains: float) -> OfflineRun:
+                share_structures: bool = True, reference: bool = False, **gains: float) -> OfflineRun:
+    """The fleet of ``scenario`` offline: one agent per robot on counted frames, simfleet's physics.
+
+    reference: the agents run the numpy reference of the step instead of the compiled core (tests)."""
     mission = scenario.mission
     if metric is not None:
         mission = dataclasses.replace(mission, metric=metric)
@@ -90,7 +93,7 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
         agents[r] = Agent(r, keys, put_cmd=lambda b, r=r: sent.__setitem__(r, _wheels(b)),
                           put_state=lambda b: None, dt_s=dt,
                           clock=lambda: t - tracker_clock_ahead_s, controller=ctrl,
-                          command_age_s=latency_frames * dt, shared_structures=shared)
+                          command_age_s=latency_frames * dt, shared_structures=shared, reference=reference)
         agents[r].on_mission(keys.mission, encode_mission(mission))
     for k in range(int(round(duration_s / dt))):
         poses = {r: (s.pose.x + rng.normal(0.0, nxy), s.pose.y + rng.normal(0.0, nxy),

@@ -26,6 +26,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
+from . import _core
 from .advance import (
     Goal,
     GoalPath,
@@ -34,14 +35,23 @@ from .advance import (
     StructureLimits,
     Twist2,
     advance_structure,
+    advance_structure_reference,
 )
 from .control import DEFAULT_CONTROLLER, ControlInput, make_controller
 from .envelope import Envelope, Envelopes
-from .failure import FailurePolicy, FailureState, Health, failure_step, restart_timers, with_health
-from .fit import fit_structure
+from .failure import (
+    FailurePolicy,
+    FailureState,
+    Health,
+    failure_step,
+    failure_step_reference,
+    restart_timers,
+    with_health,
+)
+from .fit import fit_structure, fit_structure_reference
 from .frames import Frame
 from .geometry import Pose2
-from .kinematics import integrate_arcs
+from .kinematics import integrate_arcs, integrate_arcs_reference
 from .wire import CmdMsg, EventMsg, HealthMsg, Mission, StateMsg
 
 Controller = Callable  # vsfleet.control: controller(state, ControlInput) -> (state, wheels (n, 2))
@@ -82,6 +92,27 @@ class MissionArrays:
     goal: Goal
     limits: StructureLimits
     policy: FailurePolicy          # the failure rule's mode and thresholds
+    core: tuple = ()               # the same, packed for vsfleet._core.structure_step (core_mission)
+
+
+_METRIC_CODES = {"l1": 0, "l2": 1, "linf": 2}  # VS_METRIC_* (vsfleet/_core/vs_fit.h)
+_LIMIT_FIELDS = ("speed_max_m_s", "turn_rate_max_rad_s", "position_tolerance_m", "heading_tolerance_rad",
+                 "path_lookahead_m", "comply_full_m", "comply_stop_m", "settle_s", "turn_settle_s")
+
+
+def core_mission(metric: str, template: np.ndarray, envelopes: Envelopes, goal: Goal,
+                 limits: StructureLimits) -> tuple:
+    """The mission's constants as the compiled core takes them (vs_mission in vs_step.h)."""
+    if isinstance(goal, GoalPose):
+        kind, poses = 0, [goal.pose.as_tuple()]
+    elif isinstance(goal, GoalPath):
+        kind, poses = 1, [w.as_tuple() for w in goal.waypoints]
+    else:
+        kind, poses = 2, [(goal.vx_m_s, goal.vy_m_s, goal.w_rad_s)]
+    return (np.ascontiguousarray(template, dtype=float), np.ascontiguousarray(envelopes.wheel_base_m),
+            np.ascontiguousarray(envelopes.wheel_speed_max_m_s), np.ascontiguousarray(envelopes.wheel_accel_max_m_s2),
+            _METRIC_CODES[metric], kind, np.array(poses, dtype=float).ravel(),
+            np.array([getattr(limits, f) for f in _LIMIT_FIELDS], dtype=float))
 
 
 _ARRAYS: dict[int, tuple[Mission, MissionArrays]] = {}
@@ -93,11 +124,11 @@ def mission_arrays(mission: Mission) -> MissionArrays:
     if hit is not None and hit[0] is mission:
         return hit[1]
     ids = mission.robot_ids
-    arrays = MissionArrays(ids=ids, index={r: i for i, r in enumerate(ids)}, template=mission_template(mission),
-                           envelopes=mission_envelope_arrays(mission), goal=mission_goal(mission),
-                           limits=StructureLimits(speed_max_m_s=mission.speed_max,
-                                                  turn_rate_max_rad_s=mission.turn_rate_max),
-                           policy=mission_policy(mission))
+    template, envelopes, goal = mission_template(mission), mission_envelope_arrays(mission), mission_goal(mission)
+    limits = StructureLimits(speed_max_m_s=mission.speed_max, turn_rate_max_rad_s=mission.turn_rate_max)
+    arrays = MissionArrays(ids=ids, index={r: i for i, r in enumerate(ids)}, template=template,
+                           envelopes=envelopes, goal=goal, limits=limits, policy=mission_policy(mission),
+                           core=core_mission(mission.metric, template, envelopes, goal, limits))
     if len(_ARRAYS) >= 16:
         _ARRAYS.clear()
     _ARRAYS[id(mission)] = (mission, arrays)
@@ -133,47 +164,70 @@ class Structure:
 
 
 def structure_step(arrays: MissionArrays, metric: str, pose_world: np.ndarray, seen: np.ndarray,
-                   excluded: np.ndarray, judged_apart: np.ndarray, elapsed_s: float, dt_s: float) -> Structure | None:
+                   excluded: np.ndarray, judged_apart: np.ndarray, elapsed_s: float, dt_s: float,
+                   reference: bool = False) -> Structure | None:
     """Fit the structure to the robots seen and not excluded, advance it one dt_s toward the goal.
 
+    reference: the numpy reference implementations instead of the compiled core (tests).
     Robots absent or excluded are left out of the fit but still bound the advance. The
     deviations are measured on the structure fitted without the ``judged_apart`` robots (when two
     or more others remain): under hold a failed robot bends the structure the robots follow, and
     the healthy robots it bends must not look non-compliant for it. None if no robot is usable.
     """
+    if not reference:
+        return _structure_step_core(arrays, pose_world, seen, excluded, judged_apart, elapsed_s, dt_s)
     used = seen & ~excluded
     if not used.any():
         return None
+    fit_fn, advance_fn = (fit_structure_reference, advance_structure_reference) if reference else \
+        (fit_structure, advance_structure)
     xy = pose_world[:, :2]
-    fit = fit_structure(arrays.template[used], xy[used], metric=metric)
+    fit = fit_fn(arrays.template[used], xy[used], metric=metric)
     now_pts = fit.pose.apply(arrays.template)
     dist = np.hypot(xy[:, 0] - now_pts[:, 0], xy[:, 1] - now_pts[:, 1])
-    adv = advance_structure(fit.pose, arrays.goal, dt_s, arrays.limits, arrays.template, arrays.envelopes,
+    adv = advance_fn(fit.pose, arrays.goal, dt_s, arrays.limits, arrays.template, arrays.envelopes,
                             elapsed_s=elapsed_s, headings_rad=np.where(used, pose_world[:, 2], np.nan),
                             deviations_m=np.where(used, dist, np.nan))
     judges = used & ~judged_apart
     if 2 <= int(judges.sum()) < int(used.sum()):  # a rigid fit needs two points to fix the heading
-        judged = fit_structure(arrays.template[judges], xy[judges], metric=metric).pose.apply(arrays.template)
+        judged = fit_fn(arrays.template[judges], xy[judges], metric=metric).pose.apply(arrays.template)
         dist = np.hypot(xy[:, 0] - judged[:, 0], xy[:, 1] - judged[:, 1])
     return Structure(fit_pose=fit.pose, goal_pose=adv.pose, twist=adv.twist, cost=float(fit.cost),
                      at_goal=adv.at_goal, used=used, points_now=now_pts, points_next=adv.pose.apply(arrays.template),
                      deviations_m=np.where(seen, dist, np.inf))
 
 
+def _structure_step_core(arrays: MissionArrays, pose_world: np.ndarray, seen: np.ndarray, excluded: np.ndarray,
+                         judged_apart: np.ndarray, elapsed_s: float, dt_s: float) -> Structure | None:
+    """structure_step in the compiled core (vs_structure_step): one call for the fit, the advance and the
+    judged fit."""
+    n = len(arrays.ids)
+    used, now, nxt, dev = np.empty(n, dtype=bool), np.empty((n, 2)), np.empty((n, 2)), np.empty(n)
+    r = _core.structure_step(*arrays.core, np.ascontiguousarray(pose_world, dtype=float),
+                             np.ascontiguousarray(seen, dtype=bool), np.ascontiguousarray(excluded, dtype=bool),
+                             np.ascontiguousarray(judged_apart, dtype=bool), float(elapsed_s), float(dt_s),
+                             used, now, nxt, dev)
+    if r is None:
+        return None
+    fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal = r
+    return Structure(fit_pose=Pose2(fx, fy, fth), goal_pose=Pose2(gx, gy, gth), twist=Twist2(vx, vy, w), cost=cost,
+                     at_goal=at_goal, used=used, points_now=now, points_next=nxt, deviations_m=dev)
+
+
 def _shared_structure_step(shared: dict | None, mission: Mission, arrays: MissionArrays, pose_world: np.ndarray,
                            seen: np.ndarray, excluded: np.ndarray, judged_apart: np.ndarray, elapsed_s: float,
-                           dt_s: float) -> Structure | None:
+                           dt_s: float, reference: bool = False) -> Structure | None:
     """structure_step, taken from ``shared`` when another agent of an offline run computed it on the
     very same inputs (an equal mission, whose arrays these are, and the arrays' bytes, NaN rows of
     unseen robots included); its arrays are then read-only, as they are shared."""
     metric = mission.metric
     if shared is None:
-        return structure_step(arrays, metric, pose_world, seen, excluded, judged_apart, elapsed_s, dt_s)
+        return structure_step(arrays, metric, pose_world, seen, excluded, judged_apart, elapsed_s, dt_s, reference)
     key = (mission, pose_world.tobytes(), seen.tobytes(), excluded.tobytes(), judged_apart.tobytes(),
-           elapsed_s, dt_s)
+           elapsed_s, dt_s, reference)
     if key in shared:
         return shared[key]
-    s = structure_step(arrays, metric, pose_world, seen, excluded, judged_apart, elapsed_s, dt_s)
+    s = structure_step(arrays, metric, pose_world, seen, excluded, judged_apart, elapsed_s, dt_s, reference)
     if s is not None:
         for a in (s.used, s.points_now, s.points_next, s.deviations_m):
             a.flags.writeable = False
@@ -184,9 +238,10 @@ def _shared_structure_step(shared: dict | None, mission: Mission, arrays: Missio
 
 
 def expected_steps_m(pose_world: np.ndarray, wheels_m_s: np.ndarray, dt_s: float,
-                     wheel_base_m: np.ndarray) -> np.ndarray:
+                     wheel_base_m: np.ndarray, reference: bool = False) -> np.ndarray:
     """Displacement (n, 2) [m; world] each robot makes in dt_s at its command (paper eqs 17-18)."""
-    return integrate_arcs(pose_world, wheels_m_s, dt_s, wheel_base_m)[:, :2] - pose_world[:, :2]
+    arcs = integrate_arcs_reference if reference else integrate_arcs
+    return arcs(pose_world, wheels_m_s, dt_s, wheel_base_m)[:, :2] - pose_world[:, :2]
 
 
 # ---------------------------------------------------------------- the agent step
@@ -219,6 +274,9 @@ class StepConfig:
     # structures of the newest frames by their inputs; an agent whose inputs equal another's takes
     # that agent's structure instead of computing the same pure function again. None: compute.
     shared_structures: dict | None = field(default=None, compare=False, repr=False)
+    # the numpy reference implementations (fit, advance, controller, kinematics, failure rule) instead
+    # of the compiled core: the readable reference the core is tested against (tests/test_core_step.py)
+    reference: bool = False
 
     @property
     def age_s(self) -> float:
@@ -365,12 +423,12 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
     hold = policy.mode == "hold"
     judged_apart = failure.failed & ~failure.dropped if hold else np.zeros(n, dtype=bool)
     s = _shared_structure_step(config.shared_structures, mission, arrays, pose, seen, failure.dropped,
-                               judged_apart, frame.t - mission.effective_t, config.dt_s)
+                               judged_apart, frame.t - mission.effective_t, config.dt_s, config.reference)
     if s is None:
         return state, StepOutput(notes=tuple(notes))
     # every robot's command, as its own agent computes it: seen, and not dropped (rejoin: driven on)
     active = seen & (~failure.dropped if policy.mode != "rejoin" else True)
-    ctrl, wheels = controller(ctrl, ControlInput(
+    ctrl, wheels = (controller.reference if config.reference else controller)(ctrl, ControlInput(
         pose_world=np.where(seen[:, None], pose, 0.0), point_now_world=s.points_now,
         point_next_world=s.points_next, wheels_prev_m_s=wheels_prev, dt_s=config.dt_s, age_s=config.age_s,
         envelopes=arrays.envelopes, active=active))
@@ -389,8 +447,8 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
     # time would disagree on the frame of a decision
     moved = fresh & active
     expected = np.where(moved[:, None], expected_steps_m(np.where(seen[:, None], pose, 0.0), wheels, config.dt_s,
-                                                         arrays.envelopes.wheel_base_m), 0.0)
-    failure, decisions = failure_step(policy, failure, arrays.ids, frame.t, seen=seen, fresh=fresh,
+                                                         arrays.envelopes.wheel_base_m, config.reference), 0.0)
+    failure, decisions = (failure_step_reference if config.reference else failure_step)(policy, failure, arrays.ids, frame.t, seen=seen, fresh=fresh,
                                       xy_world=np.where(seen[:, None], pose[:, :2], 0.0),
                                       deviations_m=s.deviations_m, expected_step_m=expected,
                                       step_s=config.dt_s, max_gap_s=config.ttl_s)

@@ -8,6 +8,8 @@
  * 0 on success (release with PyBuffer_Release), -1 with TypeError/ValueError set.
  * n_expected < 0: any length. writable: the caller writes its outputs into it. */
 int vs_py_doubles(PyObject *obj, Py_buffer *view, Py_ssize_t n_expected, int writable, const char *name);
+/* A C-contiguous buffer of n one-byte booleans (numpy bool or uint8): as vs_py_doubles. */
+int vs_py_flags(PyObject *obj, Py_buffer *view, Py_ssize_t n_expected, int writable, const char *name);
 /* Raise the typed vsfleet error for a negative VS_E* code (ValueError subclasses). */
 PyObject *vs_py_error(int code, const char *what);
 extern PyObject *vs_NonFiniteError;   /* vsfleet.errors.NonFiniteError */

@@ -7,6 +7,7 @@
 
 #include "vscore.h"
 #include "vs_golden.h"
+#include "vs_step.h"
 
 static long g_sin(const double *in, long n, double *out, long cap)
 {
@@ -36,7 +37,57 @@ static long g_wrap(const double *in, long n, double *out, long cap)
     return n;
 }
 
+/* A count in a double: a whole number in [lo, hi], else -1. */
+static long count_of(double v, long lo, long hi)
+{
+    if (!(v >= (double)lo && v <= (double)hi)) return -1;
+    long k = (long)v;
+    return (double)k == v ? k : -1;
+}
+
+/* structure_step: n, metric, goal kind, k goal poses, 3k goal, 9 limits, 2n template, n wheel base,
+ * n speed max, n accel max, 3n poses, n seen, n excluded, n judged apart, elapsed, dt
+ * -> any_used, then (if any) fit 3, goal 3, twist 3, cost, at_goal, n used, 2n now, 2n next, n deviations */
+static long g_structure_step(const double *in, long n_in, double *out, long cap)
+{
+    if (n_in < 4) return -1;
+    long n = count_of(in[0], 1, 100000), metric = count_of(in[1], 0, 2), kind = count_of(in[2], 0, 2),
+         k = count_of(in[3], 1, 100000);
+    if (n < 0 || metric < 0 || kind < 0 || k < 0) return -1;
+    long need = 4 + 3 * k + 9 + 2 * n + 3 * n + 3 * n + 3 * n + 2;
+    if (n_in != need || cap < 1 + 11 + 6 * n) return -1;
+    const double *p = in + 4, *goal = p;
+    p += 3 * k;
+    const double *lim = p; p += 9;
+    const double *tpl = p; p += 2 * n;
+    const double *wb = p; p += n;
+    const double *vmax = p; p += n;
+    const double *amax = p; p += n;
+    const double *pose = p; p += 3 * n;
+    unsigned char flags[3][4096];
+    if (n > 4096) return -1;
+    for (long j = 0; j < 3; j++)
+        for (long i = 0; i < n; i++) flags[j][i] = p[j * n + i] != 0.0;
+    p += 3 * n;
+    double elapsed = p[0], dt = p[1];
+    vs_mission m = {(size_t)n, tpl, wb, vmax, amax, (int)metric, {(int)kind, goal, (size_t)k},
+                    {lim[0], lim[1], lim[2], lim[3], lim[4], lim[5], lim[6], lim[7], lim[8]}};
+    vs_structure s;
+    unsigned char used[4096];
+    double *now = out + 12 + n, *next = now + 2 * n, *dev = next + 2 * n;
+    if (vs_structure_step(&m, pose, flags[0], flags[1], flags[2], elapsed, dt, &s, used, now, next, dev) != VS_OK)
+        return -1;
+    out[0] = s.any_used;
+    if (!s.any_used) return 1;
+    double head[11] = {s.fit_x, s.fit_y, s.fit_th, s.goal_x, s.goal_y, s.goal_th, s.vx_m_s, s.vy_m_s, s.w_rad_s,
+                       s.cost, (double)s.at_goal};
+    memcpy(out + 1, head, sizeof head);
+    for (long i = 0; i < n; i++) out[12 + i] = used[i];
+    return 12 + 6 * n;
+}
+
 static const golden_entry entries[] = {
+    {"structure_step", g_structure_step},
     {"sin", g_sin},
     {"cos", g_cos},
     {"atan2", g_atan2},

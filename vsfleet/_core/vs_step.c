@@ -1,0 +1,109 @@
+/* vs_step.c - see vs_step.h. */
+#include <math.h>   /* sqrt only */
+#include <stdlib.h>
+
+#include "vs_step.h"
+
+void vs_apply_pose(double x, double y, double th, const double *p, size_t n, double *out)
+{
+    double s, c;
+    vs_sincos(th, &s, &c);
+    for (size_t i = 0; i < n; i++) {
+        double px = p[2 * i], py = p[2 * i + 1];
+        out[2 * i] = c * px - s * py + x;
+        out[2 * i + 1] = s * px + c * py + y;
+    }
+}
+
+/* The fit on the rows where mask is set, gathered into scratch (4 k doubles). */
+static int fit_rows(const vs_mission *m, const double *pose_world, const unsigned char *mask, size_t k,
+                    double *scratch, vs_fit_result *fit)
+{
+    double *tpl = scratch, *xy = scratch + 2 * k;
+    size_t j = 0;
+    for (size_t i = 0; i < m->n; i++) {
+        if (!mask[i]) continue;
+        tpl[2 * j] = m->template_xy[2 * i];
+        tpl[2 * j + 1] = m->template_xy[2 * i + 1];
+        xy[2 * j] = pose_world[3 * i];
+        xy[2 * j + 1] = pose_world[3 * i + 1];
+        j++;
+    }
+    return vs_fit(tpl, xy, NULL, k, m->metric, fit);
+}
+
+static void distances(const double *pose_world, const double *pts, size_t n, double *d)
+{
+    for (size_t i = 0; i < n; i++) {
+        double dx = pose_world[3 * i] - pts[2 * i], dy = pose_world[3 * i + 1] - pts[2 * i + 1];
+        d[i] = sqrt(dx * dx + dy * dy);
+    }
+}
+
+int vs_structure_step(const vs_mission *m, const double *pose_world, const unsigned char *seen,
+                      const unsigned char *excluded, const unsigned char *judged_apart, double elapsed_s,
+                      double dt_s, vs_structure *out, unsigned char *used, double *points_now,
+                      double *points_next, double *deviations_m)
+{
+    size_t n = m->n, n_used = 0, n_judges = 0;
+    if (n == 0) return VS_EVALUE;
+    if (!vs_isfinite(elapsed_s) || !vs_isfinite(dt_s)) return VS_ENONFINITE;
+    if (!(dt_s > 0.0)) return VS_EVALUE;
+    for (size_t i = 0; i < n; i++) {
+        if (seen[i] && !(vs_isfinite(pose_world[3 * i]) && vs_isfinite(pose_world[3 * i + 1])
+                         && vs_isfinite(pose_world[3 * i + 2])))
+            return VS_ENONFINITE;
+        n_used += seen[i] && !excluded[i];
+        n_judges += seen[i] && !excluded[i] && !judged_apart[i];
+    }
+    if (n_used == 0) {
+        out->any_used = 0;
+        return VS_OK;
+    }
+    /* scratch: gathered template and positions (4n), distances (n), headings (n), deviations (n),
+     * judged points (2n) */
+    double *scratch = malloc(sizeof(double) * 9 * n);
+    unsigned char *mask = malloc(n);
+    if (scratch == NULL || mask == NULL) { free(scratch); free(mask); return VS_ENOMEM; }
+    double *dist = scratch + 4 * n, *head = dist + n, *devs = head + n, *judged = devs + n;
+    for (size_t i = 0; i < n; i++) mask[i] = (unsigned char)(seen[i] && !excluded[i]);
+
+    vs_fit_result fit;
+    vs_advance_result adv;
+    int rc = fit_rows(m, pose_world, mask, n_used, scratch, &fit);
+    if (rc != VS_OK) goto done;
+    vs_apply_pose(fit.x, fit.y, fit.th, m->template_xy, n, points_now);
+    distances(pose_world, points_now, n, dist);
+    const double nan = 0.0 / 0.0;
+    for (size_t i = 0; i < n; i++) {
+        head[i] = mask[i] ? pose_world[3 * i + 2] : nan;
+        devs[i] = mask[i] ? dist[i] : nan;
+    }
+    double pose_fit[3] = {fit.x, fit.y, fit.th};
+    rc = vs_advance(pose_fit, &m->goal, dt_s, &m->limits, m->template_xy, m->wheel_base_m,
+                    m->wheel_speed_max_m_s, m->wheel_accel_max_m_s2, n, NULL, &elapsed_s, head, devs, &adv);
+    if (rc != VS_OK) goto done;
+    if (n_judges >= 2 && n_judges < n_used) {   /* a rigid fit needs two points to fix the heading */
+        for (size_t i = 0; i < n; i++) mask[i] = (unsigned char)(mask[i] && !judged_apart[i]);
+        vs_fit_result jf;
+        rc = fit_rows(m, pose_world, mask, n_judges, scratch, &jf);
+        if (rc != VS_OK) goto done;
+        vs_apply_pose(jf.x, jf.y, jf.th, m->template_xy, n, judged);
+        distances(pose_world, judged, n, dist);
+    }
+    for (size_t i = 0; i < n; i++) {
+        used[i] = (unsigned char)(seen[i] && !excluded[i]);
+        deviations_m[i] = seen[i] ? dist[i] : 1.0 / 0.0;
+    }
+    vs_apply_pose(adv.x, adv.y, adv.th, m->template_xy, n, points_next);
+    out->any_used = 1;
+    out->fit_x = fit.x; out->fit_y = fit.y; out->fit_th = fit.th;
+    out->goal_x = adv.x; out->goal_y = adv.y; out->goal_th = adv.th;
+    out->vx_m_s = adv.vx_m_s; out->vy_m_s = adv.vy_m_s; out->w_rad_s = adv.w_rad_s;
+    out->cost = fit.cost;
+    out->at_goal = adv.at_goal;
+done:
+    free(scratch);
+    free(mask);
+    return rc;
+}

@@ -1,0 +1,52 @@
+/* vs_step.h - the structure part of the agent step: fit, advance, judged fit (one call a frame).
+ *
+ * As vsfleet.step.structure_step: the structure is fitted to the robots seen and not
+ * excluded, advanced one dt_s toward the goal (robots absent or excluded still bound the
+ * advance), and each robot's deviation is measured on the structure fitted without the
+ * judged_apart robots when two or more others remain (under hold, a failed robot bends the
+ * structure the robots follow, and the healthy robots it bends must not look non-compliant).
+ * Everything duplicated agents must agree on bit for bit comes out of this one function.
+ */
+#ifndef VS_STEP_H
+#define VS_STEP_H
+
+#include <stddef.h>
+
+#include "vscore.h"
+#include "vs_advance.h"
+#include "vs_fit.h"
+
+/* What a mission fixes for every frame (rows in its sorted robot order). */
+typedef struct {
+    size_t n;
+    const double *template_xy;          /* (n, 2) [m; structure frame] */
+    const double *wheel_base_m;         /* (n) [m] */
+    const double *wheel_speed_max_m_s;  /* (n) [m/s] */
+    const double *wheel_accel_max_m_s2; /* (n) [m/s^2] */
+    int metric;                         /* VS_METRIC_* */
+    vs_goal goal;
+    vs_limits limits;
+} vs_mission;
+
+typedef struct {
+    int any_used;                       /* 0: no robot usable, nothing else written */
+    double fit_x, fit_y, fit_th;        /* fitted pose [m, rad; world] (th wrapped to [-pi, pi)) */
+    double goal_x, goal_y, goal_th;     /* advanced pose, one dt_s later [m, rad; world] */
+    double vx_m_s, vy_m_s, w_rad_s;     /* the twist between them [m/s; world], [rad/s] */
+    double cost;                        /* the fit's cost [weighted m] */
+    int at_goal;
+} vs_structure;
+
+/* pose_world (n, 3) [m, m, rad; world], read on seen rows only; seen, excluded, judged_apart
+ * (n) 0/1; elapsed_s [s] since the mission took effect; dt_s [s] > 0.  Outputs (n each, or
+ * (n, 2)): used (seen & !excluded), points_now / points_next [m; world] (every robot's point
+ * on the fitted / advanced structure), deviations_m [m] (+inf for unseen robots). */
+int vs_structure_step(const vs_mission *m, const double *pose_world, const unsigned char *seen,
+                      const unsigned char *excluded, const unsigned char *judged_apart, double elapsed_s,
+                      double dt_s, vs_structure *out, unsigned char *used, double *points_now,
+                      double *points_next, double *deviations_m);
+
+/* R(th) p + (x, y) for n points (n, 2) -> out (n, 2) [m; world]. */
+void vs_apply_pose(double x, double y, double th, const double *points_xy, size_t n, double *out);
+
+#endif
