@@ -36,6 +36,28 @@ static double hostile(const double *pool, long n_pool, const double *sofar, long
     return (uniform() - 0.5) * ((next() & 1) ? 2.0 : 200.0);
 }
 
+/* structure_step (vs_golden.c's packing) with a valid header and hostile contents: n robots,
+ * k goal poses, the metric and goal kind; flags mostly 0/1 (sometimes hostile too). */
+static long structure_step_input(double *in)
+{
+    long n = (long)(next() % 41), k = 1 + (long)(next() % 3);
+    if (n == 0 && (next() & 1)) n = 1;
+    long len = 0;
+    in[len++] = (double)n;
+    in[len++] = (double)(next() % 3);
+    in[len++] = (double)(next() % 3);
+    in[len++] = (double)k;
+    for (long i = 0; i < 3 * k; i++, len++) in[len] = hostile(in, len, in, len);
+    for (long i = 0; i < 9; i++, len++) in[len] = (next() % 8) ? uniform() * 0.1 + 1e-3 : hostile(in, len, in, len);
+    for (long i = 0; i < 2 * n; i++, len++) in[len] = hostile(in, len, in, len);       /* template */
+    for (long i = 0; i < 3 * n; i++, len++) in[len] = (next() % 8) ? 0.05 + uniform() : hostile(in, len, in, len);
+    for (long i = 0; i < 3 * n; i++, len++) in[len] = hostile(in, len, in, len);       /* poses */
+    for (long i = 0; i < 3 * n; i++, len++) in[len] = (next() % 16) ? (double)(next() & 1) : hostile(in, len, in, len);
+    in[len++] = (next() % 8) ? uniform() * 10.0 : hostile(in, len, in, len);           /* elapsed */
+    in[len++] = (next() % 8) ? 1.0 / 30.0 : hostile(in, len, in, len);                 /* dt */
+    return len;
+}
+
 int main(int argc, char **argv)
 {
     long iters = argc > 1 ? atol(argv[1]) : 2000;
@@ -50,6 +72,7 @@ int main(int argc, char **argv)
             long n = (long)(next() % 301);
             if (it % 50 == 0) n = 0;
             for (long i = 0; i < n; i++) in[i] = hostile(in, i, in, i);
+            if (strcmp(all[e].name, "structure_step") == 0 && it % 10) n = structure_step_input(in);
             long got = all[e].run(in, n, out, CAP);
             if (got < 0) refused++; else ran++;
         }
