@@ -434,11 +434,18 @@ def _f64(a) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=float)
 
 
-def _pose(x: float, y: float, th: float) -> Pose2:
-    """A Pose2 of an already wrapped th (the core wraps it once, as Pose2 does), without re-wrapping."""
-    p = object.__new__(Pose2)
-    p.__dict__.update(x=x, y=y, th=th)
-    return p
+_new, _set = object.__new__, object.__setattr__
+
+
+def _result(r: tuple) -> AdvanceResult:
+    """The AdvanceResult of the core's (x, y, th, vx, vy, w, scale, at_goal): its frozen dataclasses
+    filled directly (their fields only; th is already wrapped once by the core, as Pose2 does, and
+    is not wrapped again): 1.9 us through their __init__s, 1 us so."""
+    pose, twist, res = _new(Pose2), _new(Twist2), _new(AdvanceResult)
+    _set(pose, "__dict__", {"x": r[0], "y": r[1], "th": r[2]})
+    _set(twist, "__dict__", {"vx_m_s": r[3], "vy_m_s": r[4], "w_rad_s": r[5]})
+    _set(res, "__dict__", {"pose": pose, "twist": twist, "scale": r[6], "at_goal": r[7]})
+    return res
 
 
 def advance_structure(pose_fit: Pose2, goal: Goal, dt_s: float, limits: StructureLimits,
@@ -451,13 +458,13 @@ def advance_structure(pose_fit: Pose2, goal: Goal, dt_s: float, limits: Structur
     non-finite goal, template, twist_prev or elapsed_s, or an infinite heading or deviation (NaN
     marks an unseen robot), is refused with NonFiniteError instead of spreading into the result.
     """
-    tpl = _f64(template_xy)
+    tpl = template_xy if type(template_xy) is np.ndarray else np.asarray(template_xy, dtype=float)
     if tpl.ndim != 2 or tpl.shape[1] != 2 or tpl.shape[0] == 0:
         raise ShapeError(f"template_xy must have shape (n, 2) with n >= 1, got {tpl.shape}")
     n = tpl.shape[0]
     if type(envelopes) is not Envelopes:
         envelopes = _as_envelopes(envelopes)
-    if len(envelopes) != n:
+    if envelopes.wheel_base_m.shape[0] != n:
         raise ShapeError(f"{len(envelopes)} envelopes for {n} template points")
     if not (math.isfinite(dt_s) and dt_s > 0.0):
         raise VsfleetValueError(f"dt_s must be finite and > 0, got {dt_s!r}")
@@ -466,17 +473,27 @@ def advance_structure(pose_fit: Pose2, goal: Goal, dt_s: float, limits: Structur
         raise VsfleetValueError(f"pose_fit must be finite, got {pose_fit}")
     kind, goal_v = _core_goal(goal)
     if headings_rad is not None:
-        if type(headings_rad) is np.ndarray and headings_rad.dtype == np.float64 and headings_rad.flags.c_contiguous:
-            if headings_rad.shape != (n,):
-                raise ShapeError(f"headings_rad must have shape ({n},), got {headings_rad.shape}")
-        else:
+        if type(headings_rad) is not np.ndarray:
             headings_rad = _headings(headings_rad, n)
+        elif headings_rad.shape != (n,):
+            raise ShapeError(f"headings_rad must have shape ({n},), got {headings_rad.shape}")
     if deviations_m is not None:
-        deviations_m = _f64(deviations_m)
+        if type(deviations_m) is not np.ndarray:
+            deviations_m = np.asarray(deviations_m, dtype=float)
         if deviations_m.shape != (n,):
             raise ShapeError(f"deviations_m must have shape ({n},), got {deviations_m.shape}")
     prev = None if twist_prev is None else (twist_prev.vx_m_s, twist_prev.vy_m_s, twist_prev.w_rad_s)
-    r = _core.advance(x, y, th, kind, goal_v, dt_s, _core_limits(limits), tpl, envelopes.wheel_base_m,
-                      envelopes.wheel_speed_max_m_s, envelopes.wheel_accel_max_m_s2, prev,
-                      None if elapsed_s is None else float(elapsed_s), headings_rad, deviations_m)
-    return AdvanceResult(pose=_pose(r[0], r[1], r[2]), twist=Twist2(r[3], r[4], r[5]), scale=r[6], at_goal=r[7])
+    elapsed = None if elapsed_s is None else float(elapsed_s)
+    lim = _core_limits(limits)
+    try:
+        r = _core.advance(x, y, th, kind, goal_v, dt_s, lim, tpl, envelopes.wheel_base_m,
+                          envelopes.wheel_speed_max_m_s, envelopes.wheel_accel_max_m_s2, prev, elapsed,
+                          headings_rad, deviations_m)
+    except TypeError:
+        # an array that is not C-contiguous float64 (the core reads buffers as they are): convert
+        # them all once, as the reference's np.asarray(..., dtype=float) does
+        r = _core.advance(x, y, th, kind, goal_v, dt_s, lim, _f64(tpl), _f64(envelopes.wheel_base_m),
+                          _f64(envelopes.wheel_speed_max_m_s), _f64(envelopes.wheel_accel_max_m_s2), prev, elapsed,
+                          None if headings_rad is None else _f64(headings_rad),
+                          None if deviations_m is None else _f64(deviations_m))
+    return _result(r)
