@@ -270,6 +270,46 @@ static void push(dvec *d, double x)
     d->v[d->n++] = x;
 }
 
+/* A lower bound of f at every angle (not in the reference; it only ends a search the sinusoids
+ * cannot, where f is flat: near-coincident robots or template points; the search also raises it
+ * to the best constant minorant an evaluation gave, linf's pair bound, which the reference uses
+ * only where it beats the sinusoid at its own angle).  For any t and th,
+ * |Q_i - R P_i - t| >= |R P_i + t| - |Q_i|, so f(th) >= g_P - (sum w |Q_i| (l1) or w max |Q_i| (linf))
+ * with g_P the optimal cost of the template points alone, which no rotation changes; likewise with
+ * P and Q swapped.  g_P is bounded below by the evaluator's own weak-duality minorant for the
+ * problem (P, 0) at one angle.  -inf if neither helps; NaN if out of memory. */
+static double flat_bound(const vs_prob *pr, vs_eval_fn ev)
+{
+    size_t n = pr->n;
+    double *zero = calloc(n, sizeof(double));
+    if (zero == NULL) return 0.0 / 0.0;
+    double best = -1.0 / 0.0, sp = 0.0, sq = 0.0, mp = 0.0, mq = 0.0;
+    int linf = ev == vs_fit_eval_linf;
+    for (size_t i = 0; i < n; i++) {
+        double a = sqrt(pr->Px[i] * pr->Px[i] + pr->Py[i] * pr->Py[i]);
+        double b = sqrt(pr->Qx[i] * pr->Qx[i] + pr->Qy[i] * pr->Qy[i]);
+        sp += pr->w[i] * a; sq += pr->w[i] * b;
+        if (a > mp) mp = a;
+        if (b > mq) mq = b;
+    }
+    for (int side = 0; side < 2; side++) {
+        vs_prob sub = *pr;
+        double rest;
+        if (side == 0) { sub.Qx = zero; sub.Qy = zero; rest = linf ? pr->w[0] * mq : sq; }
+        else { sub.Px = zero; sub.Py = zero; rest = linf ? pr->w[0] * mp : sp; }
+        vs_ang a;
+        a.e[0] = a.e[1] = a.e[2] = 0.0;
+        /* (P, 0) at th = pi: q_i = P_i; (0, Q) at th = 0: q_i = Q_i */
+        double c = side == 0 ? -1.0 : 1.0;
+        ev(&sub, c, 0.0, 0.0, 0.0, 0, &a);
+        double g = a.K - a.A * c;
+        double v = g - rest - 64.0 * VS_EPS * (pr->bound * pr->W + rest);
+        if (v > best) best = v;
+    }
+    free(zero);
+    return best;
+}
+
 /* certify.search: (th, centred tx, ty, lower bound); rounds out. */
 static int search(const vs_prob *pr, vs_eval_fn ev, double th0, const double *guess, int ng, int split,
                   double t0x, double t0y, int lean, int refine, double *th_out, double *tx_out, double *ty_out,
@@ -319,6 +359,8 @@ static int search(const vs_prob *pr, vs_eval_fn ev, double th0, const double *gu
         frac[k] = v;
         frac[nlv + k] = 1.0 - v;
     }
+    double flat = flat_bound(pr, ev);
+    if (flat != flat) { rc = VS_ENOMEM; goto done; }
     double lower = 0.0;
     for (int round = 0; round < VS_FIT_MAX_ROUNDS; round++) {
         size_t m = S.m;
@@ -333,8 +375,11 @@ static int search(const vs_prob *pr, vs_eval_fn ev, double th0, const double *gu
         rounds = round + 1;
         size_t b = 0;
         double lbmin = 0.0, kmax = 0.0;
+        for (size_t i = 0; i < m; i++)
+            if (A[i].Kc > flat) flat = A[i].Kc;
         for (size_t i = 0; i < m; i++) {
             lb[i] = cell_bound(&A[i], &A[(i + 1) % m], &bc[i], &bs[i]);
+            if (flat > lb[i]) lb[i] = flat;   /* never moves a cut: it certifies every cell or none */
             if (A[i].f < A[b].f) b = i;
             if (i == 0 || lb[i] < lbmin) lbmin = lb[i];
             double ak = vs_fabs(A[i].K);

@@ -21,7 +21,7 @@
 /* angles evaluated per fit: at most max(VS_FIT_MIN_ANGLES, VS_FIT_WORK / n) (a hard cap on work;
  * the reference has none: normal fits evaluate 15-100 angles) */
 #define VS_FIT_MIN_ANGLES 512
-#define VS_FIT_WORK 400000
+#define VS_FIT_WORK 60000
 
 typedef struct { double x, y, th; double cost; double cost_lower_bound; int rounds; } vs_fit_result;
 

@@ -21,7 +21,8 @@ typedef struct {
 #define VS_FIT_SCRATCH 24
 
 /* One evaluated angle: the evaluator's answer (f, t, minorant K - A cos - B sin) and linf's basis. */
-typedef struct { double th, c, s, f, tx, ty, K, A, B, rough, e[3]; } vs_ang;
+typedef struct { double th, c, s, f, tx, ty, K, A, B, rough, e[3], Kc; } vs_ang;
+/* Kc: a constant minorant (valid at every angle; -inf if none): linf's pair bound */
 
 typedef void (*vs_eval_fn)(const vs_prob *pr, double c, double s, double tx0, double ty0, int rough, vs_ang *out);
 

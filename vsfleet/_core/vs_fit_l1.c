@@ -156,6 +156,7 @@ void vs_fit_eval_l1(const vs_prob *pr, double c, double s, double tx0, double ty
         kx[i] = kx[i] - share * sx;
         ky[i] = ky[i] - share * sy;
     }
+    out->Kc = -1.0 / 0.0;
     out->f = fd;
     out->tx = tx;
     out->ty = ty;

@@ -79,6 +79,39 @@ static double d2max_of(const double *qx, const double *qy, size_t n, double cx, 
     return nan ? 0.0 / 0.0 : mx;
 }
 
+/* radius of the smallest circle of three points; -inf where its rounding is not clearly small */
+static double mec3(double ax, double ay, double bx, double by, double cx, double cy)
+{
+    double ux = bx - ax, uy = by - ay, vx = cx - ax, vy = cy - ay, zx = cx - bx, zy = cy - by;
+    double a2 = zx * zx + zy * zy, b2 = vx * vx + vy * vy, c2 = ux * ux + uy * uy;   /* opposite a, b, c */
+    double m2 = a2 > b2 ? (a2 > c2 ? a2 : c2) : (b2 > c2 ? b2 : c2);
+    double da = ux * vx + uy * vy, db = -(ux * zx + uy * zy), dc = vx * zx + vy * zy;   /* angle cosines' signs */
+    if (da <= 0.0 || db <= 0.0 || dc <= 0.0) return 0.5 * sqrt(m2);   /* right or obtuse: the longest side */
+    double X = ux * vy - uy * vx;
+    if (vs_fabs(X) < 1e-3 * m2) return -1.0 / 0.0;   /* thin: leave it to the pairs */
+    return sqrt(a2 * b2 * c2 / (4.0 * X * X));
+}
+
+/* f(th) >= w (R_P(S) - max_i |Q_i - Q_a|) and the same with P and Q swapped, for the triple S = (a, b, c):
+ * R_P(S), the radius of S's template points, does not depend on th (|q_i - t| >= |R P_i + t - Q_a| - |Q_i - Q_a|). */
+static double triple_floor(const vs_prob *pr, const size_t *m, double w)
+{
+    const double *X[2] = {pr->Px, pr->Qx}, *Y[2] = {pr->Py, pr->Qy};
+    double best = -1.0 / 0.0;
+    for (int side = 0; side < 2; side++) {
+        const double *x = X[side], *y = Y[side], *ox = X[1 - side], *oy = Y[1 - side];
+        double R = mec3(x[m[0]], y[m[0]], x[m[1]], y[m[1]], x[m[2]], y[m[2]]);
+        double dev = 0.0;
+        for (int i = 1; i < 3; i++) {
+            double dx = ox[m[i]] - ox[m[0]], dy = oy[m[i]] - oy[m[0]], d = sqrt(dx * dx + dy * dy);
+            if (d > dev) dev = d;
+        }
+        double v = w * ((R - dev) - 1e-11 * R - 64.0 * VS_EPS * pr->bound);   /* X: relative error <= ~4e3 eps */
+        if (v > best) best = v;
+    }
+    return best;
+}
+
 void vs_fit_eval_linf(const vs_prob *pr, double c, double s, double tx0, double ty0, int rough, vs_ang *out)
 {
     size_t n = pr->n;
@@ -135,6 +168,11 @@ void vs_fit_eval_linf(const vs_prob *pr, double c, double s, double tx0, double 
     double dq = sqrt(D2 * D2 + D3 * D3), dp = sqrt(D0 * D0 + D1 * D1);
     double cst = 0.5 * w * (vs_fabs(dq - dp) - 16.0 * VS_EPS * pr->bound);
     if (lam[2] == 0.0 && cst >= K - A * c - B * s) { K = cst; A = 0.0; B = 0.0; }
+    out->Kc = cst;   /* half a pair's distance bounds f at every angle (the search's floor) */
+    if (mem[1] != mem[2]) {
+        double t = triple_floor(pr, mem, w);
+        if (t > out->Kc) out->Kc = t;
+    }
     out->f = w * sqrt(dmax);
     out->tx = C.cx;
     out->ty = C.cy;
