@@ -476,16 +476,18 @@ static double l2_rotation(const vs_prob *pr)
     return vs_atan2(cross, dot);
 }
 
+/* finite and within VS_FIT_MAX_ABS (NaN fails the comparison) */
 static int check_finite(const double *a, size_t k)
 {
     for (size_t i = 0; i < k; i++)
-        if (!vs_isfinite(a[i])) return 0;
+        if (!(vs_fabs(a[i]) <= VS_FIT_MAX_ABS)) return 0;
     return 1;
 }
 
 int vs_fit_residuals(const double *p, const double *r, size_t n, double x, double y, double th, double *d)
 {
-    if (!vs_isfinite(x) || !vs_isfinite(y) || !vs_isfinite(th) || !check_finite(p, 2 * n) || !check_finite(r, 2 * n))
+    double pose[3] = {x, y, th};
+    if (!check_finite(pose, 3) || !check_finite(p, 2 * n) || !check_finite(r, 2 * n))
         return VS_ENONFINITE;
     double c, s;
         vs_sincos(th, &s, &c);
@@ -501,7 +503,9 @@ int vs_fit_residuals(const double *p, const double *r, size_t n, double x, doubl
 int vs_fit_cost(const double *d, const double *w, size_t n, int metric, double *cost)
 {
     if (n == 0 || metric < VS_METRIC_L1 || metric > VS_METRIC_LINF) return VS_EVALUE;
-    if (!check_finite(d, n) || (w && !check_finite(w, n))) return VS_ENONFINITE;
+    for (size_t i = 0; i < n; i++)
+        if (!vs_isfinite(d[i])) return VS_ENONFINITE;
+    if (w && !check_finite(w, n)) return VS_ENONFINITE;
     double acc = 0.0;
     for (size_t i = 0; i < n; i++) {
         double wd = w ? w[i] * d[i] : d[i];

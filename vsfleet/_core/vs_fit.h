@@ -23,12 +23,16 @@
 #define VS_FIT_MIN_ANGLES 512
 #define VS_FIT_WORK 60000
 
+/* |coordinate| [m], |pose| and weights above this are refused (VS_ENONFINITE): their squares overflow */
+#define VS_FIT_MAX_ABS 1e150
+
 typedef struct { double x, y, th; double cost; double cost_lower_bound; int rounds; } vs_fit_result;
 
 /* template_xy, positions_xy: n*2 [m; structure / world]; weights: n >= 0 or NULL (unit);
  * the pose world<-structure minimising the metric; cost [weighted m] at it; certified lower bound.
- * rounds: the certified search's rounds (0: closed form).  VS_EVALUE: n = 0, unknown metric,
- * negative or all-zero weights, unequal positive weights with linf; VS_ENONFINITE; VS_ENOMEM. */
+ * rounds: the certified search's rounds (0: closed form; 1: certified by its first batch).
+ * VS_EVALUE: n = 0, unknown metric, negative or all-zero weights, unequal positive weights with
+ * linf; VS_ENONFINITE: NaN, infinity or a magnitude over VS_FIT_MAX_ABS; VS_ENOMEM. */
 int vs_fit(const double *template_xy, const double *positions_xy, const double *weights, size_t n,
            int metric, vs_fit_result *out);
 

@@ -29,6 +29,8 @@ __all__ = ["CERT_TOL", "METRICS", "FitResult", "fit_structure", "fit_structure_r
 METRICS = ("l1", "l2", "linf")
 _EVALUATORS = {"l1": median.evaluate, "linf": minimax.evaluate}
 _CODES = {"l1": 0, "l2": 1, "linf": 2}  # vs_fit.h: VS_METRIC_L1, _L2, _LINF
+#: Largest accepted |coordinate| [m] and weight: beyond it squares overflow (vs_fit.h VS_FIT_MAX_ABS).
+MAX_ABS = 1e150
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,6 +65,8 @@ def _as_array(name: str, a, error, ndim: int) -> np.ndarray:
         raise error(f"{name} must be a real numeric {shape} array, got shape {arr.shape}")
     if not np.isfinite(arr).all():
         raise NonFiniteError(f"{name} holds NaN or infinity")
+    if arr.size and float(np.abs(arr).max()) > MAX_ABS:
+        raise NonFiniteError(f"{name} holds a magnitude over {MAX_ABS:g} (its square overflows)")
     return arr
 
 
@@ -111,8 +115,8 @@ def _as_pose(pose) -> Pose2:
         x, y, th = (float(v) for v in pose)
     except (TypeError, ValueError):
         raise ShapeError("pose must be a Pose2 or an (x, y, th) triple") from None
-    if not all(math.isfinite(v) for v in (x, y, th)):
-        raise NonFiniteError("pose holds NaN or infinity")
+    if not all(math.isfinite(v) and abs(v) <= MAX_ABS for v in (x, y, th)):
+        raise NonFiniteError("pose holds NaN, infinity or a magnitude over 1e150")
     return Pose2(x, y, th)
 
 
@@ -122,7 +126,7 @@ def structure_cost(template_xy, positions_xy, pose, metric: str, weights=None) -
     Raises the same typed errors as :func:`fit_structure`.  Computed by the compiled core (sums
     in index order), so ``fit_structure(...).cost == structure_cost(..., fit.pose, ...)`` exactly.
     """
-    p, r, w = _validate(template_xy, positions_xy, metric, weights)
+    p, r, w = _contiguous(*_validate(template_xy, positions_xy, metric, weights))
     pose = _as_pose(pose)
     return _core.fit_cost(p, r, w, _CODES[metric], pose.x, pose.y, pose.th)
 
@@ -155,11 +159,16 @@ def fit_structure(template_xy, positions_xy, metric: str = "l2", weights=None) -
             _validate(template_xy, positions_xy, metric, weights)
             raise
     else:
-        p, r, w = _validate(template_xy, positions_xy, metric, weights)
+        p, r, w = _contiguous(*_validate(template_xy, positions_xy, metric, weights))
         d = np.empty(len(p))
         x, y, th, cost, lower, _rounds = _core.fit(p, r, w, _CODES[metric], d)
     d.flags.writeable = False
     return FitResult(pose=Pose2(x, y, th), cost=cost, residuals_m=d, metric=metric, cost_lower_bound=lower)
+
+
+def _contiguous(p, r, w):
+    """C-contiguous copies where needed (np.array keeps a Fortran-ordered input's layout)."""
+    return np.ascontiguousarray(p), np.ascontiguousarray(r), None if w is None else np.ascontiguousarray(w)
 
 
 def _clean(a) -> bool:
