@@ -24,12 +24,11 @@ from typing import Callable
 import zenoh
 
 from vsfleet.zglue.lifecycle import Rejections, StopFlag, wall_clock
+from vsfleet.zglue.program import Refused, common_flags, program, refusing
 from vsfleet.zglue.zconf import (
     RELIABLE_QOS,
     COMMAND_QOS,
     TELEMETRY_QOS,
-    add_zenoh_args,
-    init_logging,
     open_session,
     zenoh_config,
 )
@@ -425,23 +424,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--deadline", type=float, default=None,
                    help="with several frame sources, run a frame that misses robots this long [s] after it "
                         "arrived (default: --dt)")
-    p.add_argument("--verbose", "-v", action="store_true")
-    add_zenoh_args(p)
-    return p
+    return common_flags(p)
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    init_logging(args.verbose)
-    try:
+@program(build_parser, log)
+def main(args: argparse.Namespace) -> int:
+    with refusing(WireError):
         check_name(args.robot, "robot")
         check_name(args.fleet, "fleet")
-    except WireError as exc:
-        log.error("%s", exc)
-        return 2
     if args.deadline is not None and not 0.0 < args.deadline <= 1.0:
-        log.error("--deadline must be in (0, 1] s")
-        return 2
+        raise Refused("--deadline must be in (0, 1] s")
     run_agent(zenoh_config(args), args.robot, args.fleet, dt_s=args.dt, ttl_s=args.ttl,
               deadline_s=args.deadline)
     return 0

@@ -22,7 +22,8 @@ import zenoh
 
 from vsfleet.zglue.lifecycle import Rejections, StopFlag, pace, wall_clock
 from vsfleet.zglue.scenario_file import load_scenario
-from vsfleet.zglue.zconf import TRUTH_QOS, add_zenoh_args, init_logging, open_session, zenoh_config
+from vsfleet.zglue.program import common_flags, program, refusing
+from vsfleet.zglue.zconf import TRUTH_QOS, open_session, zenoh_config
 from vsfleet.geometry import Pose2
 from vsfleet.scenario import Scenario
 from vsfleet.wire import Keys, TruthMsg, decode_cmd, decode_fault, encode
@@ -217,19 +218,13 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="vsfleet sim", description=__doc__.splitlines()[0])
     p.add_argument("scenario", help="scenario TOML file (robots, start poses, faults)")
     p.add_argument("--fleet", default=None, help="override the scenario's fleet name")
-    p.add_argument("--verbose", "-v", action="store_true")
-    add_zenoh_args(p)
-    return p
+    return common_flags(p)
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    init_logging(args.verbose)
-    try:
+@program(build_parser, log, prefix="cannot load scenario: ")
+def main(args: argparse.Namespace) -> int:
+    with refusing(OSError, ValueError):
         scenario = load_scenario(args.scenario, fleet=args.fleet)
-    except (OSError, ValueError) as exc:
-        log.error("cannot load scenario: %s", exc)
-        return 2
     run_sim(zenoh_config(args), scenario)
     return 0
 

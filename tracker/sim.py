@@ -20,7 +20,8 @@ import numpy as np
 import zenoh
 
 from vsfleet.zglue.lifecycle import Rejections, StopFlag, pace, wall_clock
-from vsfleet.zglue.zconf import BURST_QOS, STREAM_QOS, add_zenoh_args, init_logging, open_session, zenoh_config
+from vsfleet.zglue.program import Refused, common_flags, program, refusing
+from vsfleet.zglue.zconf import BURST_QOS, STREAM_QOS, open_session, zenoh_config
 from vsfleet.kinematics import wrap_angles
 from vsfleet.scenario import TrackerParams
 from vsfleet.wire import FrameMsg, Keys, PoseMsg, TruthMsg, decode_truth, encode, encode_frame
@@ -137,26 +138,19 @@ def build_parser() -> argparse.ArgumentParser:
                    help="add this to every published t [s]: simulates a tracker host with a skewed clock")
     p.add_argument("--no-poses", action="store_true",
                    help="publish frames only, not also pose/<robot> for key-expression tools")
-    p.add_argument("--verbose", "-v", action="store_true")
-    add_zenoh_args(p)
-    return p
+    return common_flags(p)
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    init_logging(args.verbose)
-    try:
+@program(build_parser, log)
+def main(args: argparse.Namespace) -> int:
+    with refusing(ValueError):
         params = TrackerParams(rate_hz=args.rate, noise_xy_m=args.noise_xy, noise_th_rad=args.noise_th,
                                latency_s=args.latency, drop_prob=args.drop)
         Keys(args.fleet)
         if not (args.rate > 0 and 0 <= args.drop <= 1 and min(args.noise_xy, args.noise_th, args.latency) >= 0):
             raise ValueError("rate must be > 0, drop in [0, 1], noise and latency >= 0")
-    except ValueError as exc:
-        log.error("%s", exc)
-        return 2
     if abs(args.clock_offset) > 3600:
-        log.error("--clock-offset must be within an hour")
-        return 2
+        raise Refused("--clock-offset must be within an hour")
     run_tracker(zenoh_config(args), params, args.fleet, args.src, args.seed,
                 clock_offset_s=args.clock_offset, poses=not args.no_poses)
     return 0
