@@ -31,6 +31,7 @@ import cv2
 import numpy as np
 
 from vsfleet.zglue.lifecycle import StopFlag, pace, wall_clock
+from vsfleet.zglue.program import common_flags, program, refusing
 from vsfleet.wire import FrameMsg, PoseMsg
 
 from .calib import CalibrationError, FloorCalibration
@@ -390,8 +391,6 @@ def run_camera_tracker(conf, config: CameraConfig, calibration: FloorCalibration
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from vsfleet.zglue.zconf import add_zenoh_args
-
     p = argparse.ArgumentParser(prog="vsfleet tracker camera", description=__doc__.splitlines()[0])
     p.add_argument("--camera", required=True, help="camera config TOML (src, dictionary, marker -> robot map)")
     p.add_argument("--calibration", required=True, help="floor calibration JSON from `vsfleet tracker calibrate`")
@@ -413,9 +412,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-pace", action="store_true", help="read a video file as fast as possible")
     p.add_argument("--retries", type=int, default=-1,
                    help="live sources: give up after this many failed opens/reads in a row (default: never)")
-    p.add_argument("--verbose", "-v", action="store_true")
-    add_zenoh_args(p)
-    return p
+    return common_flags(p)
 
 
 def check_source_args(args: argparse.Namespace) -> bool:
@@ -453,14 +450,13 @@ def check_source_args(args: argparse.Namespace) -> bool:
     return live
 
 
-def main(argv: list[str] | None = None) -> int:
-    from vsfleet.zglue.zconf import init_logging, zenoh_config
+@program(build_parser, log)
+def main(args: argparse.Namespace) -> int:
+    from vsfleet.zglue.zconf import zenoh_config
     from vsfleet.wire import Keys, WireError, check_name
 
-    args = build_parser().parse_args(argv)
-    init_logging(args.verbose)
     quiet_opencv(args.verbose)
-    try:
+    with refusing(ConfigError, CalibrationError, WireError, CameraOpenError):
         Keys(args.fleet)
         if args.src is not None:
             check_name(args.src, "src")
@@ -476,9 +472,6 @@ def main(argv: list[str] | None = None) -> int:
         CameraTracker(config, calibration)  # a homography at the wrong height, a camera below: fail here
         if args.source != "render" and not live:
             VideoSource(args.source, t0_s=0.0, fps=args.fps, live=False).close()  # unreadable: fail now
-    except (ConfigError, CalibrationError, WireError, CameraOpenError) as exc:
-        log.error("%s", exc)
-        return 2
     stats = run_camera_tracker(zenoh_config(args), config, calibration, args.source, args.fleet, args.src,
                                args.rate, t0, not args.no_pace, args.retries, fps=args.fps, live=live,
                                latency_s=args.latency)

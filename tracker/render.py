@@ -24,6 +24,7 @@ import cv2
 import numpy as np
 
 from vsfleet.wire import TruthMsg
+from vsfleet.zglue.program import common_flags, program, refusing
 
 from .calib import CalibrationError, PinholeCamera, marker_corners_world
 from .markers import CameraConfig, ConfigError, aruco_dictionary
@@ -299,8 +300,6 @@ def record_video(book: TruthBook, renderer: Renderer, config: CameraConfig, out:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from vsfleet.zglue.zconf import add_zenoh_args
-
     p = argparse.ArgumentParser(prog="vsfleet render", description=__doc__.splitlines()[0])
     p.add_argument("--camera", required=True, help="camera config TOML (its [sim_camera] table)")
     p.add_argument("--fleet", default="demo")
@@ -309,17 +308,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, default=60.0, help="video length [s]")
     p.add_argument("--calibration-image", metavar="PNG", help="write the reference markers' frame and exit")
     p.add_argument("--write-intrinsics", metavar="JSON", help="write the sim camera's intrinsics and exit")
-    p.add_argument("--verbose", "-v", action="store_true")
-    add_zenoh_args(p)
-    return p
+    return common_flags(p)
 
 
-def main(argv: list[str] | None = None) -> int:
-    from vsfleet.zglue.zconf import init_logging
-
-    args = build_parser().parse_args(argv)
-    init_logging(args.verbose)
-    try:
+@program(build_parser, log)
+def main(args: argparse.Namespace) -> int:
+    with refusing(ConfigError, CalibrationError, OSError):
         from .markers import load_config
 
         config = load_config(args.camera)
@@ -340,9 +334,6 @@ def main(argv: list[str] | None = None) -> int:
             if not (args.write_intrinsics or args.calibration_image):
                 raise ConfigError("nothing to do: give --out, --calibration-image or --write-intrinsics")
             return 0
-    except (ConfigError, CalibrationError, OSError) as exc:
-        log.error("%s", exc)
-        return 2
     return run_render(args, config, renderer)
 
 
