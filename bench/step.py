@@ -46,13 +46,14 @@ def frames_for(n: int, count: int, rate_hz: float = 30.0, seed: int = 0) -> tupl
     return frames, payloads
 
 
-def time_step(n: int, count: int, rate_hz: float = 30.0, paced: int = 0) -> dict[str, float]:
+def time_step(n: int, count: int, rate_hz: float = 30.0, paced: int = 0, reference: bool = False) -> dict[str, float]:
     """Per-call CPU time [us] of agent_step (median, p90 over count frames) and of decode_frame;
     with ``paced``, also the step's median when each of ``paced`` more calls follows a sleep of
-    one frame period (as in an agent process: caches gone cold in between)."""
+    one frame period (as in an agent process: caches gone cold in between). ``reference``: the old
+    numpy step (StepConfig.reference) instead of the compiled core."""
     mission = bench_mission(n, 0.0)
     frames, payloads = frames_for(n, count, rate_hz)
-    config = StepConfig(dt_s=1.0 / rate_hz)
+    config = StepConfig(dt_s=1.0 / rate_hz, reference=reference)
     state = AgentState(mission.robot_ids[0])
     step_us, decode_us = [], []
     for f, p in zip(frames, payloads):
@@ -84,12 +85,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--sizes", default=",".join(map(str, SIZES)))
     p.add_argument("--frames", type=int, default=300)
     p.add_argument("--paced", type=int, default=0, help="also this many calls paced at 30 Hz (cold caches)")
+    p.add_argument("--reference", action="store_true", help="also the old numpy step, beside the core")
     a = p.parse_args(argv)
     for n in (int(x) for x in a.sizes.split(",")):
-        r = time_step(n, a.frames if n < 1000 else max(100, a.frames // 3), paced=a.paced)
-        print(f"N={n:5d}: step p50 {r['step_p50_us']:9.1f} us, p90 {r['step_p90_us']:9.1f} us; "
-              f"decode p50 {r['decode_p50_us']:7.1f} us ({r['frames']} frames)"
-              + (f"; paced at 30 Hz p50 {r['paced_p50_us']:.1f} us" if a.paced else ""), flush=True)
+        for ref in ((False, True) if a.reference else (False,)):
+            r = time_step(n, a.frames if n < 1000 else max(100, a.frames // 3), paced=a.paced, reference=ref)
+            print(f"{'numpy' if ref else 'core '} N={n:5d}: step p50 {r['step_p50_us']:9.1f} us, "
+                  f"p90 {r['step_p90_us']:9.1f} us; decode p50 {r['decode_p50_us']:7.1f} us ({r['frames']} frames)"
+                  + (f"; paced at 30 Hz p50 {r['paced_p50_us']:.1f} us" if a.paced else ""), flush=True)
     return 0
 
 
