@@ -39,7 +39,8 @@ from vsfleet.wire import (
 )
 
 from vsfleet.zglue.lifecycle import StopFlag, pace, wall_clock
-from vsfleet.zglue.zconf import RELIABLE_QOS, add_zenoh_args, init_logging, open_session, zenoh_config
+from vsfleet.zglue.program import common_flags, program, refusing
+from vsfleet.zglue.zconf import RELIABLE_QOS, open_session, zenoh_config
 
 log = logging.getLogger("vsfleet.fuzz")
 
@@ -201,17 +202,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="messages per second per key kind (300 = 10x a 30 Hz tracker)")
     p.add_argument("--duration", type=float, default=5.0, help="seconds")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--verbose", "-v", action="store_true")
-    add_zenoh_args(p)
-    return p
+    return common_flags(p)
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    init_logging(args.verbose)
+@program(build_parser, log)
+def main(args: argparse.Namespace) -> int:
     kinds = tuple(k for k in args.kinds.split(",") if k)
     robots = [r for r in args.robots.split(",") if r]
-    try:
+    with refusing(ValueError):
         check_name(args.fleet, "fleet")
         for r in robots:
             check_name(r, "robot")
@@ -220,9 +218,6 @@ def main(argv: list[str] | None = None) -> int:
             raise ValueError(f"--kinds must be a non-empty subset of {KINDS}, --robots non-empty")
         if not (0 < args.rate <= 10000) or not (0 < args.duration <= 3600):
             raise ValueError("--rate must be in (0, 10000] and --duration in (0, 3600]")
-    except ValueError as exc:
-        log.error("%s", exc)
-        return 2
     sent, routed = run_fuzz(zenoh_config(args), args.fleet, robots, kinds, args.rate, args.duration, args.seed)
     by_kind = Counter()
     for name, n in sent.items():

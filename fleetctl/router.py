@@ -16,7 +16,8 @@ import time
 import zenoh
 
 from vsfleet.zglue.lifecycle import StopFlag
-from vsfleet.zglue.zconf import add_zenoh_args, init_logging, open_session, zenoh_config
+from vsfleet.zglue.program import common_flags, program, refusing
+from vsfleet.zglue.zconf import open_session, zenoh_config
 
 log = logging.getLogger("vsfleet.router")
 
@@ -61,9 +62,7 @@ def open_loopback_router(port: int | None = None) -> tuple[zenoh.Session, str]:
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="vsfleet router", description=__doc__.splitlines()[0])
-    p.add_argument("--verbose", "-v", action="store_true")
-    add_zenoh_args(p)
-    return p
+    return common_flags(p)
 
 
 class RouterModeError(ValueError):
@@ -92,14 +91,11 @@ def router_config(args: argparse.Namespace) -> zenoh.Config:
     return conf
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    init_logging(args.verbose)
+@program(build_parser, log)
+def main(args: argparse.Namespace) -> int:
     try:
-        conf = router_config(args)
-    except RouterModeError as exc:
-        log.error("%s", exc)
-        return 2
+        with refusing(RouterModeError):
+            conf = router_config(args)
     except zenoh.ZError as exc:  # a config file zenoh cannot read
         log.error("cannot start the router: %s", exc)
         return 1
