@@ -4,7 +4,7 @@
  * vsfleet/fit (numpy reference) that follows its steps in the same order; docs/fit.md. */
 #include "vs_fit_internal.h"
 
-#include <math.h>   /* sqrt only */
+#include <math.h>   /* sqrt only (and the INFINITY / NAN macros) */
 #include <stdlib.h>
 #include <string.h>
 
@@ -282,8 +282,8 @@ static double flat_bound(const vs_prob *pr, vs_eval_fn ev)
 {
     size_t n = pr->n;
     double *zero = calloc(n, sizeof(double));
-    if (zero == NULL) return 0.0 / 0.0;
-    double best = -1.0 / 0.0, sp = 0.0, sq = 0.0, mp = 0.0, mq = 0.0;
+    if (zero == NULL) return NAN;
+    double best = -INFINITY, sp = 0.0, sq = 0.0, mp = 0.0, mq = 0.0;
     int linf = ev == vs_fit_eval_linf;
     for (size_t i = 0; i < n; i++) {
         double a = sqrt(pr->Px[i] * pr->Px[i] + pr->Py[i] * pr->Py[i]);

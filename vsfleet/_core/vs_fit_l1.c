@@ -2,7 +2,7 @@
  * (median.evaluate, median._duals), and the Newton start at large n (median.newton). */
 #include "vs_fit_internal.h"
 
-#include <math.h>   /* sqrt only */
+#include <math.h>   /* sqrt only (and the INFINITY / NAN macros) */
 
 #define ITERS 40
 #define ROUGH_ITERS 1
@@ -156,7 +156,7 @@ void vs_fit_eval_l1(const vs_prob *pr, double c, double s, double tx0, double ty
         kx[i] = kx[i] - share * sx;
         ky[i] = ky[i] - share * sy;
     }
-    out->Kc = -1.0 / 0.0;
+    out->Kc = -INFINITY;
     out->f = fd;
     out->tx = tx;
     out->ty = ty;

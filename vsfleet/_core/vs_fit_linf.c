@@ -3,7 +3,7 @@
  * the descent to a local minimum from n = 4 (minimax.descend). */
 #include "vs_fit_internal.h"
 
-#include <math.h>   /* sqrt only */
+#include <math.h>   /* sqrt only (and the INFINITY / NAN macros) */
 
 #define WS 6
 
@@ -51,18 +51,22 @@ static void circle(const double *X, const double *Y, const size_t *ids, int k, c
     }
 }
 
-/* the k largest of v (n), ascending index order (ties: the lower index) */
+/* the k (<= WS) largest of v (n), in ascending index order (ties: the lower index); one pass */
 static void largest(const double *v, size_t n, size_t k, size_t *out)
 {
-    size_t got = 0;
+    size_t top[WS], cnt = 0;   /* by value descending, then index ascending */
     for (size_t i = 0; i < n; i++) {
-        /* rank of i: how many beat it (greater, or equal with a lower index) */
-        size_t beat = 0;
-        for (size_t j = 0; j < n && beat < k; j++)
-            if (v[j] > v[i] || (v[j] == v[i] && j < i)) beat++;
-        if (beat < k) out[got++] = i;
-        if (got == k) break;
+        if (cnt == k && !(v[i] > v[top[cnt - 1]])) continue;   /* an equal value: the lower index stays */
+        size_t j = cnt < k ? cnt++ : cnt - 1;
+        while (j > 0 && v[i] > v[top[j - 1]]) { top[j] = top[j - 1]; j--; }
+        top[j] = i;
     }
+    for (size_t a = 1; a < cnt; a++) {   /* index order */
+        size_t x = top[a], b = a;
+        while (b > 0 && top[b - 1] > x) { top[b] = top[b - 1]; b--; }
+        top[b] = x;
+    }
+    for (size_t a = 0; a < cnt; a++) out[a] = top[a];
 }
 
 /* max over robots of |q_i - c|^2 (NaN if any is NaN, as np.max); d2: each, or NULL */
@@ -76,7 +80,7 @@ static double d2max_of(const double *qx, const double *qy, size_t n, double cx, 
         if (v != v) nan = 1;
         else if (i == 0 || v > mx) mx = v;
     }
-    return nan ? 0.0 / 0.0 : mx;
+    return nan ? NAN : mx;
 }
 
 /* radius of the smallest circle of three points; -inf where its rounding is not clearly small */
@@ -88,7 +92,7 @@ static double mec3(double ax, double ay, double bx, double by, double cx, double
     double da = ux * vx + uy * vy, db = -(ux * zx + uy * zy), dc = vx * zx + vy * zy;   /* angle cosines' signs */
     if (da <= 0.0 || db <= 0.0 || dc <= 0.0) return 0.5 * sqrt(m2);   /* right or obtuse: the longest side */
     double X = ux * vy - uy * vx;
-    if (vs_fabs(X) < 1e-3 * m2) return -1.0 / 0.0;   /* thin: leave it to the pairs */
+    if (vs_fabs(X) < 1e-3 * m2) return -INFINITY;   /* thin: leave it to the pairs */
     return sqrt(a2 * b2 * c2 / (4.0 * X * X));
 }
 
@@ -97,7 +101,7 @@ static double mec3(double ax, double ay, double bx, double by, double cx, double
 static double triple_floor(const vs_prob *pr, const size_t *m, double w)
 {
     const double *X[2] = {pr->Px, pr->Qx}, *Y[2] = {pr->Py, pr->Qy};
-    double best = -1.0 / 0.0;
+    double best = -INFINITY;
     for (int side = 0; side < 2; side++) {
         const double *x = X[side], *y = Y[side], *ox = X[1 - side], *oy = Y[1 - side];
         double R = mec3(x[m[0]], y[m[0]], x[m[1]], y[m[1]], x[m[2]], y[m[2]]);
@@ -202,7 +206,7 @@ static double r2_at(const basis_pq *b, double th)
     double d1 = (bx - ax) * (bx - ax) + (by - ay) * (by - ay);
     if (b->pair) return 0.25 * d1;
     double X = (bx - ax) * (ey - ay) - (by - ay) * (ex - ax);
-    if (X == 0.0) return 1.0 / 0.0;
+    if (X == 0.0) return INFINITY;
     return d1 * ((ex - ax) * (ex - ax) + (ey - ay) * (ey - ay)) * ((ex - bx) * (ex - bx) + (ey - by) * (ey - by))
            / (4.0 * X * X);
 }
@@ -367,7 +371,7 @@ static void mec(const int *ids, int k, const double *qx, const double *qy, int n
                         bx = bx - ax; by = by - ay;
                         double ex = qx[ids[c]] - ax, ey = qy[ids[c]] - ay;
                         double det = 2.0 * (bx * ey - by * ex);
-                        if (det == 0.0) det = 1.0 / 0.0;
+                        if (det == 0.0) det = INFINITY;
                         double b2 = bx * bx + by * by, e2 = ex * ex + ey * ey;
                         cx = ax + (ey * b2 - by * e2) / det;
                         cy = ay + (bx * e2 - ex * b2) / det;
