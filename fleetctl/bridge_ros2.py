@@ -28,7 +28,8 @@ from vsfleet.wire import Keys, Mission, WireError, check_name, decode_cmd, decod
 from . import rmw_zenoh as rz
 from vsfleet.zglue import zconf
 from vsfleet.zglue.lifecycle import Rejections, StopFlag
-from vsfleet.zglue.zconf import add_zenoh_args, init_logging, zenoh_config
+from vsfleet.zglue.program import common_flags, program
+from vsfleet.zglue.zconf import zenoh_config
 
 log = logging.getLogger("vsfleet.bridge.ros2")
 
@@ -316,15 +317,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ros-connect", default=None, metavar="ENDPOINT",
                    help="reach ROS 2 through this router (e.g. tcp/127.0.0.1:7447) in a session of its "
                         "own; the zenoh flags below are then for the vsfleet side only")
-    p.add_argument("--verbose", "-v", action="store_true")
-    add_zenoh_args(p)
-    return p
+    return common_flags(p)
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    init_logging(args.verbose)
-    try:
+@program(build_parser, log)
+def main(args: argparse.Namespace) -> int:
+    try:  # refused flags: one line on stdout, exit code 2
         check_name(args.robot, "robot")
         rz.resolve_topic(args.namespace, args.topic)
         if not 0 <= args.domain <= 232:

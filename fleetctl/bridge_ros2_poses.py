@@ -27,7 +27,8 @@ from vsfleet.wire import FrameMsg, Keys, PoseMsg, check_name, encode, encode_fra
 from . import rmw_zenoh as rz
 from .bridge_ros2 import open_session, ros_client_config
 from vsfleet.zglue.lifecycle import Rejections, StopFlag
-from vsfleet.zglue.zconf import BURST_QOS, STREAM_QOS, add_zenoh_args, init_logging, zenoh_config
+from vsfleet.zglue.program import common_flags, program
+from vsfleet.zglue.zconf import BURST_QOS, STREAM_QOS, zenoh_config
 
 log = logging.getLogger("vsfleet.bridge.ros2-poses")
 
@@ -248,15 +249,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ros-connect", default=None, metavar="ENDPOINT",
                    help="reach ROS 2 through this router in a session of its own; the zenoh flags "
                         "below are then for the vsfleet side only")
-    p.add_argument("--verbose", "-v", action="store_true")
-    add_zenoh_args(p)
-    return p
+    return common_flags(p)
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    init_logging(args.verbose)
-    try:
+@program(build_parser, log)
+def main(args: argparse.Namespace) -> int:
+    try:  # refused flags: one line on stdout, exit code 2
         topics = parse_map(args.map)
         check_name(args.src, "src")
         if not 0 <= args.domain <= 232:
