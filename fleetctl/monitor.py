@@ -41,8 +41,9 @@ from vsfleet.wire import (
 
 from vsfleet.zglue.lifecycle import StopFlag
 from vsfleet.zglue.peers import current_missions
+from vsfleet.zglue.program import common_flags, program, refusing
 from .record import split_key
-from vsfleet.zglue.zconf import add_zenoh_args, init_logging, open_session, zenoh_config
+from vsfleet.zglue.zconf import open_session, zenoh_config
 
 log = logging.getLogger("vsfleet.monitor")
 
@@ -289,26 +290,24 @@ def render(view: FleetView):
     return Group(table, *texts)
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="vsfleet monitor", description=__doc__.splitlines()[0])
     which = p.add_mutually_exclusive_group()
     which.add_argument("--fleet", default=None, help="watch vs/<fleet>/** (default fleet: demo)")
     which.add_argument("--key", default=None, help="watch this key expression instead (one fleet shown)")
     p.add_argument("--duration", type=float, default=0.0, help="stop after this many seconds (0: at Ctrl-C)")
     p.add_argument("--refresh", type=float, default=4.0, help="screen refreshes per second")
-    p.add_argument("--verbose", "-v", action="store_true")
-    add_zenoh_args(p)
-    args = p.parse_args(argv)
-    init_logging(args.verbose)
+    return common_flags(p)
+
+
+@program(build_parser, log)
+def main(args: argparse.Namespace) -> int:
     from rich.live import Live
 
-    try:
+    with refusing(ValueError, zenoh.ZError):
         fleet = check_name(args.fleet or "demo", "fleet") if args.key is None else None
         key_expr = args.key or f"vs/{fleet}/**"
         zenoh.KeyExpr(key_expr)
-    except (ValueError, zenoh.ZError) as exc:
-        log.error("%s", exc)
-        return 2
     model = FleetModel(fleet)
     lock = threading.Lock()
 

@@ -53,8 +53,9 @@ from .foxglove_views import FleetViews, seconds_to_ns, structure_points  # noqa:
 
 from vsfleet.zglue.lifecycle import StopFlag
 from vsfleet.zglue.peers import current_missions
+from vsfleet.zglue.program import Refused, common_flags, program, refusing
 from .zcli_codec import jsonable
-from vsfleet.zglue.zconf import SessionError, add_zenoh_args, init_logging, open_session, zenoh_config
+from vsfleet.zglue.zconf import SessionError, open_session, zenoh_config
 
 log = logging.getLogger("vsfleet.record")
 
@@ -415,7 +416,7 @@ class Recording:
         self.close()
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="vsfleet record", description=__doc__.splitlines()[0])
     p.add_argument("--out", "-o", required=True, help="MCAP file to write")
     which = p.add_mutually_exclusive_group()
@@ -423,24 +424,21 @@ def main(argv: list[str] | None = None) -> int:
     which.add_argument("--key", default=None, help="record this key expression instead, e.g. 'vs/*/pose/*'")
     p.add_argument("--duration", type=float, default=0.0, help="stop after this many seconds (0: at Ctrl-C)")
     p.add_argument("--no-mission-query", action="store_true", help="do not query the mission at start")
-    p.add_argument("--verbose", "-v", action="store_true")
-    add_zenoh_args(p)
-    args = p.parse_args(argv)
-    init_logging(args.verbose)
-    try:
+    return common_flags(p)
+
+
+@program(build_parser, log)
+def main(args: argparse.Namespace) -> int:
+    with refusing(ValueError, zenoh.ZError):
         key_expr = fleet_key_expr(args.fleet, args.key)
         zenoh.KeyExpr(key_expr)
-    except (ValueError, zenoh.ZError) as exc:
-        log.error("%s", exc)
-        return 2
     stop = StopFlag()
     try:
         rec = Recording(zenoh_config(args), args.out, key_expr, query_mission=not args.no_mission_query)
     except SessionError:  # one line from `vsfleet`, like every program's
         raise
     except (OSError, zenoh.ZError) as exc:
-        log.error("cannot record: %s", exc)
-        return 2
+        raise Refused(f"cannot record: {exc}") from exc
     log.info("recording %s into %s (Ctrl-C to stop)", key_expr, args.out)
     t_end = time.monotonic() + args.duration if args.duration > 0 else math.inf
     with rec:
