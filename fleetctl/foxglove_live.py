@@ -33,8 +33,9 @@ from vsfleet.wire import Keys, WireError, check_name
 from .foxglove_views import FleetViews, View
 from vsfleet.zglue.lifecycle import StopFlag
 from vsfleet.zglue.peers import current_missions
+from vsfleet.zglue.program import Refused, common_flags, program, refusing
 from .record import json_mirror, payload_time_ns
-from vsfleet.zglue.zconf import add_zenoh_args, init_logging, open_session, zenoh_config
+from vsfleet.zglue.zconf import open_session, zenoh_config
 
 log = logging.getLogger("vsfleet.foxglove")
 
@@ -199,7 +200,7 @@ def layout(fleet: str, robots: list[str]):
         fl.SplitItem(content=mission, proportion=1)]))
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="vsfleet foxglove", description=__doc__.splitlines()[0])
     p.add_argument("--fleet", default="demo", help="fleet name: shows vs/<fleet>/** (default demo)")
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
@@ -207,16 +208,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-mission-query", action="store_true", help="do not ask the fleet for its mission at start")
     p.add_argument("--write-layout", metavar="FILE", help="write a Foxglove layout for --fleet and --robots, and exit")
     p.add_argument("--robots", default="r1,r2,r3", help="robot ids for --write-layout (comma-separated)")
-    p.add_argument("--verbose", "-v", action="store_true")
-    add_zenoh_args(p)
-    args = p.parse_args(argv)
-    init_logging(args.verbose)
-    try:
+    return common_flags(p)
+
+
+@program(build_parser, log)
+def main(args: argparse.Namespace) -> int:
+    with refusing(WireError):
         check_name(args.fleet, "fleet")
         robots = [check_name(r.strip(), "robot") for r in args.robots.split(",") if r.strip()]
-    except WireError as exc:
-        log.error("%s", exc)
-        return 2
     if args.write_layout:
         text = json.dumps(json.loads(layout(args.fleet, robots).to_json()), indent=2)
         Path(args.write_layout).write_text(text + "\n")
@@ -227,8 +226,7 @@ def main(argv: list[str] | None = None) -> int:
         server = LiveServer(zenoh_config(args), args.fleet, args.host, args.port,
                             query_mission=not args.no_mission_query)
     except (OSError, RuntimeError, zenoh.ZError) as exc:
-        log.error("cannot serve: %s", exc)
-        return 2
+        raise Refused(f"cannot serve: {exc}") from exc
     with server:
         print(f"foxglove: open ws://{args.host}:{server.port} in Foxglove (fleet {args.fleet}), "
               f"or {server.server.app_url()}; layout docs/foxglove-layout.json", flush=True)

@@ -35,8 +35,9 @@ from mcap.exceptions import McapError
 from vsfleet.wire import FrameMsg, WireError, check_name, decode_pose, encode_frame
 
 from vsfleet.zglue.lifecycle import StopFlag
+from vsfleet.zglue.program import Refused, common_flags, program
 from .record import LIVELINESS, RAW, LogRecord, read_log, seconds_to_ns, split_key
-from vsfleet.zglue.zconf import SessionError, add_zenoh_args, init_logging, open_session, zenoh_config
+from vsfleet.zglue.zconf import SessionError, open_session, zenoh_config
 
 log = logging.getLogger("vsfleet.replay")
 
@@ -256,7 +257,7 @@ def replay(conf: zenoh.Config, path: str | Path, speed: float = 1.0, fleet: str 
         return replay_records(session, records, speed, fleet, stop, progress, wait_subscribers_s, frames=frames)
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="vsfleet replay", description=__doc__.splitlines()[0])
     p.add_argument("file", help="MCAP file written by vsfleet record or vsfleet run")
     p.add_argument("--speed", type=float, default=1.0, help="replay X times faster than recorded (default 1)")
@@ -266,10 +267,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-frames", action="store_true",
                    help="do not publish frame/<src> for recordings that have only pose/<robot>")
     p.add_argument("--no-progress", action="store_true")
-    p.add_argument("--verbose", "-v", action="store_true")
-    add_zenoh_args(p)
-    args = p.parse_args(argv)
-    init_logging(args.verbose)
+    return common_flags(p)
+
+
+@program(build_parser, log)
+def main(args: argparse.Namespace) -> int:
     stop = StopFlag()
     try:
         if args.speed <= 0 or not math.isfinite(args.speed):
@@ -282,8 +284,7 @@ def main(argv: list[str] | None = None) -> int:
     except SessionError:  # one line from `vsfleet`, like every program's
         raise
     except (OSError, ValueError, McapError, zenoh.ZError) as exc:
-        log.error("%s", exc)
-        return 2
+        raise Refused(str(exc)) from exc
     log.info("replayed %d messages (%.1f s of log) in %.1f s%s", stats.sent, stats.log_span_s,
              stats.elapsed_s, ", interrupted" if stats.interrupted else "")
     return 0
