@@ -24,8 +24,9 @@ import zenoh
 from vsfleet.wire import Keys, Mission, encode_mission, mission_from_dict
 
 from vsfleet.zglue.lifecycle import wall_clock
+from vsfleet.zglue.program import Refused, common_flags, program
 from vsfleet.zglue.scenario_file import load_scenario
-from vsfleet.zglue.zconf import RELIABLE_QOS, add_zenoh_args, init_logging, open_session, zenoh_config
+from vsfleet.zglue.zconf import RELIABLE_QOS, open_session, zenoh_config
 
 log = logging.getLogger("vsfleet.mission")
 
@@ -67,7 +68,7 @@ def publish_mission(session: zenoh.Session, keys: Keys, mission: Mission) -> Non
     session.put(keys.mission, encode_mission(mission), **RELIABLE_QOS)
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="vsfleet mission set", description=__doc__.splitlines()[0])
     p.add_argument("file", help="scenario .toml (its [mission] and [robots]) or mission .json")
     p.add_argument("--fleet", default="demo")
@@ -75,21 +76,21 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--version", type=int, default=None)
     p.add_argument("--force", action="store_true",
                    help="publish even if the mission's robots do not match the live agents")
-    add_zenoh_args(p)
-    args = p.parse_args(argv)
-    init_logging()
+    return common_flags(p)
+
+
+@program(build_parser, log)
+def main(args: argparse.Namespace) -> int:
     try:
         mission = stamp(load_mission(args.file), wall_clock(), args.delay, args.version)
         keys = Keys(args.fleet)
     except (OSError, ValueError) as exc:
-        log.error("cannot load mission: %s", exc)
-        return 2
+        raise Refused(f"cannot load mission: {exc}") from exc
     with open_session(zenoh_config(args)) as session:
         if not args.force:
             why = robot_set_mismatch(mission, live_agents(session, keys))
             if why is not None:
-                log.error("%s; nothing published (use --force to publish anyway)", why)
-                return 2
+                raise Refused(f"{why}; nothing published (use --force to publish anyway)")
         publish_mission(session, keys, mission)
     log.info("published mission v%d on %s", mission.version, keys.mission)
     return 0

@@ -49,12 +49,13 @@ from vsfleet.scenario import Scenario
 from vsfleet.wire import Keys, Mission, WireError, decode_state, decode_truth, encode_mission
 
 from vsfleet.zglue.lifecycle import StopFlag, wall_clock
+from vsfleet.zglue.program import common_flags, program, refusing
 from .mission_cmd import stamp
 from .plot import plot_file
 from .record import LiveRecorder
 from .router import open_loopback_router
 from vsfleet.zglue.scenario_file import load_scenario
-from vsfleet.zglue.zconf import RELIABLE_QOS, init_logging, zenoh_flags
+from vsfleet.zglue.zconf import RELIABLE_QOS, zenoh_flags
 
 log = logging.getLogger("vsfleet.run")
 
@@ -337,7 +338,7 @@ def progress_line(mission: Mission, recorder: Recorder, keys: Keys, elapsed: flo
             f"to goal {dist:.3f} m, max deviation {100 * max(dev.values()):.2f} cm, ETA {eta:4.0f} s")
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="vsfleet run", description=__doc__.splitlines()[0])
     p.add_argument("scenario", help="scenario TOML file, e.g. scenarios/paper-triangle.toml")
     p.add_argument("--duration", type=float, default=None, help="override the scenario's duration [s]")
@@ -352,16 +353,15 @@ def main(argv: list[str] | None = None) -> int:
                         "deploy/camera/overhead.toml)")
     p.add_argument("--foxglove", type=int, nargs="?", const=8765, default=None, metavar="PORT",
                    help="also serve the fleet live to Foxglove on ws://127.0.0.1:PORT (default 8765)")
-    p.add_argument("--verbose", "-v", action="store_true")
-    args = p.parse_args(argv)
-    init_logging(args.verbose)
-    try:
+    return common_flags(p, zenoh=False)  # run starts its own router; the children get their flags
+
+
+@program(build_parser, log)
+def main(args: argparse.Namespace) -> int:
+    with refusing(OSError, ValueError):
         summary, run_dir = run(args.scenario, args.duration, args.out, args.fleet,
                                until_goal=not args.no_stop_at_goal, tracker=args.tracker, camera=args.camera,
                                foxglove_port=args.foxglove)
-    except (OSError, ValueError) as exc:
-        log.error("%s", exc)
-        return 2
     print(summary.table())
     print(f"run written to {run_dir}")
     return 0 if summary.children_ok else 1
