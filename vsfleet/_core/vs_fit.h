@@ -19,7 +19,7 @@
 #define VS_FIT_CERT_TOL 1e-10   /* [weighted m] the certified gap of l1 and linf */
 #define VS_FIT_MAX_ROUNDS 60    /* search rounds per fit (as the reference) */
 /* angles evaluated per fit: at most max(VS_FIT_MIN_ANGLES, VS_FIT_WORK / n) (a hard cap on work;
- * the reference has none: normal fits evaluate 15-100 angles) */
+ * the reference has none: normal fits evaluate tens to a few hundred angles) */
 #define VS_FIT_MIN_ANGLES 512
 #define VS_FIT_WORK 60000
 
