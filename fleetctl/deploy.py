@@ -25,6 +25,7 @@ from typing import Iterator
 
 from vsfleet.wire import Keys, WireError, check_name
 
+from vsfleet.zglue.program import common_flags
 from vsfleet.zglue.scenario_file import load_scenario
 
 log = logging.getLogger("vsfleet.deploy")
@@ -363,12 +364,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sim", action="store_true",
                    help="also make the `sim` login, which may publish truth (simulated robots, "
                         "vsfleet-sim.service); not for a lab with real robots")
-    return p
+    return common_flags(p, zenoh=False)
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    args = build_parser().parse_args(argv)  # not under @program: its lines are plain, for an operator
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(message)s")
     try:
         scenario = load_scenario(args.fleet_file, args.fleet)
         paths = write_deploy(Path(args.out), scenario.fleet, [r.robot for r in scenario.robots],

@@ -43,6 +43,7 @@ from vsfleet.wire import (
     decode_state,
     decode_truth,
 )
+from vsfleet.zglue.program import common_flags
 
 from .record import RAW, LogRecord, read_log, split_key, structure_points
 
@@ -320,15 +321,19 @@ def plot_file(path: str | Path, out_dir: str | Path | None = None, fleet: str | 
     return write_plots(data, Path(path).parent if out_dir is None else out_dir)
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="vsfleet plot", description=__doc__.splitlines()[0])
     p.add_argument("file", help="MCAP file written by vsfleet record or vsfleet run")
     p.add_argument("--out", default=None, help="directory for the PNGs (default: the file's directory)")
     p.add_argument("--fleet", default=None, help="the fleet to plot, if the log holds several")
     p.add_argument("--scenario", default=None,
                    help="scenario TOML whose fault timeline marks faults not in the log")
-    args = p.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    return common_flags(p, zenoh=False)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)  # not under @program: its lines are plain, for an operator
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO, format="%(message)s")
     try:
         timeline = ()
         if args.scenario:
