@@ -125,24 +125,14 @@ def main(argv: list[str] | None = None) -> int:
         name = " ".join(argv[:n_words])
         if len(argv) >= n_words and name in COMMANDS:
             args = argv[n_words:]
+            if verbose and "--verbose" not in args and "-v" not in args:
+                args = [*args, "--verbose"]  # every program takes it (zglue.program.common_flags)
             verbose = verbose or "--verbose" in args or "-v" in args
-            args = _pass_verbose(COMMANDS[name][0], args, verbose)
             return run_command(name, COMMANDS[name][0], args, verbose)
     if argv and argv[0] not in ("-h", "--help"):
         print(f"vsfleet: unknown command {' '.join(argv[:2])!r}\n", file=sys.stderr)
     print(USAGE, file=sys.stderr)
     return 0 if argv[:1] in (["-h"], ["--help"]) else 2
-
-
-def _pass_verbose(module_name: str, args: list[str], verbose: bool) -> list[str]:
-    """CMD's arguments with its own --verbose (debug logging) if asked for, where CMD has the flag."""
-    if module_name in NO_VERBOSE_FLAG:
-        return [a for a in args if a not in ("--verbose", "-v")]
-    return [*args, "--verbose"] if verbose and "--verbose" not in args and "-v" not in args else args
-
-
-# the programs whose argparse has no --verbose of their own
-NO_VERBOSE_FLAG = {"vsfleet.fleetctl.deploy", "vsfleet.fleetctl.plot", "vsfleet.fleetctl.mission_cmd"}
 
 
 if __name__ == "__main__":

@@ -45,6 +45,8 @@ def main(argv):
         raise SystemExit("--cfg expects KEY:VALUE")
     if kind == "interrupt":
         raise KeyboardInterrupt
+    if kind == "argv":
+        print(" ".join(argv))
     return 0
 '''
 
@@ -120,11 +122,25 @@ def test_flags_zenoh_rejects_are_one_line_config_errors(tmp_path):
     assert issubclass(SessionError, ConnectionError) and issubclass(ZenohConfigError, ValueError)
 
 
-def test_verbose_reaches_a_programs_own_flag_and_is_dropped_for_programs_without_one():
-    assert cli._pass_verbose("vsfleet.agent.main", ["--robot", "r1"], True) == ["--robot", "r1", "--verbose"]
-    assert cli._pass_verbose("vsfleet.agent.main", ["--robot", "r1", "-v"], True) == ["--robot", "r1", "-v"]
-    assert cli._pass_verbose("vsfleet.agent.main", ["--robot", "r1"], False) == ["--robot", "r1"]
-    assert cli._pass_verbose("vsfleet.fleetctl.mission_cmd", ["m.toml", "--verbose"], True) == ["m.toml"]
+@pytest.mark.parametrize("argv, passed", [
+    (["--verbose", "fake", "argv", "x"], "argv x --verbose"),
+    (["-v", "fake", "argv", "-v"], "argv -v"),
+    (["fake", "argv", "--verbose"], "argv --verbose"),
+    (["fake", "argv", "x"], "argv x"),
+])
+def test_verbose_before_the_command_reaches_the_programs_own_flag(fake_command, capsys, argv, passed):
+    assert cli.main(argv) == 0
+    assert capsys.readouterr().out.strip() == passed
+
+
+@pytest.mark.parametrize("name", list(cli.COMMANDS))
+def test_every_program_takes_verbose(name):
+    """`vsfleet --verbose CMD` passes --verbose on to every program (zglue.program.common_flags)."""
+    import importlib
+
+    module = importlib.import_module(cli.COMMANDS[name][0])
+    options = {s for action in module.build_parser()._actions for s in action.option_strings}
+    assert {"--verbose", "-v"} <= options
 
 
 def test_every_program_opens_its_session_through_open_session():
