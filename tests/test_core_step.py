@@ -22,10 +22,13 @@ from vsfleet.wire import Mission, RobotSpec
 
 DT = 1.0 / 30.0
 # l2's fit is closed form: the core and the reference agree within 1e-9 everywhere. l1 and linf are
-# certified optima (gap <= 1e-10 weighted m); where the optimum is flat in the rotation their poses
-# can differ by a few 1e-9 rad (measured: 2.0e-9 rad, 6e-10 m on the points, 1.2e-9 m/s on a command),
-# still within the certificate: those metrics are held to 1e-8.
-TOLERANCE = {"l2": 1e-9, "l1": 1e-8, "linf": 1e-8}
+# certified optima (gap <= 1e-10 weighted m); about 4 % of their fits have a minimum flat to rounding,
+# where the two pick different angles of the same candidate ladder (docs/fit.md: up to 5e-8 rad, costs
+# equal within 1.4e-14). Measured through the step over 60 missions: linf commands differ by up to
+# 2.6e-7 m/s, held here to 1e-6. An l1 optimum can be a whole interval of poses (an even number of
+# robots balanced about it): the two pick different optimal poses, whose commands differed by up to
+# 1.7e-3 m/s, so for l1 the fit's cost (within 1e-9) is compared, not the poses. Decisions: equal.
+TOLERANCE = {"l2": 1e-9, "linf": 1e-6, "l1": None}
 
 
 @st.composite
@@ -78,11 +81,13 @@ def frames(mission: Mission, faults: dict, seed: int, count: int):
     return out
 
 
-@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=15, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow])
 @given(cases())
 def test_the_core_step_agrees_with_the_numpy_reference_on_the_same_frames(case):
     mission, faults, seed, count = case
     TOL = TOLERANCE[mission.metric]
+    poses = TOL is not None
+    TOL = 1e-9 if TOL is None else TOL
 
     def close(a, b) -> bool:
         return abs(a - b) <= TOL
@@ -94,9 +99,13 @@ def test_the_core_step_agrees_with_the_numpy_reference_on_the_same_frames(case):
             sc, oc = agent_step(sc, mission, frame, now, StepConfig(dt_s=DT))
             sr, orf = agent_step(sr, mission, frame, now, StepConfig(dt_s=DT, reference=True))
             assert (oc.cmd is None) == (orf.cmd is None)
-            if oc.cmd is not None:
+            if oc.cmd is not None and poses:
                 assert close(oc.cmd.vl, orf.cmd.vl) and close(oc.cmd.vr, orf.cmd.vr), (frame.seq, oc.cmd, orf.cmd)
             if oc.structure is not None:
+                a, b = oc.structure, orf.structure
+                assert abs(a.cost - b.cost) <= 1e-9, (frame.seq, a.cost, b.cost)
+                np.testing.assert_array_equal(a.used, b.used)
+            if oc.structure is not None and poses:
                 a, b = oc.structure, orf.structure
                 for p, q in ((a.fit_pose, b.fit_pose), (a.goal_pose, b.goal_pose)):
                     assert close(p.x, q.x) and close(p.y, q.y), (frame.seq, p, q)
