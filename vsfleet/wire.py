@@ -18,7 +18,7 @@ import itertools
 import math
 import re
 from dataclasses import dataclass, fields
-from typing import Any, Mapping
+from typing import Any, Callable, Mapping
 
 import msgpack
 import numpy as np
@@ -32,6 +32,7 @@ MAX_PAYLOAD_BYTES = 4096          # pose, cmd, state, truth, fault, event
 MAX_MISSION_BYTES = 1 << 20       # a mission lists every robot
 MAX_FRAME_BYTES = 1 << 16         # a frame lists every robot a tracker sees (1000 robots fit)
 MAX_ROBOTS = 1000
+MAX_OBSTACLES = 256     # a mission's round obstacles
 MAX_ABS = 1e6           # any number field: |v| <= 1e6 (metres, seconds apart from t, m/s, rad)
 MAX_TTL_S = 5.0         # a command may keep a robot moving for at most this long
 CONTROLLER_NAMES = tuple(sorted(CONTROLLERS))  # a mission's controller: one of vsfleet.control's
@@ -552,12 +553,17 @@ def decode_fault(payload: bytes) -> FaultMsg:
 
 @dataclass(frozen=True)
 class RobotSpec:
-    """One robot of a mission: its point [m; structure frame] and its envelope."""
+    """One robot of a mission: its point [m; structure frame], its envelope, and its body.
+
+    radius [m]: the robot's body, a disc about its tracked point (finite, > 0); None: a
+    point robot (no body), as before bodies existed.
+    """
 
     p: tuple[float, float]
     wheel_base: float
     wheel_speed_max: float
     wheel_accel_max: float
+    radius: float | None = None
 
 
 @dataclass(frozen=True)
@@ -570,6 +576,8 @@ class Mission:
     ``controller_gains``: (name, value) pairs of the controller's factory gains
     (see :func:`controller_gain_names`). Both sorted by name; absent ones take
     the code's defaults. Every agent builds the same policy and controller from them.
+    ``obstacles``: round obstacles (x, y, r) [m; world frame], in the order sent (their
+    index names them); () when the mission has none.
     """
 
     version: int
@@ -585,6 +593,7 @@ class Mission:
     on_failure: str = "hold"
     failure: tuple[tuple[str, float], ...] = ()
     controller_gains: tuple[tuple[str, float], ...] = ()
+    obstacles: tuple[tuple[float, float, float], ...] = ()
 
     @property
     def robot_ids(self) -> tuple[str, ...]:
@@ -596,12 +605,15 @@ class Mission:
                 return s
         raise KeyError(robot)
 
+    @property
+    def radii(self) -> tuple[float, ...]:
+        """Every robot's body radius [m] in mission (sorted id) order; 0.0 for a point robot."""
+        return tuple(0.0 if s.radius is None else s.radius for _, s in self.robots)
+
     def to_dict(self) -> dict:
         d: dict[str, Any] = {
             "version": self.version, "metric": self.metric,
-            "robots": {r: {"p": list(s.p), "wheel_base": s.wheel_base,
-                           "wheel_speed_max": s.wheel_speed_max,
-                           "wheel_accel_max": s.wheel_accel_max} for r, s in self.robots},
+            "robots": {r: _spec_dict(s) for r, s in self.robots},
             "speed_max": self.speed_max, "turn_rate_max": self.turn_rate_max,
             "effective_t": self.effective_t, "on_failure": self.on_failure,
         }
@@ -617,11 +629,21 @@ class Mission:
             d["failure"] = dict(self.failure)
         if self.controller_gains:
             d["controller_gains"] = dict(self.controller_gains)
+        if self.obstacles:  # left out when there are none: such a mission encodes as before
+            d["obstacles"] = [list(o) for o in self.obstacles]
         return d
 
 
+def _spec_dict(s: RobotSpec) -> dict[str, Any]:
+    d: dict[str, Any] = {"p": list(s.p), "wheel_base": s.wheel_base, "wheel_speed_max": s.wheel_speed_max,
+                         "wheel_accel_max": s.wheel_accel_max}
+    if s.radius is not None:  # left out for a point robot: such a mission encodes as before
+        d["radius"] = s.radius
+    return d
+
+
 MISSION_FIELDS = frozenset(f.name for f in fields(Mission))
-ROBOT_SPEC_FIELDS = frozenset(("p", "wheel_base", "wheel_speed_max", "wheel_accel_max"))
+ROBOT_SPEC_FIELDS = frozenset(f.name for f in fields(RobotSpec))
 
 
 def failure_names() -> tuple[str, ...]:
@@ -687,6 +709,64 @@ def _triple(v: Any, what: str) -> tuple[float, float, float]:
     return (_num({"x": v[0]}, "x"), _num({"y": v[1]}, "y"), _num({"th": v[2]}, "th"))
 
 
+def obstacles_from_list(v: Any) -> tuple[tuple[float, float, float], ...]:
+    """A mission's ``obstacles`` [[x, y, r], ...] [m; world] as a tuple of (x, y, r); WireError otherwise.
+
+    At most MAX_OBSTACLES; x, y finite within MAX_ABS; r finite, > 0 and within MAX_ABS.
+    """
+    if not isinstance(v, (list, tuple)):
+        raise WireError(f"field 'obstacles' must be a list of [x, y, r], got {type(v).__name__}")
+    if len(v) > MAX_OBSTACLES:
+        raise WireError(f"{len(v)} obstacles exceed the limit of {MAX_OBSTACLES}")
+    out = []
+    for i, o in enumerate(v):
+        if not isinstance(o, (list, tuple)) or len(o) != 3:
+            raise WireError(f"obstacle {i} must be [x, y, r], got {o!r}")
+        try:
+            out.append((_num({"x": o[0]}, "x"), _num({"y": o[1]}, "y"), _pos({"r": o[2]}, "r")))
+        except WireError as exc:
+            raise WireError(f"obstacle {i}: {exc}") from None
+    return tuple(out)
+
+
+def check_clear_of_obstacles(robots: tuple[tuple[str, RobotSpec], ...],
+                             obstacles: tuple[tuple[float, float, float], ...],
+                             poses: tuple[tuple[float, float, float], ...],
+                             what: Callable[[int], str] = lambda w: f"pose {w}") -> None:
+    """WireError if, with the structure at any of ``poses`` (x, y, th) [m, rad; world], a robot's
+    body is inside an obstacle: the distance from its point to the obstacle's centre is below
+    r + its radius (0 for a point robot). The message names the pose (``what(index)``), the
+    obstacle (index, x, y, r) and the robot; the first such pose, then obstacle, then robot.
+    """
+    if not obstacles or not robots or not poses:
+        return
+    p = np.array([s.p for _, s in robots], dtype=float)
+    rad = np.array([0.0 if s.radius is None else s.radius for _, s in robots])
+    obs = np.array(obstacles, dtype=float)
+    wp = np.array(poses, dtype=float)
+    reach = float(np.max(np.hypot(p[:, 0], p[:, 1]) + rad))  # every body lies within this of the pose
+    # only obstacles within reach of a pose can hold a body there
+    near = (np.hypot(wp[:, None, 0] - obs[None, :, 0], wp[:, None, 1] - obs[None, :, 1])
+            < reach + obs[None, :, 2] + 1e-6)  # (a margin for rounding: the rest is checked exactly)
+    for w in np.flatnonzero(near.any(axis=1)):
+        x, y, th = wp[w]
+        c, s = math.cos(th), math.sin(th)
+        pts = np.column_stack((x + c * p[:, 0] - s * p[:, 1], y + s * p[:, 0] + c * p[:, 1]))
+        js = np.flatnonzero(near[w])
+        d = np.hypot(pts[:, None, 0] - obs[None, js, 0], pts[:, None, 1] - obs[None, js, 1])
+        inside = d < obs[None, js, 2] + rad[:, None]
+        if inside.any():
+            k, i = np.argwhere(inside.T)[0]  # the first obstacle, then its first robot
+            j = int(js[k])
+            ox, oy, r = obstacles[j]
+            rid, spec = robots[int(i)]
+            body = f"body radius {spec.radius:g} m" if spec.radius is not None else "a point robot"
+            raise WireError(
+                f"{what(int(w))} puts robot {rid!r} ({body}) inside obstacle {j} (x {ox:g}, y {oy:g}, r {r:g}): "
+                f"its point ({pts[i, 0]:.4g}, {pts[i, 1]:.4g}) is {float(d[i, k]):.4g} m from the obstacle's "
+                f"centre, less than {r + float(rad[i]):.4g} m")
+
+
 def mission_from_dict(m: Mapping[str, Any]) -> Mission:
     """Validate a mission map (from msgpack or a scenario file) into a Mission."""
     if not isinstance(m, Mapping):
@@ -715,7 +795,8 @@ def mission_from_dict(m: Mapping[str, Any]) -> Mission:
             robots.append((rid, RobotSpec(
                 p=(_num({"p": p[0]}, "p"), _num({"p": p[1]}, "p")),
                 wheel_base=_pos(spec, "wheel_base"), wheel_speed_max=_pos(spec, "wheel_speed_max"),
-                wheel_accel_max=_pos(spec, "wheel_accel_max"))))
+                wheel_accel_max=_pos(spec, "wheel_accel_max"),
+                radius=_pos(spec, "radius") if "radius" in spec else None)))
         except WireError as exc:
             raise WireError(f"robot {rid!r}: {exc}") from None
     points: dict[tuple[float, float], str] = {}
@@ -753,11 +834,18 @@ def mission_from_dict(m: Mapping[str, Any]) -> Mission:
     failure = failure_from_dict(m["failure"]) if m.get("failure") is not None else ()
     gains = (controller_gains_from_dict(m["controller_gains"], controller)
              if m.get("controller_gains") is not None else ())
-    return Mission(version=_int(m, "version"), metric=metric, robots=tuple(robots),
+    obstacles = obstacles_from_list(m["obstacles"]) if m.get("obstacles") is not None else ()
+    robots = tuple(robots)
+    if goal is not None:
+        check_clear_of_obstacles(robots, obstacles, (goal,), lambda w: "the goal")
+    elif path is not None:  # every waypoint: the structure rests at none of them inside an obstacle
+        check_clear_of_obstacles(robots, obstacles, path, lambda w: f"path waypoint {w}")
+    return Mission(version=_int(m, "version"), metric=metric, robots=robots,
                    speed_max=_pos(m, "speed_max", allow_zero=True),
                    turn_rate_max=_pos(m, "turn_rate_max", allow_zero=True),
                    effective_t=_num(m, "effective_t"), goal=goal, path=path, twist=twist,
-                   controller=controller, on_failure=on_failure, failure=failure, controller_gains=gains)
+                   controller=controller, on_failure=on_failure, failure=failure, controller_gains=gains,
+                   obstacles=obstacles)
 
 
 def encode_mission(mission: Mission) -> bytes:
