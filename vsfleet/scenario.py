@@ -21,6 +21,7 @@ Example::
     speed_max = 0.08           # [m/s] structure origin
     turn_rate_max = 0.3        # [rad/s]
     goal = { x = 1.6, y = 1.0, th = 0.3 }   # or path = [[x, y, th], ...] or twist = {vx, vy, w}
+    obstacles = [[0.8, 0.5, 0.1]]           # optional: round obstacles [x, y, r] [m; world], at most 256
     controller = "tracking"    # optional (default: vsfleet.control.DEFAULT_CONTROLLER)
     on_failure = "hold"        # hold | drop | rejoin
 
@@ -45,8 +46,9 @@ Example::
     rate_hz = 200.0
     truth_rate_hz = 100.0
 
-    [defaults]                 # every robot (wheel_base, wheel_speed_max, wheel_accel_max, gain, type)
+    [defaults]                 # every robot (wheel_base, wheel_speed_max, wheel_accel_max, radius, gain, type)
     wheel_base = 0.1           # [m]
+    radius = 0.05              # [m] optional: the robot's body, a disc about its tracked point
     wheel_speed_max = 0.3      # [m/s]
     wheel_accel_max = 1.0      # [m/s^2]
 
@@ -91,7 +93,8 @@ from .wire import (
 )
 
 SCHEMA = 1  # the fleet-file format this code reads
-ROBOT_LAYER_KEYS = ("wheel_base", "wheel_speed_max", "wheel_accel_max", "gain")  # defaults and robot types
+ROBOT_LAYER_KEYS = ("wheel_base", "wheel_speed_max", "wheel_accel_max", "radius", "gain")  # defaults and types
+OBSTACLE_KEYS = ("x", "y", "r")  # an obstacle written as a table {x, y, r} rather than [x, y, r]
 ROBOT_KEYS = ("type", "p", "start", *ROBOT_LAYER_KEYS)
 ROBOT_DEFAULTS: dict[str, Any] = {"wheel_base": 0.1, "wheel_speed_max": 0.3, "wheel_accel_max": 1.0,
                                   "gain": [1.0, 1.0]}
@@ -111,7 +114,10 @@ class UnknownKeyError(ScenarioError):
 
 @dataclass(frozen=True)
 class SimRobot:
-    """A simulated robot: start pose [m, rad; world], true envelope, wheel gains (left, right)."""
+    """A simulated robot: start pose [m, rad; world], true envelope, wheel gains (left, right).
+
+    radius [m]: its body (a disc about its tracked point), as in its mission spec; None: a point.
+    """
 
     robot: str
     start: tuple[float, float, float]
@@ -119,6 +125,7 @@ class SimRobot:
     wheel_speed_max: float
     wheel_accel_max: float
     gain: tuple[float, float]
+    radius: float | None = None
 
 
 @dataclass(frozen=True)
@@ -221,6 +228,51 @@ def _floats(v: Any, n: int, what: str) -> tuple[float, ...]:
     return tuple(float(a) for a in v)
 
 
+def _radius(table: Mapping[str, Any], where: str) -> float | None:
+    """A robot's body radius [m] (finite, > 0), or None when no layer sets it (a point robot)."""
+    if "radius" not in table:
+        return None
+    v = table["radius"]
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0.0:
+        raise ScenarioError(f"[{where}] 'radius' must be a finite number > 0 [m], got {v!r}")
+    return float(v)
+
+
+def _obstacles(v: Any) -> Any:
+    """[mission] obstacles: each [x, y, r] or a table {x, y, r} (closed), as the wire's [x, y, r] lists."""
+    if not isinstance(v, list):
+        raise ScenarioError(f"[mission] obstacles must be a list of [x, y, r], got {v!r}")
+    out = []
+    for i, o in enumerate(v):
+        if isinstance(o, Mapping):
+            _only(o, OBSTACLE_KEYS, f"mission.obstacles[{i}]")
+            missing = [k for k in OBSTACLE_KEYS if k not in o]
+            if missing:
+                raise ScenarioError(f"[mission.obstacles[{i}]] needs {', '.join(map(repr, missing))}")
+            o = [o[k] for k in OBSTACLE_KEYS]
+        out.append(o)
+    return out
+
+
+def _check_starts(robots: list[SimRobot], obstacles) -> None:
+    """ScenarioError when a robot starts with its body inside an obstacle or overlapping another's body."""
+    for s in robots:
+        rad = s.radius or 0.0
+        for j, (ox, oy, r) in enumerate(obstacles):
+            d = math.hypot(s.start[0] - ox, s.start[1] - oy)
+            if d < r + rad:
+                raise ScenarioError(f"[robots.{s.robot}] start puts it inside obstacle {j} (x {ox:g}, y {oy:g}, "
+                                    f"r {r:g}): {d:.4g} m from its centre, less than {r + rad:.4g} m")
+    bodies = [s for s in robots if s.radius is not None]
+    for a in range(len(bodies)):
+        for b in range(a + 1, len(bodies)):
+            p, q = bodies[a], bodies[b]
+            d = math.hypot(p.start[0] - q.start[0], p.start[1] - q.start[1])
+            if d < p.radius + q.radius:
+                raise ScenarioError(f"[robots.{p.robot}] and [robots.{q.robot}] start with their bodies "
+                                    f"overlapping: {d:.4g} m apart, less than {p.radius + q.radius:.4g} m")
+
+
 def scenario_from_dict(doc: Mapping[str, Any], name: str = "scenario") -> Scenario:
     """Validate a loaded TOML scenario into a Scenario."""
     _only(doc, {"schema", "fleet", "mission", "failure", "controller", "tracker", "sim", "defaults",
@@ -262,14 +314,18 @@ def scenario_from_dict(doc: Mapping[str, Any], name: str = "scenario") -> Scenar
             wheel_base=_float(r, "wheel_base", where, lo=1e-6),
             wheel_speed_max=_float(r, "wheel_speed_max", where, lo=1e-6),
             wheel_accel_max=_float(r, "wheel_accel_max", where, lo=1e-6),
-            gain=_floats(r["gain"], 2, f"[{where}] gain")))
+            gain=_floats(r["gain"], 2, f"[{where}] gain"), radius=_radius(r, where)))
         s = sim_robots[-1]
         mission_robots[rid] = {"p": list(p), "wheel_base": s.wheel_base,
                                "wheel_speed_max": s.wheel_speed_max, "wheel_accel_max": s.wheel_accel_max}
+        if s.radius is not None:
+            mission_robots[rid]["radius"] = s.radius
 
     mission_t = dict(_table(doc, "mission"))
     _only(mission_t, {"metric", "speed_max", "turn_rate_max", "goal", "path", "twist", "controller",
-                      "on_failure"}, "mission")
+                      "on_failure", "obstacles"}, "mission")
+    if "obstacles" in mission_t:
+        mission_t["obstacles"] = _obstacles(mission_t["obstacles"])
     mission_t.update(version=1, effective_t=0.0, robots=mission_robots)
     mission_t.setdefault("metric", "l2")
     try:
@@ -293,6 +349,7 @@ def scenario_from_dict(doc: Mapping[str, Any], name: str = "scenario") -> Scenar
     except WireError as exc:
         raise ScenarioError(f"[controller] {exc}") from None
     mission = dataclasses.replace(mission, failure=failure, controller_gains=gains)
+    _check_starts(sim_robots, mission.obstacles)
 
     tr = _table(doc, "tracker")
     _only(tr, {"kind", "camera", "rate_hz", *SIM_TRACKER_KEYS}, "tracker")
