@@ -93,13 +93,27 @@ class Agent:
         self.rejections = Rejections(log)
         self.decisions: list[Decision] = []  # every failure-policy decision, in order (offline runs, tests)
         self.mission_payload: bytes | None = None  # answers mission queries; one assignment per change
-        self.health_payload: bytes | None = None   # answers health queries; swapped in after each tick
+        self._health_msg: HealthMsg | None = None   # answers health queries; swapped in after each tick
+        self._health_encoded: tuple[HealthMsg | None, bytes | None] = (None, None)
         self.no_quorum = 0        # queries whose replies had no majority answer
         self.waiting = 0          # frames that came before any mission
         self.frames_replaced = 0  # frames replaced in the slot before they were run (a flood, or a slow host)
         self._slot: dict[str, FrameMsg] = {}  # src -> the newest frame not yet run
         self._slot_lock = threading.Lock()
         self.wake = threading.Event()  # set when a frame lands in the slot
+
+    @property
+    def health_payload(self) -> bytes | None:
+        """The answer to peers' health queries: the last tick's health, encoded on the first ask
+        (any thread: the message is swapped in whole, and the cache is one tuple)."""
+        msg = self._health_msg
+        if msg is None:
+            return None
+        cached_msg, payload = self._health_encoded
+        if cached_msg is not msg:
+            payload = encode_health(msg)
+            self._health_encoded = (msg, payload)
+        return payload
 
     @property
     def ticks(self) -> int:
@@ -290,7 +304,7 @@ class Agent:
         if out.state is not None:
             self.put_state(encode(replace(out.state, rejected=self.rejections.count)))
         if out.health is not None:
-            self.health_payload = encode_health(out.health)
+            self._health_msg = out.health  # encoded only when a peer asks (health_payload)
         for ev in out.events:
             self.decisions.append(Decision(ev.t, ev.robot, ev.kind, ev.dev))
             self.put_event(encode_event(ev))

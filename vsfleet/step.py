@@ -416,7 +416,7 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
                                      "restarting failure timers and asking peers for their failure state"))
         failure = restart_timers(failure)
         state = replace(state, phase=SyncPhase.RESYNCING)
-    state = replace(state, last_frame_t=frame.t, failure=failure)
+    state = _evolve(state, last_frame_t=frame.t, failure=failure)
 
     pose, seen, fresh = frame_arrays(arrays.ids, frame.poses, frame.fresh)
     own = arrays.index[state.robot]
@@ -459,10 +459,19 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
                    for d in decisions)
     notes.extend(Note("warning", f"frame {frame.seq}: robot {d.robot} {d.kind} (deviation {d.deviation_m:.3f} m, "
                                  f"on_failure={mission.on_failure})") for d in decisions)
-    state = replace(state, wheels_m_s=wheels, ctrl=ctrl, failure=failure, health=health, last_seq=frame.seq,
+    state = _evolve(state, wheels_m_s=wheels, ctrl=ctrl, failure=failure, health=health, last_seq=frame.seq,
                     last_cmd_t=frame.t, ticks=state.ticks + 1)
     return state, StepOutput(cmd=cmd, state=state_msg, health=health_msg, events=events, notes=tuple(notes),
                              structure=s, wheels_m_s=wheels)
+
+
+def _evolve(state: AgentState, **changes) -> AgentState:
+    """dataclasses.replace for the per-frame path: the same new frozen AgentState, without re-running
+    __init__ over every field (AgentState has no __post_init__ and no validation to skip)."""
+    new = object.__new__(AgentState)
+    new.__dict__.update(state.__dict__)
+    new.__dict__.update(changes)
+    return new
 
 
 def _used_ids(ids: tuple[str, ...], used: np.ndarray) -> tuple[str, ...]:
@@ -470,9 +479,14 @@ def _used_ids(ids: tuple[str, ...], used: np.ndarray) -> tuple[str, ...]:
     return ids if used.all() else tuple(ids[i] for i in np.flatnonzero(used))
 
 
+_HEALTHY = Health()
+
+
 def _health(failure: FailureState, ids: tuple[str, ...]) -> Health:
     """The failure state in the peers' wire form (as failure.to_health; rows visited only where set)."""
     since = failure.since_t
+    if not (failure.failed.any() or failure.dropped.any()) and np.isnan(since).all():
+        return _HEALTHY  # every robot healthy and compliant: the common case
     return Health(since_t={ids[i]: float(since[i]) for i in np.flatnonzero(~np.isnan(since))},
                   failed=frozenset(ids[i] for i in np.flatnonzero(failure.failed)),
                   dropped=frozenset(ids[i] for i in np.flatnonzero(failure.dropped)))
