@@ -43,10 +43,12 @@ from vsfleet.wire import (
 )
 
 T = 1.7e9 + 0.123456789
-ROBOTS = (("r1", RobotSpec((0.3, 0.0), 0.12, 0.3, 0.8)), ("r2", RobotSpec((-0.15, 0.26), 0.12, 0.25, 0.8)))
+ROBOTS = (("r1", RobotSpec((0.3, 0.0), 0.12, 0.3, 0.8, radius=0.05)),
+          ("r2", RobotSpec((-0.15, 0.26), 0.12, 0.25, 0.8)))
 MISSION = Mission(7, "linf", ROBOTS, 0.08, 0.3, T, goal=(1.6, 1.0, 0.3), controller="tracking", on_failure="drop",
                   failure=(("fail_after_s", 2.5), ("fail_deviation_m", 0.04)),
-                  controller_gains=(("along_gain_per_s", 1.5), ("deadband_m", 0.003)))
+                  controller_gains=(("along_gain_per_s", 1.5), ("deadband_m", 0.003)),
+                  obstacles=((0.8, 0.4, 0.1),))
 
 # kind -> (a message, its encoder); the decoder is DECODERS[kind]
 TABLE = {
@@ -122,6 +124,7 @@ def test_the_misspelt_on_failure_of_the_issue_is_rejected_and_the_right_name_sug
 
 NESTED = [
     ("robot spec", lambda m: m["robots"]["r1"], "wheel_base"),
+    ("robot spec radius", lambda m: m["robots"]["r1"], "radius"),
     ("goal", lambda m: m["goal"], "th"),
     ("failure", lambda m: m["failure"], "fail_after_s"),
     ("controller gains", lambda m: m["controller_gains"], "along_gain_per_s"),

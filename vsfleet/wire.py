@@ -743,28 +743,48 @@ def check_clear_of_obstacles(robots: tuple[tuple[str, RobotSpec], ...],
     p = np.array([s.p for _, s in robots], dtype=float)
     rad = np.array([0.0 if s.radius is None else s.radius for _, s in robots])
     obs = np.array(obstacles, dtype=float)
-    wp = np.array(poses, dtype=float)
     reach = float(np.max(np.hypot(p[:, 0], p[:, 1]) + rad))  # every body lies within this of the pose
-    # only obstacles within reach of a pose can hold a body there
-    near = (np.hypot(wp[:, None, 0] - obs[None, :, 0], wp[:, None, 1] - obs[None, :, 1])
-            < reach + obs[None, :, 2] + 1e-6)  # (a margin for rounding: the rest is checked exactly)
-    for w in np.flatnonzero(near.any(axis=1)):
-        x, y, th = wp[w]
-        c, s = math.cos(th), math.sin(th)
-        pts = np.column_stack((x + c * p[:, 0] - s * p[:, 1], y + s * p[:, 0] + c * p[:, 1]))
-        js = np.flatnonzero(near[w])
-        d = np.hypot(pts[:, None, 0] - obs[None, js, 0], pts[:, None, 1] - obs[None, js, 1])
-        inside = d < obs[None, js, 2] + rad[:, None]
-        if inside.any():
-            k, i = np.argwhere(inside.T)[0]  # the first obstacle, then its first robot
-            j = int(js[k])
+    margin = 1e-6  # the filters below keep a margin for rounding: the last check is the exact one
+    tree = None
+    for w0 in range(0, len(poses), 1000):  # in chunks: bounded memory, and the first bad pose ends it
+        wp = np.array(poses[w0:w0 + 1000], dtype=float)
+        dx, dy = obs[None, :, 0] - wp[:, None, 0], obs[None, :, 1] - wp[:, None, 1]
+        # 1. only an obstacle within reach of a pose can hold a body there
+        ws, js = np.nonzero(np.hypot(dx, dy) < reach + obs[None, :, 2] + margin)
+        if not len(ws):
+            continue
+        # 2. the robots' points are fixed in the structure frame: find those near each obstacle there
+        if tree is None:
+            from scipy.spatial import cKDTree  # here: only missions with obstacles need it
+
+            tree = cKDTree(p)
+        c, s = np.cos(wp[ws, 2]), np.sin(wp[ws, 2])
+        q = np.column_stack((c * dx[ws, js] + s * dy[ws, js], c * dy[ws, js] - s * dx[ws, js]))
+        bound = obs[js, 2] + float(rad.max()) + margin
+        d1, _ = tree.query(q, k=1, distance_upper_bound=float(bound.max()))
+        close = np.flatnonzero(d1 < bound)
+        if not len(close):
+            continue
+        # 3. exactly, in the world frame, for the pairs left: distance < r + radius is inside
+        hits = []
+        for k in close:
+            w, j = int(ws[k]), int(js[k])
+            x, y, th = wp[w]
+            cw, sw = math.cos(th), math.sin(th)
+            for i in sorted(tree.query_ball_point(q[k], float(bound[k]))):
+                px, py = x + cw * p[i, 0] - sw * p[i, 1], y + sw * p[i, 0] + cw * p[i, 1]
+                d = math.hypot(px - obs[j, 0], py - obs[j, 1])
+                if d < obs[j, 2] + rad[i]:
+                    hits.append((w, j, i, px, py, d))
+        if hits:
+            w, j, i, px, py, d = min(hits)  # the first pose, then obstacle, then robot
             ox, oy, r = obstacles[j]
-            rid, spec = robots[int(i)]
+            rid, spec = robots[i]
             body = f"body radius {spec.radius:g} m" if spec.radius is not None else "a point robot"
             raise WireError(
-                f"{what(int(w))} puts robot {rid!r} ({body}) inside obstacle {j} (x {ox:g}, y {oy:g}, r {r:g}): "
-                f"its point ({pts[i, 0]:.4g}, {pts[i, 1]:.4g}) is {float(d[i, k]):.4g} m from the obstacle's "
-                f"centre, less than {r + float(rad[i]):.4g} m")
+                f"{what(w0 + w)} puts robot {rid!r} ({body}) inside obstacle {j} (x {ox:g}, y {oy:g}, r {r:g}): "
+                f"its point ({px:.4g}, {py:.4g}) is {d:.4g} m from the obstacle's centre, "
+                f"less than {r + float(rad[i]):.4g} m")
 
 
 def mission_from_dict(m: Mapping[str, Any]) -> Mission:
