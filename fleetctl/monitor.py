@@ -8,6 +8,9 @@ mission version the agents use, their agreement (the largest difference
 between agents' structure poses on the newest frame that every live agent
 ran complete, as agents agree bit for bit only there; failing that, the newest
 frame they all reported, flagged), and the latest events (``vs/<fleet>/event/<robot>`` maps, and faults).
+In a room (a mission with obstacles or robot bodies): each robot's body radius and its gap, the
+clearance between its body and the nearest other body or obstacle at the latest poses (negative:
+touching), and the mission's obstacles.
 
 :class:`FleetModel` holds the state; it ingests (receive time, key, payload)
 and produces plain rows (:class:`FleetView`), so it runs as well on a
@@ -66,6 +69,8 @@ class RobotRow:
     alive: bool | None          # agent's liveliness token; None: never seen
     rejected: int | None
     state_seq: int | None
+    radius_m: float | None = None   # its body radius in the mission; None: a point robot (or no mission)
+    gap_m: float | None = None      # clearance [m] to the nearest other body or obstacle; < 0: touching
 
 
 @dataclass(frozen=True)
@@ -83,12 +88,14 @@ class FleetView:
     agents_compared: int
     events: list[tuple[float, str, dict]]   # (receive time [s], key suffix, map), newest last
     bad_messages: int
+    obstacles: tuple[tuple[float, float, float], ...] = ()  # the mission's (x, y, r) [m; world]
 
 
 @dataclass
 class _Robot:
     pose_times: deque = field(default_factory=deque)
     last_pose_s: float | None = None
+    xy: tuple[float, float] | None = None  # latest tracked position [m; world]
     cmd: tuple[float, float] | None = None
     state_t_recv_s: float | None = None
     err_m: float | None = None
@@ -111,6 +118,8 @@ class FleetModel:
         self.alive: dict[str, bool] = {}           # agent id -> token alive
         self.mission_robots: tuple[str, ...] = ()
         self.mission_version: int | None = None
+        self.radii: dict[str, float] = {}     # robot -> body radius [m] (robots with a body)
+        self.obstacles: tuple[tuple[float, float, float], ...] = ()
         self.events: deque = deque(maxlen=events_kept)
         self.bad = 0
         self.frames_seen = False  # pose rates from frames once any frame came
@@ -130,8 +139,10 @@ class FleetModel:
             self.fleet = parts[0]  # the first fleet seen; others are ignored
         return parts if parts[0] == self.fleet else None
 
-    def _seen(self, robot: str, t_recv_s: float) -> None:
+    def _seen(self, robot: str, t_recv_s: float, xy: tuple[float, float] | None = None) -> None:
         r = self._robot(robot)
+        if xy is not None:
+            r.xy = xy
         r.last_pose_s = t_recv_s
         r.pose_times.append(t_recv_s)
         while r.pose_times and r.pose_times[0] < t_recv_s - self.rate_window_s:
@@ -146,13 +157,13 @@ class FleetModel:
         _, kind, rid = parts
         try:
             if kind == "frame" and rid:  # the agents' input: every robot a tracker saw in one frame
-                for robot in decode_frame(payload).poses:
-                    self._seen(robot, t_recv_s)
+                for robot, (x, y, _) in decode_frame(payload).poses.items():
+                    self._seen(robot, t_recv_s, (x, y))
                 self.frames_seen = True
             elif kind == "pose" and rid:
-                decode_pose(payload)
+                pose = decode_pose(payload)
                 if not self.frames_seen:  # a tracker that sends frames sends these too: count once
-                    self._seen(check_name(rid, "robot"), t_recv_s)
+                    self._seen(check_name(rid, "robot"), t_recv_s, (pose.x, pose.y))
             elif kind == "cmd" and rid:
                 m = decode_cmd(payload)
                 self._robot(check_name(rid, "robot")).cmd = (m.vl, m.vr)
@@ -172,6 +183,8 @@ class FleetModel:
                 mission = decode_mission(payload)
                 self.mission_robots = mission.robot_ids
                 self.mission_version = mission.version
+                self.radii = {r: s.radius for r, s in mission.robots if s.radius is not None}
+                self.obstacles = mission.obstacles
             elif kind == "fault" and rid:
                 f = decode_fault(payload)
                 self.events.append((t_recv_s, f"fault/{rid}",
@@ -212,6 +225,19 @@ class FleetModel:
         pos, th = pose_spread(poses)
         return seq, pos, th, bool(whole), len(live)
 
+    def _gap(self, rid: str) -> float | None:
+        """Robot ``rid``'s clearance [m]: from its body to the nearest other body or obstacle, at the
+        latest poses; None without its pose, or with nothing else to measure against."""
+        me = self.robots.get(rid)
+        if me is None or me.xy is None or not (self.radii or self.obstacles):
+            return None
+        x, y = me.xy
+        mine = self.radii.get(rid, 0.0)
+        gaps = [math.hypot(x - ox, y - oy) - r - mine for ox, oy, r in self.obstacles]
+        gaps += [math.hypot(x - o.xy[0], y - o.xy[1]) - mine - self.radii.get(other, 0.0)
+                 for other, o in self.robots.items() if other != rid and o.xy is not None]
+        return min(gaps, default=None)
+
     def view(self, now_s: float | None = None) -> FleetView:
         """The table as plain data; ``now_s`` defaults to the latest receive time ingested."""
         now = self.last_t_s if now_s is None else now_s
@@ -225,7 +251,8 @@ class FleetModel:
                 pose_age_s=None if r.last_pose_s is None else now - r.last_pose_s,
                 pose_rate_hz=n / self.rate_window_s,
                 vl_m_s=r.cmd[0] if r.cmd else None, vr_m_s=r.cmd[1] if r.cmd else None,
-                err_m=r.err_m, alive=self.alive.get(rid), rejected=r.rejected, state_seq=r.state_seq))
+                err_m=r.err_m, alive=self.alive.get(rid), rejected=r.rejected, state_seq=r.state_seq,
+                radius_m=self.radii.get(rid), gap_m=self._gap(rid)))
         seq, pos, th, complete, n = self._agreement(now)
         newest = max((r for r in self.robots.values() if r.state_seq is not None),
                      key=lambda r: r.state_seq, default=None)
@@ -240,7 +267,7 @@ class FleetModel:
                          structure_seq=structure_seq, mission_version=version, agreement_seq=seq,
                          agreement_complete=complete,
                          agreement_pos_m=pos, agreement_th_rad=th, agents_compared=n,
-                         events=list(self.events), bad_messages=self.bad)
+                         events=list(self.events), bad_messages=self.bad, obstacles=self.obstacles)
 
 
 # ---------------------------------------------------------------- rendering
@@ -264,11 +291,20 @@ def render(view: FleetView):
                           ("pose rate [Hz]", "right"), ("vl [m/s]", "right"), ("vr [m/s]", "right"),
                           ("err [cm]", "right"), ("rejected", "right"), ("seq", "right")):
         table.add_column(escape(name), justify=justify)
+    room = view.obstacles or any(r.radius_m is not None for r in view.robots)
+    if room:  # bodies and obstacles: each robot's body and its clearance to the nearest one
+        table.add_column(escape("body r [cm]"), justify="right")
+        table.add_column(escape("gap [cm]"), justify="right")
     for r in view.robots:
         alive = {True: Text("alive", "green"), False: Text("gone", "bold red"), None: Text("-")}[r.alive]
-        table.add_row(Text(r.robot), alive, _fmt(r.pose_age_s, ".2f"), f"{r.pose_rate_hz:.1f}",
-                      _fmt(r.vl_m_s, "+.3f"), _fmt(r.vr_m_s, "+.3f"), _fmt(r.err_m, ".2f", 100.0),
-                      _fmt(r.rejected, "d"), _fmt(r.state_seq, "d"))
+        cells = [Text(r.robot), alive, _fmt(r.pose_age_s, ".2f"), f"{r.pose_rate_hz:.1f}",
+                 _fmt(r.vl_m_s, "+.3f"), _fmt(r.vr_m_s, "+.3f"), _fmt(r.err_m, ".2f", 100.0),
+                 _fmt(r.rejected, "d"), _fmt(r.state_seq, "d")]
+        if room:
+            gap = Text(_fmt(r.gap_m, "+.1f", 100.0),
+                       "bold red" if r.gap_m is not None and r.gap_m <= 0.0 else "")
+            cells += [_fmt(r.radius_m, ".1f", 100.0), gap]
+        table.add_row(*cells)
     lines = []
     if view.structure is not None:
         x, y, th = view.structure
@@ -276,6 +312,10 @@ def render(view: FleetView):
     else:
         lines.append("structure: no agent state yet")
     lines.append(f"mission version: {view.mission_version if view.mission_version is not None else '-'}")
+    if view.obstacles:
+        lines.append(f"obstacles ({len(view.obstacles)}, x y r [m]): " + ", ".join(
+            f"{i}: ({x:+.3f}, {y:+.3f}, {r:.3f})" for i, (x, y, r) in enumerate(view.obstacles[:8]))
+            + (f", ... {len(view.obstacles) - 8} more" if len(view.obstacles) > 8 else ""))
     if view.agreement_seq is not None:
         ran = "run complete" if view.agreement_complete else "none run complete by every agent"
         lines.append(f"agreement on frame {view.agreement_seq} ({ran}) over {view.agents_compared} agents: "

@@ -170,3 +170,41 @@ def test_pose_rates_come_from_frames_and_are_not_counted_twice_with_the_poses():
         view.ingest(t, "vs/demo/frame/sim", encode_frame(FrameMsg(t, k, "sim", {"r1": (0.0, 0.0, 0.0)})))
         view.ingest(t, "vs/demo/pose/r1", encode(PoseMsg(t, k, 0.0, 0.0, 0.0, "sim")))
     assert len(view._robot("r1").pose_times) == 30 and view.bad == 0
+
+
+def _room_model() -> FleetModel:
+    """A mission with bodies (r1 0.05 m, r2 0.04 m, r3 a point) and two obstacles; one frame of poses."""
+    from vsfleet.wire import FrameMsg, Mission, RobotSpec, encode_frame, encode_mission
+
+    mission = Mission(5, "l2", (("r1", RobotSpec((0.3, 0.0), 0.12, 0.3, 0.8, radius=0.05)),
+                                ("r2", RobotSpec((-0.15, 0.26), 0.12, 0.3, 0.8, radius=0.04)),
+                                ("r3", RobotSpec((-0.15, -0.26), 0.12, 0.3, 0.8))),
+                      0.08, 0.3, 0.0, goal=(1.6, 1.0, 0.3), obstacles=((1.0, 0.0, 0.2), (5.0, 5.0, 0.5)))
+    m = FleetModel("demo")
+    m.ingest(T0, "vs/demo/mission", encode_mission(mission))
+    poses = {"r1": (0.7, 0.0, 0.0), "r2": (0.0, 0.5, 0.0), "r3": (0.0, 0.41, 0.0)}
+    m.ingest(T0, "vs/demo/frame/sim", encode_frame(FrameMsg(T0, 1, "sim", poses)))
+    return m
+
+
+def test_in_a_room_each_robot_shows_its_body_and_its_gap_to_the_nearest_body_or_obstacle():
+    view = _room_model().view()
+    rows = {r.robot: r for r in view.robots}
+    assert (rows["r1"].radius_m, rows["r2"].radius_m, rows["r3"].radius_m) == (0.05, 0.04, None)
+    assert rows["r1"].gap_m == pytest.approx(0.3 - 0.2 - 0.05)        # obstacle 0
+    assert rows["r2"].gap_m == pytest.approx(0.09 - 0.04)             # r3, a point 9 cm away
+    assert rows["r3"].gap_m == pytest.approx(0.09 - 0.04)
+    assert view.obstacles == ((1.0, 0.0, 0.2), (5.0, 5.0, 0.5))
+    text = _text(view)
+    for needle in ("body r [cm]", "gap [cm]", "5.0", "+5.0", "obstacles (2, x y r [m]): 0: (+1.000, +0.000, 0.200)"):
+        assert needle in text
+
+
+def test_a_touching_body_shows_a_negative_gap_and_a_mission_without_a_room_adds_no_columns():
+    from vsfleet.wire import FrameMsg, encode_frame
+
+    m = _room_model()
+    m.ingest(T0 + 0.1, "vs/demo/frame/sim", encode_frame(FrameMsg(T0 + 0.1, 2, "sim", {"r1": (0.78, 0.0, 0.0)})))
+    assert {r.robot: r for r in m.view().robots}["r1"].gap_m == pytest.approx(-0.03)
+    text = _text(fed().view())
+    assert "gap [cm]" not in text and "body r" not in text and "obstacles" not in text
