@@ -9,10 +9,11 @@ are the tracker's clock. Topics for fleet ``F`` (see docs/foxglove.md):
   foxglove.PoseInFrame (the tracker's pose, simfleet's truth, an agent's fitted
   structure pose);
 * ``/foxglove/vs/F/scene``: foxglove.SceneUpdate with entities ``robots`` (one
-  arrow and label per robot, red when failed, grey when dropped), ``fitted``
+  arrow and label per robot, red when failed, grey when dropped, and a flat disc of
+  its body radius when the mission gives it one), ``fitted``
   and ``advanced`` (the structure pose and its template points, one sphere per
   robot), ``targets`` (a line from each robot to its point on the advanced
-  structure) and ``mission`` (goal or path);
+  structure) and ``mission`` (goal or path, and the obstacles as cylinders of their radius);
 * ``/foxglove/vs/F/tf``: foxglove.FrameTransforms, world -> ``F/<robot>`` (each frame) and
   world -> ``F/structure``, ``F/structure_advanced`` (each structure update);
 * ``/foxglove/vs/F/goal`` foxglove.PoseInFrame, ``/foxglove/vs/F/path`` foxglove.PosesInFrame;
@@ -55,6 +56,12 @@ RED = fm.Color(r=0.95, g=0.1, b=0.1, a=1.0)
 GREY = fm.Color(r=0.55, g=0.55, b=0.55, a=0.8)
 WHITE = fm.Color(r=1.0, g=1.0, b=1.0, a=1.0)
 PURPLE = fm.Color(r=0.6, g=0.3, b=0.9, a=1.0)
+OBSTACLE = fm.Color(r=0.45, g=0.3, b=0.2, a=0.6)
+OBSTACLE_HEIGHT_M = 0.2   # an obstacle's cylinder (only its footprint, a disc of radius r, matters)
+BODY_HEIGHT_M = 0.01      # a robot's body: a flat disc of its radius on the ground
+BODY_BLUE = fm.Color(r=0.15, g=0.45, b=0.95, a=0.35)   # the robot's arrow colour, translucent
+BODY_RED = fm.Color(r=0.95, g=0.1, b=0.1, a=0.35)
+BODY_GREY = fm.Color(r=0.55, g=0.55, b=0.55, a=0.35)
 
 EVENT_LEVEL = {"fail": fm.LogLevel.Warning, "drop": fm.LogLevel.Warning,
                "recover": fm.LogLevel.Info, "rejoin": fm.LogLevel.Info}
@@ -144,6 +151,13 @@ def structure_entity(t_ns: int, ident: str, mission: Mission, pose: tuple[float,
                    spheres=[_sphere(px, py, 0.03, color) for px, py, _ in pts], lines=lines)
 
 
+def _disc(x: float, y: float, r_m: float, height_m: float, color: fm.Color) -> fm.CylinderPrimitive:
+    """A vertical cylinder of radius r_m [m] standing on the ground at (x, y) [m; world]."""
+    return fm.CylinderPrimitive(pose=fox_pose(x, y, 0.0, height_m / 2.0),
+                                size=fm.Vector3(x=2.0 * r_m, y=2.0 * r_m, z=height_m),
+                                bottom_scale=1.0, top_scale=1.0, color=color)
+
+
 def frame_transforms(t_ns: int, children: dict[str, tuple[float, float, float]]) -> fm.FrameTransforms:
     """world -> child frame at each pose (x, y, th) [m, rad; world]."""
     out = []
@@ -154,9 +168,12 @@ def frame_transforms(t_ns: int, children: dict[str, tuple[float, float, float]])
 
 
 def mission_entity(t_ns: int, mission: Mission) -> fm.SceneEntity:
-    """The mission's goal (an arrow) or path (a line through its waypoints) [m, rad; world]."""
+    """The mission's goal (an arrow) or path (a line through its waypoints) [m, rad; world], and its
+    obstacles (cylinders of their radius, in mission order)."""
     goal = mission.goal or (mission.path[-1] if mission.path else None)
     prims: dict[str, list] = {}
+    if mission.obstacles:
+        prims["cylinders"] = [_disc(x, y, r, OBSTACLE_HEIGHT_M, OBSTACLE) for x, y, r in mission.obstacles]
     if goal is not None:
         prims["arrows"] = [_arrow(*goal, 0.15, PURPLE)]
     if mission.path:
@@ -242,14 +259,18 @@ class FleetViews:
             views.append(View(f"{base}/tf", frame_transforms(t_ns, children), t_ns))
         if not self.wanted(f"{base}/scene"):
             return views
-        arrows, texts = [], []
+        arrows, texts, bodies = [], [], []
+        radii = {r: s.radius for r, s in f.mission.robots if s.radius is not None} if f.mission is not None else {}
         for robot in sorted(f.poses):
             x, y, th = f.poses[robot]
-            color = RED if robot in f.failed else GREY if robot in f.dropped else BLUE
+            color, body = ((RED, BODY_RED) if robot in f.failed else (GREY, BODY_GREY) if robot in f.dropped
+                           else (BLUE, BODY_BLUE))
             arrows.append(_arrow(x, y, th, 0.12, color))
+            if robot in radii:
+                bodies.append(_disc(x, y, radii[robot], BODY_HEIGHT_M, body))
             texts.append(fm.TextPrimitive(pose=fox_pose(x, y, 0.0, 0.05), billboard=True, font_size=14.0,
                                           scale_invariant=True, color=WHITE, text=robot))
-        entity = _entity(t_ns, "robots", meta, arrows=arrows, texts=texts)
+        entity = _entity(t_ns, "robots", meta, arrows=arrows, texts=texts, cylinders=bodies)
         views.insert(0, View(f"{base}/scene", fm.SceneUpdate(entities=[entity]), t_ns))
         return views
 
@@ -350,6 +371,8 @@ class FleetViews:
             ("path", mission.path) if mission.path is not None else ("twist", mission.twist)
         text = (f"mission v{mission.version}: {target[0]} {_fmt(target[1])}, {len(mission.robots)} robots, "
                 f"metric {mission.metric}, speed_max {mission.speed_max} m/s, on_failure {mission.on_failure}")
+        if mission.obstacles:
+            text += f", {len(mission.obstacles)} obstacle{'s' if len(mission.obstacles) > 1 else ''}"
         views = [View(f"{base}/log", log_message(t, fm.LogLevel.Info, LOG_NAME, text), t)]
         goal = mission.goal or (mission.path[-1] if mission.path else None)
         if goal is not None:

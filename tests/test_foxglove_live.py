@@ -150,3 +150,55 @@ def test_a_file_recorded_live_by_vsfleet_record_reads_back_with_the_sdks_schemas
     ids = [e["id"] for update in seen["/foxglove/vs/lab/scene"] for e in update["entities"]]
     assert ids == ["mission", "robots", "fitted", "advanced", "targets"]
     assert seen["/foxglove/vs/lab/goal"][0]["pose"]["position"] == {"x": 1.0, "y": 0.5, "z": 0.0}
+
+
+ROOM = Mission(version=2, metric="linf", speed_max=0.08, turn_rate_max=0.3, effective_t=T0, goal=(1.0, 0.5, 0.2),
+               robots=(("r1", RobotSpec((0.3, 0.0), 0.12, 0.3, 0.8, radius=0.05)),
+                       ("r2", RobotSpec((-0.15, 0.26), 0.12, 0.3, 0.8))),          # r2: a point robot
+               obstacles=((0.6, 0.3, 0.1), (-1.0, 2.0, 0.25)))
+
+
+def scene_dict(message) -> dict:
+    """An SDK SceneUpdate as a dict, through its protobuf schema (as a Foxglove client decodes it)."""
+    from tests.foxglove_support import decode_protobuf
+
+    schema = foxglove.messages.SceneUpdate.get_schema()
+    return decode_protobuf(schema.name, schema.data, message.encode())
+
+
+def scene_of(views) -> dict:
+    return scene_dict(next(v.message for v in views if v.topic == "/foxglove/vs/lab/scene"))
+
+
+def xy(prim) -> tuple[float, float]:
+    return (prim["pose"]["position"]["x"], prim["pose"]["position"]["y"])
+
+
+def test_the_scene_shows_obstacles_as_cylinders_and_robot_bodies_as_discs_of_their_radius():
+    from vsfleet.fleetctl.foxglove_views import FleetViews
+
+    views = FleetViews()
+    out = views.on_message("vs/lab/mission", encode_mission(ROOM), seconds_to_ns(T0))
+    (mission,) = scene_of(out)["entities"]
+    assert mission["id"] == "mission"
+    assert [(*xy(c), c["size"]["x"], c["size"]["y"]) for c in mission["cylinders"]] == \
+        [(0.6, 0.3, 0.2, 0.2), (-1.0, 2.0, 0.5, 0.5)]                 # diameter 2 r, in mission order
+    assert all(c["bottom_scale"] == c["top_scale"] == 1.0 and c["pose"]["position"]["z"] == c["size"]["z"] / 2
+               for c in mission["cylinders"])
+    assert any("2 obstacles" in v.message.encode().decode("utf-8", "replace")
+               for v in out if v.topic == "/foxglove/vs/lab/log")
+    out = views.on_message("vs/lab/frame/cam0", encode_frame(frame(1)), 0)
+    (robots,) = scene_of(out)["entities"]
+    (body,) = robots["cylinders"]                                       # r1 only: r2 has no body
+    assert xy(body) == frame(1).poses["r1"][:2]
+    assert body["size"]["x"] == body["size"]["y"] == 0.1 and body["color"]["a"] < 1.0
+
+
+def test_a_mission_without_a_room_draws_no_cylinders():
+    from vsfleet.fleetctl.foxglove_views import FleetViews
+
+    views = FleetViews()
+    out = views.on_message("vs/lab/mission", encode_mission(MISSION), seconds_to_ns(T0))
+    assert not scene_of(out)["entities"][0]["cylinders"]
+    out = views.on_message("vs/lab/frame/cam0", encode_frame(frame(1)), 0)
+    assert not scene_of(out)["entities"][0]["cylinders"]
