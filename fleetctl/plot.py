@@ -2,7 +2,9 @@
 
 * ``trajectories.png`` — each robot's path (from truth, else from the tracker's
   poses), the structure's path (an agent's fitted pose) with its outline at the
-  start and the end, and the goal (cf. Tan & Lewis, Figure 9);
+  start and the end, and the goal (cf. Tan & Lewis, Figure 9); in a room, the
+  mission's obstacles as filled circles and each robot's body as a circle of
+  its radius at its first and last position;
 * ``deviation.png`` — each robot's distance from the structure fitted to the
   true positions, over time, with mean, sigma and max (Figure 10);
 * ``fault.png`` — the same deviation around the first fault, the fault time
@@ -27,7 +29,7 @@ import msgpack
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
-from matplotlib.patches import Polygon
+from matplotlib.patches import Circle, Polygon
 from mcap.exceptions import McapError
 
 from vsfleet.analysis import fitted_truth, truth_frames
@@ -193,6 +195,11 @@ def trajectory_figure(data: RunData) -> Figure:
         xs, ys = [m.x for m in msgs], [m.y for m in msgs]
         (line,) = ax.plot(xs, ys, lw=1.4, label=r)
         ax.scatter([xs[0]], [ys[0]], s=18, color=line.get_color(), zorder=3)
+        radius = data.mission.spec(r).radius if data.mission is not None and r in data.mission.robot_ids else None
+        if radius is not None:  # its body where it starts and where it ends
+            for x, y in ((xs[0], ys[0]), (xs[-1], ys[-1])):
+                ax.add_patch(Circle((x, y), radius, fill=False, ec=line.get_color(), lw=0.9, zorder=3,
+                                    gid=f"body {r}"))
     if data.state:
         agent = max(data.state, key=lambda a: len(data.state[a]))
         st = data.state[agent]
@@ -203,6 +210,9 @@ def trajectory_figure(data: RunData) -> Figure:
                 pts = [(p[0], p[1]) for p in structure_points(data.mission, m.x, m.y, m.th)]
                 ax.add_patch(Polygon(pts, closed=True, fill=False, ec="0.45", ls=style, lw=1.0))
     if data.mission is not None:
+        for i, (x, y, r) in enumerate(data.mission.obstacles):
+            ax.add_patch(Circle((x, y), r, fc="0.55", ec="0.25", alpha=0.6, lw=0.8, zorder=1, gid=f"obstacle {i}",
+                                label="obstacles" if i == 0 else None))
         goal = data.mission.goal or (data.mission.path[-1] if data.mission.path else None)
         if data.mission.path:
             ax.plot([w[0] for w in data.mission.path], [w[1] for w in data.mission.path], ls=":",

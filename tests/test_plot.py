@@ -140,3 +140,32 @@ def test_vsfleet_plot_writes_the_three_pngs_of_an_mcap_file(tmp_path, capsys):
     for name in ("trajectories.png", "deviation.png", "fault.png"):
         assert (tmp_path / "png" / name).read_bytes()[:8] == PNG
     assert "wrote" in capsys.readouterr().out
+
+
+def test_in_a_room_obstacles_are_filled_circles_and_bodies_circles_at_the_robots_first_and_last_positions():
+    import dataclasses
+
+    from matplotlib.patches import Circle
+
+    room = dataclasses.replace(MISSION, obstacles=((0.4, 0.6, 0.1), (-0.5, -0.5, 0.05)), robots=tuple(
+        (r, dataclasses.replace(s, radius=0.05) if r != "r3" else s) for r, s in MISSION.robots))
+    log = [rec("vs/demo/mission", encode_mission(room), T0 - 0.5), *synthetic_log(mission=False)]
+    data = extract(log)
+    ax = plot.trajectory_figure(data).axes[0]
+    circles = {p.get_gid(): p for p in ax.patches if isinstance(p, Circle)}
+    assert [(circles[f"obstacle {i}"].center, circles[f"obstacle {i}"].radius) for i in (0, 1)] == \
+        [((0.4, 0.6), 0.1), ((-0.5, -0.5), 0.05)]
+    assert all(circles[f"obstacle {i}"].get_fill() for i in (0, 1))
+    bodies = [p for p in ax.patches if isinstance(p, Circle) and p.get_gid() == "body r1"]
+    assert [b.center for b in bodies] == [(data.truth["r1"][0].x, data.truth["r1"][0].y),
+                                          (data.truth["r1"][-1].x, data.truth["r1"][-1].y)]
+    assert all(b.radius == 0.05 and not b.get_fill() for b in bodies)
+    assert not any(p.get_gid() == "body r3" for p in ax.patches)      # a point robot has no body
+    assert "obstacles" in [h.get_label() for h in ax.get_legend().legend_handles]
+
+
+def test_without_a_room_no_circles_are_drawn():
+    from matplotlib.patches import Circle
+
+    ax = plot.trajectory_figure(extract(synthetic_log())).axes[0]
+    assert not [p for p in ax.patches if isinstance(p, Circle)]
