@@ -45,6 +45,8 @@ ARC_STEP_RAD = math.pi / 12.0
 SIDE_BIAS = 0.05
 GOAL_TIE_M = 1e-9
 _TWO_PI = 2.0 * math.pi
+_CAP = 256      # waypoints room for the first core call (it says when it needs more)
+_NO_OBSTACLES = np.zeros((0, 3))
 
 
 @dataclass(frozen=True)
@@ -71,30 +73,35 @@ class StructurePlan:
 
 def _pose(p) -> np.ndarray:
     if isinstance(p, Pose2):
-        return np.array([p.x, p.y, p.th], dtype=float)
-    a = np.asarray(p, dtype=float)
+        return np.array((p.x, p.y, p.th))
+    a = np.ascontiguousarray(p, dtype=float)
     if a.shape != (3,):
         raise ShapeError(f"a pose must be (x, y, th), got shape {a.shape}")
     return a
 
 
-def _validate(start, goal, template_xy, radius_m, margin_m, obstacles):
-    """Arrays for both implementations, or the typed error: ShapeError for shapes,
-    NonFiniteError for NaN/inf, VsfleetValueError for ranges."""
-    tpl = np.ascontiguousarray(np.asarray(template_xy, dtype=float))
+def _shapes(start, goal, template_xy, radius_m, obstacles):
+    """Contiguous float64 arrays, or ShapeError."""
+    tpl = np.ascontiguousarray(template_xy, dtype=float)
     if tpl.ndim != 2 or tpl.shape[1] != 2 or tpl.shape[0] == 0:
         raise ShapeError(f"template_xy must be (n, 2) with n >= 1, got shape {tpl.shape}")
-    rad = np.ascontiguousarray(np.asarray(radius_m, dtype=float))
+    rad = np.ascontiguousarray(radius_m, dtype=float)
     if rad.ndim == 0:
         rad = np.full(tpl.shape[0], float(rad))
     if rad.shape != (tpl.shape[0],):
         raise ShapeError(f"radius_m must be ({tpl.shape[0]},), got shape {rad.shape}")
-    obs = np.ascontiguousarray(np.asarray(obstacles if obstacles is not None else [], dtype=float))
+    obs = np.ascontiguousarray(obstacles if obstacles is not None else _NO_OBSTACLES, dtype=float)
     if obs.size == 0:
-        obs = np.zeros((0, 3))
+        obs = _NO_OBSTACLES
     if obs.ndim != 2 or obs.shape[1] != 3:
         raise ShapeError(f"obstacles must be (m, 3) rows (x, y, r), got shape {obs.shape}")
-    s, g = _pose(start), _pose(goal)
+    return _pose(start), _pose(goal), tpl, rad, obs
+
+
+def _validate(start, goal, template_xy, radius_m, margin_m, obstacles):
+    """Arrays for the reference, or the typed error: ShapeError for shapes, NonFiniteError for
+    NaN/inf, VsfleetValueError for ranges (the core checks the same)."""
+    s, g, tpl, rad, obs = _shapes(start, goal, template_xy, radius_m, obstacles)
     margin = float(margin_m)
     for name, a in (("template_xy", tpl), ("radius_m", rad), ("obstacles", obs), ("start", s), ("goal", g),
                     ("margin_m", np.array([margin]))):
@@ -123,12 +130,13 @@ def plan_structure(start: Pose2 | Sequence[float], goal: Pose2 | Sequence[float]
     point ``template_xy[i]`` [m; structure frame] with radius ``radius_m[i]`` [m]) at least
     ``margin_m`` from every obstacle ``(x, y, r)`` [m; world] (rows of ``obstacles``, possibly
     none).  Pure and deterministic: every agent computes the same path (the compiled core)."""
-    s, g, tpl, rad, margin, obs = _validate(start, goal, template_xy, radius_m, margin_m, obstacles)
-    out = np.empty((16, 3))
+    # shapes here; NaN/inf and ranges in the core, which raises the same typed errors
+    s, g, tpl, rad, obs = _shapes(start, goal, template_xy, radius_m, obstacles)
+    out = np.empty((_CAP, 3))
     while True:
-        n, status = _core.plan_structure(tpl, rad, margin, obs, s, g, out)
+        n, status = _core.plan_structure(tpl, rad, margin_m, obs, s, g, out)
         if status is not None:
-            return _plan(out[:n], status)
+            return StructurePlan(tuple(Pose2(x, y, th) for x, y, th in out[:n].tolist()), status)
         out = np.empty((n, 3))
 
 

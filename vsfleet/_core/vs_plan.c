@@ -181,14 +181,15 @@ int vs_plan_structure(const double *template_xy, const double *radius_m, size_t 
                       const double goal[3], double *waypoints, size_t cap, size_t *n_waypoints,
                       int *status)
 {
-    if (cap == 0 || n_obstacles > VS_PLAN_MAX_OBSTACLES) return VS_EVALUE;
-    double big_r;
-    int rc = vs_plan_radius(template_xy, radius_m, n, margin_m, &big_r);
-    if (rc != VS_OK) return rc;
+    if (cap == 0 || n == 0 || n_obstacles > VS_PLAN_MAX_OBSTACLES) return VS_EVALUE;
+    /* every value finite first (VS_ENONFINITE), then the ranges (VS_EVALUE) */
     for (int k = 0; k < 3; k++)
         if (!vs_isfinite(start[k]) || !vs_isfinite(goal[k])) return VS_ENONFINITE;
     for (size_t j = 0; j < 3 * n_obstacles; j++)
         if (!vs_isfinite(obstacles[j])) return VS_ENONFINITE;
+    double big_r;
+    int rc = vs_plan_radius(template_xy, radius_m, n, margin_m, &big_r);
+    if (rc != VS_OK) return rc;
     for (int k = 0; k < 3; k++)
         if (vs_fabs(start[k]) > VS_PLAN_MAX_ABS_M || vs_fabs(goal[k]) > VS_PLAN_MAX_ABS_M) return VS_EVALUE;
     for (size_t j = 0; j < n_obstacles; j++) {
