@@ -12,8 +12,9 @@ h = |p_i - p_j|^2 - (r_i + r_j + 2 offset + margin)^2 >= 0 by dh/dt >= -gamma h,
 pair taking half; an obstacle (or an inactive robot, a fixed disk with command zero) is taken
 whole by the active robot. Each robot's command is then the exact Euclidean projection of its
 nominal command onto its polygon of barrier rows and wheel box (speed limit, and the accel limit
-from its previous command when given); an empty polygon relaxes the accel box, then stops the
-robot.
+from its previous command when given); an empty polygon softens the rows of bodies already inside
+the margin from "separate" to "do not close", then relaxes the accel box, then (never, but for
+rounding) stops the robot.
 """
 
 from __future__ import annotations
@@ -73,12 +74,15 @@ class SafetyParams:
 @dataclass(frozen=True)
 class SafetyInfo:
     """What the filter did: barrier rows kept (could bind within the speed box, over all robots),
-    active robots whose nominal command was not feasible, robots solved without their accel box
-    (empty with it, or their previous command beyond the speed box), robots stopped (no command
-    met their constraints)."""
+    active robots whose nominal command was not feasible, robots whose polygon was empty (bodies
+    inside the margin asked to separate in conflicting ways: those rows softened to "do not
+    close"), robots solved without their accel box (empty even softened, or their previous
+    command beyond the speed box), robots stopped (no command met their constraints: rounding
+    only, as (0, 0) meets softened rows)."""
 
     n_constraints: int
     n_modified: int
+    n_softened: int
     n_accel_relaxed: int
     n_stopped: int
 
@@ -270,7 +274,7 @@ def safety_filter_reference(pose_world, radius_m, wheels_nominal_m_s, *, wheel_b
     c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
     px, py = pose[:, 0] + l * c, pose[:, 1] + l * s
     out = np.zeros((n, 2))
-    n_rows = n_modified = n_relaxed = n_stopped = 0
+    n_rows = n_modified = n_softened = n_relaxed = n_stopped = 0
     for i in range(n):
         if not act[i]:
             continue
@@ -314,6 +318,11 @@ def safety_filter_reference(pose_world, radius_m, wheels_nominal_m_s, *, wheel_b
         if not _feasible(full, u[0], u[1], v):
             n_modified += 1
         x = _project(full, u, v)
+        if x is None:
+            rows = rows.copy()
+            rows[rows[:, 2] > 0.0, 2] = 0.0
+            n_softened += 1
+            x = _project(np.concatenate([rows, _box(lo0, lo1, hi0, hi1)]), u, v)
         if x is None and accel:
             n_relaxed += 1
             x = _project(np.concatenate([rows, _box(-v, -v, v, v)]), u, v)
@@ -323,7 +332,7 @@ def safety_filter_reference(pose_world, radius_m, wheels_nominal_m_s, *, wheel_b
         out[i] = x
     if not np.all(np.isfinite(out)):
         raise NonFiniteError("safety_filter: a safe command is not finite")
-    return out, SafetyInfo(n_rows, n_modified, n_relaxed, n_stopped)
+    return out, SafetyInfo(n_rows, n_modified, n_softened, n_relaxed, n_stopped)
 
 
 __all__ = ["SafetyParams", "SafetyInfo", "SafetyParamError", "safety_filter", "safety_filter_reference"]

@@ -9,7 +9,7 @@
  *               active (n bool/uint8 or None), wheel_base_m (n), wheel_speed_max_m_s (n),
  *               wheel_accel_max_m_s2 (n or None), wheels_prev_m_s (n*2 or None),
  *               obstacles (k*3), wheels_nominal_m_s (n*2), out (n*2, written))
- * -> (n_constraints, n_modified, n_accel_relaxed, n_stopped).  n is len(radius_m). */
+ * -> (n_constraints, n_modified, n_softened, n_accel_relaxed, n_stopped).  n is len(radius_m). */
 static PyObject *py_safety_filter(PyObject *mod, PyObject *const *args, Py_ssize_t nargs)
 {
     (void)mod;
@@ -66,7 +66,7 @@ static PyObject *py_safety_filter(PyObject *mod, PyObject *const *args, Py_ssize
                                             : "safety_filter: an argument out of range");
         goto done;
     }
-    result = Py_BuildValue("(iiii)", st.n_constraints, st.n_modified, st.n_accel_relaxed, st.n_stopped);
+    result = Py_BuildValue("(iiiii)", st.n_constraints, st.n_modified, st.n_softened, st.n_accel_relaxed, st.n_stopped);
 done:
     for (int k = 0; k < got; k++) PyBuffer_Release(&v[k]);
     return result;

@@ -136,7 +136,7 @@ int vs_safety_filter(const vs_safety_params *p, size_t n, const double *pose_wor
     for (size_t k = 0; k < n_obstacles; k++)
         if (!(obstacles[3 * k + 2] >= 0.0)) return VS_EVALUE;
 
-    vs_safety_stats st = {0, 0, 0, 0};
+    vs_safety_stats st = {0, 0, 0, 0, 0};
     if (n == 0) {
         if (stats != NULL) *stats = st;
         return VS_OK;
@@ -209,8 +209,16 @@ int vs_safety_filter(const vs_safety_params *p, size_t n, const double *pose_wor
         }
         box_rows(rows + 3 * m, lo0, lo1, hi0, hi1);
         if (!feasible(rows, m + 4, u[0], u[1], vmax)) st.n_modified++;
+        /* an empty polygon: soften (rows asking to separate, b > 0, only ask not to close: b = 0),
+         * then drop the accel box; (0, 0) meets softened rows in the speed box */
         double x[2];
         int got = project(rows, m + 4, u, vmax, x);
+        if (!got) {
+            for (int k = 0; k < m; k++)
+                if (rows[3 * k + 2] > 0.0) rows[3 * k + 2] = 0.0;
+            st.n_softened++;
+            got = project(rows, m + 4, u, vmax, x);
+        }
         if (!got && accel) {
             box_rows(rows + 3 * m, -vmax, -vmax, vmax, vmax);
             st.n_accel_relaxed++;

@@ -26,12 +26,15 @@
  * (the speed box alone when accel_max or wheels_prev is NULL).  It is solved exactly, by a fixed
  * enumeration: the nominal itself if feasible, else the best feasible point among the feet of
  * the violated constraints' lines and the vertices on them (the optimum lies on a line that the
- * nominal violates).  Degrading safely: if the polygon is empty with the accel box, the speed box
- * alone is tried (the accel limit yields to safety); if it is still empty the robot stops (0, 0).
+ * nominal violates).  Degrading safely: if the polygon is empty (only rows with h < 0, bodies
+ * inside the margin, can empty it), those rows are softened from "separate at rate -gamma h" to
+ * "do not close" (b = 0); if it is still empty (the accel box excludes every such command), the
+ * speed box replaces the accel box (the accel limit yields to safety); (0, 0) then meets every
+ * row, so the last resort, stopping, is reached only by rounding.
  *
  * Guarantees (continuous time): an active robot's half keeps dh/dt >= -gamma h / 2 whatever its
  * neighbour does within its own half or when it stops, so h >= 0 is invariant and h < 0 (a start
- * inside the margin) does not decrease.  Over a tick dt the control points move on arcs: with
+ * inside the margin, or noise) does not decrease (it increases unless softened).  Over a tick dt the control points move on arcs: with
  * gamma dt <= 1 (enforced) and straight motion, h(t + dt) >= (1 - gamma dt) h(t) >= 0 exactly;
  * the arc's departure from a straight line (<= vmax^2 dt^2 / b per robot) and the tracker's noise
  * are what margin_m covers.
@@ -51,6 +54,7 @@ typedef struct {
 typedef struct {
     int n_constraints;    /* barrier rows kept (could bind within the speed box), over all robots */
     int n_modified;       /* active robots whose nominal command was not feasible */
+    int n_softened;       /* active robots whose polygon was empty: rows with b > 0 set to b = 0 */
     int n_accel_relaxed;  /* active robots solved without their accel box (empty with it) */
     int n_stopped;        /* active robots stopped: no command met their constraints */
 } vs_safety_stats;

@@ -1,0 +1,268 @@
+"""The compiled safety filter (vsfleet/_core/vs_safety.c) against its numpy reference, and its properties."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from vsfleet.errors import NonFiniteError, ShapeError, VsfleetValueError
+from vsfleet.kinematics import integrate_arcs
+from vsfleet.safety import (SafetyInfo, SafetyParamError, SafetyParams, safety_filter,
+                            safety_filter_reference)
+
+BASE, VMAX, AMAX = 0.12, 0.3, 0.8
+SETTINGS = settings(max_examples=250, deadline=None, derandomize=True,
+                    suppress_health_check=[HealthCheck.too_slow])
+
+
+@st.composite
+def fleets(draw):
+    n = draw(st.integers(0, 12))
+    spread = draw(st.sampled_from([0.05, 0.3, 1.0, 1e-6]))
+    seed = draw(st.integers(0, 2 ** 32 - 1))
+    rng = np.random.default_rng(seed)
+    pose = np.c_[rng.uniform(-spread, spread, (n, 2)), rng.uniform(-10, 10, n)]
+    if n >= 2 and draw(st.booleans()):
+        pose[1, :2] = pose[0, :2]                       # coincident robots
+    radius = rng.uniform(0.0, 0.08, n)
+    nominal = rng.uniform(-0.5, 0.5, (n, 2))
+    k = draw(st.integers(0, 4))
+    obstacles = np.c_[rng.uniform(-spread, spread, (k, 2)), rng.uniform(0.0, 0.2, k)]
+    active = rng.random(n) > draw(st.sampled_from([0.0, 0.3]))
+    params = SafetyParams(margin_m=draw(st.sampled_from([0.0, 0.01])),
+                          gamma_per_s=draw(st.sampled_from([1.0, 5.0, 30.0])),
+                          offset_m=draw(st.sampled_from([0.0, 0.03])), dt_s=1 / 30)
+    kw = dict(wheel_base_m=rng.uniform(0.05, 0.3, n), wheel_speed_max_m_s=rng.uniform(0.1, 0.5, n),
+              obstacles=obstacles, active=active, params=params)
+    if draw(st.booleans()):
+        kw.update(wheel_accel_max_m_s2=rng.uniform(0.2, 2.0, n), wheels_prev_m_s=rng.uniform(-0.5, 0.5, (n, 2)))
+    return pose, radius, nominal, kw
+
+
+@SETTINGS
+@given(fleets())
+def test_the_core_agrees_with_the_reference_within_1e_9_and_counts_equal(fleet):
+    pose, radius, nominal, kw = fleet
+    got, info = safety_filter(pose, radius, nominal, **kw)
+    want, info_ref = safety_filter_reference(pose, radius, nominal, **kw)
+    assert info == info_ref
+    assert got.shape == want.shape == (len(pose), 2)
+    assert np.all(np.abs(got - want) <= 1e-9)
+
+
+@SETTINGS
+@given(fleets())
+def test_every_safe_command_is_within_the_speed_box_and_meets_its_rows(fleet):
+    pose, radius, nominal, kw = fleet
+    got, info = safety_filter(pose, radius, nominal, **kw)
+    vmax = kw["wheel_speed_max_m_s"]
+    assert np.all(np.abs(got) <= vmax[:, None] * (1 + 1e-9))
+    assert np.all(got[~kw["active"]] == 0.0)
+    assert info.n_stopped == 0
+
+
+def _row_of(pose, radius, i, j_xy, dsum, share, params, base):
+    """a.u >= b of robot i's barrier against a point (numpy, written out again for the test)."""
+    c, s = math.cos(pose[i, 2]), math.sin(pose[i, 2])
+    l = params.offset_m
+    dx, dy = pose[i, 0] + l * c - j_xy[0], pose[i, 1] + l * s - j_xy[1]
+    h = dx * dx + dy * dy - dsum ** 2
+    g, q = 2 * (dx * c + dy * s), 2 * l * (dy * c - dx * s)
+    return np.array([0.5 * g - q / base, 0.5 * g + q / base]), -params.gamma_per_s * h * share, h
+
+
+@SETTINGS
+@given(fleets())
+def test_each_robot_keeps_its_share_of_every_barrier_that_starts_safe(fleet):
+    pose, radius, nominal, kw = fleet
+    got, _ = safety_filter(pose, radius, nominal, **kw)
+    p, act, base = kw["params"], kw["active"], kw["wheel_base_m"]
+    l = p.offset_m
+    for i in np.flatnonzero(act):
+        for j in range(len(pose)):
+            if j == i:
+                continue
+            if act[j]:
+                q = pose[j, :2] + l * np.array([math.cos(pose[j, 2]), math.sin(pose[j, 2])])
+                a, b, h = _row_of(pose, radius, i, q, radius[i] + radius[j] + 2 * l + p.margin_m, 0.5, p, base[i])
+            else:
+                a, b, h = _row_of(pose, radius, i, pose[j, :2], radius[i] + radius[j] + l + p.margin_m, 1.0, p,
+                                  base[i])
+            if h >= 0.0:
+                assert a @ got[i] >= b - 1e-9 * (1 + abs(b) + np.abs(a).sum())
+            else:   # inside the margin: at least not closing
+                assert a @ got[i] >= -1e-9 * (1 + np.abs(a).sum())
+        for o in kw["obstacles"]:
+            a, b, h = _row_of(pose, radius, i, o[:2], radius[i] + o[2] + l + p.margin_m, 1.0, p, base[i])
+            assert a @ got[i] >= (b if h >= 0 else 0.0) - 1e-9 * (1 + abs(b) + np.abs(a).sum())
+
+
+def test_nominal_commands_that_are_already_safe_pass_unchanged_bit_for_bit():
+    pose = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, math.pi], [0.0, 1.0, 0.0]])
+    nominal = np.array([[0.1, 0.1], [0.2, 0.1], [-0.05, 0.3]])
+    for fn in (safety_filter, safety_filter_reference):
+        out, info = fn(pose, 0.05, nominal, wheel_base_m=BASE, wheel_speed_max_m_s=VMAX,
+                       obstacles=np.array([[3.0, 3.0, 0.2]]))
+        assert np.array_equal(out, nominal)
+        assert info.n_modified == 0
+
+
+def test_two_robots_head_on_are_slowed_and_a_robot_at_an_obstacle_stops_going_in():
+    pose = np.array([[0.0, 0.0, 0.0], [0.13, 0.0, math.pi]])    # 3 cm gap, facing each other
+    out, info = safety_filter(pose, 0.05, np.full((2, 2), 0.3), wheel_base_m=BASE, wheel_speed_max_m_s=VMAX,
+                              params=SafetyParams(margin_m=0.01, gamma_per_s=5.0))
+    # h = 0.13^2 - 0.11^2 = 0.0048; each robot: 2 d.e v >= -5 h / 2 -> v <= 0.0462 m/s
+    assert np.allclose(out, 0.5 * 5 * 0.0048 / (2 * 0.13), atol=1e-12)
+    assert info.n_modified == 2
+    pose = np.array([[0.0, 0.0, 0.0]])
+    out, _ = safety_filter(pose, 0.05, np.array([[0.3, 0.3]]), wheel_base_m=BASE, wheel_speed_max_m_s=VMAX,
+                           obstacles=np.array([[0.16, 0.0, 0.1]]), params=SafetyParams(margin_m=0.01))
+    assert np.allclose(out, 0.0, atol=1e-15)   # h = 0 at the margin: no closing speed left
+
+
+def test_an_inactive_robot_is_a_fixed_disk_and_its_row_is_zero():
+    pose = np.array([[0.0, 0.0, 0.0], [0.2, 0.0, 0.0]])
+    nominal = np.array([[0.3, 0.3], [0.3, 0.3]])
+    kw = dict(wheel_base_m=BASE, wheel_speed_max_m_s=VMAX, params=SafetyParams(margin_m=0.01, gamma_per_s=5.0))
+    alone, _ = safety_filter(pose[:1], 0.05, nominal[:1], obstacles=np.array([[0.2, 0.0, 0.05]]), **kw)
+    out, _ = safety_filter(pose, 0.05, nominal, active=np.array([True, False]), **kw)
+    assert np.array_equal(out[1], [0.0, 0.0])
+    assert np.allclose(out[0], alone[0], atol=1e-15)
+    # against a fixed disk the robot has the whole closing budget (-gamma h); against an active robot
+    # (even one asked to stand still) only its half
+    both, _ = safety_filter(pose, 0.05, np.array([[0.3, 0.3], [0.0, 0.0]]), **kw)
+    assert out[0, 0] == 0.3 and both[0, 0] < 0.3
+
+
+def test_the_accel_box_is_kept_while_it_allows_a_safe_command():
+    pose = np.array([[0.0, 0.0, 0.0]])
+    out, info = safety_filter(pose, 0.05, np.array([[0.3, -0.3]]), wheel_base_m=BASE, wheel_speed_max_m_s=VMAX,
+                              wheel_accel_max_m_s2=0.6, wheels_prev_m_s=np.zeros((1, 2)),
+                              params=SafetyParams(dt_s=0.05))
+    assert np.allclose(out, [[0.03, -0.03]], atol=1e-15)
+    assert info.n_accel_relaxed == 0
+
+
+def test_robots_squeezed_inside_the_margin_are_softened_not_stopped():
+    pose = np.array([[-0.105, 0.0, 0.0], [0.0, 0.0, 0.0], [0.105, 0.0, 0.0]])   # 5 mm gaps, margin 1 cm
+    out, info = safety_filter(pose, 0.05, np.array([[0.1, 0.1], [0.1, 0.1], [0.1, 0.1]]), wheel_base_m=BASE,
+                              wheel_speed_max_m_s=VMAX, params=SafetyParams(margin_m=0.01))
+    assert info.n_softened == 1 and info.n_stopped == 0
+    assert out[1, 0] + out[1, 1] == pytest.approx(0.0, abs=1e-12)   # the middle one: no closing either way
+    assert out[0].sum() < 0 and out[2].sum() > 0                    # the outer ones move away
+
+
+def _gaps(pose, radius, obstacles):
+    xy = pose[:, :2]
+    d = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1])
+    d = d - (radius[:, None] + radius[None, :])
+    np.fill_diagonal(d, np.inf)
+    g = d.min() if len(pose) > 1 else np.inf
+    if len(obstacles):
+        do = np.hypot(xy[:, None, 0] - obstacles[None, :, 0], xy[:, None, 1] - obstacles[None, :, 1])
+        g = min(g, (do - obstacles[None, :, 2] - radius[:, None]).min())
+    return g
+
+
+@settings(max_examples=60, deadline=None, derandomize=True)
+@given(st.integers(2, 12), st.integers(0, 2 ** 32 - 1), st.integers(0, 4))
+def test_no_body_touches_another_or_an_obstacle_over_ten_seconds_of_random_nominal_commands(n, seed, k):
+    """Integrated with the exact arcs (4 substeps a tick, checked at each) under 2 mm tracker noise:
+    bodies that start clear stay clear, whatever the nominal commands ask."""
+    rng = np.random.default_rng(seed)
+    radius = rng.uniform(0.03, 0.07, n)
+    obstacles = np.c_[rng.uniform(-0.6, 0.6, (k, 2)), rng.uniform(0.05, 0.2, k)]
+    pose = []
+    while len(pose) < n:
+        p = np.r_[rng.uniform(-0.6, 0.6, 2), rng.uniform(-math.pi, math.pi)]
+        i = len(pose)
+        ok = all(np.hypot(*(p[:2] - q[:2])) > radius[i] + radius[j] + 0.015 for j, q in enumerate(pose))
+        ok = ok and all(np.hypot(*(p[:2] - o[:2])) > radius[i] + o[2] + 0.015 for o in obstacles)
+        if ok:
+            pose.append(p)
+    pose = np.array(pose)
+    dt = 1 / 30
+    params = SafetyParams(margin_m=0.010, gamma_per_s=5.0, dt_s=dt)
+    base = np.full(n, BASE)
+    prev = np.zeros((n, 2))
+    for tick in range(300):
+        if tick % 30 == 0:
+            nominal = rng.uniform(-VMAX, VMAX, (n, 2))
+        noisy = pose + np.c_[rng.normal(0, 0.002, (n, 2)), rng.normal(0, 0.005, n)]
+        out, _ = safety_filter(noisy, radius, nominal, wheel_base_m=base, wheel_speed_max_m_s=np.full(n, VMAX),
+                               obstacles=obstacles, wheel_accel_max_m_s2=np.full(n, AMAX),
+                               wheels_prev_m_s=prev, params=params)
+        prev = out
+        for _ in range(4):
+            pose = integrate_arcs(pose, out, dt / 4, base)
+            assert _gaps(pose, radius, obstacles) > 0.0
+
+
+def test_identical_inputs_give_identical_bits():
+    rng = np.random.default_rng(5)
+    pose = np.c_[rng.uniform(-0.4, 0.4, (40, 2)), rng.uniform(-3, 3, 40)]
+    nominal = rng.uniform(-0.3, 0.3, (40, 2))
+    a, ia = safety_filter(pose, 0.05, nominal, wheel_base_m=BASE, wheel_speed_max_m_s=VMAX)
+    b, ib = safety_filter(pose.copy(), 0.05, nominal.copy(), wheel_base_m=BASE, wheel_speed_max_m_s=VMAX)
+    assert a.tobytes() == b.tobytes() and ia == ib
+
+
+def test_an_empty_fleet_gives_an_empty_result():
+    out, info = safety_filter(np.zeros((0, 3)), 0.05, np.zeros((0, 2)), wheel_base_m=BASE, wheel_speed_max_m_s=VMAX)
+    assert out.shape == (0, 2) and info == SafetyInfo(0, 0, 0, 0, 0)
+
+
+BAD = [
+    (dict(pose_world=np.zeros((2, 2))), ShapeError),
+    (dict(wheels_nominal_m_s=np.zeros((3, 2))), ShapeError),
+    (dict(radius_m=np.zeros(3)), ShapeError),
+    (dict(obstacles=np.zeros((2, 2))), ShapeError),
+    (dict(active=np.ones(3, bool)), ShapeError),
+    (dict(pose_world=np.array([[0.0, math.nan, 0.0], [1, 1, 0]])), NonFiniteError),
+    (dict(wheels_nominal_m_s=np.array([[math.inf, 0.0], [0, 0]])), NonFiniteError),
+    (dict(pose_world=np.array([[1e300, 0.0, 0.0], [1, 1, 0]])), NonFiniteError),
+    (dict(obstacles=np.array([[0.0, 0.0, math.nan]])), NonFiniteError),
+    (dict(radius_m=-0.01), SafetyParamError),
+    (dict(obstacles=np.array([[0.0, 0.0, -1.0]])), SafetyParamError),
+    (dict(wheel_base_m=0.0), SafetyParamError),
+    (dict(wheel_speed_max_m_s=-1.0), SafetyParamError),
+    (dict(wheel_accel_max_m_s2=0.8), SafetyParamError),              # without wheels_prev_m_s
+    (dict(wheel_accel_max_m_s2=0.0, wheels_prev_m_s=np.zeros((2, 2))), SafetyParamError),
+    (dict(params="fast"), SafetyParamError),
+]
+
+
+@pytest.mark.parametrize("change, error", BAD)
+def test_bad_input_is_refused_with_a_typed_error_by_both(change, error):
+    args = dict(pose_world=np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]), radius_m=0.05,
+                wheels_nominal_m_s=np.zeros((2, 2)), wheel_base_m=BASE, wheel_speed_max_m_s=VMAX)
+    args.update(change)
+    for fn in (safety_filter, safety_filter_reference):
+        with pytest.raises(error):
+            fn(**args)
+    assert issubclass(error, VsfleetValueError)
+
+
+@pytest.mark.parametrize("kw, error", [
+    (dict(margin_m=-0.1), SafetyParamError), (dict(gamma_per_s=0.0), SafetyParamError),
+    (dict(gamma_per_s=60.0), SafetyParamError),          # gamma dt > 1 at 30 Hz
+    (dict(offset_m=-0.01), SafetyParamError), (dict(dt_s=0.0), SafetyParamError),
+    (dict(margin_m=math.nan), NonFiniteError), (dict(dt_s=math.inf), NonFiniteError),
+])
+def test_bad_parameters_are_refused_when_made(kw, error):
+    with pytest.raises(error):
+        SafetyParams(**kw)
+
+
+def test_the_core_refuses_what_slips_past_the_fast_path_with_the_typed_error():
+    pose = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]])
+    kw = dict(wheel_base_m=np.full(2, BASE), wheel_speed_max_m_s=np.array([VMAX, -1.0]))
+    with pytest.raises(SafetyParamError):
+        safety_filter(pose, np.full(2, 0.05), np.zeros((2, 2)), **kw)
+    kw["wheel_speed_max_m_s"] = np.array([VMAX, math.nan])
+    with pytest.raises(NonFiniteError):
+        safety_filter(pose, np.full(2, 0.05), np.zeros((2, 2)), **kw)
