@@ -136,9 +136,10 @@ class Agent:
             return True
         return False
 
-    def on_frame(self, key: str, payload: bytes) -> None:
+    def on_frame(self, key: str, payload: bytes, wake: bool = True) -> None:
         """Decode a frame (any thread) into the latest-frame slot of its source: a newer one replaces
-        one not yet run (counted in frames_replaced); an invalid one is rejected (counted, logged)."""
+        one not yet run (counted in frames_replaced); an invalid one is rejected (counted, logged).
+        wake: wake the main loop for it (False: the caller runs poll itself)."""
         try:
             msg = decode_frame(payload)
             if key != self.keys.frame(msg.src):
@@ -153,7 +154,8 @@ class Agent:
             if msg.src in self._slot:
                 self.frames_replaced += 1
             self._slot[msg.src] = msg
-        self.wake.set()
+        if wake:
+            self.wake.set()
 
     def take_frames(self) -> None:
         """Hand what the slot holds to the merger (the main thread)."""
@@ -372,8 +374,24 @@ def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFla
             if payload is not None:
                 query.reply(own_health, payload)
 
+        # One thread at a time works on the agent (its inbox, slot, merger and step). A frame runs in
+        # the zenoh thread that delivered it whenever that thread can have the agent at once and no
+        # mission or reply is waiting: no hand-off to the main loop, no second thread woken, which
+        # was most of an agent's CPU beyond the step. Otherwise the main loop runs it.
+        work = threading.Lock()
+
         def on_frame(sample: zenoh.Sample) -> None:
-            agent.on_frame(str(sample.key_expr), sample.payload.to_bytes())
+            key, payload = str(sample.key_expr), sample.payload.to_bytes()
+            if inbox.empty() and work.acquire(blocking=False):
+                try:
+                    agent.on_frame(key, payload, wake=False)
+                    agent.poll()
+                    if agent.merger.time_to_deadline(agent.clock()) is not None:
+                        agent.wake.set()  # a frame waits for other sources: the main loop keeps its deadline
+                finally:
+                    work.release()
+            else:
+                agent.on_frame(key, payload)
 
         subs = [
             session.declare_subscriber(keys.mission, enqueue("mission")),
@@ -406,20 +424,22 @@ def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFla
                     fetcher.start()
                 wait = agent.merger.time_to_deadline(now)
                 agent.wake.wait(0.05 if wait is None else max(wait, 1e-4))
-                while True:  # missions and replies first: a frame may need the mission just arrived
-                    try:
-                        kind, key, payload = inbox.get_nowait()
-                    except queue.Empty:
-                        break
-                    agent.on_message(kind, key, payload)
-                agent.poll()
+                with work:
+                    while True:  # missions and replies first: a frame may need the mission just arrived
+                        try:
+                            kind, key, payload = inbox.get_nowait()
+                        except queue.Empty:
+                            break
+                        agent.on_message(kind, key, payload)
+                    agent.poll()
         finally:
-            cmd_pub.put(agent.stop_command())
+            subs[1].undeclare()  # no frame runs after the stop command
+            with work:
+                cmd_pub.put(agent.stop_command())
             log.info("agent %s stopping after %d ticks, %d rejected (%d on overflow), %d frames replaced "
                      "before they ran, %d stale frames", robot, agent.ticks, agent.rejections.count,
                      overflow[0], agent.frames_replaced, agent.state.stale)
-            for s in subs:
-                s.undeclare()
+            subs[0].undeclare()
             for q in queryables:
                 q.undeclare()
             token.undeclare()
