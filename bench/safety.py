@@ -47,8 +47,9 @@ VMAX = 0.3             # wheel speed limit [m/s]
 AMAX = 0.8             # wheel accel limit [m/s^2]
 NOISE_XY = 0.002       # tracker noise sigma [m]
 NOISE_TH = 0.005       # [rad]
-MARGIN = 0.010         # both filters keep bodies this far apart (observed)
+MARGIN = 0.015         # both layers keep bodies this far apart (observed): 5 sigma of the 2.8 mm noise of a distance
 L = 0.05               # control point ahead of the centre [m]
+GAMMA = 5.0            # vsfleet: dh/dt >= -GAMMA h [1/s]
 STRUCT_SPEED = 0.1     # [m/s]
 SI_LIMIT = 0.2         # nominal point speed limit [m/s] (Robotarium's magnitude_limit)
 K_P = 1.0              # nominal point gain [1/s]
@@ -56,6 +57,11 @@ AT_GOAL = 0.02         # every point within this of its final place [m]
 HELD_TICKS = 15        # deadlock breaking: held back this long ...
 DETOUR_TICKS = 30      # ... turns the nominal wish for this long ...
 DETOUR_RAD = 1.2       # ... by this angle (left)
+CROWD_RANGE = 0.25     # the nominal's crowd term: neighbours closer than this [m] ...
+CROWD_GAIN = 0.05      # ... push at most this fast [m/s]
+AROUND_RANGE = 0.05    # the nominal steers around bodies within this of its edge [m]
+WAIT_DEV = 0.08        # the structure starts when every point is this close to its place [m] ...
+ASSEMBLE_MAX_S = 30.0  # ... or after this long [s]; then it moves on the clock
 
 
 @dataclass
@@ -159,6 +165,50 @@ def nominal_si(points: np.ndarray, targets: np.ndarray, targets_next: np.ndarray
     return dxi * scale[:, None]
 
 
+def crowd_term(points: np.ndarray, targets: np.ndarray) -> np.ndarray:
+    """The nominal's own way through a crowd (the same for both layers): a robot still away from its
+    place is pushed off its close neighbours and around them (to the right), so that robots sitting
+    on one another's places give way; the safety layer, not this, keeps bodies apart."""
+    d = points[:, None, :] - points[None, :, :]
+    dist = np.hypot(d[..., 0], d[..., 1])
+    np.fill_diagonal(dist, np.inf)
+    w = np.where(dist < CROWD_RANGE, (CROWD_RANGE - dist) / CROWD_RANGE, 0.0)
+    away = (d / np.maximum(dist, 1e-9)[..., None] * w[..., None]).sum(axis=1)
+    err = targets - points
+    en = np.hypot(err[:, 0], err[:, 1])
+    right = np.c_[err[:, 1], -err[:, 0]] / np.maximum(en, 1e-9)[:, None]
+    crowded = np.minimum(1.0, w.sum(axis=1))
+    moving = np.minimum(1.0, en / 0.1)[:, None]
+    return CROWD_GAIN * (away + moving * crowded[:, None] * right)
+
+
+def around(points: np.ndarray, targets: np.ndarray, dxi: np.ndarray, obstacles: np.ndarray) -> np.ndarray:
+    """The nominal goes around what blocks its way (the same for both layers): when the nearest body
+    or obstacle within AROUND_RANGE of its edge lies within 60 deg of its wish, the wish turns to the
+    tangent of that body on the side of the wish (the right when straight on), keeping its speed."""
+    n = len(points)
+    cen = np.r_[points, obstacles[:, :2]] if len(obstacles) else points
+    rad = np.r_[np.full(n, RADIUS), obstacles[:, 2]] if len(obstacles) else np.full(n, RADIUS)
+    d = points[:, None, :] - cen[None, :, :]
+    dist = np.hypot(d[..., 0], d[..., 1])
+    edge = dist - rad[None, :] - RADIUS
+    edge[np.arange(n), np.arange(n)] = np.inf
+    speed = np.hypot(dxi[:, 0], dxi[:, 1])
+    out = dxi.copy()
+    for i in range(n):
+        j = int(np.argmin(edge[i]))
+        if edge[i, j] > AROUND_RANGE or speed[i] < 1e-6 or np.hypot(*(targets[i] - points[i])) < 0.03:
+            continue
+        to = -d[i, j] / max(dist[i, j], 1e-12)           # towards the body
+        wish = dxi[i] / speed[i]
+        if wish @ to < 0.5:                               # not within 60 deg
+            continue
+        right = np.array([to[1], -to[0]])
+        side = right if wish @ right >= -1e-9 else -right
+        out[i] = speed[i] * side
+    return out
+
+
 def si_to_uni(dxi: np.ndarray, pose: np.ndarray) -> np.ndarray:
     """(v, w) of Robotarium's si_to_uni_dyn (projection L, angular limit pi), rows = robots."""
     c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
@@ -183,7 +233,7 @@ class Ours:
         self.kw = dict(wheel_base_m=np.full(n, BASE), wheel_speed_max_m_s=np.full(n, VMAX),
                        obstacles=np.ascontiguousarray(sc.obstacles, dtype=float).reshape(-1, 3),
                        wheel_accel_max_m_s2=np.full(n, AMAX),
-                       params=SafetyParams(margin_m=MARGIN, gamma_per_s=5.0, offset_m=offset, dt_s=DT))
+                       params=SafetyParams(margin_m=MARGIN, gamma_per_s=GAMMA, offset_m=offset, dt_s=DT))
         self.radius = np.full(n, RADIUS)
         self.stops = 0
         self.calls = 0
@@ -192,6 +242,18 @@ class Ours:
         out, info = safety_filter(pose_obs, self.radius, wheels_nom, wheels_prev_m_s=wheels_prev, **self.kw)
         self.stops += info.n_stopped
         return out
+
+
+class Unfiltered:
+    """No safety layer: what the nominal reaches when bodies may pass through one another."""
+
+    name = "none"
+
+    def __init__(self, sc: Scenario):
+        self.stops = 0
+
+    def __call__(self, pose_obs, wheels_nom, wheels_prev):
+        return wheels_nom
 
 
 class Robotarium:
@@ -290,7 +352,9 @@ def run(sc: Scenario, layer, seed: int) -> Result:
     pose = sc.start.copy()
     prev = np.zeros((n, 2))
     dist = math.hypot(sc.goal[0], sc.goal[1])
-    T_end = dist / STRUCT_SPEED + 40.0
+    T_end = dist / STRUCT_SPEED + 120.0
+    sp = 0.0   # the structure's progress [s of motion]: it waits for the formation to assemble first
+    started = False
     final = _place(sc.goal, sc.template)
     near_obstacle = np.zeros(n, bool)
     res = Result()
@@ -300,12 +364,15 @@ def run(sc: Scenario, layer, seed: int) -> Result:
     t = 0.0
     while t < T_end:
         obs = pose + np.c_[rng.normal(0, NOISE_XY, (n, 2)), rng.normal(0, NOISE_TH, n)]
-        T_now, T_move = structure_at(sc, t)
-        T_next, _ = structure_at(sc, t + DT)
-        targets, targets_next = _place(T_now, sc.template), _place(T_next, sc.template)
+        T_now, T_move = structure_at(sc, sp)
         c, s = np.cos(obs[:, 2]), np.sin(obs[:, 2])
         points_obs = obs[:, :2] + L * np.c_[c, s]
-        dxi = nominal_si(points_obs, targets, targets_next)
+        assembled = np.max(np.hypot(*(points_obs - _place(T_now, sc.template)).T)) < WAIT_DEV
+        started = started or assembled or t >= ASSEMBLE_MAX_S
+        sp_next = sp + DT if started else sp
+        T_next, _ = structure_at(sc, sp_next)
+        targets, targets_next = _place(T_now, sc.template), _place(T_next, sc.template)
+        dxi = around(points_obs, targets, nominal_si(points_obs, targets, targets_next) + crowd_term(points_obs, targets), sc.obstacles)
         # deadlock breaking (the nominal's, the same for both layers): a robot held back for 0.5 s
         # turns its wish 70 deg to the left for the next second (a right-of-way rule)
         ang = np.where(detour > 0, DETOUR_RAD, 0.0)
@@ -331,21 +398,22 @@ def run(sc: Scenario, layer, seed: int) -> Result:
             if g < 0.0:
                 res.contacts += 1
         t += DT
+        sp = sp_next
         points = pose[:, :2] + L * np.c_[np.cos(pose[:, 2]), np.sin(pose[:, 2])]
-        dev = np.hypot(*(points - _place(structure_at(sc, t)[0], sc.template)).T)
-        if t < T_move:
+        dev = np.hypot(*(points - _place(structure_at(sc, sp)[0], sc.template)).T)
+        if 0.0 < sp < T_move:
             res.dev_moving.append(float(np.mean(dev)))
             if len(sc.obstacles):
-                tg = _place(structure_at(sc, t)[0], sc.template)
+                tg = _place(structure_at(sc, sp)[0], sc.template)
                 dto = np.hypot(tg[:, None, 0] - sc.obstacles[None, :, 0], tg[:, None, 1] - sc.obstacles[None, :, 1])
                 near_obstacle = np.any(dto < sc.obstacles[None, :, 2] + RADIUS + 0.3, axis=1)
                 if near_obstacle.any():
                     res.dev_obstacle.append(float(np.mean(dev)))
-        if t >= T_move and np.all(np.hypot(*(points - final).T) < AT_GOAL):
+        if sp >= T_move and np.all(np.hypot(*(points - final).T) < AT_GOAL):
             res.reached, res.t_goal = True, t
             break
     res.stops = layer.stops
-    res.final_err = np.hypot(*(points - final).T)
+    res.final_err = np.hypot(*(points - _place(structure_at(sc, sp)[0], sc.template)).T)
     return res
 
 
@@ -359,6 +427,8 @@ def summary(name: str, rs: list[Result], scs: list[Scenario]) -> dict:
         "min gap [mm]": 1e3 * min(r.min_gap for r in rs),
         "median min gap [mm]": 1e3 * float(np.median([r.min_gap for r in rs])),
         "reached": f"{len(reached)}/{len(rs)}",
+        "reached, no obstacles": f"{sum(r.reached for r, sc in zip(rs, scs) if not len(sc.obstacles))}/"
+                                 f"{sum(1 for sc in scs if not len(sc.obstacles))}",
         "median t_goal [s]": float(np.median([r.t_goal for r in reached])) if reached else math.nan,
         "mean deviation moving [mm]": 1e3 * float(np.mean([np.mean(r.dev_moving) for r in rs if r.dev_moving])),
         "mean deviation near obstacles [mm]": 1e3 * float(np.mean(
@@ -371,12 +441,12 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="20 scenarios instead of 200")
     ap.add_argument("--scenarios", type=int, default=None)
-    ap.add_argument("--offset", type=float, default=0.0, help="vsfleet's offset_m [m]")
-    ap.add_argument("--no-baseline", action="store_true", help="skip Robotarium")
+    ap.add_argument("--offset", type=float, default=0.03, help="vsfleet's offset_m [m]")
+    ap.add_argument("--no-baseline", action="store_true", help="skip Robotarium and the unfiltered run")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
     count = args.scenarios or (20 if args.quick else 200)
-    layers = ["vsfleet"] + ([] if args.no_baseline else ["robotarium"])
+    layers = ["vsfleet"] + ([] if args.no_baseline else ["robotarium", "none"])
     results: dict[str, list[Result]] = {k: [] for k in layers}
     scs = []
     t_start = time.perf_counter()
@@ -385,7 +455,8 @@ def main(argv=None) -> int:
         scs.append(sc)
         line = [f"[{k + 1}/{count}] seed {sc.seed} N={sc.n} {sc.kind} obstacles={len(sc.obstacles)}"]
         for name in layers:
-            layer = Ours(sc, args.offset) if name == "vsfleet" else Robotarium(sc)
+            layer = {"vsfleet": lambda: Ours(sc, args.offset), "robotarium": lambda: Robotarium(sc),
+                     "none": lambda: Unfiltered(sc)}[name]()
             r = run(sc, layer, sc.seed)
             results[name].append(r)
             line.append(f"{name}: contacts={r.contacts} gap={1e3 * r.min_gap:.1f}mm "

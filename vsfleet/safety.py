@@ -9,7 +9,8 @@ and its limits: docs/safety.md and vsfleet/_core/vs_safety.h.
 
 In short: robot i's control point p_i = (x, y) + offset (cos th, sin th) keeps
 h = |p_i - p_j|^2 - (r_i + r_j + 2 offset + margin)^2 >= 0 by dh/dt >= -gamma h, each robot of a
-pair taking half; an obstacle (or an inactive robot, a fixed disk with command zero) is taken
+pair taking half (where that h < 0, bodies closer than the offset allows, the same barrier on the
+centres without the offset); an obstacle (or an inactive robot, a fixed disk with command zero) is taken
 whole by the active robot. Each robot's command is then the exact Euclidean projection of its
 nominal command onto its polygon of barrier rows and wheel box (speed limit, and the accel limit
 from its previous command when given); an empty polygon softens the rows of bodies already inside
@@ -41,16 +42,19 @@ class SafetyParamError(VsfleetValueError):
 class SafetyParams:
     """The filter's parameters.
 
-    margin_m [m] >= 0: added to every sum of radii: tracker noise (3 sigma of 2 mm = 6 mm) plus the
-    tick's lookahead (an arc departs from its chord by <= vmax^2 dt^2 / b per robot: 0.8 mm at
-    0.3 m/s, 30 Hz, b = 0.12 m) with room to spare. gamma_per_s [1/s] > 0 with gamma_per_s * dt_s
+    margin_m [m] >= 0: added to every sum of radii: tracker noise and the tick's lookahead. Noise of
+    sigma 2 mm per axis on each robot is 2.8 mm on a distance between two; 3 sigma (8.5 mm) held for
+    seconds but a closed loop samples thousands of ticks, and 10 mm gave a 0.9 mm contact in one
+    of the bench's runs, so 15 mm (5 sigma); an arc departs from its chord by <= vmax^2 dt^2 / b
+    per robot (0.8 mm at 0.3 m/s, 30 Hz, b = 0.12 m). gamma_per_s [1/s] > 0 with gamma_per_s * dt_s
     <= 1: how fast a barrier may close (h(t + dt) >= (1 - gamma dt) h(t) on straight motion).
     offset_m [m] >= 0: the control point ahead of the centre (0: the centre itself, the barrier
-    constrains v only; > 0: Robotarium's offset point, which also steers, bodies inflated by it).
+    constrains v only; > 0: Robotarium's offset point, which also steers, bodies inflated by it;
+    pairs closer than the offset allows fall back to the centres' barrier).
     dt_s [s] > 0: the control tick.
     """
 
-    margin_m: float = 0.010
+    margin_m: float = 0.015
     gamma_per_s: float = 5.0
     offset_m: float = 0.0
     dt_s: float = 1.0 / 30.0
@@ -278,22 +282,29 @@ def safety_filter_reference(pose_world, radius_m, wheels_nominal_m_s, *, wheel_b
     for i in range(n):
         if not act[i]:
             continue
-        # every other robot, then every obstacle: the point, the disk sum and the share
+        # every other robot, then every obstacle: its control point and disk sum, its centre and
+        # disk sum, the share
         others = np.arange(n) != i
         act_o = act[others]
-        qx = np.where(act_o, px[others], pose[others, 0])
-        qy = np.where(act_o, py[others], pose[others, 1])
-        dsum = np.where(act_o, ((radius[i] + radius[others]) + 2.0 * l) + margin,
-                        ((radius[i] + radius[others]) + l) + margin)
-        share = np.where(act_o, 0.5, 1.0)
-        qx = np.concatenate([qx, obs[:, 0]])
-        qy = np.concatenate([qy, obs[:, 1]])
-        dsum = np.concatenate([dsum, ((radius[i] + obs[:, 2]) + l) + margin])
-        share = np.concatenate([share, np.ones(len(obs))])
+        qx = np.concatenate([np.where(act_o, px[others], pose[others, 0]), obs[:, 0]])
+        qy = np.concatenate([np.where(act_o, py[others], pose[others, 1]), obs[:, 1]])
+        dsum = np.concatenate([np.where(act_o, ((radius[i] + radius[others]) + 2.0 * l) + margin,
+                                        ((radius[i] + radius[others]) + l) + margin),
+                               ((radius[i] + obs[:, 2]) + l) + margin])
+        ox = np.concatenate([pose[others, 0], obs[:, 0]])
+        oy = np.concatenate([pose[others, 1], obs[:, 1]])
+        esum = np.concatenate([(radius[i] + radius[others]) + margin, (radius[i] + obs[:, 2]) + margin])
+        share = np.concatenate([np.where(act_o, 0.5, 1.0), np.ones(len(obs))])
         dx, dy = px[i] - qx, py[i] - qy
         h = (dx * dx + dy * dy) - dsum * dsum
+        # the control points' barrier while it holds, else the centres' (v alone)
+        centre = ~(h >= 0.0) | (l == 0.0)
+        cdx, cdy = pose[i, 0] - ox, pose[i, 1] - oy
+        dx, dy = np.where(centre, cdx, dx), np.where(centre, cdy, dy)
+        h = np.where(centre, (cdx * cdx + cdy * cdy) - esum * esum, h)
+        li = np.where(centre, 0.0, l)
         g = 2.0 * (dx * c[i] + dy * s[i])
-        q = 2.0 * l * (dy * c[i] - dx * s[i])
+        q = 2.0 * li * (dy * c[i] - dx * s[i])
         a0, a1 = 0.5 * g - q / base[i], 0.5 * g + q / base[i]
         bnd = -(gamma * h) * share
         keep = ~(bnd <= -(np.abs(a0) + np.abs(a1)) * vmax[i])

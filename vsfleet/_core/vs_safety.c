@@ -86,13 +86,23 @@ static void box_rows(double *rows, double lo0, double lo1, double hi0, double hi
     rows[9] = 0.0; rows[10] = -1.0; rows[11] = -hi1;
 }
 
-/* the barrier row of robot i (control point p, heading cos/sin c, s, wheel base b) against a
- * point q whose disk sum is D, taking share of the constraint; 1 if it can bind in the speed box */
-static int barrier_row(double *row, double px, double py, double c, double s, double b, double l,
-                       double qx, double qy, double D, double share, double gamma, double vmax)
+/* the barrier row of robot i (centre (cx, cy), control point (px, py), heading cos/sin c, s, wheel
+ * base b) against another body: its control point (qx, qy) with the disk sum D (control points), its
+ * centre (ox, oy) with the disk sum E (centres), taking share of the constraint.  The control
+ * points' barrier while it holds (h >= 0), else (bodies closer than the offset allows: a crowded
+ * start) the centres' barrier, which constrains v alone.  1 if the row can bind in the speed box. */
+static int barrier_row(double *row, double cx, double cy, double px, double py, double c, double s, double b,
+                       double l, double qx, double qy, double D, double ox, double oy, double E, double share,
+                       double gamma, double vmax)
 {
     double dx = px - qx, dy = py - qy;
     double h = (dx * dx + dy * dy) - D * D;
+    if (!(h >= 0.0) || l == 0.0) {
+        dx = cx - ox;
+        dy = cy - oy;
+        h = (dx * dx + dy * dy) - E * E;
+        l = 0.0;
+    }
     double g = 2.0 * (dx * c + dy * s);
     double q = 2.0 * l * (dy * c - dx * s);
     double a0 = 0.5 * g - q / b, a1 = 0.5 * g + q / b;
@@ -168,25 +178,22 @@ int vs_safety_filter(const vs_safety_params *p, size_t n, const double *pose_wor
         const double px = pts[4 * i], py = pts[4 * i + 1], c = pts[4 * i + 2], s = pts[4 * i + 3];
         const double b = wheel_base_m[i], vmax = wheel_speed_max_m_s[i], ri = radius_m[i];
         int m = 0;
+        const double cx = pose_world[3 * i], cy = pose_world[3 * i + 1];
         for (size_t j = 0; j < n; j++) {
             if (j == i) continue;
             int act_j = active == NULL || active[j];
-            double D, qx, qy, share;
-            if (act_j) {
-                qx = pts[4 * j]; qy = pts[4 * j + 1];
-                D = ((ri + radius_m[j]) + 2.0 * l) + margin;
-                share = 0.5;
-            } else {
-                qx = pose_world[3 * j]; qy = pose_world[3 * j + 1];
-                D = ((ri + radius_m[j]) + l) + margin;
-                share = 1.0;
-            }
-            m += barrier_row(rows + 3 * m, px, py, c, s, b, l, qx, qy, D, share, gamma, vmax);
+            const double ox = pose_world[3 * j], oy = pose_world[3 * j + 1], E = (ri + radius_m[j]) + margin;
+            if (act_j)
+                m += barrier_row(rows + 3 * m, cx, cy, px, py, c, s, b, l, pts[4 * j], pts[4 * j + 1],
+                                 ((ri + radius_m[j]) + 2.0 * l) + margin, ox, oy, E, 0.5, gamma, vmax);
+            else
+                m += barrier_row(rows + 3 * m, cx, cy, px, py, c, s, b, l, ox, oy,
+                                 ((ri + radius_m[j]) + l) + margin, ox, oy, E, 1.0, gamma, vmax);
         }
         for (size_t k = 0; k < n_obstacles; k++) {
-            double D = ((ri + obstacles[3 * k + 2]) + l) + margin;
-            m += barrier_row(rows + 3 * m, px, py, c, s, b, l, obstacles[3 * k], obstacles[3 * k + 1], D, 1.0,
-                             gamma, vmax);
+            const double ox = obstacles[3 * k], oy = obstacles[3 * k + 1], R = obstacles[3 * k + 2];
+            m += barrier_row(rows + 3 * m, cx, cy, px, py, c, s, b, l, ox, oy, ((ri + R) + l) + margin, ox, oy,
+                             (ri + R) + margin, 1.0, gamma, vmax);
         }
         st.n_constraints += m;
         const double u[2] = {wheels_nominal_m_s[2 * i], wheels_nominal_m_s[2 * i + 1]};

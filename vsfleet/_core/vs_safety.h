@@ -17,6 +17,11 @@
  * j the mirror.  An inactive robot j is a fixed disk of radius r_j about its centre (command
  * zero); a round obstacle (x, y, R) likewise; the active robot takes the whole constraint:
  *     2 d.J_i u_i >= -gamma h,  h = |p_i - c|^2 - (r_i + l + R + margin)^2.
+ * Where the control points' h < 0 (bodies closer than the offset allows, as in a crowded start:
+ * the offset barrier does not hold there and would not protect the bodies), the row is the same
+ * barrier on the centres (l = 0, disk sums without the offset), which constrains v alone.  Either
+ * barrier, while >= 0, keeps the bodies margin apart; the choice depends on |p_i - p_j| only, so
+ * both robots of a pair choose alike.
  * A constraint that no wheel command within |vl|, |vr| <= vmax can violate is left out.
  *
  * Solve.  With the constraints split this way, min sum_i |u_i - u_i_nominal|^2 separates into
