@@ -77,7 +77,7 @@ class Scenario:
 
 def _template(rng, n: int) -> tuple[np.ndarray, str]:
     kind = rng.choice(["grid", "ring", "line", "wedge", "random"])
-    s = 2 * RADIUS + rng.uniform(0.08, 0.15)
+    s = 2 * RADIUS + rng.uniform(0.15, 0.30)   # gaps a body can pass through with its margins
     if kind == "grid":
         c = int(math.ceil(math.sqrt(n)))
         pts = np.array([[(k % c) * s, (k // c) * s] for k in range(n)], float)

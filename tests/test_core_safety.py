@@ -87,12 +87,16 @@ def test_each_robot_keeps_its_share_of_every_barrier_that_starts_safe(fleet):
     got, _ = safety_filter(pose, radius, nominal, **kw)
     p, act, base = kw["params"], kw["active"], kw["wheel_base_m"]
     l, mg = p.offset_m, p.margin_m
+    brake = np.zeros(len(pose))   # each moving robot's stopping distance joins its radius
+    if "wheels_prev_m_s" in kw:
+        v = kw["wheels_prev_m_s"].sum(axis=1) / 2
+        brake = np.where(act, v * v / (2 * kw["wheel_accel_max_m_s2"]), 0.0)
     rows = []
     for i in np.flatnonzero(act):
         for j in range(len(pose)):
             if j == i:
                 continue
-            ri_rj = radius[i] + radius[j]
+            ri_rj = radius[i] + radius[j] + brake[i] + brake[j]
             if act[j]:
                 q = pose[j, :2] + l * np.array([math.cos(pose[j, 2]), math.sin(pose[j, 2])])
                 rows.append((i, _row_of(pose, i, q, ri_rj + 2 * l + mg, pose[j, :2], ri_rj + mg, 0.5, p, base[i])))
@@ -100,7 +104,7 @@ def test_each_robot_keeps_its_share_of_every_barrier_that_starts_safe(fleet):
                 rows.append((i, _row_of(pose, i, pose[j, :2], ri_rj + l + mg, pose[j, :2], ri_rj + mg, 1.0, p,
                                         base[i])))
         for o in kw["obstacles"]:
-            rr = radius[i] + o[2]
+            rr = radius[i] + o[2] + brake[i]
             rows.append((i, _row_of(pose, i, o[:2], rr + l + mg, o[:2], rr + mg, 1.0, p, base[i])))
     for i, (a, b, h) in rows:
         want = b if h >= 0.0 else 0.0    # inside the margin: at least not closing

@@ -165,7 +165,8 @@ def safety_filter(pose_world, radius_m, wheels_nominal_m_s, *, wheel_base_m, whe
     commands asked for; wheel_base_m, wheel_speed_max_m_s: numbers or (n,) > 0; obstacles (k, 3)
     (x, y, r) [m] or None; active (n,) bool or None (all active): inactive robots are fixed disks
     and get (0, 0); wheel_accel_max_m_s2 (number or (n,)) with wheels_prev_m_s (n, 2): also keep
-    each command within accel * dt of the previous one where safety allows.
+    each command within accel * dt of the previous one where safety allows, and add each moving
+    robot's stopping distance v_prev^2 / (2 accel) to its radius.
     Raises ShapeError, NonFiniteError (NaN, infinity, magnitudes above 1e150), SafetyParamError.
     """
     args = (pose_world, radius_m, wheels_nominal_m_s, wheel_base_m, wheel_speed_max_m_s, obstacles, active,
@@ -277,6 +278,10 @@ def safety_filter_reference(pose_world, radius_m, wheels_nominal_m_s, *, wheel_b
     l, margin, gamma, dt = params.offset_m, params.margin_m, params.gamma_per_s, params.dt_s
     c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
     px, py = pose[:, 0] + l * c, pose[:, 1] + l * s
+    brake = np.zeros(n)   # v_prev^2 / (2 amax): the distance each robot needs to stop
+    if amax is not None:
+        v_prev = 0.5 * (prev[:, 0] + prev[:, 1])
+        brake = np.where(act, (v_prev * v_prev) / (2.0 * amax), 0.0)
     out = np.zeros((n, 2))
     n_rows = n_modified = n_softened = n_relaxed = n_stopped = 0
     for i in range(n):
@@ -288,12 +293,11 @@ def safety_filter_reference(pose_world, radius_m, wheels_nominal_m_s, *, wheel_b
         act_o = act[others]
         qx = np.concatenate([np.where(act_o, px[others], pose[others, 0]), obs[:, 0]])
         qy = np.concatenate([np.where(act_o, py[others], pose[others, 1]), obs[:, 1]])
-        dsum = np.concatenate([np.where(act_o, ((radius[i] + radius[others]) + 2.0 * l) + margin,
-                                        ((radius[i] + radius[others]) + l) + margin),
-                               ((radius[i] + obs[:, 2]) + l) + margin])
+        esum = np.concatenate([(((radius[i] + radius[others]) + margin) + brake[i]) + brake[others],
+                               ((radius[i] + obs[:, 2]) + margin) + brake[i]])
+        dsum = esum + np.concatenate([np.where(act_o, 2.0 * l, l), np.full(len(obs), l)])
         ox = np.concatenate([pose[others, 0], obs[:, 0]])
         oy = np.concatenate([pose[others, 1], obs[:, 1]])
-        esum = np.concatenate([(radius[i] + radius[others]) + margin, (radius[i] + obs[:, 2]) + margin])
         share = np.concatenate([np.where(act_o, 0.5, 1.0), np.ones(len(obs))])
         dx, dy = px[i] - qx, py[i] - qy
         h = (dx * dx + dy * dy) - dsum * dsum

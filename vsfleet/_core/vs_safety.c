@@ -153,7 +153,7 @@ int vs_safety_filter(const vs_safety_params *p, size_t n, const double *pose_wor
     }
     const double l = p->offset_m, margin = p->margin_m, gamma = p->gamma_per_s, dt = p->dt_s;
     size_t max_rows = (n - 1) + n_obstacles + 4;
-    double *pts = malloc(4 * n * sizeof *pts);            /* px, py, cos, sin */
+    double *pts = malloc(5 * n * sizeof *pts);            /* px, py, cos, sin, braking distance */
     double *rows = malloc(3 * max_rows * sizeof *rows);
     double *out = malloc(2 * n * sizeof *out);
     if (pts == NULL || rows == NULL || out == NULL) {
@@ -163,10 +163,16 @@ int vs_safety_filter(const vs_safety_params *p, size_t n, const double *pose_wor
     for (size_t i = 0; i < n; i++) {
         double s, c;
         vs_sincos(pose_world[3 * i + 2], &s, &c);
-        pts[4 * i] = pose_world[3 * i] + l * c;
-        pts[4 * i + 1] = pose_world[3 * i + 1] + l * s;
-        pts[4 * i + 2] = c;
-        pts[4 * i + 3] = s;
+        pts[5 * i] = pose_world[3 * i] + l * c;
+        pts[5 * i + 1] = pose_world[3 * i + 1] + l * s;
+        pts[5 * i + 2] = c;
+        pts[5 * i + 3] = s;
+        double brake = 0.0;   /* v_prev^2 / (2 amax): the distance the robot needs to stop */
+        if (wheel_accel_max_m_s2 != NULL && (active == NULL || active[i])) {
+            double v = 0.5 * (wheels_prev_m_s[2 * i] + wheels_prev_m_s[2 * i + 1]);
+            brake = (v * v) / (2.0 * wheel_accel_max_m_s2[i]);
+        }
+        pts[5 * i + 4] = brake;
     }
     int rc = VS_OK;
     for (size_t i = 0; i < n; i++) {
@@ -175,25 +181,26 @@ int vs_safety_filter(const vs_safety_params *p, size_t n, const double *pose_wor
             out[2 * i + 1] = 0.0;
             continue;
         }
-        const double px = pts[4 * i], py = pts[4 * i + 1], c = pts[4 * i + 2], s = pts[4 * i + 3];
+        const double px = pts[5 * i], py = pts[5 * i + 1], c = pts[5 * i + 2], s = pts[5 * i + 3];
+        const double bi = pts[5 * i + 4];
         const double b = wheel_base_m[i], vmax = wheel_speed_max_m_s[i], ri = radius_m[i];
         int m = 0;
         const double cx = pose_world[3 * i], cy = pose_world[3 * i + 1];
         for (size_t j = 0; j < n; j++) {
             if (j == i) continue;
             int act_j = active == NULL || active[j];
-            const double ox = pose_world[3 * j], oy = pose_world[3 * j + 1], E = (ri + radius_m[j]) + margin;
+            const double ox = pose_world[3 * j], oy = pose_world[3 * j + 1];
+            const double E = (((ri + radius_m[j]) + margin) + bi) + pts[5 * j + 4];
             if (act_j)
-                m += barrier_row(rows + 3 * m, cx, cy, px, py, c, s, b, l, pts[4 * j], pts[4 * j + 1],
-                                 ((ri + radius_m[j]) + 2.0 * l) + margin, ox, oy, E, 0.5, gamma, vmax);
+                m += barrier_row(rows + 3 * m, cx, cy, px, py, c, s, b, l, pts[5 * j], pts[5 * j + 1], E + 2.0 * l,
+                                 ox, oy, E, 0.5, gamma, vmax);
             else
-                m += barrier_row(rows + 3 * m, cx, cy, px, py, c, s, b, l, ox, oy,
-                                 ((ri + radius_m[j]) + l) + margin, ox, oy, E, 1.0, gamma, vmax);
+                m += barrier_row(rows + 3 * m, cx, cy, px, py, c, s, b, l, ox, oy, E + l, ox, oy, E, 1.0, gamma, vmax);
         }
         for (size_t k = 0; k < n_obstacles; k++) {
             const double ox = obstacles[3 * k], oy = obstacles[3 * k + 1], R = obstacles[3 * k + 2];
-            m += barrier_row(rows + 3 * m, cx, cy, px, py, c, s, b, l, ox, oy, ((ri + R) + l) + margin, ox, oy,
-                             (ri + R) + margin, 1.0, gamma, vmax);
+            const double E = ((ri + R) + margin) + bi;
+            m += barrier_row(rows + 3 * m, cx, cy, px, py, c, s, b, l, ox, oy, E + l, ox, oy, E, 1.0, gamma, vmax);
         }
         st.n_constraints += m;
         const double u[2] = {wheels_nominal_m_s[2 * i], wheels_nominal_m_s[2 * i + 1]};

@@ -22,6 +22,10 @@
  * barrier on the centres (l = 0, disk sums without the offset), which constrains v alone.  Either
  * barrier, while >= 0, keeps the bodies margin apart; the choice depends on |p_i - p_j| only, so
  * both robots of a pair choose alike.
+ * With an accel limit (wheel_accel_max_m_s2 and wheels_prev_m_s given), each active robot's
+ * stopping distance v_prev^2 / (2 amax) (v_prev = the mean of its previous wheel commands) joins
+ * its radius in every sum: a first-order barrier does not know that a robot needs room to brake,
+ * and a robot that turns toward a body while moving would otherwise be asked to stop at once.
  * A constraint that no wheel command within |vl|, |vr| <= vmax can violate is left out.
  *
  * Solve.  With the constraints split this way, min sum_i |u_i - u_i_nominal|^2 separates into
