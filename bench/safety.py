@@ -142,7 +142,7 @@ def make_scenario(seed: int) -> Scenario:
         clear = RADIUS + R + 0.08
         if np.min(np.hypot(*(start[:, :2] - c).T)) < clear + 0.2 or np.min(np.hypot(*(final - c).T)) < clear:
             continue
-        if any(np.hypot(*(c - o[:2])) < R + o[2] + 0.05 for o in obs):
+        if any(np.hypot(*(c - o[:2])) < R + o[2] + 2 * RADIUS + 0.1 for o in obs):   # passable gaps
             continue
         obs.append(np.array([c[0], c[1], R]))
     return Scenario(seed, n, template, start, goal, np.array(obs).reshape(-1, 3), kind)
@@ -165,11 +165,11 @@ def nominal_si(points: np.ndarray, targets: np.ndarray, targets_next: np.ndarray
     return dxi * scale[:, None]
 
 
-def crowd_term(points: np.ndarray, targets: np.ndarray) -> np.ndarray:
+def crowd_term(centres: np.ndarray, points: np.ndarray, targets: np.ndarray) -> np.ndarray:
     """The nominal's own way through a crowd (the same for both layers): a robot still away from its
     place is pushed off its close neighbours and around them (to the right), so that robots sitting
     on one another's places give way; the safety layer, not this, keeps bodies apart."""
-    d = points[:, None, :] - points[None, :, :]
+    d = centres[:, None, :] - centres[None, :, :]
     dist = np.hypot(d[..., 0], d[..., 1])
     np.fill_diagonal(dist, np.inf)
     w = np.where(dist < CROWD_RANGE, (CROWD_RANGE - dist) / CROWD_RANGE, 0.0)
@@ -182,14 +182,15 @@ def crowd_term(points: np.ndarray, targets: np.ndarray) -> np.ndarray:
     return CROWD_GAIN * (away + moving * crowded[:, None] * right)
 
 
-def around(points: np.ndarray, targets: np.ndarray, dxi: np.ndarray, obstacles: np.ndarray) -> np.ndarray:
+def around(centres: np.ndarray, points: np.ndarray, targets: np.ndarray, dxi: np.ndarray,
+           obstacles: np.ndarray) -> np.ndarray:
     """The nominal goes around what blocks its way (the same for both layers): when the nearest body
     or obstacle within AROUND_RANGE of its edge lies within 60 deg of its wish, the wish turns to the
     tangent of that body on the side of the wish (the right when straight on), keeping its speed."""
     n = len(points)
-    cen = np.r_[points, obstacles[:, :2]] if len(obstacles) else points
+    cen = np.r_[centres, obstacles[:, :2]] if len(obstacles) else centres
     rad = np.r_[np.full(n, RADIUS), obstacles[:, 2]] if len(obstacles) else np.full(n, RADIUS)
-    d = points[:, None, :] - cen[None, :, :]
+    d = centres[:, None, :] - cen[None, :, :]
     dist = np.hypot(d[..., 0], d[..., 1])
     edge = dist - rad[None, :] - RADIUS
     edge[np.arange(n), np.arange(n)] = np.inf
@@ -352,7 +353,7 @@ def run(sc: Scenario, layer, seed: int) -> Result:
     pose = sc.start.copy()
     prev = np.zeros((n, 2))
     dist = math.hypot(sc.goal[0], sc.goal[1])
-    T_end = dist / STRUCT_SPEED + 120.0
+    T_end = dist / STRUCT_SPEED + 60.0
     sp = 0.0   # the structure's progress [s of motion]: it waits for the formation to assemble first
     started = False
     final = _place(sc.goal, sc.template)
@@ -372,7 +373,8 @@ def run(sc: Scenario, layer, seed: int) -> Result:
         sp_next = sp + DT if started else sp
         T_next, _ = structure_at(sc, sp_next)
         targets, targets_next = _place(T_now, sc.template), _place(T_next, sc.template)
-        dxi = around(points_obs, targets, nominal_si(points_obs, targets, targets_next) + crowd_term(points_obs, targets), sc.obstacles)
+        dxi = nominal_si(points_obs, targets, targets_next) + crowd_term(obs[:, :2], points_obs, targets)
+        dxi = around(obs[:, :2], points_obs, targets, dxi, sc.obstacles)
         # deadlock breaking (the nominal's, the same for both layers): a robot held back for 0.5 s
         # turns its wish 70 deg to the left for the next second (a right-of-way rule)
         ang = np.where(detour > 0, DETOUR_RAD, 0.0)

@@ -89,8 +89,8 @@ def test_each_robot_keeps_its_share_of_every_barrier_that_starts_safe(fleet):
     l, mg = p.offset_m, p.margin_m
     brake = np.zeros(len(pose))   # each moving robot's stopping distance joins its radius
     if "wheels_prev_m_s" in kw:
-        v = kw["wheels_prev_m_s"].sum(axis=1) / 2
-        brake = np.where(act, v * v / (2 * kw["wheel_accel_max_m_s2"]), 0.0)
+        w = kw["wheels_prev_m_s"]
+        brake = np.where(act, (w[:, 0] ** 2 + w[:, 1] ** 2) / (4 * kw["wheel_accel_max_m_s2"]), 0.0)
     rows = []
     for i in np.flatnonzero(act):
         for j in range(len(pose)):

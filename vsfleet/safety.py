@@ -166,7 +166,7 @@ def safety_filter(pose_world, radius_m, wheels_nominal_m_s, *, wheel_base_m, whe
     (x, y, r) [m] or None; active (n,) bool or None (all active): inactive robots are fixed disks
     and get (0, 0); wheel_accel_max_m_s2 (number or (n,)) with wheels_prev_m_s (n, 2): also keep
     each command within accel * dt of the previous one where safety allows, and add each moving
-    robot's stopping distance v_prev^2 / (2 accel) to its radius.
+    robot's stopping distance (vl_prev^2 + vr_prev^2) / (4 accel) to its radius.
     Raises ShapeError, NonFiniteError (NaN, infinity, magnitudes above 1e150), SafetyParamError.
     """
     args = (pose_world, radius_m, wheels_nominal_m_s, wheel_base_m, wheel_speed_max_m_s, obstacles, active,
@@ -278,10 +278,9 @@ def safety_filter_reference(pose_world, radius_m, wheels_nominal_m_s, *, wheel_b
     l, margin, gamma, dt = params.offset_m, params.margin_m, params.gamma_per_s, params.dt_s
     c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
     px, py = pose[:, 0] + l * c, pose[:, 1] + l * s
-    brake = np.zeros(n)   # v_prev^2 / (2 amax): the distance each robot needs to stop
+    brake = np.zeros(n)   # (vl^2 + vr^2) / (4 amax): a bound on each robot's stopping distance
     if amax is not None:
-        v_prev = 0.5 * (prev[:, 0] + prev[:, 1])
-        brake = np.where(act, (v_prev * v_prev) / (2.0 * amax), 0.0)
+        brake = np.where(act, (prev[:, 0] * prev[:, 0] + prev[:, 1] * prev[:, 1]) / (4.0 * amax), 0.0)
     out = np.zeros((n, 2))
     n_rows = n_modified = n_softened = n_relaxed = n_stopped = 0
     for i in range(n):

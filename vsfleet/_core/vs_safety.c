@@ -167,10 +167,12 @@ int vs_safety_filter(const vs_safety_params *p, size_t n, const double *pose_wor
         pts[5 * i + 1] = pose_world[3 * i + 1] + l * s;
         pts[5 * i + 2] = c;
         pts[5 * i + 3] = s;
-        double brake = 0.0;   /* v_prev^2 / (2 amax): the distance the robot needs to stop */
+        /* (vl^2 + vr^2) / (4 amax): a bound on the distance the centre travels while both wheels
+         * brake at amax (|v| <= (|vl| + |vr|) / 2, each wheel stopping in |v_w| / amax) */
+        double brake = 0.0;
         if (wheel_accel_max_m_s2 != NULL && (active == NULL || active[i])) {
-            double v = 0.5 * (wheels_prev_m_s[2 * i] + wheels_prev_m_s[2 * i + 1]);
-            brake = (v * v) / (2.0 * wheel_accel_max_m_s2[i]);
+            double vl = wheels_prev_m_s[2 * i], vr = wheels_prev_m_s[2 * i + 1];
+            brake = (vl * vl + vr * vr) / (4.0 * wheel_accel_max_m_s2[i]);
         }
         pts[5 * i + 4] = brake;
     }

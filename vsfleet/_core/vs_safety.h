@@ -23,8 +23,8 @@
  * barrier, while >= 0, keeps the bodies margin apart; the choice depends on |p_i - p_j| only, so
  * both robots of a pair choose alike.
  * With an accel limit (wheel_accel_max_m_s2 and wheels_prev_m_s given), each active robot's
- * stopping distance v_prev^2 / (2 amax) (v_prev = the mean of its previous wheel commands) joins
- * its radius in every sum: a first-order barrier does not know that a robot needs room to brake,
+ * stopping distance (vl_prev^2 + vr_prev^2) / (4 amax) (a bound on how far its centre goes while
+ * both wheels brake at amax from the previous command) joins its radius in every sum: a first-order barrier does not know that a robot needs room to brake,
  * and a robot that turns toward a body while moving would otherwise be asked to stop at once.
  * A constraint that no wheel command within |vl|, |vr| <= vmax can violate is left out.
  *
