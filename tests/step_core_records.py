@@ -2,7 +2,9 @@
 
 The recorded frames of the agent step's golden vectors (tests/data/golden-step.json: the paper failure
 scenario, noise, a robot missing now and then) packed as vs_golden.c's ``structure_step`` entry, for
-each metric: every 4th frame, all robots used, and the same frames with r2 excluded and judged apart.
+each metric: every 4th frame, all robots used, and the same frames with r2 excluded and judged apart;
+then the linf mission in a room (a pillar on its straight path, bodies of 0.05 m, and a wall that
+blocks it), every 8th frame: the planned path and the blocked stop.
 """
 
 from __future__ import annotations
@@ -15,26 +17,31 @@ from golden_step import load
 from vsfleet.step import core_mission, frame_arrays, mission_arrays
 
 METRICS = ("l1", "l2", "linf")
+PILLAR = ((0.8, 0.5, 0.3),)
+WALL = tuple((1.3 + 0.0 * k, -1.0 + 0.25 * k, 0.14) for k in range(13))  # x = 1.3 m, y from -1 to 2 m
 
 
 def step_records() -> list[tuple[str, list[float]]]:
     mission, frames, config, _ = load()
     out = []
-    for metric in METRICS:
+    rooms = [(metric, (), None, 4) for metric in METRICS] + [("linf", PILLAR, 0.05, 8), ("linf", WALL, 0.05, 8)]
+    for metric, obstacles, radius, every in rooms:
         m = dataclasses.replace(mission, metric=metric)
         arrays = mission_arrays(m)
-        tpl, wb, vmax, amax, code, kind, goal, limits = core_mission(metric, arrays.template, arrays.envelopes,
-                                                                     arrays.goal, arrays.limits)
         n = len(arrays.ids)
+        radii = [0.0] * n if radius is None else [radius] * n
+        (tpl, wb, vmax, amax, code, kind, goal, limits, _radii, _obs,
+         margin) = core_mission(metric, arrays.template, arrays.envelopes, arrays.goal, arrays.limits)
         head = [float(n), float(code), float(kind), float(len(goal) // 3), *goal, *limits, *tpl.ravel(), *wb,
                 *vmax, *amax]
+        room = [margin, float(len(obstacles)), *radii, *(v for o in obstacles for v in o)]
         for k, (frame, _) in enumerate(frames):
-            if k % 4:
+            if k % every:
                 continue
             pose, seen, _fresh = frame_arrays(arrays.ids, frame.poses, frame.fresh)
             pose = np.where(seen[:, None], pose, 0.0)
             for excluded, judged in ((np.zeros(n), np.zeros(n)), (np.array([0.0, 1.0, 0.0]), np.zeros(n)),
                                      (np.zeros(n), np.array([0.0, 1.0, 0.0]))):
                 out.append(("structure_step", [*head, *pose.ravel(), *seen.astype(float), *excluded, *judged,
-                                               frame.t - m.effective_t, config.dt_s]))
+                                               frame.t - m.effective_t, config.dt_s, *room]))
     return out

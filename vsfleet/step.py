@@ -52,6 +52,7 @@ from .fit import fit_structure, fit_structure_reference
 from .frames import Frame
 from .geometry import Pose2
 from .kinematics import integrate_arcs, integrate_arcs_reference
+from .plan import plan_structure_reference
 from .wire import CmdMsg, EventMsg, HealthMsg, Mission, StateMsg
 
 Controller = Callable  # vsfleet.control: controller(state, ControlInput) -> (state, wheels (n, 2))
@@ -92,6 +93,8 @@ class MissionArrays:
     goal: Goal
     limits: StructureLimits
     policy: FailurePolicy          # the failure rule's mode and thresholds
+    radii: np.ndarray = field(default_factory=lambda: np.zeros(0))      # (n,) body radii [m] (0: a point)
+    obstacles: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (k, 3) (x, y, r) [m; world]
     core: tuple = ()               # the same, packed for vsfleet._core.structure_step (core_mission)
 
 
@@ -100,9 +103,15 @@ _LIMIT_FIELDS = ("speed_max_m_s", "turn_rate_max_rad_s", "position_tolerance_m",
                  "path_lookahead_m", "comply_full_m", "comply_stop_m", "settle_s", "turn_settle_s")
 
 
+#: clearance [m] the structure's path keeps beyond the robots' bodies: 3 sigma of 2 mm tracker noise
+#: plus what the advance's lookahead carrot cuts off a path's corners (docs/planning.md)
+PLAN_MARGIN_M = 0.012
+
+
 def core_mission(metric: str, template: np.ndarray, envelopes: Envelopes, goal: Goal,
-                 limits: StructureLimits) -> tuple:
-    """The mission's constants as the compiled core takes them (vs_mission in vs_step.h)."""
+                 limits: StructureLimits, radii=None, obstacles=()) -> tuple:
+    """The mission's constants as the compiled core takes them (vs_mission in vs_step.h), in
+    structure_step's argument order: the first eight, then (radius_m, obstacles, margin_m)."""
     if isinstance(goal, GoalPose):
         kind, poses = 0, [goal.pose.as_tuple()]
     elif isinstance(goal, GoalPath):
@@ -112,7 +121,9 @@ def core_mission(metric: str, template: np.ndarray, envelopes: Envelopes, goal: 
     return (np.ascontiguousarray(template, dtype=float), np.ascontiguousarray(envelopes.wheel_base_m),
             np.ascontiguousarray(envelopes.wheel_speed_max_m_s), np.ascontiguousarray(envelopes.wheel_accel_max_m_s2),
             _METRIC_CODES[metric], kind, np.array(poses, dtype=float).ravel(),
-            np.array([getattr(limits, f) for f in _LIMIT_FIELDS], dtype=float))
+            np.array([getattr(limits, f) for f in _LIMIT_FIELDS], dtype=float),
+            np.zeros(len(template)) if radii is None else np.array(radii, dtype=float),
+            np.array(obstacles, dtype=float).reshape(-1), PLAN_MARGIN_M)
 
 
 _ARRAYS: dict[int, tuple[Mission, MissionArrays]] = {}
@@ -128,7 +139,10 @@ def mission_arrays(mission: Mission) -> MissionArrays:
     limits = StructureLimits(speed_max_m_s=mission.speed_max, turn_rate_max_rad_s=mission.turn_rate_max)
     arrays = MissionArrays(ids=ids, index={r: i for i, r in enumerate(ids)}, template=template,
                            envelopes=envelopes, goal=goal, limits=limits, policy=mission_policy(mission),
-                           core=core_mission(mission.metric, template, envelopes, goal, limits))
+                           radii=np.array(mission.radii, dtype=float),
+                           obstacles=np.array(mission.obstacles, dtype=float).reshape(-1, 3),
+                           core=core_mission(mission.metric, template, envelopes, goal, limits, mission.radii,
+                                             mission.obstacles))
     if len(_ARRAYS) >= 16:
         _ARRAYS.clear()
     _ARRAYS[id(mission)] = (mission, arrays)
@@ -161,6 +175,8 @@ class Structure:
     points_now: np.ndarray
     points_next: np.ndarray
     deviations_m: np.ndarray
+    blocked: bool = False   # obstacles: no path to the goal; the structure stops at the closest safe pose
+    left_m: float = 0.0     # obstacles, blocked: how far [m] that pose is from the goal
 
 
 def structure_step(arrays: MissionArrays, metric: str, pose_world: np.ndarray, seen: np.ndarray,
@@ -185,16 +201,25 @@ def structure_step(arrays: MissionArrays, metric: str, pose_world: np.ndarray, s
     fit = fit_fn(arrays.template[used], xy[used], metric=metric)
     now_pts = fit.pose.apply(arrays.template)
     dist = np.hypot(xy[:, 0] - now_pts[:, 0], xy[:, 1] - now_pts[:, 1])
-    adv = advance_fn(fit.pose, arrays.goal, dt_s, arrays.limits, arrays.template, arrays.envelopes,
-                            elapsed_s=elapsed_s, headings_rad=np.where(used, pose_world[:, 2], np.nan),
-                            deviations_m=np.where(used, dist, np.nan))
+    goal, blocked, left_m = arrays.goal, False, 0.0
+    if len(arrays.obstacles) and not isinstance(goal, GoalTwist):  # the path around the room's obstacles
+        target = goal.pose if isinstance(goal, GoalPose) else goal.waypoints[-1]
+        plan = plan_structure_reference(fit.pose, target, arrays.template, arrays.radii, PLAN_MARGIN_M,
+                                        arrays.obstacles)
+        goal, blocked = GoalPath(plan.waypoints), plan.blocked
+        end = plan.waypoints[-1]
+        left_m = math.sqrt((target.x - end.x) ** 2 + (target.y - end.y) ** 2) if blocked else 0.0
+    adv = advance_fn(fit.pose, goal, dt_s, arrays.limits, arrays.template, arrays.envelopes,
+                     elapsed_s=elapsed_s, headings_rad=np.where(used, pose_world[:, 2], np.nan),
+                     deviations_m=np.where(used, dist, np.nan))
     judges = used & ~judged_apart
     if 2 <= int(judges.sum()) < int(used.sum()):  # a rigid fit needs two points to fix the heading
         judged = fit_fn(arrays.template[judges], xy[judges], metric=metric).pose.apply(arrays.template)
         dist = np.hypot(xy[:, 0] - judged[:, 0], xy[:, 1] - judged[:, 1])
     return Structure(fit_pose=fit.pose, goal_pose=adv.pose, twist=adv.twist, cost=float(fit.cost),
-                     at_goal=adv.at_goal, used=used, points_now=now_pts, points_next=adv.pose.apply(arrays.template),
-                     deviations_m=np.where(seen, dist, np.inf))
+                     at_goal=adv.at_goal and not blocked, used=used, points_now=now_pts,
+                     points_next=adv.pose.apply(arrays.template), deviations_m=np.where(seen, dist, np.inf),
+                     blocked=blocked, left_m=left_m)
 
 
 def _structure_step_core(arrays: MissionArrays, pose_world: np.ndarray, seen: np.ndarray, excluded: np.ndarray,
@@ -203,15 +228,17 @@ def _structure_step_core(arrays: MissionArrays, pose_world: np.ndarray, seen: np
     judged fit."""
     n = len(arrays.ids)
     used, now, nxt, dev = np.empty(n, dtype=bool), np.empty((n, 2)), np.empty((n, 2)), np.empty(n)
-    r = _core.structure_step(*arrays.core, np.ascontiguousarray(pose_world, dtype=float),
+    c = arrays.core
+    r = _core.structure_step(*c[:8], np.ascontiguousarray(pose_world, dtype=float),
                              np.ascontiguousarray(seen, dtype=bool), np.ascontiguousarray(excluded, dtype=bool),
                              np.ascontiguousarray(judged_apart, dtype=bool), float(elapsed_s), float(dt_s),
-                             used, now, nxt, dev)
+                             used, now, nxt, dev, *c[8:])
     if r is None:
         return None
-    fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal = r
+    fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m = r
     return Structure(fit_pose=Pose2(fx, fy, fth), goal_pose=Pose2(gx, gy, gth), twist=Twist2(vx, vy, w), cost=cost,
-                     at_goal=at_goal, used=used, points_now=now, points_next=nxt, deviations_m=dev)
+                     at_goal=at_goal, used=used, points_now=now, points_next=nxt, deviations_m=dev,
+                     blocked=blocked, left_m=left_m)
 
 
 def _shared_structure_step(shared: dict | None, mission: Mission, arrays: MissionArrays, pose_world: np.ndarray,
@@ -308,6 +335,7 @@ class AgentState:
     ticks: int = 0
     stale: int = 0
     unnamed: frozenset[int] = frozenset()  # mission versions that do not name this robot (noted once)
+    blocked: bool = False  # the structure has no path to the goal around the obstacles (evented on change)
 
     @property
     def predicted_m_s(self) -> dict[str, tuple[float, float]]:
@@ -457,9 +485,16 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
                            dropped=tuple(sorted(health.dropped)), since=tuple(sorted(health.since_t.items())))
     events = tuple(EventMsg(t=d.t, seq=frame.seq, robot=d.robot, kind=d.kind, dev=d.deviation_m, by=state.robot)
                    for d in decisions)
+    if s.blocked != state.blocked:  # the room: no path to the goal (stopping short), or one again
+        events += (EventMsg(t=frame.t, seq=frame.seq, robot=state.robot, kind="blocked" if s.blocked else "unblocked",
+                            dev=s.left_m, by=state.robot),)
+        notes.append(Note("warning", f"frame {frame.seq}: no path to the goal around the obstacles: the structure "
+                                     f"stops at the closest safe pose, {s.left_m:.3f} m short") if s.blocked else
+                     Note("info", f"frame {frame.seq}: a path to the goal around the obstacles is open again"))
     notes.extend(Note("warning", f"frame {frame.seq}: robot {d.robot} {d.kind} (deviation {d.deviation_m:.3f} m, "
                                  f"on_failure={mission.on_failure})") for d in decisions)
     state = _evolve(state, wheels_m_s=wheels, ctrl=ctrl, failure=failure, health=health, last_seq=frame.seq,
+                    blocked=s.blocked,
                     last_cmd_t=frame.t, ticks=state.ticks + 1)
     return state, StepOutput(cmd=cmd, state=state_msg, health=health_msg, events=events, notes=tuple(notes),
                              structure=s, wheels_m_s=wheels)

@@ -356,14 +356,19 @@ class FaultMsg:
     duration: float
 
 
-EVENT_KINDS = ("fail", "drop", "rejoin", "recover")
+# the failure rule's decisions (in vs_failure.h's code order), then the structure's own: blocked (no path
+# to the goal around the obstacles: it stops at the closest safe pose; dev = how far that is from the
+# goal [m]) and unblocked (a path is open again)
+EVENT_KINDS = ("fail", "drop", "rejoin", "recover", "blocked", "unblocked")
 
 
 @dataclass(frozen=True)
 class EventMsg:
     """A failure-policy decision by agent ``by`` at frame ``seq`` (tracker time t [s]).
 
-    kind: fail, drop, rejoin or recover; dev [m]: the robot's deviation at that frame.
+    kind: fail, drop, rejoin or recover (robot: the robot decided on; dev [m]: its deviation at that
+    frame), or blocked / unblocked (robot: the agent's own; dev [m]: how far short of the goal the
+    structure stops, 0 when unblocked).
     """
 
     t: float

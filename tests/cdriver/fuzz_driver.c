@@ -55,6 +55,11 @@ static long structure_step_input(double *in)
     for (long i = 0; i < 3 * n; i++, len++) in[len] = (next() % 16) ? (double)(next() & 1) : hostile(in, len, in, len);
     in[len++] = (next() % 8) ? uniform() * 10.0 : hostile(in, len, in, len);           /* elapsed */
     in[len++] = (next() % 8) ? 1.0 / 30.0 : hostile(in, len, in, len);                 /* dt */
+    long m = (next() % 3) ? (long)(next() % 7) : 0;
+    in[len++] = (next() % 8) ? 0.01 : hostile(in, len, in, len);                       /* margin */
+    in[len++] = (double)m;
+    for (long i = 0; i < n; i++, len++) in[len] = (next() % 8) ? 0.05 * uniform() : hostile(in, len, in, len);
+    for (long i = 0; i < 3 * m; i++, len++) in[len] = (i % 3 == 2 && next() % 8) ? 0.05 + uniform() : hostile(in, len, in, len);
     return len;
 }
 

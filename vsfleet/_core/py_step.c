@@ -5,17 +5,17 @@
 
 /* structure_step(template, wheel_base, speed_max, accel_max, metric, goal_kind, goal, limits,
  *                pose_world, seen, excluded, judged_apart, elapsed_s, dt_s,
- *                used_out, points_now_out, points_next_out, deviations_out)
- * -> None (no robot usable) or (fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal). */
+ *                used_out, points_now_out, points_next_out, deviations_out, radius_m, obstacles, margin_m)
+ * -> None (no robot usable) or (fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m). */
 static PyObject *py_structure_step(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
 {
     (void)mod;
-    if (nargs != 18) { PyErr_SetString(PyExc_TypeError, "structure_step takes 18 arguments"); return NULL; }
-    Py_buffer b[16];
+    if (nargs != 21) { PyErr_SetString(PyExc_TypeError, "structure_step takes 21 arguments"); return NULL; }
+    Py_buffer b[18];
     int got = 0;
     PyObject *result = NULL;
     long metric = PyLong_AsLong(a[4]), kind = PyLong_AsLong(a[5]);
-    double elapsed = PyFloat_AsDouble(a[12]), dt = PyFloat_AsDouble(a[13]);
+    double elapsed = PyFloat_AsDouble(a[12]), dt = PyFloat_AsDouble(a[13]), margin = PyFloat_AsDouble(a[20]);
     if (PyErr_Occurred()) return NULL;
     if (vs_py_doubles(a[0], &b[got], -1, 0, "template_xy") < 0) goto out;
     got++;
@@ -50,10 +50,16 @@ static PyObject *py_structure_step(PyObject *mod, PyObject *const *a, Py_ssize_t
     got++;
     if (vs_py_doubles(a[17], &b[got], n, 1, "deviations_out") < 0) goto out;
     got++;
+    if (vs_py_doubles(a[18], &b[got], n, 0, "radius_m") < 0) goto out;
+    got++;
+    if (vs_py_doubles(a[19], &b[got], -1, 0, "obstacles") < 0) goto out;
+    got++;
+    if ((b[15].len / 8) % 3) { PyErr_SetString(vs_ValueError, "obstacles must hold 3 k doubles"); goto out; }
     const double *lim = b[5].buf;
     vs_mission m = {(size_t)n, b[0].buf, b[1].buf, b[2].buf, b[3].buf, (int)metric,
                     {(int)kind, b[4].buf, (size_t)(n_goal / 3)},
-                    {lim[0], lim[1], lim[2], lim[3], lim[4], lim[5], lim[6], lim[7], lim[8]}};
+                    {lim[0], lim[1], lim[2], lim[3], lim[4], lim[5], lim[6], lim[7], lim[8]},
+                    b[14].buf, b[15].buf, (size_t)(b[15].len / 24), margin};
     vs_structure s;
     int rc;
     Py_BEGIN_ALLOW_THREADS
@@ -62,8 +68,9 @@ static PyObject *py_structure_step(PyObject *mod, PyObject *const *a, Py_ssize_t
     Py_END_ALLOW_THREADS
     if (rc != VS_OK) { vs_py_error(rc, "structure_step refused its inputs"); goto out; }
     if (!s.any_used) { result = Py_NewRef(Py_None); goto out; }
-    result = Py_BuildValue("(ddddddddddO)", s.fit_x, s.fit_y, s.fit_th, s.goal_x, s.goal_y, s.goal_th, s.vx_m_s,
-                           s.vy_m_s, s.w_rad_s, s.cost, s.at_goal ? Py_True : Py_False);
+    result = Py_BuildValue("(ddddddddddOOd)", s.fit_x, s.fit_y, s.fit_th, s.goal_x, s.goal_y, s.goal_th, s.vx_m_s,
+                           s.vy_m_s, s.w_rad_s, s.cost, s.at_goal ? Py_True : Py_False,
+                           s.blocked ? Py_True : Py_False, s.left_m);
 out:
     for (int i = 0; i < got; i++) PyBuffer_Release(&b[i]);
     return result;

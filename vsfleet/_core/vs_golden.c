@@ -46,16 +46,20 @@ static long count_of(double v, long lo, long hi)
 }
 
 /* structure_step: n, metric, goal kind, k goal poses, 3k goal, 9 limits, 2n template, n wheel base,
- * n speed max, n accel max, 3n poses, n seen, n excluded, n judged apart, elapsed, dt
- * -> any_used, then (if any) fit 3, goal 3, twist 3, cost, at_goal, n used, 2n now, 2n next, n deviations */
+ * n speed max, n accel max, 3n poses, n seen, n excluded, n judged apart, elapsed, dt, margin,
+ * m obstacles, n radii, 3m obstacles
+ * -> any_used, then (if any) fit 3, goal 3, twist 3, cost, at_goal, blocked, left, n used, 2n now,
+ * 2n next, n deviations */
 static long g_structure_step(const double *in, long n_in, double *out, long cap)
 {
     if (n_in < 4) return -1;
     long n = count_of(in[0], 1, 100000), metric = count_of(in[1], 0, 2), kind = count_of(in[2], 0, 2),
          k = count_of(in[3], 1, 100000);
     if (n < 0 || metric < 0 || kind < 0 || k < 0) return -1;
-    long need = 4 + 3 * k + 9 + 2 * n + 3 * n + 3 * n + 3 * n + 2;
-    if (n_in != need || cap < 1 + 11 + 6 * n) return -1;
+    long base = 4 + 3 * k + 9 + 2 * n + 3 * n + 3 * n + 3 * n + 2;
+    if (n_in < base + 2) return -1;
+    long m_obs = count_of(in[base + 1], 0, 256);
+    if (m_obs < 0 || n_in != base + 2 + n + 3 * m_obs || cap < 1 + 13 + 6 * n) return -1;
     const double *p = in + 4, *goal = p;
     p += 3 * k;
     const double *lim = p; p += 9;
@@ -69,21 +73,23 @@ static long g_structure_step(const double *in, long n_in, double *out, long cap)
     for (long j = 0; j < 3; j++)
         for (long i = 0; i < n; i++) flags[j][i] = p[j * n + i] != 0.0;
     p += 3 * n;
-    double elapsed = p[0], dt = p[1];
+    double elapsed = p[0], dt = p[1], margin = p[2];
+    const double *radii = p + 4, *obstacles = radii + n;
     vs_mission m = {(size_t)n, tpl, wb, vmax, amax, (int)metric, {(int)kind, goal, (size_t)k},
-                    {lim[0], lim[1], lim[2], lim[3], lim[4], lim[5], lim[6], lim[7], lim[8]}};
+                    {lim[0], lim[1], lim[2], lim[3], lim[4], lim[5], lim[6], lim[7], lim[8]},
+                    radii, obstacles, (size_t)m_obs, margin};
     vs_structure s;
     unsigned char used[4096];
-    double *now = out + 12 + n, *next = now + 2 * n, *dev = next + 2 * n;
+    double *now = out + 14 + n, *next = now + 2 * n, *dev = next + 2 * n;
     if (vs_structure_step(&m, pose, flags[0], flags[1], flags[2], elapsed, dt, &s, used, now, next, dev) != VS_OK)
         return -1;
     out[0] = s.any_used;
     if (!s.any_used) return 1;
-    double head[11] = {s.fit_x, s.fit_y, s.fit_th, s.goal_x, s.goal_y, s.goal_th, s.vx_m_s, s.vy_m_s, s.w_rad_s,
-                       s.cost, (double)s.at_goal};
+    double head[13] = {s.fit_x, s.fit_y, s.fit_th, s.goal_x, s.goal_y, s.goal_th, s.vx_m_s, s.vy_m_s, s.w_rad_s,
+                       s.cost, (double)s.at_goal, (double)s.blocked, s.left_m};
     memcpy(out + 1, head, sizeof head);
-    for (long i = 0; i < n; i++) out[12 + i] = used[i];
-    return 12 + 6 * n;
+    for (long i = 0; i < n; i++) out[14 + i] = used[i];
+    return 14 + 6 * n;
 }
 
 static const golden_entry entries[] = {

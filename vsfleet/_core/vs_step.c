@@ -70,6 +70,7 @@ int vs_structure_step(const vs_mission *m, const double *pose_world, const unsig
 
     vs_fit_result fit;
     vs_advance_result adv;
+    double *plan = NULL;
     int rc = fit_rows(m, pose_world, mask, n_used, scratch, &fit);
     if (rc != VS_OK) goto done;
     vs_apply_pose(fit.x, fit.y, fit.th, m->template_xy, n, points_now);
@@ -80,7 +81,36 @@ int vs_structure_step(const vs_mission *m, const double *pose_world, const unsig
         devs[i] = mask[i] ? dist[i] : nan;
     }
     double pose_fit[3] = {fit.x, fit.y, fit.th};
-    rc = vs_advance(pose_fit, &m->goal, dt_s, &m->limits, m->template_xy, m->wheel_base_m,
+    vs_goal goal = m->goal;
+    int blocked = 0;
+    double left_m = 0.0;
+    if (m->n_obstacles > 0 && goal.kind != VS_GOAL_TWIST && goal.n_poses > 0) {
+        const double *target = goal.poses + 3 * (goal.n_poses - 1);
+        size_t cap = 32, n_way = 0;
+        int status = VS_PLAN_OK;
+        for (int attempt = 0; attempt < 2; attempt++) {
+            plan = malloc(sizeof(double) * 3 * cap);
+            if (plan == NULL) { rc = VS_ENOMEM; goto done; }
+            rc = vs_plan_structure(m->template_xy, m->radius_m, n, m->margin_m, m->obstacles, m->n_obstacles,
+                                   pose_fit, target, plan, cap, &n_way, &status);
+            if (rc == VS_ENOMEM && n_way > cap && attempt == 0) {
+                free(plan);
+                plan = NULL;
+                cap = n_way;
+                continue;
+            }
+            break;
+        }
+        if (rc != VS_OK) goto done;
+        blocked = status == VS_PLAN_BLOCKED;
+        const double *end = plan + 3 * (n_way - 1);
+        double dx = target[0] - end[0], dy = target[1] - end[1];
+        left_m = blocked ? sqrt(dx * dx + dy * dy) : 0.0;
+        goal.kind = VS_GOAL_PATH;
+        goal.poses = plan;
+        goal.n_poses = n_way;
+    }
+    rc = vs_advance(pose_fit, &goal, dt_s, &m->limits, m->template_xy, m->wheel_base_m,
                     m->wheel_speed_max_m_s, m->wheel_accel_max_m_s2, n, NULL, &elapsed_s, head, devs, &adv);
     if (rc != VS_OK) goto done;
     if (n_judges >= 2 && n_judges < n_used) {   /* a rigid fit needs two points to fix the heading */
@@ -101,8 +131,11 @@ int vs_structure_step(const vs_mission *m, const double *pose_world, const unsig
     out->goal_x = adv.x; out->goal_y = adv.y; out->goal_th = adv.th;
     out->vx_m_s = adv.vx_m_s; out->vy_m_s = adv.vy_m_s; out->w_rad_s = adv.w_rad_s;
     out->cost = fit.cost;
-    out->at_goal = adv.at_goal;
+    out->at_goal = adv.at_goal && !blocked;
+    out->blocked = blocked;
+    out->left_m = left_m;
 done:
+    free(plan);
     free(scratch);
     free(mask);
     return rc;

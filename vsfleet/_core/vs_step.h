@@ -15,6 +15,7 @@
 #include "vscore.h"
 #include "vs_advance.h"
 #include "vs_fit.h"
+#include "vs_plan.h"
 
 /* What a mission fixes for every frame (rows in its sorted robot order). */
 typedef struct {
@@ -26,6 +27,11 @@ typedef struct {
     int metric;                         /* VS_METRIC_* */
     vs_goal goal;
     vs_limits limits;
+    /* the room (issue 22); n_obstacles == 0: none, and the structure goes straight for its goal */
+    const double *radius_m;             /* (n) robot body radii [m], >= 0 (0: a point) */
+    const double *obstacles;            /* (n_obstacles, 3) round obstacles (x, y, r) [m; world] */
+    size_t n_obstacles;
+    double margin_m;                    /* [m] clearance kept beyond the bodies (tracker noise, the carrot) */
 } vs_mission;
 
 typedef struct {
@@ -35,9 +41,15 @@ typedef struct {
     double vx_m_s, vy_m_s, w_rad_s;     /* the twist between them [m/s; world], [rad/s] */
     double cost;                        /* the fit's cost [weighted m] */
     int at_goal;
+    int blocked;                        /* obstacles: no path to the goal; the structure heads for the
+                                           closest safe pose (the plan's last waypoint) and stops there */
+    double left_m;                      /* obstacles: distance [m] from the plan's end to the goal */
 } vs_structure;
 
-/* pose_world (n, 3) [m, m, rad; world], read on seen rows only; seen, excluded, judged_apart
+/* With obstacles and a pose or path goal, the advance follows a path planned every frame from the
+ * fitted pose to the goal (the path's last waypoint) around them (vs_plan_structure): the same
+ * pure function of the frame on every agent.
+ * pose_world (n, 3) [m, m, rad; world], read on seen rows only; seen, excluded, judged_apart
  * (n) 0/1; elapsed_s [s] since the mission took effect; dt_s [s] > 0.  Outputs (n each, or
  * (n, 2)): used (seen & !excluded), points_now / points_next [m; world] (every robot's point
  * on the fitted / advanced structure), deviations_m [m] (+inf for unseen robots). */
