@@ -41,6 +41,7 @@ from vsfleet.analysis import (
     agreement,
     deviation_stats,
     fitted_truth,
+    min_gap_m,
     goal_distance,
     truth_frames,
 )
@@ -119,6 +120,7 @@ class RunSummary:
     deviation: list
     agreement: dict
     children_ok: bool
+    min_gap_m: float = math.inf  # bodies and obstacles: the smallest clearance seen (truth; < 0: contact)
 
     def table(self) -> str:
         lines = [f"run {self.scenario}: {self.duration_s:.1f} s, goal reached: {self.reached_goal}, "
@@ -132,6 +134,9 @@ class RunSummary:
         a = self.agreement
         lines.append(f"agreement: {a['identical']}/{a['frames']} frames bit-identical across agents; "
                      f"max difference {a['max_pos_m']:.3g} m, {a['max_th_rad']:.3g} rad")
+        if math.isfinite(self.min_gap_m):
+            lines.append(f"smallest gap between bodies and obstacles (from truth): {100 * self.min_gap_m:.2f} cm"
+                         + (" -- CONTACT" if self.min_gap_m < 0.0 else ""))
         return "\n".join(lines)
 
 
@@ -146,7 +151,7 @@ def summarise(scenario: Scenario, mission: Mission, records, elapsed_s: float, c
     return RunSummary(scenario=scenario.name, duration_s=elapsed_s, reached_goal=d1 <= GOAL_POS_TOL_M,
                       goal_distance_start_m=d0, goal_distance_end_m=d1,
                       deviation=[asdict(s) for s in deviation_stats(fitted)], agreement=asdict(agr),
-                      children_ok=children_ok)
+                      children_ok=children_ok, min_gap_m=min_gap_m(mission, frames))
 
 
 class Children:

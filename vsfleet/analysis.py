@@ -118,3 +118,28 @@ def goal_distance(mission: Mission, pose: Pose2) -> float:
     else:
         return 0.0
     return math.hypot(gx - pose.x, gy - pose.y)
+
+
+def min_gap_m(mission: Mission, frames: Sequence[tuple[float, Mapping[str, TruthMsg]]]) -> float:
+    """The smallest clearance [m] over the frames between two robot bodies, or a body and an obstacle:
+    centre distance less the radii (the mission's ``radius``, 0 for a point robot; an obstacle's r).
+    Negative means contact. +inf when the mission knows no bodies and no obstacles, or no frame has two
+    things to compare."""
+    radii = dict(zip(mission.robot_ids, mission.radii))
+    if not any(radii.values()) and not mission.obstacles:
+        return math.inf
+    obstacles = np.array(mission.obstacles, dtype=float).reshape(-1, 3)
+    gap = math.inf
+    for _, robots in frames:
+        ids = [r for r in robots if r in radii]
+        if not ids:
+            continue
+        xy = np.array([[robots[r].x, robots[r].y] for r in ids])
+        rad = np.array([radii[r] for r in ids])
+        if len(ids) > 1:
+            d = np.hypot(xy[:, None, 0] - xy[None, :, 0], xy[:, None, 1] - xy[None, :, 1]) - rad[:, None] - rad[None, :]
+            gap = min(gap, float(d[np.triu_indices(len(ids), 1)].min()))
+        if len(obstacles):
+            d = np.hypot(xy[:, None, 0] - obstacles[None, :, 0], xy[:, None, 1] - obstacles[None, :, 1])
+            gap = min(gap, float((d - rad[:, None] - obstacles[None, :, 2]).min()))
+    return gap

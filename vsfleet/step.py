@@ -53,6 +53,7 @@ from .frames import Frame
 from .geometry import Pose2
 from .kinematics import integrate_arcs, integrate_arcs_reference
 from .plan import plan_structure_reference
+from .safety import SafetyParams, safety_filter, safety_filter_reference
 from .wire import CmdMsg, EventMsg, HealthMsg, Mission, StateMsg
 
 Controller = Callable  # vsfleet.control: controller(state, ControlInput) -> (state, wheels (n, 2))
@@ -95,7 +96,12 @@ class MissionArrays:
     policy: FailurePolicy          # the failure rule's mode and thresholds
     radii: np.ndarray = field(default_factory=lambda: np.zeros(0))      # (n,) body radii [m] (0: a point)
     obstacles: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (k, 3) (x, y, r) [m; world]
-    core: tuple = ()               # the same, packed for vsfleet._core.structure_step (core_mission)
+    core: tuple = ()
+
+    @property
+    def room(self) -> bool:
+        """The mission knows robot bodies or obstacles: commands go through the safety filter."""
+        return bool(self.radii.any()) or len(self.obstacles) > 0               # the same, packed for vsfleet._core.structure_step (core_mission)
 
 
 _METRIC_CODES = {"l1": 0, "l2": 1, "linf": 2}  # VS_METRIC_* (vsfleet/_core/vs_fit.h)
@@ -461,6 +467,8 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
         point_next_world=s.points_next, wheels_prev_m_s=wheels_prev, dt_s=config.dt_s, age_s=config.age_s,
         envelopes=arrays.envelopes, active=active))
     wheels = np.where(active[:, None], wheels, 0.0)
+    if arrays.room:  # bodies or obstacles: every robot's command through the fleet-wide safety filter
+        wheels = _safe_wheels(arrays, pose, seen, active, wheels, wheels_prev, config)
     vl, vr = float(wheels[own, 0]), float(wheels[own, 1])
     cmd = CmdMsg(t=frame.t, seq=frame.seq, vl=vl, vr=vr, ttl=config.ttl_s)
     state_msg = None
@@ -498,6 +506,32 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
                     last_cmd_t=frame.t, ticks=state.ticks + 1)
     return state, StepOutput(cmd=cmd, state=state_msg, health=health_msg, events=events, notes=tuple(notes),
                              structure=s, wheels_m_s=wheels)
+
+
+@lru_cache(maxsize=8)
+def _safety_params(dt_s: float) -> SafetyParams:
+    return SafetyParams(dt_s=dt_s)
+
+
+def _safe_wheels(arrays: MissionArrays, pose: np.ndarray, seen: np.ndarray, active: np.ndarray, wheels: np.ndarray,
+                 wheels_prev: np.ndarray, config: StepConfig) -> np.ndarray:
+    """Every robot's command through the safety filter (vsfleet.safety): the robots seen are its rows
+    (a seen robot not driven, dropped, is a fixed disk); a robot not seen in this frame is not in it.
+    Every agent filters the same commands the same way, so the failure rule predicts the filtered
+    command each robot's own agent sends."""
+    rows = np.flatnonzero(seen)
+    if rows.size == 0:
+        return wheels
+    env = arrays.envelopes
+    filt = safety_filter_reference if config.reference else safety_filter
+    safe, _info = filt(np.ascontiguousarray(pose[rows]), arrays.radii[rows], np.ascontiguousarray(wheels[rows]),
+                       wheel_base_m=env.wheel_base_m[rows], wheel_speed_max_m_s=env.wheel_speed_max_m_s[rows],
+                       obstacles=arrays.obstacles, active=active[rows],
+                       wheel_accel_max_m_s2=env.wheel_accel_max_m_s2[rows],
+                       wheels_prev_m_s=np.ascontiguousarray(wheels_prev[rows]), params=_safety_params(config.dt_s))
+    out = wheels.copy()
+    out[rows] = safe
+    return out
 
 
 def _evolve(state: AgentState, **changes) -> AgentState:

@@ -1,0 +1,27 @@
+"""Missions in a room as real processes (`vsfleet run`: router, simfleet, tracker and one agent per robot
+over loopback zenoh): the paper triangle around a pillar on its straight path, and three robots started
+in a row 2 cm apart forming the triangle; both reach the goal and no body touches another or the pillar
+(simfleet's truth, recorded from the key space)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from vsfleet.fleetctl.run import run
+
+pytestmark = pytest.mark.integration
+
+ROOT = Path(__file__).resolve().parent.parent.parent
+
+
+@pytest.mark.parametrize("name", ["paper-triangle-obstacle", "tight-row"])
+def test_the_fleet_reaches_its_goal_in_a_room_untouched_and_its_agents_agree(name, tmp_path):
+    summary, _ = run(str(ROOT / "scenarios" / f"{name}.toml"), out_dir=str(tmp_path), progress=False)
+    print(summary.table())
+    assert summary.children_ok
+    assert summary.reached_goal, summary.table()
+    assert summary.min_gap_m > 0.0, summary.table()
+    a = summary.agreement
+    assert a["frames"] > 100 and a["identical"] == a["frames"], summary.table()
