@@ -495,15 +495,68 @@ def run_floor(plans: list[tuple[str, float | None, int]], log=print, router_proc
     return out
 
 
+def compare(sizes: list[int], rate_hz: float, frames: int, out: Path | None = None, log=print) -> list[dict]:
+    """For each N, the trivial fleet then vsfleet's, back to back through the same kind of router: missed
+    pairs, latency p50/p99/max and their ratio to the trivial fleet's, CPU per agent tick, agreement,
+    start-up, total RSS. With ``out``: a JSON of the rows and a plot of latency against N beside it."""
+    import json  # noqa: PLC0415 - the comparison's own outputs
+
+    rows = []
+    for n in sizes:
+        runs = {kind: run_loop(n, rate_hz, frames, log=log, label=f"{kind} N={n}", agent_kind=kind)
+                for kind in ("trivial", "vsfleet")}
+        row = {"n": n}
+        for kind, r in runs.items():
+            p = percentiles_s(r.latency_s) if r.latency_s.size else {"p50": math.nan, "p99": math.nan, "max": math.nan}
+            row[kind] = {"missed": r.missed, "pairs": r.frames * n, "p50_ms": 1e3 * p["p50"], "p99_ms": 1e3 * p["p99"],
+                         "max_ms": 1e3 * p["max"], "cpu_ms_per_tick": 1e3 * float(r.agent_cpu_s_per_tick.mean()),
+                         "agreed": r.agreed_frames, "all_ran": r.all_ran_frames, "startup_s": r.startup_s,
+                         "rss_mib_total": float(r.agent_rss_mib.sum()), "others_cores": r.others_cores}
+        t, v = row["trivial"], row["vsfleet"]
+        row["ratio_p50"], row["ratio_p99"] = v["p50_ms"] / t["p50_ms"], v["p99_ms"] / t["p99_ms"]
+        log(f"[compare] N={n}: vsfleet missed {v['missed']}/{v['pairs']}, p50 {v['p50_ms']:.1f} ms "
+            f"({row['ratio_p50']:.2f}x the trivial fleet's {t['p50_ms']:.1f}), p99 {v['p99_ms']:.1f} ms "
+            f"({row['ratio_p99']:.2f}x {t['p99_ms']:.1f}), cpu/tick {v['cpu_ms_per_tick']:.2f} vs "
+            f"{t['cpu_ms_per_tick']:.2f} ms, agree {v['agreed']}/{v['all_ran']}, start-up {v['startup_s']:.1f} s")
+        rows.append(row)
+    if out is not None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.with_suffix(".json").write_text(json.dumps(rows, indent=1))
+        import matplotlib  # noqa: PLC0415
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt  # noqa: PLC0415
+        fig, ax = plt.subplots(figsize=(6, 4))
+        ns = [r["n"] for r in rows]
+        for kind, colour in (("trivial", "tab:gray"), ("vsfleet", "tab:blue")):
+            ax.plot(ns, [r[kind]["p50_ms"] for r in rows], "o-", color=colour, label=f"{kind} p50")
+            ax.plot(ns, [r[kind]["p99_ms"] for r in rows], "s--", color=colour, label=f"{kind} p99")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("agents N (30 Hz, one router)")
+        ax.set_ylabel("frame publish -> command [ms]")
+        ax.set_title("vsfleet agents against trivial agents, back to back")
+        ax.legend()
+        ax.grid(True, which="both", alpha=0.3)
+        fig.tight_layout()
+        fig.savefig(out.with_suffix(".png"), dpi=110)
+        plt.close(fig)
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description="one loop-latency run (development)")
     p.add_argument("--robots", type=int, default=3)
     p.add_argument("--rate", type=float, default=30.0)
     p.add_argument("--frames", type=int, default=300)
     p.add_argument("--floor", action="store_true", help="also measure the zenoh floor")
+    p.add_argument("--compare", default=None, help="N,N,...: the trivial fleet and vsfleet's back to back at each N")
+    p.add_argument("--out", default=None, help="with --compare: write OUT.json and OUT.png")
     p.add_argument("--agent", choices=("vsfleet", "trivial", "trivial-express", "trivial-batched"), default="vsfleet",
                    help="the agents: vsfleet's own, or the trivial floor (bench/trivial_agent.py)")
     a = p.parse_args(argv)
+    if a.compare:
+        compare([int(x) for x in a.compare.split(",")], a.rate, a.frames, Path(a.out) if a.out else None)
+        return 0
     if a.floor:
         for f in run_floor([("back to back", None, 2000), ("30 Hz", 30.0, 300)]):
             print(f.label, {k: round(v * 1e3, 3) for k, v in percentiles_s(f.rtt_s).items()}, "lost", f.lost)
