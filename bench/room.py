@@ -63,11 +63,44 @@ def evaluate(seed: int, duration_s: float) -> dict:
             "dev_near_m": float(np.mean(near_dev)) if near_dev else math.nan, "blocked": blocked, "wall_s": wall}
 
 
+def picture(path: str, scenario_path: str, seed: int = 1) -> None:
+    """One run drawn: every robot's path, its body at the start and at the end, the obstacles."""
+    import matplotlib  # noqa: PLC0415
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    from vsfleet.zglue.scenario_file import load_scenario  # noqa: PLC0415
+    scenario = load_scenario(scenario_path)
+    run = run_offline(scenario, 90.0, seed=seed)
+    radii = dict(zip(scenario.mission.robot_ids, scenario.mission.radii))
+    fig, ax = plt.subplots(figsize=(6, 5))
+    for x, y, r in scenario.mission.obstacles:
+        ax.add_patch(plt.Circle((x, y), r, color="0.6"))
+    for i, robot in enumerate(run.robots):
+        xy = run.positions_m[:, i]
+        line, = ax.plot(xy[:, 0], xy[:, 1], lw=1, label=robot)
+        for k, style in ((0, ":"), (-1, "-")):
+            ax.add_patch(plt.Circle(tuple(xy[k]), radii[robot], fill=False, ls=style, color=line.get_color()))
+    centre = np.array([[p.x, p.y] for _, p in run.trace])
+    ax.plot(centre[:, 0], centre[:, 1], "k--", lw=0.8, label="structure origin")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m; world]")
+    ax.set_ylabel("y [m; world]")
+    ax.set_title(f"{scenario.name}: goal at {run.t_goal_s:.1f} s (dotted: start, solid: end)")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenarios", type=int, default=200)
     ap.add_argument("--seconds", type=float, default=90.0, help="simulated seconds per scenario at most")
+    ap.add_argument("--picture", default=None, help="also draw scenarios/paper-triangle-obstacle.toml's run here")
     a = ap.parse_args(argv)
+    if a.picture:
+        picture(a.picture, "scenarios/paper-triangle-obstacle.toml")
     rows, t0 = [], time.perf_counter()
     for seed in range(a.scenarios):
         r = evaluate(seed, a.seconds)
