@@ -35,10 +35,29 @@ def trig_records(seed: int = 11) -> list[tuple[str, list[float]]]:
     return [("sin", angles), ("cos", angles), ("atan2", pairs), ("wrap_angle", angles)]
 
 
+def safety_records(seed: int = 5, count: int = 120) -> list[tuple[str, list[float]]]:
+    """The safety filter on random crowded fleets (2-20 robots of 0.05 m, 0-4 obstacles), random nominal and
+    previous commands, some robots inactive, both control points (offset 0 and 0.03 m)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for k in range(count):
+        n, m = int(rng.integers(2, 21)), int(rng.integers(0, 5))
+        xy = rng.uniform(-0.4, 0.4, (n, 2)) * np.sqrt(n)
+        pose = np.c_[xy, rng.uniform(-math.pi, math.pi, n)]
+        obstacles = np.c_[rng.uniform(-1.0, 1.0, (m, 2)) * np.sqrt(n), rng.uniform(0.05, 0.3, m)]
+        wheels = rng.uniform(-0.3, 0.3, (n, 2))
+        prev = np.clip(wheels + rng.normal(0.0, 0.02, (n, 2)), -0.3, 0.3)
+        active = (rng.uniform(size=n) > 0.15).astype(float)
+        out.append(("safety_filter", [float(n), float(m), 0.015, 5.0, 0.03 * (k % 2), 1.0 / 30.0, *pose.ravel(),
+                                      *np.full(n, 0.05), *active, *np.full(n, 0.12), *np.full(n, 0.3),
+                                      *np.full(n, 0.8), *prev.ravel(), *obstacles.ravel(), *wheels.ravel()]))
+    return out
+
+
 def records() -> list[tuple[str, list[float]]]:
     """Every recorded call: (entry, flat inputs)."""
     from step_core_records import step_records  # noqa: PLC0415 - the step's records (tests/)
-    return trig_records() + step_records()
+    return trig_records() + step_records() + safety_records()
 
 
 def line(entry: str, inputs, outputs) -> str:

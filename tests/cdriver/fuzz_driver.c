@@ -63,6 +63,26 @@ static long structure_step_input(double *in)
     return len;
 }
 
+/* safety_filter (vs_golden.c's packing) with a valid header and hostile contents. */
+static long safety_filter_input(double *in)
+{
+    long n = (long)(next() % 25), k = (long)(next() % 5), len = 0;
+    in[len++] = (double)n;
+    in[len++] = (double)k;
+    in[len++] = (next() % 8) ? 0.015 : hostile(in, len, in, len);
+    in[len++] = (next() % 8) ? 5.0 : hostile(in, len, in, len);
+    in[len++] = (next() % 8) ? 0.03 * (double)(next() & 1) : hostile(in, len, in, len);
+    in[len++] = (next() % 8) ? 1.0 / 30.0 : hostile(in, len, in, len);
+    for (long i = 0; i < 3 * n; i++, len++) in[len] = hostile(in, len, in, len);                       /* poses */
+    for (long i = 0; i < n; i++, len++) in[len] = (next() % 8) ? 0.05 : hostile(in, len, in, len);     /* radii */
+    for (long i = 0; i < n; i++, len++) in[len] = (double)(next() & 1);                               /* active */
+    for (long i = 0; i < 3 * n; i++, len++) in[len] = (next() % 8) ? 0.1 + uniform() : hostile(in, len, in, len);
+    for (long i = 0; i < 2 * n; i++, len++) in[len] = (next() % 4) ? uniform() - 0.5 : hostile(in, len, in, len);
+    for (long i = 0; i < 3 * k; i++, len++) in[len] = (i % 3 == 2 && next() % 8) ? 0.05 + uniform() : hostile(in, len, in, len);
+    for (long i = 0; i < 2 * n; i++, len++) in[len] = (next() % 4) ? uniform() - 0.5 : hostile(in, len, in, len);
+    return len;
+}
+
 int main(int argc, char **argv)
 {
     long iters = argc > 1 ? atol(argv[1]) : 2000;
@@ -78,6 +98,7 @@ int main(int argc, char **argv)
             if (it % 50 == 0) n = 0;
             for (long i = 0; i < n; i++) in[i] = hostile(in, i, in, i);
             if (strcmp(all[e].name, "structure_step") == 0 && it % 10) n = structure_step_input(in);
+            if (strcmp(all[e].name, "safety_filter") == 0 && it % 10) n = safety_filter_input(in);
             long got = all[e].run(in, n, out, CAP);
             if (got < 0) refused++; else ran++;
         }

@@ -8,6 +8,7 @@
 #include "vscore.h"
 #include "vs_golden.h"
 #include "vs_step.h"
+#include "vs_safety.h"
 
 static long g_sin(const double *in, long n, double *out, long cap)
 {
@@ -92,7 +93,30 @@ static long g_structure_step(const double *in, long n_in, double *out, long cap)
     return 14 + 6 * n;
 }
 
+/* safety_filter: n, k obstacles, margin, gamma, offset, dt, 3n poses, n radii, n active, n wheel base,
+ * n speed max, n accel max, 2n previous wheels, 3k obstacles, 2n nominal wheels
+ * -> 2n safe wheels, then constraints, modified, softened, accel relaxed, stopped */
+static long g_safety_filter(const double *in, long n_in, double *out, long cap)
+{
+    if (n_in < 6) return -1;
+    long n = count_of(in[0], 0, 4096), k = count_of(in[1], 0, 256);
+    if (n < 0 || k < 0 || n_in != 6 + 3 * n + n + n + n + n + n + 2 * n + 3 * k + 2 * n || cap < 2 * n + 5) return -1;
+    vs_safety_params prm = {in[2], in[3], in[4], in[5]};
+    const double *pose = in + 6, *radius = pose + 3 * n, *act = radius + n, *wb = act + n, *vmax = wb + n,
+                 *amax = vmax + n, *prev = amax + n, *obs = prev + 2 * n, *nominal = obs + 3 * k;
+    unsigned char active[4096];
+    for (long i = 0; i < n; i++) active[i] = act[i] != 0.0;
+    vs_safety_stats st;
+    if (vs_safety_filter(&prm, (size_t)n, pose, radius, active, wb, vmax, amax, prev, (size_t)k, obs, nominal, out,
+                         &st) != VS_OK)
+        return -1;
+    double counts[5] = {st.n_constraints, st.n_modified, st.n_softened, st.n_accel_relaxed, st.n_stopped};
+    memcpy(out + 2 * n, counts, sizeof counts);
+    return 2 * n + 5;
+}
+
 static const golden_entry entries[] = {
+    {"safety_filter", g_safety_filter},
     {"structure_step", g_structure_step},
     {"sin", g_sin},
     {"cos", g_cos},
