@@ -358,8 +358,22 @@ def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFla
         cmd_pub = session.declare_publisher(keys.cmd(robot), **COMMAND_QOS)
         state_pub = session.declare_publisher(keys.state(robot), **TELEMETRY_QOS)
         event_pub = session.declare_publisher(keys.event(robot), **RELIABLE_QOS)
+        # events are reliable (blocking) puts: published by the main loop, never from a zenoh thread
+        events_out: queue.SimpleQueue = queue.SimpleQueue()
+
+        def queue_event(payload: bytes) -> None:
+            events_out.put(payload)
+            agent.wake.set()
+
+        def flush_events() -> None:
+            while True:
+                try:
+                    event_pub.put(events_out.get_nowait())
+                except queue.Empty:
+                    return
+
         agent = Agent(robot, keys, cmd_pub.put, state_pub.put, dt_s=dt_s, ttl_s=ttl_s,
-                      deadline_s=deadline_s, put_event=event_pub.put)
+                      deadline_s=deadline_s, put_event=queue_event)
         token = session.liveliness().declare_token(keys.alive("agent", robot))  # keep referenced
 
         own_mission, own_health = keys.peer_mission(robot), keys.peer_health(robot)
@@ -378,19 +392,28 @@ def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFla
         # the zenoh thread that delivered it whenever that thread can have the agent at once and no
         # mission or reply is waiting: no hand-off to the main loop, no second thread woken, which
         # was most of an agent's CPU beyond the step. Otherwise the main loop runs it.
+        # An error a frame raises in a zenoh thread ends the agent as it would in the main loop (crashed
+        # holds it for the main loop to raise), and no frame runs once the stop command is out (stopped).
         work = threading.Lock()
+        crashed: list[BaseException] = []
+        stopped = [False]
 
         def on_frame(sample: zenoh.Sample) -> None:
             key, payload = str(sample.key_expr), sample.payload.to_bytes()
             if inbox.empty() and work.acquire(blocking=False):
                 try:
+                    if stopped[0] or crashed:
+                        return
                     agent.on_frame(key, payload, wake=False)
                     agent.poll()
                     if agent.merger.time_to_deadline(agent.clock()) is not None:
                         agent.wake.set()  # a frame waits for other sources: the main loop keeps its deadline
+                except Exception as exc:  # noqa: BLE001 - handed to the main loop, which ends the agent
+                    crashed.append(exc)
+                    agent.wake.set()
                 finally:
                     work.release()
-            else:
+            elif not stopped[0]:
                 agent.on_frame(key, payload)
 
         subs = [
@@ -422,9 +445,12 @@ def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFla
                     fetcher = threading.Thread(target=fetch, args=(
                         session, (keys.peer_health(),), "health", inbox, 1.0, agent.wake), daemon=True)
                     fetcher.start()
-                wait = agent.merger.time_to_deadline(now)
+                with work:  # the merger's deadline is the agent's state too
+                    wait = agent.merger.time_to_deadline(now)
                 agent.wake.wait(0.05 if wait is None else max(wait, 1e-4))
                 with work:
+                    if crashed:
+                        raise crashed[0]
                     while True:  # missions and replies first: a frame may need the mission just arrived
                         try:
                             kind, key, payload = inbox.get_nowait()
@@ -432,10 +458,13 @@ def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFla
                             break
                         agent.on_message(kind, key, payload)
                     agent.poll()
+                flush_events()
         finally:
-            subs[1].undeclare()  # no frame runs after the stop command
-            with work:
+            subs[1].undeclare()
+            with work:  # no frame runs after the stop command, even in a callback undeclare did not wait for
+                stopped[0] = True
                 cmd_pub.put(agent.stop_command())
+            flush_events()
             log.info("agent %s stopping after %d ticks, %d rejected (%d on overflow), %d frames replaced "
                      "before they ran, %d stale frames", robot, agent.ticks, agent.rejections.count,
                      overflow[0], agent.frames_replaced, agent.state.stale)

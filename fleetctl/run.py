@@ -235,9 +235,13 @@ def tracker_args(scenario: Scenario, scenario_path: str, kind: str | None, camer
     # the tracker's own command calibrates the synthetic camera on its rendered references (a tool
     # starts programs, it does not import them): its one-line error (no OpenCV, no [sim_camera],
     # a robot no marker maps to) is this run's
-    done = subprocess.run(child_command("tracker", "calibrate", "--camera", str(camera), "--source", "render",
-                                        "--robots", ",".join(scenario.mission.robot_ids), "--out", str(calibration)),
-                          capture_output=True, text=True, stdin=subprocess.DEVNULL, timeout=120)
+    try:
+        done = subprocess.run(child_command("tracker", "calibrate", "--camera", str(camera), "--source", "render",
+                                            "--robots", ",".join(scenario.mission.robot_ids), "--out",
+                                            str(calibration)),
+                              capture_output=True, text=True, stdin=subprocess.DEVNULL, timeout=120)
+    except subprocess.TimeoutExpired:
+        raise ValueError("--tracker camera: the calibration took over 120 s") from None
     if done.returncode != 0:
         lines = [line for line in done.stderr.splitlines() if line.strip()]
         raise ValueError(f"--tracker camera: {lines[-1] if lines else f'calibration failed ({done.returncode})'}")
