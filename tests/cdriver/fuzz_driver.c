@@ -43,6 +43,7 @@ static long structure_step_input(double *in)
     long n = (long)(next() % 41), k = 1 + (long)(next() % 3);
     if (n == 0 && (next() & 1)) n = 1;
     long len = 0;
+    double v;   /* each value is drawn before in[len++] stores it: len is read once, sequenced */
     in[len++] = (double)n;
     in[len++] = (double)(next() % 3);
     in[len++] = (double)(next() % 3);
@@ -53,10 +54,13 @@ static long structure_step_input(double *in)
     for (long i = 0; i < 3 * n; i++, len++) in[len] = (next() % 8) ? 0.05 + uniform() : hostile(in, len, in, len);
     for (long i = 0; i < 3 * n; i++, len++) in[len] = hostile(in, len, in, len);       /* poses */
     for (long i = 0; i < 3 * n; i++, len++) in[len] = (next() % 16) ? (double)(next() & 1) : hostile(in, len, in, len);
-    in[len++] = (next() % 8) ? uniform() * 10.0 : hostile(in, len, in, len);           /* elapsed */
-    in[len++] = (next() % 8) ? 1.0 / 30.0 : hostile(in, len, in, len);                 /* dt */
+    v = (next() % 8) ? uniform() * 10.0 : hostile(in, len, in, len); /* elapsed */
+    in[len++] = v;
+    v = (next() % 8) ? 1.0 / 30.0 : hostile(in, len, in, len); /* dt */
+    in[len++] = v;
     long m = (next() % 3) ? (long)(next() % 7) : 0;
-    in[len++] = (next() % 8) ? 0.01 : hostile(in, len, in, len);                       /* margin */
+    v = (next() % 8) ? 0.01 : hostile(in, len, in, len); /* margin */
+    in[len++] = v;
     in[len++] = (double)m;
     for (long i = 0; i < n; i++, len++) in[len] = (next() % 8) ? 0.05 * uniform() : hostile(in, len, in, len);
     for (long i = 0; i < 3 * m; i++, len++) in[len] = (i % 3 == 2 && next() % 8) ? 0.05 + uniform() : hostile(in, len, in, len);
@@ -67,12 +71,17 @@ static long structure_step_input(double *in)
 static long safety_filter_input(double *in)
 {
     long n = (long)(next() % 25), k = (long)(next() % 5), len = 0;
+    double v;   /* as above: draw, then store and increment */
     in[len++] = (double)n;
     in[len++] = (double)k;
-    in[len++] = (next() % 8) ? 0.015 : hostile(in, len, in, len);
-    in[len++] = (next() % 8) ? 5.0 : hostile(in, len, in, len);
-    in[len++] = (next() % 8) ? 0.03 * (double)(next() & 1) : hostile(in, len, in, len);
-    in[len++] = (next() % 8) ? 1.0 / 30.0 : hostile(in, len, in, len);
+    v = (next() % 8) ? 0.015 : hostile(in, len, in, len);
+    in[len++] = v;
+    v = (next() % 8) ? 5.0 : hostile(in, len, in, len);
+    in[len++] = v;
+    v = (next() % 8) ? 0.03 * (double)(next() & 1) : hostile(in, len, in, len);
+    in[len++] = v;
+    v = (next() % 8) ? 1.0 / 30.0 : hostile(in, len, in, len);
+    in[len++] = v;
     for (long i = 0; i < 3 * n; i++, len++) in[len] = hostile(in, len, in, len);                       /* poses */
     for (long i = 0; i < n; i++, len++) in[len] = (next() % 8) ? 0.05 : hostile(in, len, in, len);     /* radii */
     for (long i = 0; i < n; i++, len++) in[len] = (double)(next() & 1);                               /* active */
