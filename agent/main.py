@@ -15,6 +15,7 @@ one not yet run (counted). On any exit it publishes a zero command.
 from __future__ import annotations
 
 import argparse
+import collections
 import logging
 import queue
 import threading
@@ -66,6 +67,7 @@ DEFAULT_TTL_S = 0.3
 FETCH_PERIOD_S = 1.0  # without a mission, ask again this often
 DEFAULT_DT_S = 1.0 / 30.0
 INBOX_MAX = 256       # missions and query replies (frames go to the latest-frame slot)
+DECISIONS_KEPT = 1000  # the newest failure-policy decisions an agent keeps (Agent.decisions)
 
 
 class Agent:
@@ -91,7 +93,10 @@ class Agent:
         self.missions = MissionBook()
         self.merger = FrameMerger((), dt_s if deadline_s is None else deadline_s, max_age_s)
         self.rejections = Rejections(log)
-        self.decisions: list[Decision] = []  # every failure-policy decision, in order (offline runs, tests)
+        # the newest DECISIONS_KEPT decisions and blocked/unblocked events, in order (a look at what the agent
+        # decided lately): bounded, as the agent runs for ever; every one is published through put_event,
+        # where a caller that needs all of them collects them (simfleet.offline does)
+        self.decisions: collections.deque[Decision] = collections.deque(maxlen=DECISIONS_KEPT)
         self.mission_payload: bytes | None = None  # answers mission queries; one assignment per change
         self._health_msg: HealthMsg | None = None   # answers health queries; swapped in after each tick
         self._health_encoded: tuple[HealthMsg | None, bytes | None] = (None, None)

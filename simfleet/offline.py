@@ -19,11 +19,12 @@ import numpy as np
 
 from vsfleet.analysis import goal_distance
 from vsfleet.control import DEFAULT_CONTROLLER, make_controller
+from vsfleet.failure import Decision
 from vsfleet.fit import fit_structure
 from vsfleet.geometry import Pose2
 from vsfleet.scenario import Scenario
 from vsfleet.step import mission_template
-from vsfleet.wire import FrameMsg, Keys, decode_cmd, encode_frame, encode_mission
+from vsfleet.wire import FrameMsg, Keys, decode_cmd, decode_event, encode_frame, encode_mission
 
 from vsfleet.agent.main import Agent
 
@@ -85,14 +86,17 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
     keys = Keys(scenario.fleet)
     sent: dict[str, tuple[float, float]] = {}
     agents = {}
+    # every decision (and blocked/unblocked event) each agent publishes, as the fleet's event/<robot> carries
+    # it: the agent itself keeps only its newest ones
+    decisions: dict[str, list[Decision]] = {r: [] for r in robots}
     # the agents share the structures they compute: an agent whose frame, mission and failure masks equal
     # another's takes that agent's structure (the same pure function of the same inputs) instead of
     # fitting again; everything else (controller, failure rule, state) each agent computes on its own
     shared: dict | None = {} if share_structures else None
     for r in robots:  # one agent per robot, each with its own state, as in the fleet
         agents[r] = Agent(r, keys, put_cmd=lambda b, r=r: sent.__setitem__(r, _wheels(b)),
-                          put_state=lambda b: None, dt_s=dt,
-                          clock=lambda: t - tracker_clock_ahead_s, controller=ctrl,
+                          put_state=lambda b: None, put_event=lambda b, r=r: decisions[r].append(_decision(b)),
+                          dt_s=dt, clock=lambda: t - tracker_clock_ahead_s, controller=ctrl,
                           command_age_s=latency_frames * dt, shared_structures=shared, reference=reference)
         agents[r].on_mission(keys.mission, encode_mission(mission))
     for k in range(int(round(duration_s / dt))):
@@ -125,7 +129,7 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
     return OfflineRun(deviations_m=np.array(devs), robots=ids, t_goal_s=t_goal,
                       wheel_tv_m_s2=tv / len(robots) / max(span, 1e-9), trace=tuple(trace),
                       final_poses={r: s.pose for r, s in states.items()},
-                      decisions={r: list(a.decisions) for r, a in agents.items()},
+                      decisions=decisions,
                       positions_m=np.array(positions), commands_m_s=np.array(sent_log, dtype=float))
 
 
@@ -133,3 +137,7 @@ def _wheels(payload: bytes) -> tuple[float, float]:
     cmd = decode_cmd(payload)
     return (cmd.vl, cmd.vr)
 
+
+def _decision(payload: bytes) -> Decision:
+    ev = decode_event(payload)
+    return Decision(ev.t, ev.robot, ev.kind, ev.dev)

@@ -12,12 +12,14 @@ from vsfleet.control import DEFAULT_CONTROLLER, make_controller
 from vsfleet.failure import Health
 from vsfleet.step import SyncPhase
 from vsfleet.wire import (
+    EventMsg,
     HealthMsg,
     Keys,
     Mission,
     FrameMsg,
     RobotSpec,
     decode_cmd,
+    decode_event,
     decode_health,
     decode_state,
     encode,
@@ -387,3 +389,23 @@ def test_under_a_flood_the_slot_keeps_only_the_newest_frame_and_counts_the_ones_
     ran = agent.poll()
     assert ran.seq == 1001 and set(ran.fresh) == {"r1", "r2"} and not ran.complete
     assert agent.frames_replaced == 999
+
+
+def test_an_agent_that_runs_for_ever_keeps_only_its_newest_decisions_and_publishes_every_one(monkeypatch):
+    """Agent.decisions is bounded (DECISIONS_KEPT, the newest); every decision still goes out as an event."""
+    events = []
+    clock = Clock(100.0)
+    agent = Agent("r1", KEYS, lambda b: None, lambda b: None, clock=clock, put_event=events.append)
+    agent.on_message("mission", KEYS.mission, encode_mission(MISSION))
+    n = 3 * agent_main.DECISIONS_KEPT + 7
+
+    def deciding_step(state, mission, frame, now, config):  # one "fail" per frame, as a flapping robot's
+        return state, step_mod.StepOutput(events=(EventMsg(t=frame.t, seq=frame.seq, robot="r2", kind="fail",
+                                                           dev=0.1, by="r1"),))
+
+    monkeypatch.setattr(agent_main, "agent_step", deciding_step)
+    for k in range(1, n + 1):
+        assert frame(agent, clock, k, 100.0 + k / 30.0, POSES) is not None
+    assert len(events) == n                                       # every decision published
+    assert len(agent.decisions) == agent_main.DECISIONS_KEPT      # the agent keeps the newest only
+    assert [d.t for d in agent.decisions] == [decode_event(e).t for e in events[-agent_main.DECISIONS_KEPT:]]
