@@ -54,7 +54,10 @@ import numpy as np
 
 from . import _core
 from .errors import VsfleetValueError
-from .wire import EVENT_KINDS as _EVENT_KINDS
+
+# the rule's decisions, in the order of their codes in vs_failure.h (VS_DECISION_*); vsfleet.wire's
+# EVENT_KINDS begins with them
+DECISION_KINDS = ("fail", "drop", "rejoin", "recover")
 
 
 @dataclass(frozen=True)
@@ -247,7 +250,7 @@ def failure_step(policy: FailurePolicy, state: FailureState, robots: Sequence[st
                               state.last_expected, state.window_t, state.window_nm, state.head,
                               state.in_window, state.sums_nm)]
     made = _core.failure_step(policy, t, seen, fresh, xy, dev, exp_m, step_s, max_gap_s, *new)
-    decisions = [Decision(t, robots[i], _EVENT_KINDS[k], d) for i, k, d in made] if made else []
+    decisions = [Decision(t, robots[i], DECISION_KINDS[k], d) for i, k, d in made] if made else []
     # FailureState(*new) without the frozen dataclass's __init__ (eleven object.__setattr__: 1.2 us of a
     # 7 us call at n = 3); the fields are the same
     out = object.__new__(FailureState)

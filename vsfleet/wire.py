@@ -25,6 +25,7 @@ import numpy as np
 
 from .control import CONTROLLERS
 from .errors import VsfleetValueError
+from .failure import DECISION_KINDS, FailurePolicy
 from .fit import METRICS  # noqa: F401 (a mission's metric: one of the fit's; re-exported)
 
 NAME_RE = re.compile(r"^[A-Za-z0-9_-]+$")
@@ -356,10 +357,10 @@ class FaultMsg:
     duration: float
 
 
-# the failure rule's decisions (in vs_failure.h's code order), then the structure's own: blocked (no path
-# to the goal around the obstacles: it stops at the closest safe pose; dev = how far that is from the
-# goal [m]) and unblocked (a path is open again)
-EVENT_KINDS = ("fail", "drop", "rejoin", "recover", "blocked", "unblocked")
+# the failure rule's decisions (vsfleet.failure.DECISION_KINDS, in vs_failure.h's code order), then the
+# structure's own: blocked (no path to the goal around the obstacles: it stops at the closest safe pose;
+# dev = how far that is from the goal [m]) and unblocked (a path is open again)
+EVENT_KINDS = (*DECISION_KINDS, "blocked", "unblocked")
 
 
 @dataclass(frozen=True)
@@ -653,8 +654,6 @@ ROBOT_SPEC_FIELDS = frozenset(f.name for f in fields(RobotSpec))
 
 def failure_names() -> tuple[str, ...]:
     """The thresholds a mission's ``failure`` may set: every FailurePolicy field but ``mode`` (on_failure)."""
-    from .failure import FailurePolicy  # here, not at the top: failure.py may come to import this module
-
     return tuple(f.name for f in fields(FailurePolicy) if f.name != "mode")
 
 
@@ -686,8 +685,6 @@ def _named_numbers(v: Any, what: str, known: tuple[str, ...]) -> tuple[tuple[str
 
 def failure_from_dict(v: Any) -> tuple[tuple[str, float], ...]:
     """A mission's ``failure`` map {threshold: value} as sorted pairs, checked as FailurePolicy checks them."""
-    from .failure import FailurePolicy
-
     pairs = _named_numbers(v, "failure", failure_names())
     try:
         FailurePolicy(**dict(pairs))
