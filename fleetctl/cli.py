@@ -13,6 +13,8 @@ import sys
 import threading
 import traceback
 
+# command -> (module, what it is). The one tool module that names programs: `vsfleet agent` loads the
+# agent by name and runs its main as the agent's own process (tests/test_purity.py, docs/architecture.md)
 COMMANDS = {
     "agent": ("vsfleet.agent.main", "one agent per robot"),
     "sim": ("vsfleet.simfleet.main", "the simulated fleet"),

@@ -53,9 +53,14 @@ MAY_IMPORT = {
     "tracker": {"core", "zglue", "tracker"},
     "fleetctl": {"core", "zglue", "fleetctl"},  # tools start programs as processes, never import them
 }
-# the one program that composes another: simfleet.offline runs the agents' own code in one process
-# (offline runs, bench and tests), without zenoh
-EXCEPTIONS = {("simfleet/offline.py", "agent")}
+EXCEPTIONS = {
+    # the one program that composes another: simfleet.offline runs the agents' own code in one process
+    # (offline runs, bench and tests), without zenoh
+    ("simfleet/offline.py", "agent"),
+    # the `vsfleet` command's dispatch table: `vsfleet agent` loads vsfleet.agent.main by name and runs its
+    # main as the process the command is (the program's own, started by whoever ran `vsfleet agent`)
+    ("fleetctl/cli.py", "agent"), ("fleetctl/cli.py", "simfleet"), ("fleetctl/cli.py", "tracker"),
+}
 
 
 def module_name(path: Path) -> str:
@@ -74,13 +79,30 @@ def room_of(module: str) -> str | None:
     return parts[1] if len(parts) > 1 and parts[1] in ROOMS and parts[1] != "core" else "core"
 
 
+DYNAMIC = {"import_module", "__import__", "find_spec", "run_module"}  # importlib's, runpy's: import by a name
+
+
 def vsfleet_imports(path: Path, text: str | None = None) -> set[str]:
-    """Every vsfleet.* module ``path`` (or ``text`` as if it were there) imports, relative imports resolved."""
+    """Every vsfleet.* module ``path`` (or ``text`` as if it were there) imports, relative imports resolved.
+
+    Also an import by name (importlib.import_module and the like): of a string literal, that module; of
+    a computed name (a dispatch table), every vsfleet.* module any string literal in the file names."""
     name = module_name(path)
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
     out = set()
-    for node in ast.walk(ast.parse(path.read_text() if text is None else text)):
-        if isinstance(node, ast.Import):
+    tree = ast.parse(path.read_text() if text is None else text)
+    names = {n.value for n in ast.walk(tree) if isinstance(n, ast.Constant) and isinstance(n.value, str)
+             and n.value.split(".")[0] == "vsfleet" and all(part.isidentifier() for part in n.value.split("."))}
+    for node in ast.walk(tree):
+        called = getattr(node, "func", None)
+        called = getattr(called, "attr", getattr(called, "id", None))
+        if isinstance(node, ast.Call) and node.args and called in DYNAMIC:
+            first = node.args[0]
+            if isinstance(first, ast.Constant) and isinstance(first.value, str):
+                out.add(first.value)
+            else:
+                out |= names
+        elif isinstance(node, ast.Import):
             out |= {a.name for a in node.names}
         elif isinstance(node, ast.ImportFrom):
             base = package.split(".")
@@ -142,3 +164,16 @@ def test_the_import_rules_catch_a_program_importing_a_tool():
                                "def f():\n    from vsfleet.fleetctl import run\n    from ..fleetctl import plot\n")
     assert {"vsfleet.fleetctl.run", "vsfleet.fleetctl.plot"} <= imported
     assert {room_of(m) for m in imported} - MAY_IMPORT["agent"] == {"fleetctl"}
+
+
+def test_the_import_rules_catch_a_tool_importing_a_program_by_name():
+    """importlib counts: a literal name, and a table of names loaded by a computed one (the only such table,
+    the `vsfleet` command's, is an exception above); a child process's command line is no import."""
+    probe = ROOT / "fleetctl" / "probe.py"
+    assert vsfleet_imports(probe, "import importlib\ndef f():\n    importlib.import_module('vsfleet.agent.main')\n") \
+        == {"vsfleet.agent.main"}
+    table = "from importlib import import_module\nT = {'a': 'vsfleet.tracker.sim'}\ndef f(k):\n    import_module(T[k])"
+    assert vsfleet_imports(probe, table) == {"vsfleet.tracker.sim"}
+    assert vsfleet_imports(probe, "import sys\nCMD = [sys.executable, '-m', 'vsfleet.agent.main']\n") == set()
+    cli = {m for m in vsfleet_imports(ROOT / "fleetctl" / "cli.py") if room_of(m) not in MAY_IMPORT["fleetctl"]}
+    assert {room_of(m) for m in cli} == {"agent", "simfleet", "tracker"}  # seen, and allowed as the table
