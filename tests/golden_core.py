@@ -57,7 +57,7 @@ def safety_records(seed: int = 5, count: int = 120) -> list[tuple[str, list[floa
 def records() -> list[tuple[str, list[float]]]:
     """Every recorded call: (entry, flat inputs)."""
     from step_core_records import step_records  # noqa: PLC0415 - the step's records (tests/)
-    return trig_records() + step_records() + safety_records()
+    return trig_records() + step_records() + safety_records() + field_records()
 
 
 def line(entry: str, inputs, outputs) -> str:
@@ -77,6 +77,23 @@ def read(path: Path = PATH) -> list[tuple[str, list[float], list[float]]]:
         n_out = int(f[2 + n_in])
         outs = [float.fromhex(v) for v in f[3 + n_in:3 + n_in + n_out]]
         out.append((f[0], ins, outs))
+    return out
+
+
+def field_records(seed: int = 17, count: int = 24) -> list[tuple[str, list[float]]]:
+    """The room's navigation function (vs_field_build) on random rooms: 2-10 robots, 0-12 obstacles, coarse
+    lattices (so that qemu replays them in seconds); the record keeps the lattice and a hash of every cost."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(count):
+        n, m = int(rng.integers(2, 11)), int(rng.integers(0, 13))
+        tpl = rng.uniform(-0.5, 0.5, (n, 2))
+        radii = rng.uniform(0.0, 0.1, n)
+        obs = np.c_[rng.uniform(-2.0, 2.0, (m, 2)), rng.uniform(0.05, 0.4, m)]
+        goal = [*rng.uniform(-1.0, 1.0, 2), float(rng.uniform(-4.0, 4.0))]
+        cell, heads = float(rng.choice([0.06, 0.08, 0.1])), float(rng.choice([8, 12, 16]))
+        out.append(("field_build", [float(n), float(m), 0.02, cell, heads, 60000.0, *goal, *tpl.ravel(), *radii,
+                                    *obs.ravel()]))
     return out
 
 

@@ -4,7 +4,7 @@ The recorded frames of the agent step's golden vectors (tests/data/golden-step.j
 scenario, noise, a robot missing now and then) packed as vs_golden.c's ``structure_step`` entry, for
 each metric: every 4th frame, all robots used, and the same frames with r2 excluded and judged apart;
 then the linf mission in a room (a pillar on its straight path, bodies of 0.05 m, and a wall that
-blocks it), every 8th frame: the planned path and the blocked stop.
+blocks it), every 8th frame: the field's descent and the blocked stop.
 """
 
 from __future__ import annotations
@@ -15,6 +15,10 @@ import numpy as np
 
 from golden_step import load
 from vsfleet.step import core_mission, frame_arrays, mission_arrays
+
+#: the room's field in these records: a coarse lattice (8 cm, 16 headings), so that the replay under
+#: qemu builds its 240 fields in seconds; the agents' own lattice is vsfleet.field's
+FIELD = (0.08, 16.0, 200000.0)
 
 METRICS = ("l1", "l2", "linf")
 PILLAR = ((0.8, 0.5, 0.3),)
@@ -31,10 +35,10 @@ def step_records() -> list[tuple[str, list[float]]]:
         n = len(arrays.ids)
         radii = [0.0] * n if radius is None else [radius] * n
         (tpl, wb, vmax, amax, code, kind, goal, limits, _radii, _obs,
-         margin) = core_mission(metric, arrays.template, arrays.envelopes, arrays.goal, arrays.limits)
+         margin, _field) = core_mission(metric, arrays.template, arrays.envelopes, arrays.goal, arrays.limits)
         head = [float(n), float(code), float(kind), float(len(goal) // 3), *goal, *limits, *tpl.ravel(), *wb,
                 *vmax, *amax]
-        room = [margin, float(len(obstacles)), *radii, *(v for o in obstacles for v in o)]
+        room = [margin, *FIELD, float(len(obstacles)), *radii, *(v for o in obstacles for v in o)]
         for k, (frame, _) in enumerate(frames):
             if k % every:
                 continue

@@ -52,7 +52,7 @@ from .fit import fit_structure, fit_structure_reference
 from .frames import Frame
 from .geometry import Pose2
 from .kinematics import integrate_arcs, integrate_arcs_reference
-from .plan import plan_structure_reference
+from .field import Field, build_field, build_field_reference, follow_field_reference
 from .safety import SafetyParams, safety_filter, safety_filter_reference
 from .wire import CmdMsg, EventMsg, HealthMsg, Mission, StateMsg
 
@@ -97,6 +97,7 @@ class MissionArrays:
     radii: np.ndarray = field(default_factory=lambda: np.zeros(0))      # (n,) body radii [m] (0: a point)
     obstacles: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (k, 3) (x, y, r) [m; world]
     core: tuple = ()
+    field: Field | None = None     # the room's navigation function (vsfleet.field), built once per mission
 
     @property
     def room(self) -> bool:
@@ -109,15 +110,16 @@ _LIMIT_FIELDS = ("speed_max_m_s", "turn_rate_max_rad_s", "position_tolerance_m",
                  "path_lookahead_m", "comply_full_m", "comply_stop_m", "settle_s", "turn_settle_s")
 
 
-#: clearance [m] the structure's path keeps beyond the robots' bodies: 3 sigma of 2 mm tracker noise
-#: plus what the advance's lookahead carrot cuts off a path's corners (docs/planning.md)
-PLAN_MARGIN_M = 0.012
+#: clearance [m] the structure's planned way keeps between every robot body and every obstacle: beyond the
+#: safety filter's own margin (15 mm), so that on the plan the filter stays idle (docs/planning.md); the
+#: field's states keep this plus its inflation (>= 21 mm), its edges this
+PLAN_MARGIN_M = 0.02
 
 
 def core_mission(metric: str, template: np.ndarray, envelopes: Envelopes, goal: Goal,
-                 limits: StructureLimits, radii=None, obstacles=()) -> tuple:
+                 limits: StructureLimits, radii=None, obstacles=(), field: Field | None = None) -> tuple:
     """The mission's constants as the compiled core takes them (vs_mission in vs_step.h), in
-    structure_step's argument order: the first eight, then (radius_m, obstacles, margin_m)."""
+    structure_step's argument order: the first eight, then (radius_m, obstacles, margin_m, field)."""
     if isinstance(goal, GoalPose):
         kind, poses = 0, [goal.pose.as_tuple()]
     elif isinstance(goal, GoalPath):
@@ -129,7 +131,16 @@ def core_mission(metric: str, template: np.ndarray, envelopes: Envelopes, goal: 
             _METRIC_CODES[metric], kind, np.array(poses, dtype=float).ravel(),
             np.array([getattr(limits, f) for f in _LIMIT_FIELDS], dtype=float),
             np.zeros(len(template)) if radii is None else np.array(radii, dtype=float),
-            np.array(obstacles, dtype=float).reshape(-1), PLAN_MARGIN_M)
+            np.array(obstacles, dtype=float).reshape(-1), PLAN_MARGIN_M, None if field is None else field.handle)
+
+
+def room_field(template: np.ndarray, radii, obstacles: np.ndarray, goal: Goal, reference: bool = False) -> Field | None:
+    """The room's navigation function for a mission (None without obstacles or with a twist goal)."""
+    if len(obstacles) == 0 or isinstance(goal, GoalTwist):
+        return None
+    target = goal.pose if isinstance(goal, GoalPose) else goal.waypoints[-1]
+    build = build_field_reference if reference else build_field
+    return build(template, np.asarray(radii, dtype=float), PLAN_MARGIN_M, obstacles, target)
 
 
 _ARRAYS: dict[int, tuple[Mission, MissionArrays]] = {}
@@ -143,12 +154,13 @@ def mission_arrays(mission: Mission) -> MissionArrays:
     ids = mission.robot_ids
     template, envelopes, goal = mission_template(mission), mission_envelope_arrays(mission), mission_goal(mission)
     limits = StructureLimits(speed_max_m_s=mission.speed_max, turn_rate_max_rad_s=mission.turn_rate_max)
+    obstacles = np.array(mission.obstacles, dtype=float).reshape(-1, 3)
+    field = room_field(template, mission.radii, obstacles, goal)
     arrays = MissionArrays(ids=ids, index={r: i for i, r in enumerate(ids)}, template=template,
                            envelopes=envelopes, goal=goal, limits=limits, policy=mission_policy(mission),
-                           radii=np.array(mission.radii, dtype=float),
-                           obstacles=np.array(mission.obstacles, dtype=float).reshape(-1, 3),
+                           radii=np.array(mission.radii, dtype=float), obstacles=obstacles,
                            core=core_mission(mission.metric, template, envelopes, goal, limits, mission.radii,
-                                             mission.obstacles))
+                                             mission.obstacles, field), field=field)
     if len(_ARRAYS) >= 16:
         _ARRAYS.clear()
     _ARRAYS[id(mission)] = (mission, arrays)
@@ -208,13 +220,9 @@ def structure_step(arrays: MissionArrays, metric: str, pose_world: np.ndarray, s
     now_pts = fit.pose.apply(arrays.template)
     dist = np.hypot(xy[:, 0] - now_pts[:, 0], xy[:, 1] - now_pts[:, 1])
     goal, blocked, left_m = arrays.goal, False, 0.0
-    if len(arrays.obstacles) and not isinstance(goal, GoalTwist):  # the path around the room's obstacles
-        target = goal.pose if isinstance(goal, GoalPose) else goal.waypoints[-1]
-        plan = plan_structure_reference(fit.pose, target, arrays.template, arrays.radii, PLAN_MARGIN_M,
-                                        arrays.obstacles)
-        goal, blocked = GoalPath(plan.waypoints), plan.blocked
-        end = plan.waypoints[-1]
-        left_m = math.sqrt((target.x - end.x) ** 2 + (target.y - end.y) ** 2) if blocked else 0.0
+    if arrays.field is not None:  # the room: follow the field's descent from the fitted pose
+        way, blocked, left_m = follow_field_reference(_reference_field(arrays), fit.pose)
+        goal = GoalPath(tuple(Pose2(*w) for w in way))
     adv = advance_fn(fit.pose, goal, dt_s, arrays.limits, arrays.template, arrays.envelopes,
                      elapsed_s=elapsed_s, headings_rad=np.where(used, pose_world[:, 2], np.nan),
                      deviations_m=np.where(used, dist, np.nan))
@@ -226,6 +234,21 @@ def structure_step(arrays: MissionArrays, metric: str, pose_world: np.ndarray, s
                      at_goal=adv.at_goal and not blocked, used=used, points_now=now_pts,
                      points_next=adv.pose.apply(arrays.template), deviations_m=np.where(seen, dist, np.inf),
                      blocked=blocked, left_m=left_m)
+
+
+_REFERENCE_FIELDS: dict[int, tuple[MissionArrays, Field]] = {}
+
+
+def _reference_field(arrays: MissionArrays) -> Field:
+    """The reference build of a mission's field (memoised, as mission_arrays is)."""
+    hit = _REFERENCE_FIELDS.get(id(arrays))
+    if hit is not None and hit[0] is arrays:
+        return hit[1]
+    field = room_field(arrays.template, arrays.radii, arrays.obstacles, arrays.goal, reference=True)
+    if len(_REFERENCE_FIELDS) >= 4:
+        _REFERENCE_FIELDS.clear()
+    _REFERENCE_FIELDS[id(arrays)] = (arrays, field)
+    return field
 
 
 def _structure_step_core(arrays: MissionArrays, pose_world: np.ndarray, seen: np.ndarray, excluded: np.ndarray,

@@ -3,14 +3,19 @@
 #include "vscore.h"
 #include "vs_step.h"
 
+const vs_field *vs_py_field(PyObject *obj);   /* py_field.c: NULL for None (or with an error set) */
+
 /* structure_step(template, wheel_base, speed_max, accel_max, metric, goal_kind, goal, limits,
  *                pose_world, seen, excluded, judged_apart, elapsed_s, dt_s,
- *                used_out, points_now_out, points_next_out, deviations_out, radius_m, obstacles, margin_m)
+ *                used_out, points_now_out, points_next_out, deviations_out, radius_m, obstacles, margin_m, field)
+ * field: a capsule of field_build (the room's navigation function) or None.
  * -> None (no robot usable) or (fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m). */
 static PyObject *py_structure_step(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
 {
     (void)mod;
-    if (nargs != 21) { PyErr_SetString(PyExc_TypeError, "structure_step takes 21 arguments"); return NULL; }
+    if (nargs != 22) { PyErr_SetString(PyExc_TypeError, "structure_step takes 22 arguments"); return NULL; }
+    const vs_field *field = vs_py_field(a[21]);
+    if (field == NULL && PyErr_Occurred()) return NULL;
     Py_buffer b[18];
     int got = 0;
     PyObject *result = NULL;
@@ -59,7 +64,7 @@ static PyObject *py_structure_step(PyObject *mod, PyObject *const *a, Py_ssize_t
     vs_mission m = {(size_t)n, b[0].buf, b[1].buf, b[2].buf, b[3].buf, (int)metric,
                     {(int)kind, b[4].buf, (size_t)(n_goal / 3)},
                     {lim[0], lim[1], lim[2], lim[3], lim[4], lim[5], lim[6], lim[7], lim[8]},
-                    b[14].buf, b[15].buf, (size_t)(b[15].len / 24), margin};
+                    b[14].buf, b[15].buf, (size_t)(b[15].len / 24), margin, field};
     vs_structure s;
     int rc;
     Py_BEGIN_ALLOW_THREADS

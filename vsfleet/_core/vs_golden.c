@@ -3,6 +3,7 @@
  * One packing per core function, used both by the recorder (vsfleet._core.golden_call, from
  * Python) and by the plain C driver (tests/cdriver/golden_driver.c, native, aarch64 under
  * qemu, sanitizers), so the two can only agree if the core computes the same bits. */
+#include <stdint.h>
 #include <string.h>
 
 #include "vscore.h"
@@ -48,7 +49,7 @@ static long count_of(double v, long lo, long hi)
 
 /* structure_step: n, metric, goal kind, k goal poses, 3k goal, 9 limits, 2n template, n wheel base,
  * n speed max, n accel max, 3n poses, n seen, n excluded, n judged apart, elapsed, dt, margin,
- * m obstacles, n radii, 3m obstacles
+ * cell, headings, max states (the room's field, built from these when m > 0), m obstacles, n radii, 3m obstacles
  * -> any_used, then (if any) fit 3, goal 3, twist 3, cost, at_goal, blocked, left, n used, 2n now,
  * 2n next, n deviations */
 static long g_structure_step(const double *in, long n_in, double *out, long cap)
@@ -58,9 +59,11 @@ static long g_structure_step(const double *in, long n_in, double *out, long cap)
          k = count_of(in[3], 1, 100000);
     if (n < 0 || metric < 0 || kind < 0 || k < 0) return -1;
     long base = 4 + 3 * k + 9 + 2 * n + 3 * n + 3 * n + 3 * n + 2;
-    if (n_in < base + 2) return -1;
-    long m_obs = count_of(in[base + 1], 0, 256);
-    if (m_obs < 0 || n_in != base + 2 + n + 3 * m_obs || cap < 1 + 13 + 6 * n) return -1;
+    if (n_in < base + 5) return -1;
+    long m_obs = count_of(in[base + 4], 0, 256), heads = count_of(in[base + 2], 4, 1024),
+         max_states = count_of(in[base + 3], 1024, 100000000);
+    if (m_obs < 0 || heads < 0 || max_states < 0 || n_in != base + 5 + n + 3 * m_obs || cap < 1 + 13 + 6 * n)
+        return -1;
     const double *p = in + 4, *goal = p;
     p += 3 * k;
     const double *lim = p; p += 9;
@@ -74,16 +77,25 @@ static long g_structure_step(const double *in, long n_in, double *out, long cap)
     for (long j = 0; j < 3; j++)
         for (long i = 0; i < n; i++) flags[j][i] = p[j * n + i] != 0.0;
     p += 3 * n;
-    double elapsed = p[0], dt = p[1], margin = p[2];
-    const double *radii = p + 4, *obstacles = radii + n;
+    double elapsed = p[0], dt = p[1], margin = p[2], cell = p[3];
+    const double *radii = p + 7, *obstacles = radii + n;
+    vs_field field;
+    int have_field = 0;
+    if (m_obs > 0 && kind != VS_GOAL_TWIST) {
+        if (vs_field_build(tpl, radii, (size_t)n, margin, obstacles, (size_t)m_obs, goal + 3 * (k - 1), cell,
+                           (size_t)heads, (size_t)max_states, &field) != VS_OK)
+            return -1;
+        have_field = 1;
+    }
     vs_mission m = {(size_t)n, tpl, wb, vmax, amax, (int)metric, {(int)kind, goal, (size_t)k},
                     {lim[0], lim[1], lim[2], lim[3], lim[4], lim[5], lim[6], lim[7], lim[8]},
-                    radii, obstacles, (size_t)m_obs, margin};
+                    radii, obstacles, (size_t)m_obs, margin, have_field ? &field : NULL};
     vs_structure s;
     unsigned char used[4096];
     double *now = out + 14 + n, *next = now + 2 * n, *dev = next + 2 * n;
-    if (vs_structure_step(&m, pose, flags[0], flags[1], flags[2], elapsed, dt, &s, used, now, next, dev) != VS_OK)
-        return -1;
+    int rc = vs_structure_step(&m, pose, flags[0], flags[1], flags[2], elapsed, dt, &s, used, now, next, dev);
+    if (have_field) vs_field_free(&field);
+    if (rc != VS_OK) return -1;
     out[0] = s.any_used;
     if (!s.any_used) return 1;
     double head[13] = {s.fit_x, s.fit_y, s.fit_th, s.goal_x, s.goal_y, s.goal_th, s.vx_m_s, s.vy_m_s, s.w_rad_s,
@@ -115,7 +127,45 @@ static long g_safety_filter(const double *in, long n_in, double *out, long cap)
     return 2 * n + 5;
 }
 
+/* field_build: n, m, margin, cell, headings, max states, goal 3, 2n template, n radii, 3m obstacles
+ * -> nx, ny, ix_lo, iy_lo, cell, inflation, w_rot, goal_free, then the FNV-1a hash of the cost array (64 bits,
+ * as two 32-bit halves), the count of walls, of blocked and of tight states */
+static long g_field_build(const double *in, long n_in, double *out, long cap)
+{
+    if (n_in < 9 || cap < 13) return -1;
+    long n = count_of(in[0], 1, 4096), m = count_of(in[1], 0, 4096), heads = count_of(in[4], 4, 1024),
+         max_states = count_of(in[5], 1024, 100000000);
+    if (n < 0 || m < 0 || heads < 0 || max_states < 0 || n_in != 9 + 2 * n + n + 3 * m) return -1;
+    const double *goal = in + 6, *tpl = in + 9, *radii = tpl + 2 * n, *obs = radii + n;
+    vs_field f;
+    if (vs_field_build(tpl, radii, (size_t)n, in[2], obs, (size_t)m, goal, in[3], (size_t)heads, (size_t)max_states,
+                       &f) != VS_OK)
+        return -1;
+    uint64_t hash = 1469598103934665603ull;
+    double walls = 0.0, blocked = 0.0, tight = 0.0;
+    size_t total = f.nx * f.ny * f.n_headings;
+    for (size_t s = 0; s < total; s++) {
+        uint32_t v = f.cost[s];
+        for (int b = 0; b < 4; b++) {
+            hash ^= (v >> (8 * b)) & 0xFFu;
+            hash *= 1099511628211ull;
+        }
+        if (v == VS_FIELD_WALL) walls += 1.0;
+        else {
+            if (v & VS_FIELD_BLOCKED_BIT) blocked += 1.0;
+            if (v & VS_FIELD_TIGHT_BIT) tight += 1.0;
+        }
+    }
+    double o[13] = {(double)f.nx, (double)f.ny, (double)f.ix_lo, (double)f.iy_lo, f.cell_m, f.inflation_m,
+                    (double)f.w_rot, (double)f.goal_free, (double)(hash >> 32), (double)(hash & 0xFFFFFFFFull),
+                    walls, blocked, tight};
+    memcpy(out, o, sizeof o);
+    vs_field_free(&f);
+    return 13;
+}
+
 static const golden_entry entries[] = {
+    {"field_build", g_field_build},
     {"safety_filter", g_safety_filter},
     {"structure_step", g_structure_step},
     {"sin", g_sin},

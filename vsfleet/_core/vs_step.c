@@ -70,7 +70,6 @@ int vs_structure_step(const vs_mission *m, const double *pose_world, const unsig
 
     vs_fit_result fit;
     vs_advance_result adv;
-    double *plan = NULL;
     int rc = fit_rows(m, pose_world, mask, n_used, scratch, &fit);
     if (rc != VS_OK) goto done;
     vs_apply_pose(fit.x, fit.y, fit.th, m->template_xy, n, points_now);
@@ -84,28 +83,11 @@ int vs_structure_step(const vs_mission *m, const double *pose_world, const unsig
     vs_goal goal = m->goal;
     int blocked = 0;
     double left_m = 0.0;
-    if (m->n_obstacles > 0 && goal.kind != VS_GOAL_TWIST && goal.n_poses > 0) {
-        const double *target = goal.poses + 3 * (goal.n_poses - 1);
-        size_t cap = 32, n_way = 0;
-        int status = VS_PLAN_OK;
-        for (int attempt = 0; attempt < 2; attempt++) {
-            plan = malloc(sizeof(double) * 3 * cap);
-            if (plan == NULL) { rc = VS_ENOMEM; goto done; }
-            rc = vs_plan_structure(m->template_xy, m->radius_m, n, m->margin_m, m->obstacles, m->n_obstacles,
-                                   pose_fit, target, plan, cap, &n_way, &status);
-            if (rc == VS_ENOMEM && n_way > cap && attempt == 0) {
-                free(plan);
-                plan = NULL;
-                cap = n_way;
-                continue;
-            }
-            break;
-        }
+    double plan[3 * VS_STEP_PATH_CAP];
+    if (m->field != NULL && goal.kind != VS_GOAL_TWIST && goal.n_poses > 0) {
+        size_t n_way = 0;
+        rc = vs_field_follow(m->field, pose_fit, VS_STEP_PATH_M, plan, VS_STEP_PATH_CAP, &n_way, &blocked, &left_m);
         if (rc != VS_OK) goto done;
-        blocked = status == VS_PLAN_BLOCKED;
-        const double *end = plan + 3 * (n_way - 1);
-        double dx = target[0] - end[0], dy = target[1] - end[1];
-        left_m = blocked ? sqrt(dx * dx + dy * dy) : 0.0;
         goal.kind = VS_GOAL_PATH;
         goal.poses = plan;
         goal.n_poses = n_way;
@@ -135,7 +117,6 @@ int vs_structure_step(const vs_mission *m, const double *pose_world, const unsig
     out->blocked = blocked;
     out->left_m = left_m;
 done:
-    free(plan);
     free(scratch);
     free(mask);
     return rc;

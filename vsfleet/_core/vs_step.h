@@ -15,7 +15,7 @@
 #include "vscore.h"
 #include "vs_advance.h"
 #include "vs_fit.h"
-#include "vs_plan.h"
+#include "vs_field.h"
 
 /* What a mission fixes for every frame (rows in its sorted robot order). */
 typedef struct {
@@ -32,7 +32,12 @@ typedef struct {
     const double *obstacles;            /* (n_obstacles, 3) round obstacles (x, y, r) [m; world] */
     size_t n_obstacles;
     double margin_m;                    /* [m] clearance kept beyond the bodies (tracker noise, the carrot) */
+    const vs_field *field;              /* the room's navigation function (vs_field_build, once per mission);
+                                           NULL: none, and the structure goes straight for its goal */
 } vs_mission;
+
+#define VS_STEP_PATH_M 2.0              /* [m] of the field's descent handed to the advance each frame */
+#define VS_STEP_PATH_CAP 160            /* waypoints at most (2 m of 3 cm cells, and rotations) */
 
 typedef struct {
     int any_used;                       /* 0: no robot usable, nothing else written */
@@ -46,9 +51,8 @@ typedef struct {
     double left_m;                      /* obstacles: distance [m] from the plan's end to the goal */
 } vs_structure;
 
-/* With obstacles and a pose or path goal, the advance follows a path planned every frame from the
- * fitted pose to the goal (the path's last waypoint) around them (vs_plan_structure): the same
- * pure function of the frame on every agent.
+/* With a field (a room) and a pose or path goal, the advance follows the field's descent from the fitted
+ * pose (vs_field_follow, VS_STEP_PATH_M of it): the same pure function of the frame on every agent.
  * pose_world (n, 3) [m, m, rad; world], read on seen rows only; seen, excluded, judged_apart
  * (n) 0/1; elapsed_s [s] since the mission took effect; dt_s [s] > 0.  Outputs (n each, or
  * (n, 2)): used (seen & !excluded), points_now / points_next [m; world] (every robot's point

@@ -1,0 +1,124 @@
+/* py_field.c - binding of the structure's navigation function (vs_field.h): vsfleet._core.field_build,
+ * field_info, field_costs, field_follow.  A field is a capsule that owns its lattice (freed with it). */
+#include <string.h>
+
+#include "py_util.h"
+#include "vscore.h"
+#include "vs_field.h"
+
+#define FIELD_CAPSULE "vsfleet._core.field"
+
+static void field_destroy(PyObject *cap)
+{
+    vs_field *f = PyCapsule_GetPointer(cap, FIELD_CAPSULE);
+    if (f != NULL) {
+        vs_field_free(f);
+        PyMem_Free(f);
+    }
+}
+
+const vs_field *vs_py_field(PyObject *obj)
+{
+    if (obj == Py_None) return NULL;
+    vs_field *f = PyCapsule_GetPointer(obj, FIELD_CAPSULE);
+    if (f == NULL) return NULL;
+    return f;
+}
+
+/* field_build(template_xy, radius_m, margin_m, obstacles, goal(3), cell_m, n_headings, max_states) -> capsule */
+static PyObject *py_field_build(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
+{
+    (void)mod;
+    if (nargs != 8) { PyErr_SetString(PyExc_TypeError, "field_build takes 8 arguments"); return NULL; }
+    Py_buffer b[4];
+    int got = 0;
+    PyObject *result = NULL;
+    double margin = PyFloat_AsDouble(a[2]), cell = PyFloat_AsDouble(a[5]);
+    long long heads = PyLong_AsLongLong(a[6]), max_states = PyLong_AsLongLong(a[7]);
+    if (PyErr_Occurred()) return NULL;
+    if (heads < 1 || max_states < 1) { PyErr_SetString(vs_ValueError, "n_headings and max_states must be >= 1"); return NULL; }
+    if (vs_py_doubles(a[0], &b[got], -1, 0, "template_xy") < 0) goto out;
+    got++;
+    Py_ssize_t n2 = b[0].len / 8;
+    if (n2 % 2 || n2 == 0) { PyErr_SetString(vs_ValueError, "template_xy must be (n, 2) with n >= 1"); goto out; }
+    Py_ssize_t n = n2 / 2;
+    if (vs_py_doubles(a[1], &b[got], n, 0, "radius_m") < 0) goto out;
+    got++;
+    if (vs_py_doubles(a[3], &b[got], -1, 0, "obstacles") < 0) goto out;
+    got++;
+    if ((b[2].len / 8) % 3) { PyErr_SetString(vs_ValueError, "obstacles must hold 3 k doubles"); goto out; }
+    if (vs_py_doubles(a[4], &b[got], 3, 0, "goal") < 0) goto out;
+    got++;
+    vs_field *f = PyMem_Malloc(sizeof(vs_field));
+    if (f == NULL) { PyErr_NoMemory(); goto out; }
+    int rc;
+    Py_BEGIN_ALLOW_THREADS
+    rc = vs_field_build(b[0].buf, b[1].buf, (size_t)n, margin, b[2].buf, (size_t)(b[2].len / 24), b[3].buf, cell,
+                        (size_t)heads, (size_t)max_states, f);
+    Py_END_ALLOW_THREADS
+    if (rc != VS_OK) { PyMem_Free(f); vs_py_error(rc, "field_build refused its inputs"); goto out; }
+    result = PyCapsule_New(f, FIELD_CAPSULE, field_destroy);
+    if (result == NULL) { vs_field_free(f); PyMem_Free(f); }
+out:
+    for (int i = 0; i < got; i++) PyBuffer_Release(&b[i]);
+    return result;
+}
+
+/* field_info(field) -> (gx, gy, gth, cell_m, dth_rad, inflation_m, n_headings, ix_lo, iy_lo, nx, ny, w_rot, goal_free) */
+static PyObject *py_field_info(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
+{
+    (void)mod;
+    if (nargs != 1) { PyErr_SetString(PyExc_TypeError, "field_info(field)"); return NULL; }
+    const vs_field *f = vs_py_field(a[0]);
+    if (f == NULL) { if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "not a field"); return NULL; }
+    return Py_BuildValue("(ddddddnllnnkO)", f->gx, f->gy, f->gth, f->cell_m, f->dth_rad, f->inflation_m,
+                         (Py_ssize_t)f->n_headings, f->ix_lo, f->iy_lo, (Py_ssize_t)f->nx, (Py_ssize_t)f->ny,
+                         (unsigned long)f->w_rot, f->goal_free ? Py_True : Py_False);
+}
+
+/* field_costs(field) -> bytes: the (K, ny, nx) uint32 cost array, native byte order (tests, golden vectors) */
+static PyObject *py_field_costs(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
+{
+    (void)mod;
+    if (nargs != 1) { PyErr_SetString(PyExc_TypeError, "field_costs(field)"); return NULL; }
+    const vs_field *f = vs_py_field(a[0]);
+    if (f == NULL) { if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "not a field"); return NULL; }
+    return PyBytes_FromStringAndSize((const char *)f->cost,
+                                     (Py_ssize_t)(sizeof(uint32_t) * f->nx * f->ny * f->n_headings));
+}
+
+/* field_follow(field, pose(3), path_m, waypoints_out (cap, 3)) -> (n_waypoints, blocked, left_m) */
+static PyObject *py_field_follow(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
+{
+    (void)mod;
+    if (nargs != 4) { PyErr_SetString(PyExc_TypeError, "field_follow takes 4 arguments"); return NULL; }
+    const vs_field *f = vs_py_field(a[0]);
+    if (f == NULL) { if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "not a field"); return NULL; }
+    double path_m = PyFloat_AsDouble(a[2]);
+    if (PyErr_Occurred()) return NULL;
+    Py_buffer b[2];
+    int got = 0;
+    PyObject *result = NULL;
+    if (vs_py_doubles(a[1], &b[got], 3, 0, "pose") < 0) goto out;
+    got++;
+    if (vs_py_doubles(a[3], &b[got], -1, 1, "waypoints_out") < 0) goto out;
+    got++;
+    size_t cap = (size_t)(b[1].len / 24), nw = 0;
+    int blocked = 0;
+    double left = 0.0;
+    int rc = vs_field_follow(f, b[0].buf, path_m, b[1].buf, cap, &nw, &blocked, &left);
+    if (rc != VS_OK) { vs_py_error(rc, "field_follow refused its inputs"); goto out; }
+    result = Py_BuildValue("(nOd)", (Py_ssize_t)nw, blocked ? Py_True : Py_False, left);
+out:
+    for (int i = 0; i < got; i++) PyBuffer_Release(&b[i]);
+    return result;
+}
+
+PyMethodDef vs_py_field_methods[] = {
+    {"field_build", (PyCFunction)(void (*)(void))py_field_build, METH_FASTCALL,
+     "field_build(template_xy, radius_m, margin_m, obstacles, goal, cell_m, n_headings, max_states) -> field."},
+    {"field_info", (PyCFunction)(void (*)(void))py_field_info, METH_FASTCALL, "field_info(field) -> lattice tuple."},
+    {"field_costs", (PyCFunction)(void (*)(void))py_field_costs, METH_FASTCALL, "field_costs(field) -> bytes."},
+    {"field_follow", (PyCFunction)(void (*)(void))py_field_follow, METH_FASTCALL,
+     "field_follow(field, pose, path_m, waypoints_out) -> (n, blocked, left_m)."},
+    {NULL, NULL, 0, NULL}};

@@ -1,0 +1,453 @@
+/* vs_field.c - the structure's navigation function over an SE(2) lattice (vs_field.h), planned once per
+ * mission, and its per-frame descent.  Integer costs, fixed neighbour order: the same bits everywhere. */
+#include <stdlib.h>
+#include <math.h>
+#include <string.h>
+
+#include "vs_field.h"
+
+/* floor for |v| < 2^62 (the lattice's indices are far smaller: coordinates <= 1e6 m, cells >= 1e-3 m) */
+static long long ifloor(double v)
+{
+    long long t = (long long)v;
+    if ((double)t > v) t--;
+    return t;
+}
+
+/* the neighbour order, fixed: 8 moves at the same heading, then heading + 1, heading - 1 */
+static const int NB_DX[8] = {1, -1, 0, 0, 1, -1, 1, -1};
+static const int NB_DY[8] = {0, 0, 1, -1, 1, 1, -1, -1};
+
+typedef struct {
+    uint32_t *items;
+    size_t len, cap;
+} bucket;
+
+static int bucket_push(bucket *b, uint32_t v)
+{
+    if (b->len == b->cap) {
+        size_t cap = b->cap ? 2 * b->cap : 256;
+        uint32_t *p = realloc(b->items, sizeof(uint32_t) * cap);
+        if (p == NULL) return VS_ENOMEM;
+        b->items = p;
+        b->cap = cap;
+    }
+    b->items[b->len++] = v;
+    return VS_OK;
+}
+
+/* the neighbour j (0..9) of state s, or -1 if it leaves the lattice; *w its base weight */
+static long neighbour(const vs_field *f, size_t s, int j, uint32_t *w)
+{
+    size_t plane = f->nx * f->ny;
+    size_t k = s / plane, rem = s % plane, row = rem / f->nx, col = rem % f->nx;
+    if (j < 8) {
+        long c = (long)col + NB_DX[j], r = (long)row + NB_DY[j];
+        if (c < 0 || r < 0 || c >= (long)f->nx || r >= (long)f->ny) return -1;
+        *w = j < 4 ? VS_FIELD_W_AXIS : VS_FIELD_W_DIAG;
+        return (long)(k * plane + (size_t)r * f->nx + (size_t)c);
+    }
+    size_t kk = j == 8 ? (k + 1) % f->n_headings : (k + f->n_headings - 1) % f->n_headings;
+    *w = f->w_rot;
+    return (long)(kk * plane + rem);
+}
+
+/* Dial's algorithm over the free states (f->cost != WALL) from the sources src (distance 0): dist holds
+ * VS_FIELD_WALL where not yet reached, and the exact integer distance where reached (the same whatever
+ * the expansion order).  tight: per state, bit 0 set within the comfort band (edges touching it cost 2x). */
+static int dial(const vs_field *f, const unsigned char *tight, const uint32_t *src, size_t n_src, uint32_t *dist)
+{
+    uint32_t wmax = 2 * (f->w_rot > VS_FIELD_W_DIAG ? f->w_rot : VS_FIELD_W_DIAG);
+    size_t nb = (size_t)wmax + 1;
+    bucket *bk = calloc(nb, sizeof(bucket));
+    if (bk == NULL) return VS_ENOMEM;
+    int rc = VS_OK;
+    size_t pending = 0;
+    for (size_t i = 0; i < n_src; i++) {
+        dist[src[i]] = 0;
+        if ((rc = bucket_push(&bk[0], src[i])) != VS_OK) goto done;
+        pending++;
+    }
+    for (uint32_t d = 0; pending > 0; d++) {
+        bucket *b = &bk[d % nb];
+        for (size_t q = 0; q < b->len; q++) {  /* b may grow while we read it (zero-weight edges: none) */
+            uint32_t s = b->items[q];
+            pending--;
+            if (dist[s] != d) continue;        /* a stale entry: reached cheaper since */
+            for (int j = 0; j < 10; j++) {
+                uint32_t w;
+                long t = neighbour(f, s, j, &w);
+                if (t < 0 || f->cost[t] == VS_FIELD_WALL) continue;
+                if ((tight[s] | tight[t]) & 1u) w *= 2;
+                uint32_t nd = d + w;
+                if (nd < dist[t]) {
+                    dist[t] = nd;
+                    if ((rc = bucket_push(&bk[nd % nb], (uint32_t)t)) != VS_OK) goto done;
+                    pending++;
+                }
+            }
+        }
+        b->len = 0;
+    }
+done:
+    for (size_t i = 0; i < nb; i++) free(bk[i].items);
+    free(bk);
+    return rc;
+}
+
+static int finite3(const double *v, size_t n)
+{
+    for (size_t i = 0; i < n; i++)
+        if (!vs_isfinite(v[i])) return 0;
+    return 1;
+}
+
+int vs_field_build(const double *template_xy, const double *radius_m, size_t n, double margin_m,
+                   const double *obstacles, size_t n_obstacles, const double goal[3], double cell_m,
+                   size_t n_headings, size_t max_states, vs_field *out)
+{
+    if (n == 0 || n_obstacles > VS_FIELD_MAX_OBSTACLES || n_headings < 4 || n_headings > 1024 ||
+        max_states < 1024)
+        return VS_EVALUE;
+    if (!finite3(template_xy, 2 * n) || !finite3(radius_m, n) || !finite3(obstacles, 3 * n_obstacles) ||
+        !finite3(goal, 3) || !vs_isfinite(margin_m) || !vs_isfinite(cell_m))
+        return VS_ENONFINITE;
+    if (!(cell_m >= 1e-3) || cell_m > VS_FIELD_MAX_ABS_M || !(margin_m >= 0.0) || margin_m > VS_FIELD_MAX_ABS_M)
+        return VS_EVALUE;
+    for (size_t i = 0; i < 2 * n; i++)
+        if (vs_fabs(template_xy[i]) > VS_FIELD_MAX_ABS_M) return VS_EVALUE;
+    for (size_t i = 0; i < n; i++)
+        if (!(radius_m[i] >= 0.0) || radius_m[i] > VS_FIELD_MAX_ABS_M) return VS_EVALUE;
+    for (size_t j = 0; j < n_obstacles; j++) {
+        const double *o = obstacles + 3 * j;
+        if (vs_fabs(o[0]) > VS_FIELD_MAX_ABS_M || vs_fabs(o[1]) > VS_FIELD_MAX_ABS_M || !(o[2] > 0.0) ||
+            o[2] > VS_FIELD_MAX_ABS_M)
+            return VS_EVALUE;
+    }
+    for (int i = 0; i < 2; i++)
+        if (vs_fabs(goal[i]) > VS_FIELD_MAX_ABS_M) return VS_EVALUE;
+    if (vs_fabs(goal[2]) > VS_FIELD_MAX_ABS_M) return VS_EVALUE;
+
+    vs_field f;
+    memset(&f, 0, sizeof f);
+    f.gx = goal[0];
+    f.gy = goal[1];
+    f.gth = vs_wrap_angle(goal[2]);
+    f.n_headings = n_headings;
+    f.dth_rad = VS_TWO_PI / (double)n_headings;
+    f.margin_m = margin_m;
+    double pmax = 0.0, reach = 0.0;   /* largest |p_i|, largest |p_i| + r_i */
+    for (size_t i = 0; i < n; i++) {
+        double px = template_xy[2 * i], py = template_xy[2 * i + 1];
+        double p = sqrt(px * px + py * py);
+        if (p > pmax) pmax = p;
+        if (p + radius_m[i] > reach) reach = p + radius_m[i];
+    }
+    /* the lattice's extent [m, relative to the goal], then the cell that keeps it within max_states */
+    double lo_x = 0.0, hi_x = 0.0, lo_y = 0.0, hi_y = 0.0;
+    for (size_t j = 0; j < n_obstacles; j++) {
+        const double *o = obstacles + 3 * j;
+        double ax = (o[0] - o[2]) - f.gx, bx = (o[0] + o[2]) - f.gx;
+        double ay = (o[1] - o[2]) - f.gy, by = (o[1] + o[2]) - f.gy;
+        if (ax < lo_x) lo_x = ax;
+        if (bx > hi_x) hi_x = bx;
+        if (ay < lo_y) lo_y = ay;
+        if (by > hi_y) hi_y = by;
+    }
+    double h = cell_m;
+    for (;;) {
+        double infl = h * sqrt(0.5), rot = pmax * (VS_PI / (double)n_headings);
+        f.inflation_m = infl > rot ? infl : rot;
+        double pad = ((reach + margin_m) + f.inflation_m) + VS_FIELD_COMFORT_M + 2.0 * h;
+        long long ix0 = ifloor((lo_x - pad) / h), ix1 = -ifloor(-(hi_x + pad) / h);
+        long long iy0 = ifloor((lo_y - pad) / h), iy1 = -ifloor(-(hi_y + pad) / h);
+        double states = (double)(ix1 - ix0 + 1) * (double)(iy1 - iy0 + 1) * (double)n_headings;
+        if (states <= (double)max_states && states < 4.0e9) {
+            f.ix_lo = (long)ix0;
+            f.iy_lo = (long)iy0;
+            f.nx = (size_t)(ix1 - ix0 + 1);
+            f.ny = (size_t)(iy1 - iy0 + 1);
+            break;
+        }
+        h *= VS_FIELD_GROW;
+    }
+    f.cell_m = h;
+    {
+        double wr = (double)VS_FIELD_W_AXIS * (pmax * f.dth_rad) / h;
+        long long w = ifloor(wr + 0.5);
+        f.w_rot = w < 1 ? 1u : (uint32_t)w;
+    }
+    size_t plane = f.nx * f.ny, total = plane * n_headings;
+    unsigned char *tight = calloc(total, 1);
+    uint32_t *dist = malloc(sizeof(uint32_t) * total);
+    uint32_t *queue = malloc(sizeof(uint32_t) * total);
+    double *q = malloc(sizeof(double) * 2 * n);
+    f.cost = malloc(sizeof(uint32_t) * total);
+    int rc = VS_OK;
+    if (tight == NULL || dist == NULL || queue == NULL || q == NULL || f.cost == NULL) { rc = VS_ENOMEM; goto fail; }
+    for (size_t s = 0; s < total; s++) {
+        f.cost[s] = 0u;          /* 0: free, not yet reached (below: the raster marks walls) */
+        dist[s] = VS_FIELD_WALL;
+    }
+
+    /* the raster: for each heading, each body and each obstacle, the lattice points within reach */
+    for (size_t k = 0; k < n_headings; k++) {
+        double th = f.gth + (double)k * f.dth_rad;
+        double sn = vs_sin(th), cs = vs_cos(th);
+        for (size_t i = 0; i < n; i++) {
+            double px = template_xy[2 * i], py = template_xy[2 * i + 1];
+            q[2 * i] = cs * px - sn * py;
+            q[2 * i + 1] = sn * px + cs * py;
+        }
+        uint32_t *plane_cost = f.cost + k * plane;
+        unsigned char *plane_tight = tight + k * plane;
+        for (size_t i = 0; i < n; i++) {
+            double qx = q[2 * i], qy = q[2 * i + 1];
+            for (size_t j = 0; j < n_obstacles; j++) {
+                const double *o = obstacles + 3 * j;
+                double rho_wall = (radius_m[i] + o[2]) + (margin_m + f.inflation_m);
+                double rho_tight = rho_wall + VS_FIELD_COMFORT_M;
+                double w2 = rho_wall * rho_wall, t2 = rho_tight * rho_tight;
+                /* the body centre is (gx + ix h + qx, ...): near the obstacle for ix around (ox - qx - gx) / h */
+                double cx = (o[0] - qx) - f.gx, cy = (o[1] - qy) - f.gy;
+                long long c0 = ifloor((cx - rho_tight) / h) - 1 - f.ix_lo, c1 = ifloor((cx + rho_tight) / h) + 2 - f.ix_lo;
+                long long r0 = ifloor((cy - rho_tight) / h) - 1 - f.iy_lo, r1 = ifloor((cy + rho_tight) / h) + 2 - f.iy_lo;
+                if (c0 < 0) c0 = 0;
+                if (r0 < 0) r0 = 0;
+                if (c1 > (long long)f.nx - 1) c1 = (long long)f.nx - 1;
+                if (r1 > (long long)f.ny - 1) r1 = (long long)f.ny - 1;
+                for (long long r = r0; r <= r1; r++) {
+                    double by = (f.gy + (double)(r + f.iy_lo) * h) + qy;
+                    double dy = by - o[1];
+                    for (long long c = c0; c <= c1; c++) {
+                        double bx = (f.gx + (double)(c + f.ix_lo) * h) + qx;
+                        double dx = bx - o[0];
+                        double d2 = dx * dx + dy * dy;
+                        size_t idx = (size_t)r * f.nx + (size_t)c;
+                        if (d2 < w2) plane_cost[idx] = VS_FIELD_WALL;
+                        else if (d2 < t2) plane_tight[idx] = 1;
+                    }
+                }
+            }
+        }
+    }
+
+    /* pass 1: from the goal state */
+    size_t goal_state = (size_t)(-f.iy_lo) * f.nx + (size_t)(-f.ix_lo);
+    f.goal_free = f.cost[goal_state] != VS_FIELD_WALL;
+    if (f.goal_free) {
+        uint32_t src = (uint32_t)goal_state;
+        if ((rc = dial(&f, tight, &src, 1, dist)) != VS_OK) goto fail;
+        for (size_t s = 0; s < total; s++)
+            if (dist[s] != VS_FIELD_WALL) tight[s] |= 2u;   /* reached from the goal */
+    }
+    /* the components the goal cannot reach: each one's target is its state nearest the goal */
+    size_t n_src = 0;
+    for (size_t s = 0; s < total; s++) {
+        if (f.cost[s] == VS_FIELD_WALL || dist[s] != VS_FIELD_WALL) continue;
+        /* breadth-first over the component, marking it (dist = WALL - 1: seen) */
+        size_t head = 0, tail = 0, best = s;
+        long long best_d2 = -1;
+        dist[s] = VS_FIELD_WALL - 1u;
+        queue[tail++] = (uint32_t)s;
+        while (head < tail) {
+            size_t u = queue[head++];
+            size_t rem = u % plane;
+            long long c = (long long)(rem % f.nx) + f.ix_lo, r = (long long)(rem / f.nx) + f.iy_lo;
+            long long d2 = c * c + r * r;
+            if (best_d2 < 0 || d2 < best_d2 || (d2 == best_d2 && u < best)) { best_d2 = d2; best = u; }
+            for (int j = 0; j < 10; j++) {
+                uint32_t w;
+                long t = neighbour(&f, u, j, &w);
+                if (t < 0 || f.cost[t] == VS_FIELD_WALL || dist[t] != VS_FIELD_WALL) continue;
+                dist[t] = VS_FIELD_WALL - 1u;
+                queue[tail++] = (uint32_t)t;
+            }
+        }
+        queue[total - 1 - n_src] = (uint32_t)best;   /* targets from the queue's end (never overrun: */
+        n_src++;                                      /* one per component, each of >= 1 state) */
+        (void)head;
+    }
+    if (n_src > 0) {
+        uint32_t *src = malloc(sizeof(uint32_t) * n_src);   /* the targets, in the order found */
+        if (src == NULL) { rc = VS_ENOMEM; goto fail; }
+        for (size_t i = 0; i < n_src; i++) src[i] = queue[total - 1 - i];
+        for (size_t s = 0; s < total; s++)                  /* reopen the components for pass 2 */
+            if (dist[s] == VS_FIELD_WALL - 1u) dist[s] = VS_FIELD_WALL;
+        /* pass 2, from every target at once: the components are apart from the goal's (and from one
+         * another), so it never touches a state of pass 1 */
+        rc = dial(&f, tight, src, n_src, dist);
+        free(src);
+        if (rc != VS_OK) goto fail;
+    }
+    for (size_t s = 0; s < total; s++) {
+        if (f.cost[s] == VS_FIELD_WALL) continue;
+        f.cost[s] = dist[s] | ((tight[s] & 1u) ? VS_FIELD_TIGHT_BIT : 0u) | ((tight[s] & 2u) ? 0u : VS_FIELD_BLOCKED_BIT);
+    }
+    free(tight);
+    free(dist);
+    free(queue);
+    free(q);
+    *out = f;
+    return VS_OK;
+fail:
+    free(tight);
+    free(dist);
+    free(queue);
+    free(q);
+    free(f.cost);
+    return rc;
+}
+
+void vs_field_free(vs_field *f)
+{
+    if (f == NULL) return;
+    free(f->cost);
+    f->cost = NULL;
+}
+
+void vs_field_nearest(const vs_field *f, const double pose[3], size_t *col, size_t *row, size_t *k)
+{
+    long long c = ifloor((pose[0] - f->gx) / f->cell_m + 0.5) - f->ix_lo;
+    long long r = ifloor((pose[1] - f->gy) / f->cell_m + 0.5) - f->iy_lo;
+    long long kk = ifloor(vs_wrap_angle(pose[2] - f->gth) / f->dth_rad + 0.5);
+    long long nh = (long long)f->n_headings;
+    if (c < 0) c = 0;
+    if (r < 0) r = 0;
+    if (c > (long long)f->nx - 1) c = (long long)f->nx - 1;
+    if (r > (long long)f->ny - 1) r = (long long)f->ny - 1;
+    kk = ((kk % nh) + nh) % nh;
+    *col = (size_t)c;
+    *row = (size_t)r;
+    *k = (size_t)kk;
+}
+
+static void state_pose(const vs_field *f, size_t s, double *out)
+{
+    size_t plane = f->nx * f->ny, k = s / plane, rem = s % plane;
+    out[0] = f->gx + (double)((long)(rem % f->nx) + f->ix_lo) * f->cell_m;
+    out[1] = f->gy + (double)((long)(rem / f->nx) + f->iy_lo) * f->cell_m;
+    out[2] = vs_wrap_angle(f->gth + (double)k * f->dth_rad);
+}
+
+/* the next state of the descent from s (the neighbour of least cost + edge weight, strictly cheaper than s;
+ * ties: the first in neighbour order), or -1 at a target */
+static long descend(const vs_field *f, size_t s, uint32_t *w_out)
+{
+    uint32_t cs = f->cost[s] & VS_FIELD_COST_MASK;
+    if (cs == 0) return -1;
+    long best = -1;
+    uint32_t best_v = 0, best_w = 0;
+    for (int j = 0; j < 10; j++) {
+        uint32_t w;
+        long t = neighbour(f, s, j, &w);
+        if (t < 0 || f->cost[t] == VS_FIELD_WALL) continue;
+        uint32_t ct = f->cost[t] & VS_FIELD_COST_MASK;
+        if (ct >= cs) continue;
+        if ((f->cost[s] | f->cost[t]) & VS_FIELD_TIGHT_BIT) w *= 2;
+        uint32_t v = ct + w;
+        if (best < 0 || v < best_v) { best = t; best_v = v; best_w = w; }
+    }
+    *w_out = best_w;
+    return best;
+}
+
+/* every pose on the straight way from a to b (heading the short way), sampled at most h/2 and dth/2 apart,
+ * rounds to a free state outside the comfort band with the blocked bit `want`: the comfort band (far wider
+ * than the rounding) keeps the clearance between samples */
+static int segment_clear(const vs_field *f, const double *a, const double *b, uint32_t want)
+{
+    double dx = b[0] - a[0], dy = b[1] - a[1], dth = vs_wrap_angle(b[2] - a[2]);
+    double steps_xy = sqrt(dx * dx + dy * dy) / (0.5 * f->cell_m), steps_th = vs_fabs(dth) / (0.5 * f->dth_rad);
+    long long m = ifloor(steps_xy > steps_th ? steps_xy : steps_th) + 1;
+    size_t plane = f->nx * f->ny;
+    for (long long i = 0; i <= m; i++) {
+        double t = (double)i / (double)m, p[3] = {a[0] + dx * t, a[1] + dy * t, a[2] + dth * t};
+        size_t c, r, k;
+        vs_field_nearest(f, p, &c, &r, &k);
+        uint32_t v = f->cost[k * plane + r * f->nx + c];
+        if (v == VS_FIELD_WALL || (v & VS_FIELD_TIGHT_BIT) || (v & VS_FIELD_BLOCKED_BIT) != want) return 0;
+    }
+    return 1;
+}
+
+int vs_field_follow(const vs_field *f, const double pose[3], double path_m, double *waypoints, size_t cap,
+                    size_t *n_waypoints, int *blocked, double *left_m)
+{
+    if (f == NULL || f->cost == NULL || cap < 2) return VS_EVALUE;
+    if (!finite3(pose, 3) || !vs_isfinite(path_m)) return VS_ENONFINITE;
+    size_t plane = f->nx * f->ny;
+    size_t c0, r0, k0;
+    vs_field_nearest(f, pose, &c0, &r0, &k0);
+    long start = -1;
+    uint32_t start_v = 0;
+    /* the nearest state, else the cheapest usable state of the nearest ring around it (two headings) */
+    static const int DK[5] = {0, 1, -1, 2, -2};
+    for (int d = 0; d <= VS_FIELD_SEARCH_CELLS && start < 0; d++) {
+        for (int a = 0; a < 5; a++) {
+            size_t k = (size_t)((long)k0 + (long)f->n_headings + DK[a]) % f->n_headings;
+            for (int dr = -d; dr <= d; dr++) {
+                for (int dc = -d; dc <= d; dc++) {
+                    if (dr != -d && dr != d && dc != -d && dc != d) continue;   /* the ring only */
+                    long c = (long)c0 + dc, r = (long)r0 + dr;
+                    if (c < 0 || r < 0 || c >= (long)f->nx || r >= (long)f->ny) continue;
+                    size_t s = k * plane + (size_t)r * f->nx + (size_t)c;
+                    if (f->cost[s] == VS_FIELD_WALL) continue;
+                    uint32_t v = f->cost[s] & VS_FIELD_COST_MASK;
+                    if (start < 0 || v < start_v) { start = (long)s; start_v = v; }
+                }
+            }
+        }
+    }
+    waypoints[0] = pose[0];
+    waypoints[1] = pose[1];
+    waypoints[2] = pose[2];
+    size_t nw = 1;
+    if (start < 0) {   /* on no free state, none near: stay */
+        double dx = f->gx - pose[0], dy = f->gy - pose[1];
+        *n_waypoints = 1;
+        *blocked = 1;
+        *left_m = sqrt(dx * dx + dy * dy);
+        return VS_OK;
+    }
+    int is_blocked = (f->cost[start] & VS_FIELD_BLOCKED_BIT) != 0;
+    size_t s = (size_t)start;
+    state_pose(f, s, waypoints + 3 * nw);
+    nw++;
+    double run = 0.0;
+    while (nw < cap && run < path_m) {
+        uint32_t w;
+        long t = descend(f, s, &w);
+        if (t < 0) break;
+        s = (size_t)t;
+        state_pose(f, s, waypoints + 3 * nw);
+        nw++;
+        run += (double)(w > VS_FIELD_W_DIAG * 2 ? VS_FIELD_W_DIAG * 2 : w) / (double)VS_FIELD_W_AXIS * f->cell_m;
+    }
+    /* any angle: from the pose, straight to the farthest waypoint it sees through open space */
+    for (size_t j = nw - 1; j >= 2; j--) {
+        if (segment_clear(f, waypoints, waypoints + 3 * j, is_blocked ? VS_FIELD_BLOCKED_BIT : 0u)) {
+            memmove(waypoints + 3, waypoints + 3 * j, sizeof(double) * 3 * (nw - j));
+            nw = 1 + (nw - j);
+            break;
+        }
+    }
+    double lx = 0.0, ly = 0.0;
+    if (is_blocked) {   /* how far the component's target is from the goal */
+        size_t u = s;
+        for (size_t step = 0; step < f->n_headings * plane; step++) {
+            uint32_t w;
+            long t = descend(f, u, &w);
+            if (t < 0) break;
+            u = (size_t)t;
+        }
+        double end[3];
+        state_pose(f, u, end);
+        lx = f->gx - end[0];
+        ly = f->gy - end[1];
+    }
+    *n_waypoints = nw;
+    *blocked = is_blocked;
+    *left_m = is_blocked ? sqrt(lx * lx + ly * ly) : 0.0;
+    return VS_OK;
+}

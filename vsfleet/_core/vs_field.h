@@ -1,0 +1,82 @@
+/* vs_field.h - the structure's way through a room, planned once per mission for its bodies in SE(2):
+ * a navigation function (cost to go) over a lattice of structure poses (x, y, th), and the cheap
+ * per-frame descent that follows it.  The compiled twin of vsfleet/field.py's reference
+ * (docs/planning.md has the method, its guarantees and its limits).
+ *
+ * Lattice.  States (ix, iy, k): the structure pose (gx + ix h, gy + iy h, gth + k dth), dth = 2 pi / K,
+ * aligned on the goal pose (gx, gy, gth), which is the state (0, 0, 0) exactly.  The lattice covers the
+ * obstacles and the goal, padded so that its border band is free at every heading.  A state is FREE when
+ * every robot body (its disc of radius r_i at its template point) keeps margin_m + inflation from every
+ * obstacle, where inflation = max(h / sqrt 2, P dth / 2) (P: the template's largest |p_i|) is how far a
+ * body can move along half an edge: so every pose on an edge between two free states keeps margin_m.
+ * A free state is TIGHT when some body is within VS_FIELD_COMFORT_M more than that.
+ * Edges: the 8 neighbours at the same heading (cost 10, diagonals 14) and the two neighbouring headings in
+ * the same cell (cost w_rot = round(10 P dth / h), at least 1); an edge touching a tight state costs twice.
+ *
+ * Cost to go.  Integer Dijkstra (Dial's buckets) from the goal state: exact integer distances, the same
+ * whatever the order of expansion, so every host and the reference agree bit for bit.  Free states the goal
+ * cannot reach form components; each gets its own target, the state nearest the goal (squared lattice
+ * distance, then the lowest index) and a second Dijkstra from all those targets at once: their costs carry
+ * VS_FIELD_BLOCKED_BIT.  Non-free states hold VS_FIELD_WALL.
+ *
+ * Units and frames as vscore.h: lengths [m], poses (x, y, th) [m, m, rad; world].
+ */
+#ifndef VS_FIELD_H
+#define VS_FIELD_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#include "vscore.h"
+
+#define VS_FIELD_WALL 0xFFFFFFFFu          /* a state that is not free */
+#define VS_FIELD_BLOCKED_BIT 0x80000000u   /* a state the goal cannot reach: its cost leads to its target */
+#define VS_FIELD_TIGHT_BIT 0x40000000u     /* a free state within the comfort band of an obstacle */
+#define VS_FIELD_COST_MASK 0x3FFFFFFFu     /* the cost to go itself */
+#define VS_FIELD_COMFORT_M 0.10            /* [m] beyond the margin: closer costs twice (the filter stays idle) */
+#define VS_FIELD_MAX_ABS_M 1e6             /* larger coordinates or radii are refused (VS_EVALUE) */
+#define VS_FIELD_MAX_OBSTACLES 4096
+#define VS_FIELD_GROW 1.25                 /* the cell grows by this factor until the lattice fits max_states */
+#define VS_FIELD_W_AXIS 10u
+#define VS_FIELD_W_DIAG 14u
+#define VS_FIELD_SEARCH_CELLS 4            /* a pose on no free state looks this many cells around for one */
+
+typedef struct {
+    double gx, gy, gth;        /* the goal pose [m, rad; world], gth wrapped to [-pi, pi) */
+    double cell_m;             /* h [m] (may be larger than asked: max_states) */
+    double dth_rad;            /* 2 pi / K */
+    double margin_m;           /* the clearance kept on every edge [m] */
+    double inflation_m;        /* added to the margin at the states [m] */
+    size_t n_headings;         /* K */
+    long ix_lo, iy_lo;         /* lattice index of column / row 0 (ix = ix_lo + column) */
+    size_t nx, ny;
+    uint32_t w_rot;
+    int goal_free;             /* 0: the goal pose itself is not free: every state is blocked */
+    uint32_t *cost;            /* (K, ny, nx) row-major: index (k * ny + row) * nx + column */
+} vs_field;
+
+/* Build the field for a mission.  template_xy (n, 2) [m; structure frame]; radius_m (n) >= 0 [m];
+ * margin_m >= 0 [m]; obstacles (n_obstacles, 3) (x, y, r > 0) [m; world], n_obstacles <= VS_FIELD_MAX_OBSTACLES;
+ * goal (x, y, th); cell_m > 0 [m] (at least 1e-3), n_headings in [4, 1024], max_states >= 1024.
+ * VS_ENONFINITE / VS_EVALUE on bad inputs, VS_ENOMEM if allocation fails; on VS_OK *out owns its cost
+ * array: release it with vs_field_free.  Cost: O(K n m (r / h)^2 + K nx ny) (once per mission). */
+int vs_field_build(const double *template_xy, const double *radius_m, size_t n, double margin_m,
+                   const double *obstacles, size_t n_obstacles, const double goal[3], double cell_m,
+                   size_t n_headings, size_t max_states, vs_field *out);
+
+void vs_field_free(vs_field *f);
+
+/* The state nearest a pose (clamped into the lattice): its column, row and heading index. */
+void vs_field_nearest(const vs_field *f, const double pose[3], size_t *col, size_t *row, size_t *k);
+
+/* Follow the field from a pose (the fitted structure pose): waypoints[0] = the pose, then the nearest
+ * usable state and its descent, until the goal state (then the last waypoint is the goal pose exactly),
+ * the component's target, or path_m [m] of lattice steps, or cap waypoints.  A pose on no free state takes
+ * the free state of least cost within VS_FIELD_SEARCH_CELLS cells (and two headings) of it; if none, the
+ * waypoints are the pose alone and *blocked = 1.  *blocked: the goal cannot be reached from here (the
+ * descent ends at the closest safe pose); *left_m [m]: then, how far that pose is from the goal (0 when not
+ * blocked).  cap >= 2.  No allocation; O(path_m / h) per call (plus the target's descent when blocked). */
+int vs_field_follow(const vs_field *f, const double pose[3], double path_m, double *waypoints, size_t cap,
+                    size_t *n_waypoints, int *blocked, double *left_m);
+
+#endif

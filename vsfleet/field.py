@@ -1,0 +1,329 @@
+"""The structure's way through a room, planned once per mission for its bodies in SE(2) (docs/planning.md).
+
+A navigation function over a lattice of structure poses ``(gx + ix h, gy + iy h, gth + k dth)``, aligned
+on the goal pose: every state holds its integer cost to go (or WALL where some robot body would come
+closer than ``margin + inflation`` to an obstacle). Following it from any pose is a cheap descent, so
+the plan is made once per mission and never repaired: from wherever the structure is, the field says
+which way to go. It is a pure function of the mission, so every agent holds the same field.
+
+:func:`build_field` / :func:`follow_field` run the compiled core (vsfleet/_core/vs_field.c);
+:func:`build_field_reference` / :func:`follow_field_reference` are the readable reference (numpy and
+scipy's Dijkstra), which gives the same integer costs, bit for bit (tests/test_core_field.py).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components, dijkstra
+
+from . import _core
+from .geometry import Pose2, wrap_angle
+
+WALL = 0xFFFFFFFF
+BLOCKED_BIT = 0x80000000
+TIGHT_BIT = 0x40000000
+COST_MASK = 0x3FFFFFFF
+COMFORT_M = 0.10         # [m] beyond the margin: edges near obstacles cost twice (the safety filter stays idle)
+GROW = 1.25
+W_AXIS, W_DIAG = 10, 14
+SEARCH_CELLS = 4
+
+#: the lattice the agents use: 3 cm cells, 48 headings (7.5 degrees), at most 2 million states
+CELL_M = 0.03
+HEADINGS = 48
+MAX_STATES = 2_000_000
+#: the descent handed to the advance each frame [m], and its waypoints at most (vs_step.h)
+PATH_M = 2.0
+PATH_CAP = 160
+
+_DX = (1, -1, 0, 0, 1, -1, 1, -1)
+_DY = (0, 0, 1, -1, 1, 1, -1, -1)
+
+
+@dataclass(frozen=True)
+class Lattice:
+    """Where the field's states are: state (col, row, k) is the pose (gx + (ix_lo + col) h,
+    gy + (iy_lo + row) h, gth + k dth); costs (K, ny, nx) uint32."""
+
+    gx: float
+    gy: float
+    gth: float
+    cell_m: float
+    dth_rad: float
+    inflation_m: float
+    n_headings: int
+    ix_lo: int
+    iy_lo: int
+    nx: int
+    ny: int
+    w_rot: int
+    goal_free: bool
+
+
+class Field:
+    """A built field: its lattice and costs; ``handle`` is the core's (None for a reference build)."""
+
+    def __init__(self, lattice: Lattice, costs: np.ndarray, handle=None):
+        self.lattice, self.costs, self.handle = lattice, costs, handle
+
+
+def build_field(template_xy, radius_m, margin_m: float, obstacles, goal: Pose2, cell_m: float = CELL_M,
+                n_headings: int = HEADINGS, max_states: int = MAX_STATES) -> Field:
+    """The compiled core's field (vs_field_build); costs read back lazily by tests only."""
+    handle = _core.field_build(np.ascontiguousarray(template_xy, dtype=float),
+                               np.ascontiguousarray(radius_m, dtype=float), float(margin_m),
+                               np.ascontiguousarray(obstacles, dtype=float).reshape(-1),
+                               np.array(goal.as_tuple(), dtype=float), float(cell_m), int(n_headings), int(max_states))
+    lat = Lattice(*_core.field_info(handle))
+    return Field(lat, _CoreCosts(handle, lat), handle)
+
+
+class _CoreCosts:
+    """The core's cost array, copied out on first use (tests, plots)."""
+
+    def __init__(self, handle, lat: Lattice):
+        self._handle, self._lat, self._a = handle, lat, None
+
+    def __array__(self, dtype=None, copy=None):
+        if self._a is None:
+            self._a = np.frombuffer(_core.field_costs(self._handle), dtype=np.uint32).reshape(
+                self._lat.n_headings, self._lat.ny, self._lat.nx)
+        return self._a if dtype is None else self._a.astype(dtype)
+
+
+def follow_field(field: Field, pose: Pose2, path_m: float = PATH_M, cap: int = PATH_CAP):
+    """(waypoints (k, 3), blocked, left_m) of the core's descent from ``pose`` (vs_field_follow)."""
+    out = np.empty((cap, 3))
+    k, blocked, left = _core.field_follow(field.handle, np.array(pose.as_tuple(), dtype=float), float(path_m), out)
+    return out[:k], blocked, left
+
+
+# ------------------------------------------------------------------------------------------- reference
+
+
+def _floor(v: float) -> int:
+    return math.floor(v)
+
+
+def build_field_reference(template_xy, radius_m, margin_m: float, obstacles, goal: Pose2, cell_m: float = CELL_M,
+                          n_headings: int = HEADINGS, max_states: int = MAX_STATES) -> Field:
+    """vs_field_build in numpy and scipy: the same lattice, the same raster, the same integer costs."""
+    tpl = np.asarray(template_xy, dtype=float).reshape(-1, 2)
+    rad = np.asarray(radius_m, dtype=float).reshape(-1)
+    obs = np.asarray(obstacles, dtype=float).reshape(-1, 3)
+    gx, gy, gth = goal.x, goal.y, wrap_angle(goal.th)
+    K = int(n_headings)
+    dth = (2.0 * math.pi) / K
+    pn = np.sqrt(tpl[:, 0] * tpl[:, 0] + tpl[:, 1] * tpl[:, 1])
+    pmax = max(0.0, float(pn.max()))
+    reach = max(0.0, float((pn + rad).max()))
+    lo_x = min([0.0] + [float((o[0] - o[2]) - gx) for o in obs])
+    hi_x = max([0.0] + [float((o[0] + o[2]) - gx) for o in obs])
+    lo_y = min([0.0] + [float((o[1] - o[2]) - gy) for o in obs])
+    hi_y = max([0.0] + [float((o[1] + o[2]) - gy) for o in obs])
+    h = float(cell_m)
+    while True:
+        infl = max(h * math.sqrt(0.5), pmax * (math.pi / K))
+        pad = ((reach + margin_m) + infl) + COMFORT_M + 2.0 * h
+        ix0, ix1 = _floor((lo_x - pad) / h), -_floor(-(hi_x + pad) / h)
+        iy0, iy1 = _floor((lo_y - pad) / h), -_floor(-(hi_y + pad) / h)
+        states = (ix1 - ix0 + 1) * (iy1 - iy0 + 1) * K
+        if states <= max_states:
+            break
+        h *= GROW
+    nx, ny = ix1 - ix0 + 1, iy1 - iy0 + 1
+    w_rot = max(1, _floor(float(W_AXIS) * (pmax * dth) / h + 0.5))
+    lattice_x = gx + np.arange(ix0, ix1 + 1, dtype=float) * h      # (nx,)
+    lattice_y = gy + np.arange(iy0, iy1 + 1, dtype=float) * h      # (ny,)
+    wall = np.zeros((K, ny, nx), dtype=bool)
+    tight = np.zeros((K, ny, nx), dtype=bool)
+    for k in range(K):
+        th = gth + k * dth
+        c, s = _core.cos(th), _core.sin(th)   # the core's own sine and cosine: the same bits on every host
+        for i in range(len(tpl)):
+            qx, qy = c * tpl[i, 0] - s * tpl[i, 1], s * tpl[i, 0] + c * tpl[i, 1]
+            bx, by = lattice_x + qx, lattice_y + qy
+            for o in obs:
+                rho_wall = (rad[i] + o[2]) + (margin_m + infl)
+                rho_tight = rho_wall + COMFORT_M
+                dx, dy = bx - o[0], by - o[1]
+                d2 = dy[:, None] * dy[:, None] + dx[None, :] * dx[None, :]
+                wall[k] |= d2 < rho_wall * rho_wall
+                tight[k] |= d2 < rho_tight * rho_tight
+    tight &= ~wall
+    free = ~wall.ravel()
+    tight_flat = tight.ravel()
+    graph = _graph(K, ny, nx, free, tight_flat, w_rot)
+    total = K * ny * nx
+    goal_state = (-iy0) * nx + (-ix0)
+    dist = np.full(total, np.inf)
+    reached = np.zeros(total, dtype=bool)
+    if free[goal_state]:
+        dist = dijkstra(graph, directed=False, indices=goal_state)
+        reached = np.isfinite(dist)
+    # every component the goal cannot reach leads to its state nearest the goal (lattice distance, then index)
+    _, labels = connected_components(graph, directed=False)
+    rest = np.flatnonzero(free & ~reached)
+    targets = []
+    if rest.size:
+        rem = rest % (ny * nx)
+        col, row = rem % nx + ix0, rem // nx + iy0
+        d2 = col.astype(np.int64) ** 2 + row.astype(np.int64) ** 2
+        order = np.lexsort((rest, d2))                    # by d2, then index
+        seen_labels = set()
+        for j in order:
+            lab = labels[rest[j]]
+            if lab not in seen_labels:
+                seen_labels.add(lab)
+                targets.append(int(rest[j]))
+        d_blocked = dijkstra(graph, directed=False, indices=targets, min_only=True)
+        dist = np.where(reached, dist, d_blocked)
+    costs = np.full(total, WALL, dtype=np.uint32)
+    cost = np.where(free, dist, 0).astype(np.uint32)
+    cost |= np.where(tight_flat, TIGHT_BIT, 0).astype(np.uint32)
+    cost |= np.where(reached, 0, BLOCKED_BIT).astype(np.uint32)
+    costs[free] = cost[free]
+    lat = Lattice(gx, gy, gth, h, dth, infl, K, ix0, iy0, nx, ny, w_rot, bool(free[goal_state]))
+    return Field(lat, costs.reshape(K, ny, nx))
+
+
+def _graph(K: int, ny: int, nx: int, free: np.ndarray, tight: np.ndarray, w_rot: int):
+    """The lattice's edges between free states as a sparse matrix (each edge once; weights doubled where
+    an end is tight)."""
+    idx = np.arange(K * ny * nx).reshape(K, ny, nx)
+    rows, cols, ws = [], [], []
+
+    def add(a: np.ndarray, b: np.ndarray, w: int) -> None:
+        a, b = a.ravel(), b.ravel()
+        keep = free[a] & free[b]
+        a, b = a[keep], b[keep]
+        rows.append(a)
+        cols.append(b)
+        ws.append(np.where(tight[a] | tight[b], 2 * w, w).astype(float))
+
+    add(idx[:, :, :-1], idx[:, :, 1:], W_AXIS)
+    add(idx[:, :-1, :], idx[:, 1:, :], W_AXIS)
+    add(idx[:, :-1, :-1], idx[:, 1:, 1:], W_DIAG)
+    add(idx[:, :-1, 1:], idx[:, 1:, :-1], W_DIAG)
+    add(idx, np.roll(idx, -1, axis=0), w_rot)
+    n = K * ny * nx
+    return coo_matrix((np.concatenate(ws), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)).tocsr()
+
+
+def _nearest(lat: Lattice, x: float, y: float, th: float) -> tuple[int, int, int]:
+    c = min(max(_floor((x - lat.gx) / lat.cell_m + 0.5) - lat.ix_lo, 0), lat.nx - 1)
+    r = min(max(_floor((y - lat.gy) / lat.cell_m + 0.5) - lat.iy_lo, 0), lat.ny - 1)
+    k = _floor(_core.wrap_angle(th - lat.gth) / lat.dth_rad + 0.5) % lat.n_headings
+    return c, r, k
+
+
+def _state_pose(lat: Lattice, s: int) -> tuple[float, float, float]:
+    plane = lat.nx * lat.ny
+    k, rem = divmod(s, plane)
+    return (lat.gx + float(rem % lat.nx + lat.ix_lo) * lat.cell_m, lat.gy + float(rem // lat.nx + lat.iy_lo) * lat.cell_m,
+            _core.wrap_angle(lat.gth + float(k) * lat.dth_rad))
+
+
+def _neighbours(lat: Lattice, s: int):
+    plane = lat.nx * lat.ny
+    k, rem = divmod(s, plane)
+    r, c = divmod(rem, lat.nx)
+    for j in range(8):
+        cc, rr = c + _DX[j], r + _DY[j]
+        if 0 <= cc < lat.nx and 0 <= rr < lat.ny:
+            yield k * plane + rr * lat.nx + cc, (W_AXIS if j < 4 else W_DIAG)
+    yield ((k + 1) % lat.n_headings) * plane + rem, lat.w_rot
+    yield ((k - 1) % lat.n_headings) * plane + rem, lat.w_rot
+
+
+def _descend(lat: Lattice, cost: np.ndarray, s: int):
+    cs = int(cost[s]) & COST_MASK
+    if cs == 0:
+        return None, 0
+    best, best_v, best_w = None, 0, 0
+    for t, w in _neighbours(lat, s):
+        ct = int(cost[t])
+        if ct == WALL or (ct & COST_MASK) >= cs:
+            continue
+        if (int(cost[s]) | ct) & TIGHT_BIT:
+            w *= 2
+        v = (ct & COST_MASK) + w
+        if best is None or v < best_v:
+            best, best_v, best_w = t, v, w
+    return best, best_w
+
+
+def follow_field_reference(field: Field, pose: Pose2, path_m: float = PATH_M, cap: int = PATH_CAP):
+    """vs_field_follow in Python: (waypoints (k, 3), blocked, left_m)."""
+    lat = field.lattice
+    cost = np.asarray(field.costs).ravel()
+    plane = lat.nx * lat.ny
+    c0, r0, k0 = _nearest(lat, pose.x, pose.y, pose.th)
+    start, start_v = None, 0
+    for d in range(SEARCH_CELLS + 1):
+        for dk in (0, 1, -1, 2, -2):
+            k = (k0 + lat.n_headings + dk) % lat.n_headings
+            for dr in range(-d, d + 1):
+                for dc in range(-d, d + 1):
+                    if abs(dr) != d and abs(dc) != d:
+                        continue
+                    c, r = c0 + dc, r0 + dr
+                    if not (0 <= c < lat.nx and 0 <= r < lat.ny):
+                        continue
+                    s = k * plane + r * lat.nx + c
+                    if int(cost[s]) == WALL:
+                        continue
+                    v = int(cost[s]) & COST_MASK
+                    if start is None or v < start_v:
+                        start, start_v = s, v
+        if start is not None:
+            break
+    way = [pose.as_tuple()]
+    if start is None:
+        return np.array(way), True, math.sqrt((lat.gx - pose.x) ** 2 + (lat.gy - pose.y) ** 2)
+    blocked = bool(int(cost[start]) & BLOCKED_BIT)
+    s = start
+    way.append(_state_pose(lat, s))
+    run = 0.0
+    while len(way) < cap and run < path_m:
+        t, w = _descend(lat, cost, s)
+        if t is None:
+            break
+        s = t
+        way.append(_state_pose(lat, s))
+        run += float(min(w, 2 * W_DIAG)) / float(W_AXIS) * lat.cell_m
+    want = BLOCKED_BIT if blocked else 0
+    for j in range(len(way) - 1, 1, -1):
+        if _segment_clear(lat, cost, way[0], way[j], want):
+            way = [way[0]] + way[j:]
+            break
+    left = 0.0
+    if blocked:
+        u = s
+        while True:
+            t, _ = _descend(lat, cost, u)
+            if t is None:
+                break
+            u = t
+        ex, ey, _ = _state_pose(lat, u)
+        left = math.sqrt((lat.gx - ex) * (lat.gx - ex) + (lat.gy - ey) * (lat.gy - ey))
+    return np.array(way), blocked, left
+
+
+def _segment_clear(lat: Lattice, cost: np.ndarray, a, b, want: int) -> bool:
+    dx, dy, dth = b[0] - a[0], b[1] - a[1], _core.wrap_angle(b[2] - a[2])
+    steps_xy = math.sqrt(dx * dx + dy * dy) / (0.5 * lat.cell_m)
+    steps_th = abs(dth) / (0.5 * lat.dth_rad)
+    m = _floor(max(steps_xy, steps_th)) + 1
+    plane = lat.nx * lat.ny
+    for i in range(m + 1):
+        t = i / m
+        c, r, k = _nearest(lat, a[0] + dx * t, a[1] + dy * t, a[2] + dth * t)
+        v = int(cost[k * plane + r * lat.nx + c])
+        if v == WALL or (v & TIGHT_BIT) or (v & BLOCKED_BIT) != want:
+            return False
+    return True
