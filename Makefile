@@ -68,9 +68,10 @@ test-sanitize:
 bench-fit: $(STAMP) $(CORE_SO)
 	$(BIN)/python bench/fit.py
 
-# every benchmark -> docs/benchmarks.md + docs/bench/*.png (20-40 min; BENCH_ARGS=--quick for a short run)
+# every benchmark -> docs/benchmarks.md + docs/bench/ + docs/img/ (20-40 min; BENCH_ARGS=--quick for a short run);
+# --docs: the one place the benchmarks write into docs/ (run alone, bench/*.py write under runs/bench/)
 bench: $(STAMP) $(CORE_SO)
-	$(BIN)/python -m bench.run_all $(BENCH_ARGS)
+	$(BIN)/python -m bench.run_all --docs $(BENCH_ARGS)
 
 clean:
 	rm -rf $(VENV) runs .pytest_cache .hypothesis

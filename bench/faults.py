@@ -4,10 +4,11 @@ The paper triangle under the issue-13 conditions (bench/conditions.py: sigma 2 m
 30 Hz, commands one frame late, wheel gains within +-4%, a 2.5 m leg at 0.1 m/s), offline (the
 real agents, simulated physics), with r2 faulted at 8 s: stopped for good, one wheel dead, both
 wheels at 50% for good and for 8 s, a 2 s and a 4 s stall; under on_failure = hold, drop and
-rejoin, over seeds. Prints a markdown table (worst over the seeds) and writes the paper's Fig. 12
-again (docs/img/fig12-faults.png: structure path and formation error over time, hold).
+rejoin, over seeds. Prints a markdown table (worst over the seeds) and draws the paper's Fig. 12
+again (fig12-faults.png: structure path and formation error over time, hold, the first seed) into
+runs/bench/faults/, or --out DIR, or with --docs docs/img/ (as make bench does: bench/run_all.py).
 
-Run: .venv/bin/python bench/faults.py [--seeds 1 2 3] [--seconds 45]
+Run: .venv/bin/python bench/faults.py [--seeds 1 2 3] [--seconds 45] [--out DIR | --docs]
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from bench.conditions import issue_scenario  # noqa: E402
+from bench.outputs import DOCS, add_output_flags  # noqa: E402
 from vsfleet.simfleet.offline import run_offline  # noqa: E402
 from vsfleet.fit import fit_structure  # noqa: E402
 from vsfleet.scenario import FaultEvent  # noqa: E402
@@ -38,6 +40,7 @@ FAULTS = [("stop", "stop", 0.0, 0.0), ("one wheel dead", "wheel", 0.0, 0.0),
           ("stall 2 s", "stall", 0.0, 2.0), ("stall 4 s", "stall", 0.0, 4.0)]
 POLICIES = ("hold", "drop", "rejoin")
 HALTED_M = 0.005     # the structure counts as halted if it moved less than this from 2 s into the fault
+FIG12 = "fig12-faults.png"
 
 
 def _in_structure(run, k_frames: int) -> list[np.ndarray]:
@@ -122,6 +125,22 @@ def fault_case(label, kind, factor, duration, policy, seed, seconds):
                 goal=goal_time_s(run, sc.mission), swerve=swerve_m(run, sc.mission))
 
 
+def _curve(case) -> tuple:
+    """One fault's line in Fig. 12: (t, formation error, the structure's path)."""
+    return case["ts"], case["err"], np.array([(p.x, p.y) for _, p in case["run"].trace])
+
+
+def fig12(out_dir: Path, seed: int = 1, seconds: float = 45.0) -> Path:
+    """Fig. 12 alone, as main draws it (every fault under hold, one seed), into out_dir."""
+    curves = {}
+    for label, kind, factor, duration in FAULTS:
+        case = fault_case(label, kind, factor, duration, "hold", seed, seconds)
+        curves[label] = _curve(case)
+    path = out_dir / FIG12
+    plot_fig12(curves, case["sc"].mission.goal, path)
+    return path
+
+
 def plot_fig12(curves, goal, path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
@@ -148,7 +167,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=45.0, help="simulated seconds per run")
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
-    ap.add_argument("--plot", default=str(ROOT / "docs" / "img" / "fig12-faults.png"))
+    add_output_flags(ap, "faults", DOCS / "img", f"the plot ({FIG12})")
     args = ap.parse_args(argv)
     logging.getLogger("vsfleet").setLevel(logging.ERROR)  # the agents' decisions are in the table
     jobs = [(f, p) for f in FAULTS for p in POLICIES]
@@ -168,9 +187,8 @@ def main(argv: list[str] | None = None) -> int:
                      "yes" if all(c["agree"] for c in cases) else "NO",
                      "NO" if not any(c["healthy_flagged"] for c in cases) else "YES", goal))
         if policy == "hold":
-            c = cases[0]
-            curves[label] = (c["ts"], c["err"], np.array([(p.x, p.y) for _, p in c["run"].trace]))
-            goal_xy = c["sc"].mission.goal
+            curves[label] = _curve(cases[0])
+            goal_xy = cases[0]["sc"].mission.goal
         eta = (time.monotonic() - t_start) / (i + 1) * (len(jobs) - i - 1)
         print(f"[{i + 1}/{len(jobs)}] {label} / {policy}: max {rows[-1][2]:.2f} cm, goal {goal}  "
               f"(ETA {eta:.0f} s)", file=sys.stderr, flush=True)
@@ -184,8 +202,8 @@ def main(argv: list[str] | None = None) -> int:
     for r in rows:
         print(f"| {r[0]} | {r[1]} | {r[2]:.2f} | {r[3]:.2f} | {r[4]} | {r[5]:.2f} | {r[6]} | {r[7]} | {r[8]} "
               f"| {r[9]} |")
-    plot_fig12(curves, goal_xy, Path(args.plot))
-    print(f"\nplot: {args.plot}", file=sys.stderr)
+    plot_fig12(curves, goal_xy, args.out / FIG12)
+    print(f"\nplot: {args.out / FIG12}", file=sys.stderr)
     return 0
 
 

@@ -61,6 +61,11 @@ from vsfleet.wire import (
 )
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))  # bench.outputs, also when run as a script
+
+from bench.outputs import DOCS, add_output_flags  # noqa: E402
+
+VS_TRIVIAL = "vs-trivial"  # --compare's outputs: vs-trivial.json and vs-trivial.png
 CLK_TCK = os.sysconf("SC_CLK_TCK")
 WHEEL_BASE_M = 0.12
 NOISE_XY_M = 0.001
@@ -550,12 +555,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--frames", type=int, default=300)
     p.add_argument("--floor", action="store_true", help="also measure the zenoh floor")
     p.add_argument("--compare", default=None, help="N,N,...: the trivial fleet and vsfleet's back to back at each N")
-    p.add_argument("--out", default=None, help="with --compare: write OUT.json and OUT.png")
+    add_output_flags(p, "loop", DOCS / "bench", f"--compare's {VS_TRIVIAL}.json and {VS_TRIVIAL}.png")
     p.add_argument("--agent", choices=("vsfleet", "trivial", "trivial-express", "trivial-batched"), default="vsfleet",
                    help="the agents: vsfleet's own, or the trivial floor (bench/trivial_agent.py)")
     a = p.parse_args(argv)
     if a.compare:
-        compare([int(x) for x in a.compare.split(",")], a.rate, a.frames, Path(a.out) if a.out else None)
+        compare([int(x) for x in a.compare.split(",")], a.rate, a.frames, a.out / VS_TRIVIAL)
         return 0
     if a.floor:
         for f in run_floor([("back to back", None, 2000), ("30 Hz", 30.0, 300)]):

@@ -8,7 +8,10 @@ translating. A robot's deviation at a frame is its distance from its template po
 structure fitted (with the run's metric) to the true positions, pooled over robots, frames
 (until the structure is within 5 mm of the goal, else the whole run) and seeds.
 
-Run: .venv/bin/python bench/precision.py [--seeds 1 2 3] [--plot docs/img]
+Figs 9 and 10 again go to runs/bench/precision/, or --out DIR, or with --docs docs/img/ (as make
+bench does: bench/run_all.py).
+
+Run: .venv/bin/python bench/precision.py [--seeds 1 2 3] [--out DIR | --docs]
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from bench.conditions import NOISE_TH_RAD, NOISE_XY_M, ideal_time_s, issue_scenario  # noqa: E402
+from bench.outputs import DOCS, add_output_flags  # noqa: E402
 from vsfleet.simfleet.offline import OfflineRun, run_offline  # noqa: E402
 from vsfleet.analysis import goal_distance  # noqa: E402
 from vsfleet.control import CONTROLLERS, DEFAULT_CONTROLLER  # noqa: E402
@@ -223,7 +227,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     ap.add_argument("--metrics", nargs="+", default=list(METRICS))
     ap.add_argument("--controllers", nargs="+", default=list(CONTROLLERS))
-    ap.add_argument("--plot", default=str(ROOT / "docs" / "img"))
+    add_output_flags(ap, "precision", DOCS / "img", "Figs 9 and 10 (fig9-paths.png, fig10-deviation.png)")
     ap.add_argument("--no-sweep", action="store_true")
     args = ap.parse_args(argv)
     print(f"machine: {platform.node()} {platform.machine()} {platform.processor() or ''}, python "
@@ -240,9 +244,8 @@ def main(argv: list[str] | None = None) -> int:
         print()
         print(noise_table(issue_noise_sweep(DEFAULT_CONTROLLER, "linf", seeds=args.seeds,
                                             log=lambda s: print(s, file=sys.stderr))))
-    if args.plot:
-        for p in figures(Path(args.plot)):
-            print(f"plot: {p}", file=sys.stderr)
+    for p in figures(args.out):
+        print(f"plot: {p}", file=sys.stderr)
     print(f"({time.perf_counter() - t0:.0f} s)", file=sys.stderr)
     return 0
 

@@ -1,14 +1,18 @@
-"""make bench: every benchmark, then docs/benchmarks.md with tables and docs/bench/*.png plots.
+"""make bench: every benchmark, then benchmarks.md with tables, bench/*.png plots and img/ figures.
 
-Run: .venv/bin/python -m bench.run_all [--quick] [--sections fit,precision,lf,latency,scale]
+Run: .venv/bin/python -m bench.run_all [--quick] [--sections fit,precision,lf,latency,scale,figures]
+     [--out DIR | --docs]
 
 Sections: the fit against scipy Powell (bench/fit.py), precision against the
 paper (bench/precision.py), virtual structure against leader-follower
 (bench/leader_follower.py), loop latency with the Zenoh floor, and scale
-(bench/loop.py). Progress lines with ETAs go to stderr. ``--quick`` runs
-everything with far fewer frames and seeds (for development); the document
-states the counts actually used. Benchmarks print figures; nothing here is a
-test.
+(bench/loop.py); figures: Figs 9 and 10 (bench/precision.py) and 12
+(bench/faults.py) again, into img/. Everything goes to runs/bench/docs/
+(untracked), or --out DIR; ``make bench`` passes --docs: docs/benchmarks.md,
+docs/bench/ and docs/img/, the one way the benchmarks refresh docs/. Progress
+lines with ETAs go to stderr. ``--quick`` runs everything with far fewer frames
+and seeds (for development); the document states the counts actually used.
+Benchmarks print figures; nothing here is a test.
 """
 
 from __future__ import annotations
@@ -32,13 +36,15 @@ from vsfleet.wire import FrameMsg, encode_frame
 from . import fit as fit_bench
 from . import step as step_bench
 from . import report
+from .outputs import DOCS, add_output_flags
 from .leader_follower import compare, tune
 from .loop import percentiles_s, run_floor, run_loop
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = ROOT / "scenarios" / "paper-triangle.toml"
-SECTIONS = ("fit", "precision", "lf", "latency", "scale")  # precision: against the paper (key "paper"); the
-# issue-13 precision and fault tables are bench/precision.py's and bench/faults.py's (sections precision, faults)
+SECTIONS = ("fit", "precision", "lf", "latency", "scale", "figures")  # precision: against the paper (key "paper");
+# the issue-13 precision and fault tables are bench/precision.py's and bench/faults.py's (sections precision,
+# faults, kept as they were written); figures: their Figs 9, 10 and 12 (img/), drawn here again
 LATENCY_CONFIGS = ((3, 30.0), (10, 30.0), (30, 30.0), (100, 30.0), (10, 100.0))
 SWEEP_SIZES = ()   # besides the 30 Hz latency runs' sizes (none: those are the issue's)
 STEP_SIZES = (3, 10, 100, 1000)
@@ -78,7 +84,7 @@ def estimates_s(cfg: dict, sections) -> dict[str, float]:
     loop = sum(cfg["loop_frames"] / hz + 10 + n for n, hz in LATENCY_CONFIGS) + 60
     floor = sum(c / r if r else c * 3e-4 for _, r, c in cfg["floor"]) + 10
     est = {"fit": 15.0, "precision": 100.0 * len(cfg["precision_seeds"]) + 20, "lf": 40.0,
-           "latency": loop + floor, "scale": 3 * (cfg["sweep_frames"] / 30.0 + 15)}
+           "latency": loop + floor, "scale": 3 * (cfg["sweep_frames"] / 30.0 + 15), "figures": 20.0}
     return {k: v for k, v in est.items() if k in sections}
 
 
@@ -315,7 +321,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="bench.run_all", description=__doc__.splitlines()[0])
     p.add_argument("--quick", action="store_true", help="few frames and seeds (development)")
     p.add_argument("--sections", default=",".join(SECTIONS), help=f"comma list of {', '.join(SECTIONS)}")
-    p.add_argument("--out", default=str(ROOT / "docs" / "benchmarks.md"))
+    add_output_flags(p, "docs", DOCS, "benchmarks.md, bench/ (plots, sections, results.json) and img/ (figures)")
     args = p.parse_args(argv)
     sections = [s for s in args.sections.split(",") if s]
     unknown = set(sections) - set(SECTIONS)
@@ -364,7 +370,14 @@ def main(argv: list[str] | None = None) -> int:
         res["sweep"] = run_sweep(measured, cfg["sweep_frames"], prog.log)
         res["scale_runs"] = list(measured.values())
         prog.done("scale")
-    out = Path(args.out)
+    out = args.out / "benchmarks.md"
+    if "figures" in sections:
+        from .faults import fig12
+        from .precision import figures
+        prog.start("figures")
+        for path in (*figures(args.out / "img"), fig12(args.out / "img")):
+            prog.log(f"[figures] {path}")
+        prog.done("figures")
     write_doc(res, cfg, args.quick, out, time.monotonic() - t0)
     prog.log(f"wrote {out} and {out.parent / 'bench'}/*.png")
     for line in summary_lines(res):
