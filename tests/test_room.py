@@ -67,3 +67,96 @@ def test_min_gap_is_the_smallest_clearance_between_bodies_and_obstacles():
     assert min_gap_m(mission, [(0.0, t)]) == pytest.approx(0.02)
     t["a"] = TruthMsg(t=0.0, x=0.0, y=0.76, th=0.0, vl=0.0, vr=0.0, why="idle")
     assert min_gap_m(mission, [(0.0, t)]) == pytest.approx(-0.01)  # a body inside the obstacle's edge
+
+
+# ------------------------------------------------------------------ issue 28: bodies planned in SE(2)
+
+SIDE_M, BODY_M = 0.5, 0.09      # the paper triangle of side 0.5 m with bodies of 0.09 m (issue 28)
+
+
+def triangle_in_a_room(obstacles, phi_rad: float = 0.0, goal=(2.0, 1.5, 0.0)):
+    """The issue's fleet: the triangle (a vertex at phi_rad), bodies 0.09 m, wheel base 0.16 m, 0.25 m/s, 1 m/s^2,
+    mission 0.1 m/s and 0.5 rad/s, l2, from the origin to (2, 1.5); 2 mm noise, wheel gains 0.96-1.04."""
+    sc = load_scenario(ROOT / "scenarios" / "paper-triangle-obstacle.toml")
+    rc = SIDE_M / math.sqrt(3.0)
+    pts = [(rc * math.cos(phi_rad + a), rc * math.sin(phi_rad + a)) for a in (0.0, 2 * math.pi / 3, 4 * math.pi / 3)]
+    robots = tuple((rid, dataclasses.replace(spec, p=pts[i], wheel_base=0.16, wheel_speed_max=0.25,
+                                             wheel_accel_max=1.0, radius=BODY_M))
+                   for i, (rid, spec) in enumerate(sc.mission.robots))
+    mission = dataclasses.replace(sc.mission, robots=robots, speed_max=0.1, turn_rate_max=0.5, metric="l2",
+                                  goal=goal, obstacles=tuple(obstacles))
+    sims = tuple(dataclasses.replace(s, start=(pts[i][0], pts[i][1], 0.0), gain=(1.0 + 0.04 * (-1) ** i, 1.0),
+                                     wheel_base=0.16, wheel_speed_max=0.25, wheel_accel_max=1.0, radius=BODY_M)
+                 for i, s in enumerate(sc.robots))
+    return dataclasses.replace(sc, mission=mission, robots=sims,
+                               tracker=dataclasses.replace(sc.tracker, noise_xy_m=0.002))
+
+
+def thin_wall(gap_m: float, x: float = 1.0, centre_y: float = 0.765, r: float = 0.1):
+    """A wall of overlapping discs (radius r, 0.15 m apart) along x, from y = -1.7 to 3.2, with one gap of
+    gap_m [m] between the discs' edges, centred at centre_y."""
+    above = [(x, centre_y + gap_m / 2 + r + 0.15 * k, r) for k in range(int((3.2 - centre_y) / 0.15))]
+    below = [(x, centre_y - gap_m / 2 - r - 0.15 * k, r) for k in range(int((centre_y + 1.7) / 0.15))]
+    return above + below
+
+
+def ring_with_gap(gap_m: float, centre=(2.0, 1.5), radius: float = 0.8, r: float = 0.1):
+    """A closed ring of overlapping discs (radius r) around centre, with one gap of gap_m [m] between two
+    discs' edges, facing the origin (the fleet's start)."""
+    facing = math.atan2(-centre[1], -centre[0])
+    half = math.asin((gap_m / 2 + r) / radius)        # the gap's two discs at facing -/+ half
+    count = int((2 * math.pi - 2 * half) / (0.15 / radius)) + 1
+    angles = np.linspace(facing + half, facing + 2 * math.pi - half, count)
+    return [(centre[0] + radius * math.cos(a), centre[1] + radius * math.sin(a), r) for a in angles]
+
+
+def filter_changes(monkeypatch) -> list[float]:
+    """Record, per frame stepped, how much the safety filter changed any robot's command [m/s]."""
+    import vsfleet.step as step
+    changes: list[float] = []
+    original = step._safe_wheels
+
+    def recording(arrays, pose, seen, active, wheels, wheels_prev, config):
+        out = original(arrays, pose, seen, active, wheels, wheels_prev, config)
+        changes.append(float(np.abs(out - wheels).max()))
+        return out
+
+    monkeypatch.setattr(step, "_safe_wheels", recording)
+    return changes
+
+
+@pytest.mark.parametrize("radius_m", [0.15, 0.25])
+def test_a_vertex_facing_the_pillar_no_longer_deadlocks_the_fleet_and_the_safety_filter_stays_idle(radius_m, monkeypatch):
+    """Issue 28's deadlock: with a vertex at 60 degrees the disc planner's path brought the nearest body to
+    11.8-12.8 mm of the pillar, inside the safety filter's 15 mm: the filter held that robot off its point, the
+    compliance throttle halted the structure, and no agent said 'blocked'; it stopped 1.3 m short."""
+    changes = filter_changes(monkeypatch)
+    scenario = triangle_in_a_room([(1.0, 0.75, radius_m)], phi_rad=1.05)
+    run = run_offline(scenario, 45.0, seed=1, share_structures=False)
+    assert run.t_goal_s is not None and run.t_goal_s < 1.5 * 25.0   # the straight path takes 25 s
+    assert gap_of(scenario, run) > 0.05
+    assert max(changes) == 0.0                                      # the plan keeps the filter idle
+    assert all(not d for d in run.decisions.values())               # no failure, no 'blocked'
+
+
+def test_the_structure_turns_to_pass_a_gap_narrower_than_its_enclosing_disc():
+    gap = 0.70
+    disc = 2 * (SIDE_M / math.sqrt(3.0) + BODY_M)
+    assert disc > gap + 0.05                                         # the disc planner could not pass it
+    scenario = triangle_in_a_room(thin_wall(gap), phi_rad=0.5)
+    run = run_offline(scenario, 60.0, seed=1)
+    assert run.t_goal_s is not None and run.t_goal_s < 1.5 * 25.0
+    assert gap_of(scenario, run) > 0.015
+    headings = np.array([p.th for _, p in run.trace])
+    assert np.ptp(headings) > 0.2                                   # it turned on the way
+
+
+def test_a_goal_ringed_with_a_gap_narrower_than_a_body_is_no_way_and_every_agent_says_blocked_once():
+    scenario = triangle_in_a_room(ring_with_gap(0.15))
+    run = run_offline(scenario, 40.0, seed=1)
+    assert run.t_goal_s is None
+    assert gap_of(scenario, run) > 0.015
+    for robot, decisions in run.decisions.items():
+        assert [d.kind for d in decisions] == ["blocked"], robot
+    last = run.trace[-1][1]
+    assert math.hypot(last.x - 2.0, last.y - 1.5) > 0.8 + SIDE_M / math.sqrt(3.0)   # it stopped outside the ring

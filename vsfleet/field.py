@@ -21,7 +21,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
 
 from . import _core
-from .geometry import Pose2, wrap_angle
+from .geometry import Pose2
 
 WALL = 0xFFFFFFFF
 BLOCKED_BIT = 0x80000000
@@ -105,6 +105,11 @@ def follow_field(field: Field, pose: Pose2, path_m: float = PATH_M, cap: int = P
 # ------------------------------------------------------------------------------------------- reference
 
 
+def _wrap_outside(th: float) -> float:
+    """An angle in [-pi, pi) as it is, any other wrapped (the core's wrap is not the identity inside)."""
+    return th if -math.pi <= th < math.pi else _core.wrap_angle(th)
+
+
 def _floor(v: float) -> int:
     return math.floor(v)
 
@@ -115,7 +120,7 @@ def build_field_reference(template_xy, radius_m, margin_m: float, obstacles, goa
     tpl = np.asarray(template_xy, dtype=float).reshape(-1, 2)
     rad = np.asarray(radius_m, dtype=float).reshape(-1)
     obs = np.asarray(obstacles, dtype=float).reshape(-1, 3)
-    gx, gy, gth = goal.x, goal.y, wrap_angle(goal.th)
+    gx, gy, gth = goal.x, goal.y, _wrap_outside(goal.th)
     K = int(n_headings)
     dth = (2.0 * math.pi) / K
     pn = np.sqrt(tpl[:, 0] * tpl[:, 0] + tpl[:, 1] * tpl[:, 1])
@@ -225,7 +230,7 @@ def _state_pose(lat: Lattice, s: int) -> tuple[float, float, float]:
     plane = lat.nx * lat.ny
     k, rem = divmod(s, plane)
     return (lat.gx + float(rem % lat.nx + lat.ix_lo) * lat.cell_m, lat.gy + float(rem // lat.nx + lat.iy_lo) * lat.cell_m,
-            _core.wrap_angle(lat.gth + float(k) * lat.dth_rad))
+            _wrap_outside(lat.gth + float(k) * lat.dth_rad))
 
 
 def _neighbours(lat: Lattice, s: int):

@@ -95,6 +95,12 @@ done:
     return rc;
 }
 
+/* an angle in [-pi, pi) as it is, any other wrapped (vs_wrap_angle is not the identity inside) */
+static double wrap_outside(double th)
+{
+    return (th >= -VS_PI && th < VS_PI) ? th : vs_wrap_angle(th);
+}
+
 static int finite3(const double *v, size_t n)
 {
     for (size_t i = 0; i < n; i++)
@@ -132,7 +138,7 @@ int vs_field_build(const double *template_xy, const double *radius_m, size_t n, 
     memset(&f, 0, sizeof f);
     f.gx = goal[0];
     f.gy = goal[1];
-    f.gth = vs_wrap_angle(goal[2]);
+    f.gth = wrap_outside(goal[2]);
     f.n_headings = n_headings;
     f.dth_rad = VS_TWO_PI / (double)n_headings;
     f.margin_m = margin_m;
@@ -327,7 +333,7 @@ static void state_pose(const vs_field *f, size_t s, double *out)
     size_t plane = f->nx * f->ny, k = s / plane, rem = s % plane;
     out[0] = f->gx + (double)((long)(rem % f->nx) + f->ix_lo) * f->cell_m;
     out[1] = f->gy + (double)((long)(rem / f->nx) + f->iy_lo) * f->cell_m;
-    out[2] = vs_wrap_angle(f->gth + (double)k * f->dth_rad);
+    out[2] = wrap_outside(f->gth + (double)k * f->dth_rad);
 }
 
 /* the next state of the descent from s (the neighbour of least cost + edge weight, strictly cheaper than s;

@@ -1,0 +1,169 @@
+"""The room's navigation function (vsfleet.field): the compiled core (vs_field.c) against the readable
+reference (numpy + scipy), bit for bit; what its states promise (every body clear of every obstacle by the
+margin plus the inflation); the descent reaches the goal, or the closest safe pose when the goal is shut off;
+and its inputs are checked."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from vsfleet.errors import NonFiniteError, VsfleetValueError
+from vsfleet.field import (
+    BLOCKED_BIT,
+    COST_MASK,
+    TIGHT_BIT,
+    WALL,
+    build_field,
+    build_field_reference,
+    follow_field,
+    follow_field_reference,
+)
+from vsfleet.geometry import Pose2
+
+COARSE = dict(cell_m=0.08, n_headings=12, max_states=60000)
+
+
+def random_room(rng):
+    n = int(rng.integers(2, 6))
+    tpl = rng.uniform(-0.4, 0.4, (n, 2))
+    rad = rng.uniform(0.02, 0.1, n)
+    m = int(rng.integers(0, 8))
+    obs = np.c_[rng.uniform(-1.5, 1.5, (m, 2)), rng.uniform(0.05, 0.3, m)]
+    goal = Pose2(*rng.uniform(-1.0, 1.0, 2), float(rng.uniform(-3.0, 3.0)))
+    return tpl, rad, obs, goal
+
+
+def bodies_at(tpl, x, y, th):
+    c, s = math.cos(th), math.sin(th)
+    return np.c_[x + c * tpl[:, 0] - s * tpl[:, 1], y + s * tpl[:, 0] + c * tpl[:, 1]]
+
+
+def clearance(tpl, rad, obs, x, y, th) -> float:
+    """The smallest gap [m] between a robot body and an obstacle with the structure at (x, y, th)."""
+    if len(obs) == 0:
+        return math.inf
+    b = bodies_at(tpl, x, y, th)
+    d = np.hypot(b[:, None, 0] - obs[None, :, 0], b[:, None, 1] - obs[None, :, 1])
+    return float((d - rad[:, None] - obs[None, :, 2]).min())
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_the_core_and_the_reference_build_the_same_field_and_follow_it_the_same_way(seed):
+    rng = np.random.default_rng(seed)
+    tpl, rad, obs, goal = random_room(rng)
+    core = build_field(tpl, rad, 0.02, obs, goal, **COARSE)
+    ref = build_field_reference(tpl, rad, 0.02, obs, goal, **COARSE)
+    assert core.lattice == ref.lattice
+    assert np.array_equal(np.asarray(core.costs), ref.costs)
+    for _ in range(25):
+        pose = Pose2(*rng.uniform(-2.5, 2.5, 2), float(rng.uniform(-3.0, 3.0)))
+        w_core, b_core, l_core = follow_field(core, pose)
+        w_ref, b_ref, l_ref = follow_field_reference(ref, pose)
+        assert np.array_equal(w_core, w_ref) and b_core == b_ref and l_core == l_ref
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_free_state_keeps_every_body_the_margin_and_the_inflation_from_every_obstacle_and_a_wall_does_not(seed):
+    rng = np.random.default_rng(100 + seed)
+    tpl, rad, obs, goal = random_room(rng)
+    obs = np.r_[obs, [[goal.x + 0.7, goal.y, 0.2]]]
+    f = build_field(tpl, rad, 0.02, obs, goal, **COARSE)
+    lat, costs = f.lattice, np.asarray(f.costs)
+    need = 0.02 + lat.inflation_m
+    picks = rng.integers(0, costs.size, 3000)
+    walls = frees = 0
+    for s in picks:
+        k, rem = divmod(int(s), lat.nx * lat.ny)
+        row, col = divmod(rem, lat.nx)
+        x, y = lat.gx + (col + lat.ix_lo) * lat.cell_m, lat.gy + (row + lat.iy_lo) * lat.cell_m
+        c = clearance(tpl, rad, obs, x, y, lat.gth + k * lat.dth_rad)
+        if costs.flat[s] == WALL:
+            walls += 1
+            assert c < need + 1e-9
+        else:
+            frees += 1
+            assert c >= need - 1e-9
+    assert walls > 0 and frees > 0
+
+
+def test_the_descent_from_anywhere_in_the_goals_component_ends_at_the_goal_pose_and_keeps_the_margin():
+    rng = np.random.default_rng(7)
+    tpl = np.array([[0.2887, 0.0], [-0.1443, 0.25], [-0.1443, -0.25]])
+    rad = np.full(3, 0.09)
+    obs = np.array([[1.0, 0.75, 0.15], [0.4, 1.2, 0.2], [1.6, 0.3, 0.25]])
+    goal = Pose2(2.0, 1.5, 0.4)
+    f = build_field(tpl, rad, 0.02, obs, goal, cell_m=0.05, n_headings=24)
+    for _ in range(20):
+        x, y = rng.uniform(-0.5, 2.5, 2)
+        th = float(rng.uniform(-3.0, 3.0))
+        if clearance(tpl, rad, obs, x, y, th) < 0.1:
+            continue
+        way, blocked, left = follow_field(f, Pose2(x, y, th), path_m=50.0, cap=4000)
+        assert not blocked and left == 0.0
+        assert tuple(way[-1]) == goal.as_tuple()  # the goal pose exactly
+        # every pose on the lattice part of the way (from waypoint 1 on), interpolated finely, keeps the margin
+        for a, b in zip(way[1:-1], way[2:]):
+            for t in np.linspace(0.0, 1.0, 5):
+                th_t = a[2] + t * math.remainder(b[2] - a[2], 2 * math.pi)
+                assert clearance(tpl, rad, obs, a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]), th_t) >= 0.02 - 1e-9
+
+
+def test_a_goal_walled_in_is_blocked_from_outside_and_the_descent_stops_at_the_closest_safe_pose():
+    tpl = np.array([[0.2, 0.0], [-0.1, 0.17], [-0.1, -0.17]])
+    rad = np.full(3, 0.05)
+    ring = np.array([[math.cos(a) * 0.9, math.sin(a) * 0.9, 0.15] for a in np.linspace(0, 2 * math.pi, 24, endpoint=False)])
+    goal = Pose2(0.0, 0.0, 0.0)
+    f = build_field(tpl, rad, 0.02, ring, goal, cell_m=0.05, n_headings=16)
+    way, blocked, left = follow_field(f, Pose2(2.5, 0.3, 1.0), path_m=50.0, cap=4000)
+    assert blocked
+    end = way[-1]
+    assert left == pytest.approx(math.hypot(end[0], end[1]))
+    assert 0.9 < left < 1.6             # outside the ring, as close as the bodies allow
+    inside, blocked_in, _ = follow_field(f, Pose2(0.05, -0.05, 0.2), path_m=50.0, cap=4000)
+    assert not blocked_in and tuple(inside[-1]) == (0.0, 0.0, 0.0)
+    costs = np.asarray(f.costs)
+    free = costs != WALL
+    assert ((costs[free] & BLOCKED_BIT) > 0).any() and ((costs[free] & BLOCKED_BIT) == 0).any()
+    assert ((costs[free] & TIGHT_BIT) > 0).any()
+    assert (costs[free] & COST_MASK).min() == 0
+
+
+def test_a_pose_far_outside_the_lattice_heads_for_its_edge_and_a_room_without_obstacles_is_one_free_component():
+    tpl = np.array([[0.3, 0.0], [-0.3, 0.0]])
+    f = build_field(tpl, np.zeros(2), 0.02, np.zeros((0, 3)), Pose2(0.0, 0.0, 0.0), cell_m=0.05, n_headings=8)
+    costs = np.asarray(f.costs)
+    assert (costs != WALL).all() and ((costs & BLOCKED_BIT) == 0).all()
+    way, blocked, _ = follow_field(f, Pose2(40.0, -3.0, 0.0), path_m=100.0, cap=4000)
+    assert not blocked and tuple(way[-1]) == (0.0, 0.0, 0.0)
+
+
+def test_a_lattice_too_big_for_max_states_grows_its_cells_the_same_way_in_core_and_reference():
+    tpl, rad = np.array([[0.2, 0.0], [-0.2, 0.0]]), np.full(2, 0.05)
+    obs = np.array([[3.0, 3.0, 0.2], [-3.0, -2.0, 0.3]])
+    core = build_field(tpl, rad, 0.02, obs, Pose2(0.0, 0.0, 0.0), cell_m=0.02, n_headings=8, max_states=20000)
+    ref = build_field_reference(tpl, rad, 0.02, obs, Pose2(0.0, 0.0, 0.0), cell_m=0.02, n_headings=8,
+                                max_states=20000)
+    assert core.lattice.cell_m > 0.02 and core.lattice == ref.lattice
+    assert core.lattice.nx * core.lattice.ny * 8 <= 20000
+
+
+@pytest.mark.parametrize("bad, error", [
+    (dict(margin_m=math.nan), NonFiniteError),
+    (dict(margin_m=-0.01), VsfleetValueError),
+    (dict(cell_m=0.0), VsfleetValueError),
+    (dict(n_headings=2), VsfleetValueError),
+    (dict(obstacles=np.array([[0.0, 0.0, -0.1]])), VsfleetValueError),
+    (dict(obstacles=np.array([[0.0, math.inf, 0.1]])), NonFiniteError),
+    (dict(radius_m=np.array([0.1, -0.1])), VsfleetValueError),
+    (dict(max_states=10), VsfleetValueError),
+])
+def test_bad_inputs_are_refused_with_a_typed_error(bad, error):
+    args = dict(template_xy=np.array([[0.2, 0.0], [-0.2, 0.0]]), radius_m=np.full(2, 0.05), margin_m=0.02,
+                obstacles=np.array([[1.0, 0.0, 0.2]]), goal=Pose2(0.0, 0.0, 0.0), cell_m=0.05, n_headings=8,
+                max_states=100000)
+    args.update(bad)
+    with pytest.raises(error):
+        build_field(**args)
