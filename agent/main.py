@@ -44,10 +44,12 @@ from vsfleet.step import (
     SyncPhase,
     adopt_health,
     agent_step,
+    mission_arrays,
     stop_command,
 )
 from vsfleet.wire import (
     HealthMsg,
+    Mission,
     FrameMsg,
     Keys,
     WireError,
@@ -82,8 +84,12 @@ class Agent:
                  clock: Callable[[], float] = wall_clock,
                  put_event: Callable[[bytes], None] = lambda payload: None,
                  controller: Controller | None = None, command_age_s: float | None = None,
-                 shared_structures: dict | None = None, reference: bool = False) -> None:
+                 shared_structures: dict | None = None, reference: bool = False,
+                 prepare: Callable[[Mission], None] | None = None) -> None:
         self.robot = check_name(robot, "robot")
+        # prepare(mission): called with every new mission before it takes effect (run_agent: its arrays and its
+        # room's field built on a thread of their own, so a plan never stalls the frames; None: at its first frame)
+        self.prepare = prepare
         self.keys = keys
         self.put_cmd, self.put_state, self.put_event = put_cmd, put_state, put_event
         self.clock = clock
@@ -138,6 +144,8 @@ class Agent:
             latest = self.missions.latest()
             self.mission_payload = encode_mission(latest)  # one assignment: read by the queryable
             self.merger.set_robots(latest.robot_ids, self.missions.robots())
+            if self.prepare is not None:
+                self.prepare(mission)
             return True
         return False
 
@@ -340,6 +348,22 @@ def fetch(session: zenoh.Session, selectors: tuple[str, ...], kind: str, inbox: 
         wake.set()
 
 
+def prepare_mission(mission: Mission) -> threading.Thread:
+    """Build a new mission's arrays and its room's field (vsfleet.step.mission_arrays, memoised) on a thread of
+    their own, while the frames of the mission in force go on: the field takes up to ~0.2 s for a large room,
+    and the mission takes effect later (mission set: 0.5 s). A frame that needs it sooner builds it itself (the
+    same pure function: the same bits)."""
+    def build() -> None:
+        try:
+            mission_arrays(mission)
+        except Exception:  # noqa: BLE001 - the frame that needs it builds it again and raises there
+            log.exception("mission v%d: building its arrays failed", mission.version)
+
+    thread = threading.Thread(target=build, name=f"prepare-v{mission.version}", daemon=True)
+    thread.start()
+    return thread
+
+
 def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFlag | None = None,
               dt_s: float = DEFAULT_DT_S, ttl_s: float = DEFAULT_TTL_S,
               deadline_s: float | None = None) -> Agent:
@@ -378,7 +402,7 @@ def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFla
                     return
 
         agent = Agent(robot, keys, cmd_pub.put, state_pub.put, dt_s=dt_s, ttl_s=ttl_s,
-                      deadline_s=deadline_s, put_event=queue_event)
+                      deadline_s=deadline_s, put_event=queue_event, prepare=prepare_mission)
         token = session.liveliness().declare_token(keys.alive("agent", robot))  # keep referenced
 
         own_mission, own_health = keys.peer_mission(robot), keys.peer_health(robot)

@@ -409,3 +409,30 @@ def test_an_agent_that_runs_for_ever_keeps_only_its_newest_decisions_and_publish
     assert len(events) == n                                       # every decision published
     assert len(agent.decisions) == agent_main.DECISIONS_KEPT      # the agent keeps the newest only
     assert [d.t for d in agent.decisions] == [decode_event(e).t for e in events[-agent_main.DECISIONS_KEPT:]]
+
+
+def test_a_new_mission_with_a_room_is_prepared_off_the_frame_path_once_and_its_field_is_the_steps():
+    """run_agent hands every new mission to prepare_mission (a thread of its own builds the room's field), so
+    the frame that first runs it finds the field built; a mission heard again is not prepared again."""
+    room = dataclasses.replace(MISSION, version=2, obstacles=((0.6, 0.3, 0.1),),
+                               robots=tuple((r, dataclasses.replace(s, radius=0.05)) for r, s in MISSION.robots))
+    prepared = []
+
+    def prepare(mission):
+        prepared.append(mission.version)
+        agent_main.prepare_mission(mission).join(timeout=30.0)
+
+    agent = Agent("r1", KEYS, lambda b: None, lambda b: None, clock=Clock(100.0), prepare=prepare)
+    agent.on_message("mission", KEYS.mission, encode_mission(room))
+    agent.on_message("mission", KEYS.mission, encode_mission(room))
+    assert prepared == [2]
+    built = step_mod.mission_arrays(agent.missions.latest())
+    assert built.field is not None
+    calls = []
+    original = step_mod.build_field
+    step_mod.build_field = lambda *a, **k: calls.append(1) or original(*a, **k)
+    try:
+        frame(agent, Clock(100.0), 1, 100.0, POSES)  # the agent's own clock object is not this one: t is fresh
+    finally:
+        step_mod.build_field = original
+    assert calls == []  # the step found the prepared field

@@ -134,13 +134,28 @@ def core_mission(metric: str, template: np.ndarray, envelopes: Envelopes, goal: 
             np.array(obstacles, dtype=float).reshape(-1), PLAN_MARGIN_M, None if field is None else field.handle)
 
 
+_FIELDS: dict[tuple, Field] = {}
+
+
 def room_field(template: np.ndarray, radii, obstacles: np.ndarray, goal: Goal, reference: bool = False) -> Field | None:
-    """The room's navigation function for a mission (None without obstacles or with a twist goal)."""
+    """The room's navigation function for a mission (None without obstacles or with a twist goal), memoised by
+    what it depends on: missions that differ only in speed, version or metric (and the agents of one offline
+    run, each with its own decoded mission) share one field."""
     if len(obstacles) == 0 or isinstance(goal, GoalTwist):
         return None
     target = goal.pose if isinstance(goal, GoalPose) else goal.waypoints[-1]
-    build = build_field_reference if reference else build_field
-    return build(template, np.asarray(radii, dtype=float), PLAN_MARGIN_M, obstacles, target)
+    tpl = np.ascontiguousarray(template, dtype=float)
+    rad = np.ascontiguousarray(np.broadcast_to(np.asarray(radii, dtype=float), (len(tpl),)))
+    obs = np.ascontiguousarray(obstacles, dtype=float).reshape(-1, 3)
+    key = (tpl.tobytes(), rad.tobytes(), obs.tobytes(), target.as_tuple(), PLAN_MARGIN_M, reference)
+    hit = _FIELDS.get(key)
+    if hit is not None:
+        return hit
+    field = (build_field_reference if reference else build_field)(tpl, rad, PLAN_MARGIN_M, obs, target)
+    if len(_FIELDS) >= 4:  # a few rooms at a time: each field holds its lattice (up to 8 MB)
+        _FIELDS.clear()
+    _FIELDS[key] = field
+    return field
 
 
 _ARRAYS: dict[int, tuple[Mission, MissionArrays]] = {}
@@ -236,19 +251,9 @@ def structure_step(arrays: MissionArrays, metric: str, pose_world: np.ndarray, s
                      blocked=blocked, left_m=left_m)
 
 
-_REFERENCE_FIELDS: dict[int, tuple[MissionArrays, Field]] = {}
-
-
 def _reference_field(arrays: MissionArrays) -> Field:
-    """The reference build of a mission's field (memoised, as mission_arrays is)."""
-    hit = _REFERENCE_FIELDS.get(id(arrays))
-    if hit is not None and hit[0] is arrays:
-        return hit[1]
-    field = room_field(arrays.template, arrays.radii, arrays.obstacles, arrays.goal, reference=True)
-    if len(_REFERENCE_FIELDS) >= 4:
-        _REFERENCE_FIELDS.clear()
-    _REFERENCE_FIELDS[id(arrays)] = (arrays, field)
-    return field
+    """The reference build of a mission's field (memoised by room_field)."""
+    return room_field(arrays.template, arrays.radii, arrays.obstacles, arrays.goal, reference=True)
 
 
 def _structure_step_core(arrays: MissionArrays, pose_world: np.ndarray, seen: np.ndarray, excluded: np.ndarray,
