@@ -92,8 +92,11 @@ def field_records(seed: int = 17, count: int = 24) -> list[tuple[str, list[float
         obs = np.c_[rng.uniform(-2.0, 2.0, (m, 2)), rng.uniform(0.05, 0.4, m)]
         goal = [*rng.uniform(-1.0, 1.0, 2), float(rng.uniform(-4.0, 4.0))]
         cell, heads = float(rng.choice([0.06, 0.08, 0.1])), float(rng.choice([8, 12, 16]))
-        out.append(("field_build", [float(n), float(m), 0.02, cell, heads, 60000.0, *goal, *tpl.ravel(), *radii,
-                                    *obs.ravel()]))
+        build = [float(n), float(m), 0.02, cell, heads, 60000.0, *goal, *tpl.ravel(), *radii, *obs.ravel()]
+        out.append(("field_build", build))
+        for _ in range(3):   # descents from random poses, some far outside the lattice
+            pose = [*rng.uniform(-4.0, 4.0, 2), float(rng.uniform(-4.0, 4.0)), float(rng.choice([0.5, 2.0, 50.0]))]
+            out.append(("field_follow", build + pose))
     return out
 
 

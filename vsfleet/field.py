@@ -21,6 +21,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components, dijkstra
 
 from . import _core
+from .errors import VsfleetValueError
 from .geometry import Pose2
 
 WALL = 0xFFFFFFFF
@@ -117,6 +118,8 @@ def _floor(v: float) -> int:
 def build_field_reference(template_xy, radius_m, margin_m: float, obstacles, goal: Pose2, cell_m: float = CELL_M,
                           n_headings: int = HEADINGS, max_states: int = MAX_STATES) -> Field:
     """vs_field_build in numpy and scipy: the same lattice, the same raster, the same integer costs."""
+    if not (4 <= n_headings <= 1024 and 1024 <= max_states <= 1_000_000_000 and 9 * n_headings <= max_states):
+        raise VsfleetValueError("build_field: n_headings in [4, 1024], max_states in [1024, 1e9] and >= 9 n_headings")
     tpl = np.asarray(template_xy, dtype=float).reshape(-1, 2)
     rad = np.asarray(radius_m, dtype=float).reshape(-1)
     obs = np.asarray(obstacles, dtype=float).reshape(-1, 3)
@@ -140,6 +143,8 @@ def build_field_reference(template_xy, radius_m, margin_m: float, obstacles, goa
         if states <= max_states:
             break
         h *= GROW
+        if h > 1e6:
+            raise VsfleetValueError("build_field: the room does not fit max_states")
     nx, ny = ix1 - ix0 + 1, iy1 - iy0 + 1
     w_rot = max(1, _floor(float(W_AXIS) * (pmax * dth) / h + 0.5))
     lattice_x = gx + np.arange(ix0, ix1 + 1, dtype=float) * h      # (nx,)

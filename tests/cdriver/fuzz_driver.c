@@ -61,9 +61,39 @@ static long structure_step_input(double *in)
     long m = (next() % 3) ? (long)(next() % 7) : 0;
     v = (next() % 8) ? 0.01 : hostile(in, len, in, len); /* margin */
     in[len++] = v;
+    v = (next() % 8) ? 0.05 + 0.1 * uniform() : hostile(in, len, in, len); /* the field's cell */
+    in[len++] = v;
+    v = (next() % 8) ? (double)(4 + next() % 13) : hostile(in, len, in, len);      /* headings */
+    in[len++] = v;
+    v = (next() % 8) ? (double)(1024 + next() % 30000) : hostile(in, len, in, len); /* max states */
+    in[len++] = v;
     in[len++] = (double)m;
     for (long i = 0; i < n; i++, len++) in[len] = (next() % 8) ? 0.05 * uniform() : hostile(in, len, in, len);
     for (long i = 0; i < 3 * m; i++, len++) in[len] = (i % 3 == 2 && next() % 8) ? 0.05 + uniform() : hostile(in, len, in, len);
+    return len;
+}
+
+/* field_build (vs_golden.c's packing): n robots, m obstacles, margin, cell, headings, max states, goal,
+ * template, radii, obstacles; small lattices, hostile values */
+static long field_build_input(double *in)
+{
+    long n = 1 + (long)(next() % 12), m = (long)(next() % 9), len = 0;
+    double v;
+    in[len++] = (double)n;
+    in[len++] = (double)m;
+    v = (next() % 8) ? 0.02 : hostile(in, len, in, len);
+    in[len++] = v;
+    v = (next() % 8) ? 0.05 + 0.2 * uniform() : hostile(in, len, in, len);
+    in[len++] = v;
+    v = (next() % 8) ? (double)(4 + next() % 29) : hostile(in, len, in, len);
+    in[len++] = v;
+    v = (next() % 8) ? (double)(1024 + next() % 40000) : hostile(in, len, in, len);
+    in[len++] = v;
+    for (long i = 0; i < 3; i++, len++) in[len] = (next() % 4) ? 4.0 * (uniform() - 0.5) : hostile(in, len, in, len);
+    for (long i = 0; i < 2 * n; i++, len++) in[len] = (next() % 4) ? uniform() - 0.5 : hostile(in, len, in, len);
+    for (long i = 0; i < n; i++, len++) in[len] = (next() % 8) ? 0.1 * uniform() : hostile(in, len, in, len);
+    for (long i = 0; i < 3 * m; i++, len++) in[len] = (i % 3 == 2) ? ((next() % 8) ? 0.05 + 0.3 * uniform() : hostile(in, len, in, len))
+                                                         : ((next() % 4) ? 4.0 * (uniform() - 0.5) : hostile(in, len, in, len));
     return len;
 }
 
@@ -108,6 +138,7 @@ int main(int argc, char **argv)
             for (long i = 0; i < n; i++) in[i] = hostile(in, i, in, i);
             if (strcmp(all[e].name, "structure_step") == 0 && it % 10) n = structure_step_input(in);
             if (strcmp(all[e].name, "safety_filter") == 0 && it % 10) n = safety_filter_input(in);
+            if (strcmp(all[e].name, "field_build") == 0 && it % 10) n = field_build_input(in);
             long got = all[e].run(in, n, out, CAP);
             if (got < 0) refused++; else ran++;
         }

@@ -113,7 +113,7 @@ int vs_field_build(const double *template_xy, const double *radius_m, size_t n, 
                    size_t n_headings, size_t max_states, vs_field *out)
 {
     if (n == 0 || n_obstacles > VS_FIELD_MAX_OBSTACLES || n_headings < 4 || n_headings > 1024 ||
-        max_states < 1024)
+        max_states < 1024 || max_states > VS_FIELD_MAX_STATES || 9 * n_headings > max_states)
         return VS_EVALUE;
     if (!finite3(template_xy, 2 * n) || !finite3(radius_m, n) || !finite3(obstacles, 3 * n_obstacles) ||
         !finite3(goal, 3) || !vs_isfinite(margin_m) || !vs_isfinite(cell_m))
@@ -176,6 +176,7 @@ int vs_field_build(const double *template_xy, const double *radius_m, size_t n, 
             break;
         }
         h *= VS_FIELD_GROW;
+        if (h > VS_FIELD_MAX_ABS_M) return VS_EVALUE;   /* unreachable: 9 K <= max_states fits at h ~ the room */
     }
     f.cell_m = h;
     {

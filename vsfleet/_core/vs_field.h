@@ -36,6 +36,7 @@
 #define VS_FIELD_COMFORT_M 0.10            /* [m] beyond the margin: closer costs twice (the filter stays idle) */
 #define VS_FIELD_MAX_ABS_M 1e6             /* larger coordinates or radii are refused (VS_EVALUE) */
 #define VS_FIELD_MAX_OBSTACLES 4096
+#define VS_FIELD_MAX_STATES 1000000000u      /* max_states at most (uint32 indices) */
 #define VS_FIELD_GROW 1.25                 /* the cell grows by this factor until the lattice fits max_states */
 #define VS_FIELD_W_AXIS 10u
 #define VS_FIELD_W_DIAG 14u
@@ -57,7 +58,8 @@ typedef struct {
 
 /* Build the field for a mission.  template_xy (n, 2) [m; structure frame]; radius_m (n) >= 0 [m];
  * margin_m >= 0 [m]; obstacles (n_obstacles, 3) (x, y, r > 0) [m; world], n_obstacles <= VS_FIELD_MAX_OBSTACLES;
- * goal (x, y, th); cell_m > 0 [m] (at least 1e-3), n_headings in [4, 1024], max_states >= 1024.
+ * goal (x, y, th); cell_m > 0 [m] (at least 1e-3), n_headings in [4, 1024], max_states in [1024,
+ * VS_FIELD_MAX_STATES] and >= 9 n_headings (a lattice of 3 x 3 cells at least).
  * VS_ENONFINITE / VS_EVALUE on bad inputs, VS_ENOMEM if allocation fails; on VS_OK *out owns its cost
  * array: release it with vs_field_free.  Cost: O(K n m (r / h)^2 + K nx ny) (once per mission). */
 int vs_field_build(const double *template_xy, const double *radius_m, size_t n, double margin_m,

@@ -164,8 +164,34 @@ static long g_field_build(const double *in, long n_in, double *out, long cap)
     return 13;
 }
 
+/* field_follow: field_build's inputs, then pose 3 and path_m -> n waypoints, blocked, left, 3n waypoints
+ * (at most 64) */
+static long g_field_follow(const double *in, long n_in, double *out, long cap)
+{
+    if (n_in < 13 || cap < 3 + 3 * 64) return -1;
+    long n = count_of(in[0], 1, 4096), m = count_of(in[1], 0, 4096), heads = count_of(in[4], 4, 1024),
+         max_states = count_of(in[5], 1024, 100000000);
+    if (n < 0 || m < 0 || heads < 0 || max_states < 0 || n_in != 9 + 2 * n + n + 3 * m + 4) return -1;
+    const double *goal = in + 6, *tpl = in + 9, *radii = tpl + 2 * n, *obs = radii + n, *pose = obs + 3 * m;
+    vs_field f;
+    if (vs_field_build(tpl, radii, (size_t)n, in[2], obs, (size_t)m, goal, in[3], (size_t)heads, (size_t)max_states,
+                       &f) != VS_OK)
+        return -1;
+    size_t nw = 0;
+    int blocked = 0;
+    double left = 0.0;
+    int rc = vs_field_follow(&f, pose, pose[3], out + 3, 64, &nw, &blocked, &left);
+    vs_field_free(&f);
+    if (rc != VS_OK) return -1;
+    out[0] = (double)nw;
+    out[1] = (double)blocked;
+    out[2] = left;
+    return 3 + 3 * (long)nw;
+}
+
 static const golden_entry entries[] = {
     {"field_build", g_field_build},
+    {"field_follow", g_field_follow},
     {"safety_filter", g_safety_filter},
     {"structure_step", g_structure_step},
     {"sin", g_sin},
