@@ -167,3 +167,22 @@ def test_bad_inputs_are_refused_with_a_typed_error(bad, error):
     args.update(bad)
     with pytest.raises(error):
         build_field(**args)
+
+
+@pytest.mark.parametrize("far", [1e6, 1e300, -1e300])
+def test_a_pose_at_any_finite_distance_is_taken_to_the_lattice_border_in_core_and_reference_alike(far):
+    """The fuzz under UBSan found a pose at 1e300 m overflowing the integer conversion of its column; a pose
+    outside the lattice now goes straight to its border state (no shortcut: nothing is out there)."""
+    tpl, rad = np.array([[0.2, 0.0], [-0.2, 0.0]]), np.full(2, 0.05)
+    obs = np.array([[1.0, 0.0, 0.2]])
+    core = build_field(tpl, rad, 0.02, obs, Pose2(0.0, 0.0, 0.0), **COARSE)
+    ref = build_field_reference(tpl, rad, 0.02, obs, Pose2(0.0, 0.0, 0.0), **COARSE)
+    for pose in (Pose2(far, 0.5, 0.0), Pose2(0.3, far, 1.0), Pose2(far, -far, -2.0)):
+        w_core, b_core, l_core = follow_field(core, pose)
+        w_ref, b_ref, l_ref = follow_field_reference(ref, pose)
+        assert np.array_equal(w_core, w_ref) and (b_core, l_core) == (b_ref, l_ref)
+        assert not b_core and len(w_core) >= 2
+        lat = core.lattice
+        border_x = (lat.gx + lat.ix_lo * lat.cell_m, lat.gx + (lat.ix_lo + lat.nx - 1) * lat.cell_m)
+        border_y = (lat.gy + lat.iy_lo * lat.cell_m, lat.gy + (lat.iy_lo + lat.ny - 1) * lat.cell_m)
+        assert w_core[1][0] in border_x or w_core[1][1] in border_y

@@ -224,11 +224,20 @@ def _graph(K: int, ny: int, nx: int, free: np.ndarray, tight: np.ndarray, w_rot:
     return coo_matrix((np.concatenate(ws), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)).tocsr()
 
 
-def _nearest(lat: Lattice, x: float, y: float, th: float) -> tuple[int, int, int]:
-    c = min(max(_floor((x - lat.gx) / lat.cell_m + 0.5) - lat.ix_lo, 0), lat.nx - 1)
-    r = min(max(_floor((y - lat.gy) / lat.cell_m + 0.5) - lat.iy_lo, 0), lat.ny - 1)
+def _axis_index(u: float, lo: int, count: int) -> tuple[int, bool]:
+    """The column (row) of u = coordinate / h + 0.5 on an axis of ``count`` from ``lo``, clamped (and whether)."""
+    if not u >= lo:
+        return 0, True
+    if u >= lo + count:
+        return count - 1, True
+    return _floor(u) - lo, False
+
+
+def _nearest(lat: Lattice, x: float, y: float, th: float) -> tuple[int, int, int, bool]:
+    c, out_c = _axis_index((x - lat.gx) / lat.cell_m + 0.5, lat.ix_lo, lat.nx)
+    r, out_r = _axis_index((y - lat.gy) / lat.cell_m + 0.5, lat.iy_lo, lat.ny)
     k = _floor(_core.wrap_angle(th - lat.gth) / lat.dth_rad + 0.5) % lat.n_headings
-    return c, r, k
+    return c, r, k, out_c or out_r
 
 
 def _state_pose(lat: Lattice, s: int) -> tuple[float, float, float]:
@@ -272,7 +281,7 @@ def follow_field_reference(field: Field, pose: Pose2, path_m: float = PATH_M, ca
     lat = field.lattice
     cost = np.asarray(field.costs).ravel()
     plane = lat.nx * lat.ny
-    c0, r0, k0 = _nearest(lat, pose.x, pose.y, pose.th)
+    c0, r0, k0, outside = _nearest(lat, pose.x, pose.y, pose.th)
     start, start_v = None, 0
     for d in range(SEARCH_CELLS + 1):
         for dk in (0, 1, -1, 2, -2):
@@ -307,7 +316,7 @@ def follow_field_reference(field: Field, pose: Pose2, path_m: float = PATH_M, ca
         way.append(_state_pose(lat, s))
         run += float(min(w, 2 * W_DIAG)) / float(W_AXIS) * lat.cell_m
     want = BLOCKED_BIT if blocked else 0
-    for j in range(len(way) - 1, 1, -1):
+    for j in range(len(way) - 1, 1, -1) if not outside else ():
         if _segment_clear(lat, cost, way[0], way[j], want):
             way = [way[0]] + way[j:]
             break
@@ -332,7 +341,7 @@ def _segment_clear(lat: Lattice, cost: np.ndarray, a, b, want: int) -> bool:
     plane = lat.nx * lat.ny
     for i in range(m + 1):
         t = i / m
-        c, r, k = _nearest(lat, a[0] + dx * t, a[1] + dy * t, a[2] + dth * t)
+        c, r, k, _ = _nearest(lat, a[0] + dx * t, a[1] + dy * t, a[2] + dth * t)
         v = int(cost[k * plane + r * lat.nx + c])
         if v == WALL or (v & TIGHT_BIT) or (v & BLOCKED_BIT) != want:
             return False

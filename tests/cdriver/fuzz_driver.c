@@ -139,6 +139,13 @@ int main(int argc, char **argv)
             if (strcmp(all[e].name, "structure_step") == 0 && it % 10) n = structure_step_input(in);
             if (strcmp(all[e].name, "safety_filter") == 0 && it % 10) n = safety_filter_input(in);
             if (strcmp(all[e].name, "field_build") == 0 && it % 10) n = field_build_input(in);
+            if (strcmp(all[e].name, "field_follow") == 0 && it % 10) {   /* a room, then a pose and a length */
+                n = field_build_input(in);
+                for (int j = 0; j < 4; j++, n++) {
+                    double v = (next() % 4) ? (j == 3 ? 3.0 * uniform() : 8.0 * (uniform() - 0.5)) : hostile(in, n, in, n);
+                    in[n] = v;
+                }
+            }
             long got = all[e].run(in, n, out, CAP);
             if (got < 0) refused++; else ran++;
         }

@@ -313,20 +313,30 @@ void vs_field_free(vs_field *f)
     f->cost = NULL;
 }
 
-void vs_field_nearest(const vs_field *f, const double pose[3], size_t *col, size_t *row, size_t *k)
+/* the column (row) of u = coordinate / h + 0.5 on an axis of `count` from `lo`, clamped; *out set if clamped.
+ * Compared in double first, so that a pose far away (or at 1e300) never overflows the integer conversion. */
+static size_t axis_index(double u, long lo, size_t count, int *out)
 {
-    long long c = ifloor((pose[0] - f->gx) / f->cell_m + 0.5) - f->ix_lo;
-    long long r = ifloor((pose[1] - f->gy) / f->cell_m + 0.5) - f->iy_lo;
+    if (!(u >= (double)lo)) { *out = 1; return 0; }
+    if (u >= (double)(lo + (long)count)) { *out = 1; return count - 1; }
+    return (size_t)(ifloor(u) - lo);
+}
+
+static void nearest(const vs_field *f, const double pose[3], size_t *col, size_t *row, size_t *k, int *outside)
+{
+    int out = 0;
+    *col = axis_index((pose[0] - f->gx) / f->cell_m + 0.5, f->ix_lo, f->nx, &out);
+    *row = axis_index((pose[1] - f->gy) / f->cell_m + 0.5, f->iy_lo, f->ny, &out);
     long long kk = ifloor(vs_wrap_angle(pose[2] - f->gth) / f->dth_rad + 0.5);
     long long nh = (long long)f->n_headings;
-    if (c < 0) c = 0;
-    if (r < 0) r = 0;
-    if (c > (long long)f->nx - 1) c = (long long)f->nx - 1;
-    if (r > (long long)f->ny - 1) r = (long long)f->ny - 1;
-    kk = ((kk % nh) + nh) % nh;
-    *col = (size_t)c;
-    *row = (size_t)r;
-    *k = (size_t)kk;
+    *k = (size_t)(((kk % nh) + nh) % nh);
+    *outside = out;
+}
+
+void vs_field_nearest(const vs_field *f, const double pose[3], size_t *col, size_t *row, size_t *k)
+{
+    int outside;
+    nearest(f, pose, col, row, k, &outside);
 }
 
 static void state_pose(const vs_field *f, size_t s, double *out)
@@ -385,7 +395,8 @@ int vs_field_follow(const vs_field *f, const double pose[3], double path_m, doub
     if (!finite3(pose, 3) || !vs_isfinite(path_m)) return VS_ENONFINITE;
     size_t plane = f->nx * f->ny;
     size_t c0, r0, k0;
-    vs_field_nearest(f, pose, &c0, &r0, &k0);
+    int outside;
+    nearest(f, pose, &c0, &r0, &k0, &outside);
     long start = -1;
     uint32_t start_v = 0;
     /* the nearest state, else the cheapest usable state of the nearest ring around it (two headings) */
@@ -431,8 +442,9 @@ int vs_field_follow(const vs_field *f, const double pose[3], double path_m, doub
         nw++;
         run += (double)(w > VS_FIELD_W_DIAG * 2 ? VS_FIELD_W_DIAG * 2 : w) / (double)VS_FIELD_W_AXIS * f->cell_m;
     }
-    /* any angle: from the pose, straight to the farthest waypoint it sees through open space */
-    for (size_t j = nw - 1; j >= 2; j--) {
+    /* any angle: from the pose, straight to the farthest waypoint it sees through open space (a pose
+     * outside the lattice goes to its border state first: nothing is out there) */
+    for (size_t j = nw - 1; j >= 2 && !outside; j--) {
         if (segment_clear(f, waypoints, waypoints + 3 * j, is_blocked ? VS_FIELD_BLOCKED_BIT : 0u)) {
             memmove(waypoints + 3, waypoints + 3 * j, sizeof(double) * 3 * (nw - j));
             nw = 1 + (nw - j);
