@@ -2,6 +2,9 @@
 
 Where zenohd is installed, ``zenohd -c deploy/router.json5`` does the same job.
 The admin space is on, so ``@/**`` queries show sessions and tokens.
+
+``open_loopback_router`` (the router `vsfleet run` and the tests embed) returns an EmbeddedRouter:
+the session, whose close first undeclares what was declared on it with a callback (see there why).
 """
 
 from __future__ import annotations
@@ -53,11 +56,87 @@ def loopback_router_config(port: int) -> zenoh.Config:
     return conf
 
 
-def open_loopback_router(port: int | None = None) -> tuple[zenoh.Session, str]:
+class EmbeddedRouter:
+    """A router-mode zenoh.Session (every attribute is the session's) that, on close, first undeclares
+    the subscribers and queryables declared on it with a callback, then closes.
+
+    Why: a subscription declares the non-wild prefix of its key as a key-expression id (``vs/demo`` for
+    ``vs/demo/**``: id 1 in a session that declared nothing before), and the router hands the session
+    every sample as that id plus a suffix (``1`` + ``/truth/r007``). zenoh's Session.close forgets the
+    session's ids and subscribers before its router stops delivering (zenoh/src/api/session.rs,
+    ``close_inner`` takes ``local_resources``), and the data path does not look whether the session is
+    closing (``send_push_consume``; ``remote_key_to_expr``, session.rs:299, finds no id 1): every sample
+    still queued for the session when it closes is logged as
+    ``ERROR ... Received Data for unknown key_expr: Remote resource 1 not found``, one line each (a
+    query to a queryable likewise). A router behind on its input when it closes, as `vsfleet run`'s is
+    with 100 robots (its recorder runs on zenoh's receive threads), printed hundreds.
+    Undeclared first, the subscription takes its route out of the router and what is still queued is
+    dropped without a word. A subscriber or queryable declared with a callback runs on when its handle
+    is dropped (zenoh-python), and `vsfleet run` keeps none, so this wrapper keeps them; one declared
+    with a channel ends with its handle, which its caller holds and undeclares.
+    """
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self.session = session
+        self._background: list = []  # subscribers and queryables declared with a callback
+        self._lock = threading.Lock()
+
+    def __getattr__(self, name: str):
+        if name == "session":  # not set yet (a copy being made): no recursion
+            raise AttributeError(name)
+        return getattr(self.session, name)
+
+    def _keep(self, entity, handler):
+        if callable(handler):
+            with self._lock:
+                self._background.append(entity)
+        return entity
+
+    def declare_subscriber(self, key_expr, handler=None, **kwargs):
+        return self._keep(self.session.declare_subscriber(key_expr, handler, **kwargs), handler)
+
+    def declare_queryable(self, key_expr, handler=None, **kwargs):
+        return self._keep(self.session.declare_queryable(key_expr, handler, **kwargs), handler)
+
+    def liveliness(self) -> "_Liveliness":
+        return _Liveliness(self.session.liveliness(), self._keep)
+
+    def close(self) -> None:
+        with self._lock:
+            background, self._background = self._background, []
+        for entity in reversed(background):
+            try:
+                entity.undeclare()
+            except zenoh.ZError:  # its caller undeclared it already
+                pass
+        self.session.close()
+
+    def __enter__(self) -> "EmbeddedRouter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class _Liveliness:
+    """The session's liveliness(); its subscribers declared with a callback are kept for the close."""
+
+    def __init__(self, liveliness, keep) -> None:
+        self._liveliness = liveliness
+        self._keep = keep
+
+    def __getattr__(self, name: str):
+        return getattr(self._liveliness, name)
+
+    def declare_subscriber(self, key_expr, handler=None, **kwargs):
+        return self._keep(self._liveliness.declare_subscriber(key_expr, handler, **kwargs), handler)
+
+
+def open_loopback_router(port: int | None = None) -> tuple[EmbeddedRouter, str]:
     """Open an embedded router on a free loopback port; returns (session, endpoint)."""
     port = port or free_loopback_port()
     session = open_session(loopback_router_config(port))
-    return session, f"tcp/127.0.0.1:{port}"
+    return EmbeddedRouter(session), f"tcp/127.0.0.1:{port}"
 
 
 def build_parser() -> argparse.ArgumentParser:
