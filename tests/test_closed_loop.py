@@ -207,8 +207,12 @@ def test_under_hold_a_stopped_robot_halts_the_structure_with_every_robot_within_
     err = formation_errors(run, sc.mission)
     ts = np.array([t for t, _ in run.trace])
     assert err[ts >= 8.0].max() < 0.025
-    end, before = run.trace[-1][1], run.trace[-60][1]
-    assert np.hypot(end.x - before.x, end.y - before.y) < 0.002      # halted
+    # halted: the fit moves only with the noise the robots still correct; each 2 s window from 15 s on
+    # (its median, and its worst). One window (the last, as this asserted before) is a sample of that
+    # noise: 3 of seeds 1-10 exceed 2 mm there with either wheel limiter, in 16-19% of all windows
+    xy = np.array([(p.x, p.y) for _, p in run.trace])
+    moved = np.hypot(*(xy[60:] - xy[:-60]).T)[ts[60:] >= 15.0]
+    assert np.median(moved) < 0.002 and moved.max() < 0.006
     made = run.decisions["r1"]
     assert all(v == made for v in run.decisions.values())           # the same frame in every agent
     assert {d.robot for d in made} == {"r2"} and made[0].kind == "fail"
