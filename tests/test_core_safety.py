@@ -10,7 +10,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from vsfleet.errors import NonFiniteError, ShapeError, VsfleetValueError
-from vsfleet.kinematics import integrate_arcs
+from vsfleet.kinematics import integrate_arcs, limit_wheels_v, limit_wheels_v_reference
 from vsfleet.safety import (SafetyInfo, SafetyParamError, SafetyParams, safety_filter,
                             safety_filter_reference)
 
@@ -164,6 +164,36 @@ def test_robots_squeezed_inside_the_margin_are_softened_not_stopped():
     assert info.n_softened == 1 and info.n_stopped == 0
     assert out[1, 0] + out[1, 1] == pytest.approx(0.0, abs=1e-12)   # the middle one: no closing either way
     assert out[0].sum() < 0 and out[2].sum() > 0                    # the outer ones move away
+
+
+# A robot squeezed between two obstacles, 2 cm from each (inside the braking room: h < 0 both ways), with
+# an accel limit: the filter softens both rows to "do not close" (v = 0) and, as no such command is in
+# the accel box, drops the box (n_accel_relaxed). Its stop then passes the wheel limiter (as a plant's
+# envelope, bench/safety.py), with the same previous command. Before the mend the limiter pinned a wheel
+# whose previous command lay beyond the speed box to +-vmax (the stop became full speed ahead, into the
+# obstacle), and its corner rule kept a wheel at speed, or sped it up, when the command turned in place.
+SQUEEZE = np.array([[0.12, 0.0, 0.05], [-0.12, 0.0, 0.05]])
+STOP_CASES = [
+    # previous command, nominal, the filter's stop, the limiter's result (slowest reachable wheel speeds)
+    ((0.4, 0.4), (0.3, 0.3), (0.0, 0.0), (0.0, 0.0)),                  # prev beyond vmax = 0.3: was (0.3, 0.3)
+    ((0.2, 0.2), (0.3, 0.2), (0.05, -0.05), (0.2 - AMAX / 30, 0.2 - AMAX / 30)),   # was (0.2267, 0.1733)
+    ((0.2, 0.2), (0.3, 0.3), (0.0, 0.0), (0.2 - AMAX / 30, 0.2 - AMAX / 30)),      # braking at amax
+]
+
+
+@pytest.mark.parametrize("filt, limit", [(safety_filter, limit_wheels_v),
+                                         (safety_filter_reference, limit_wheels_v_reference)])
+@pytest.mark.parametrize("prev, nominal, stop, sent", STOP_CASES)
+def test_a_stop_from_the_filter_is_not_undone_by_the_wheel_limiter(filt, limit, prev, nominal, stop, sent):
+    prev, one = np.array([prev]), np.ones(1)
+    x, info = filt(np.zeros((1, 3)), 0.05, np.array([nominal]), wheel_base_m=BASE, wheel_speed_max_m_s=VMAX,
+                   obstacles=SQUEEZE, wheel_accel_max_m_s2=AMAX, wheels_prev_m_s=prev, params=SafetyParams())
+    assert info.n_softened == 1 and info.n_accel_relaxed == 1 and info.n_stopped == 0
+    np.testing.assert_allclose(x, [stop], rtol=0, atol=1e-12)         # v = 0: closes on neither obstacle
+    out = limit(x, prev, 1 / 30, VMAX * one, AMAX * one)
+    np.testing.assert_allclose(out, [sent], rtol=0, atol=1e-12)
+    # never faster toward either obstacle than the previous command, nor than braking at amax allows
+    assert abs(out[0].sum()) <= max(abs(x[0].sum()), abs(prev[0].sum()) - 2 * AMAX / 30) + 1e-12
 
 
 def _gaps(pose, radius, obstacles):

@@ -270,16 +270,52 @@ def test_limit_wheels_returns_a_feasible_command_unchanged(prev, a, b):
     assert limit_wheels(*cmd, prev, DT, ENV) == cmd
 
 
+def slowest_reachable(p: float) -> float:
+    """The wheel speed nearest zero within one tick of p (prev within the speed box)."""
+    return min(max(0.0, max(p - STEP_MAX, -SPEED_MAX)), min(p + STEP_MAX, SPEED_MAX))
+
+
+@settings(max_examples=400, deadline=None)
+@given(commands, prevs)
+def test_limit_wheels_never_drives_a_wheel_beyond_its_command_unless_it_cannot_brake_harder(cmd, prev):
+    """Each wheel ends between zero and its command, or (when one tick cannot get it there) at the
+    slowest speed it can reach: a stop or a slow-down (the safety filter's) is never undone."""
+    out = limit_wheels(*cmd, prev, DT, ENV)
+    for o, c, p in zip(out, cmd, prev):
+        between = min(0.0, c) - 1e-15 <= o <= max(0.0, c) + 1e-15
+        assert between or o == pytest.approx(slowest_reachable(p), abs=1e-15), (o, c, p)
+
+
+def test_limit_wheels_does_not_turn_a_command_in_place_into_motion_ahead():
+    # from 0.2 m/s straight ahead, asked to turn in place (v = 0): the corner rule kept the left wheel
+    # at speed, even sped it up (0.2267, 0.1733: v = 0.2, no braking); now both wheels brake at amax
+    out = limit_wheels(0.05, -0.05, (0.2, 0.2), DT, ENV)
+    assert out == pytest.approx((0.2 - STEP_MAX, 0.2 - STEP_MAX), abs=1e-15)
+    out = limit_wheels(0.01, 0.0, (0.2, 0.2), DT, ENV)   # nearly a stop: was (0.2 + STEP_MAX, 0.2 - STEP_MAX)
+    assert out == pytest.approx((0.2 - STEP_MAX, 0.2 - STEP_MAX), abs=1e-15)
+
+
+def test_limit_wheels_lets_a_stop_through_when_the_previous_command_lies_beyond_the_speed_limit():
+    # the accel box and the speed box do not meet: the accel limit yields (as in the safety filter,
+    # n_accel_relaxed) and the speed box alone limits the command; the wheel was pinned at +vmax
+    assert limit_wheels(0.0, 0.0, (0.5, 0.5), DT, ENV) == (0.0, 0.0)
+    assert limit_wheels(0.1, -0.1, (0.5, 0.2), DT, ENV) == (0.1, -0.1)
+
+
 def test_limit_wheels_scales_a_too_fast_command_down_along_its_ray():
     prev = (0.29, 0.145)
     out = limit_wheels(0.6, 0.3, prev, DT, ENV)
     assert out == pytest.approx((0.3, 0.15), abs=1e-15)
 
 
-def test_limit_wheels_keeps_the_curvature_above_the_command_when_it_cannot_slow_down_enough():
+def test_limit_wheels_brakes_every_wheel_when_it_cannot_slow_down_enough():
+    # the ray is reachable only at s > 1 (2.67 u): keeping the curvature there held the right wheel at
+    # 0.1333 (braking 0.0167 where it could brake 0.0333); both wheels now brake at their limit
     prev = (0.3, 0.15)
-    out = limit_wheels(0.1, 0.05, prev, DT, ENV)  # the ray is reachable only at s > 1
-    assert out == pytest.approx((0.3 - STEP_MAX, (0.3 - STEP_MAX) / 2), abs=1e-15)
+    out = limit_wheels(0.1, 0.05, prev, DT, ENV)
+    assert out == pytest.approx((0.3 - STEP_MAX, 0.15 - STEP_MAX), abs=1e-15)
+    # and a wheel whose command the box reaches gets it, however the other one brakes
+    assert limit_wheels(0.1, 0.14, prev, DT, ENV) == pytest.approx((0.3 - STEP_MAX, 0.14), abs=1e-15)
 
 
 def test_limit_wheels_turns_as_far_toward_an_unreachable_curvature_as_one_tick_allows():

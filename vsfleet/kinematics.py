@@ -132,7 +132,12 @@ def limit_wheels(
 
     Feasible commands come back unchanged; otherwise the command is scaled by the largest s in
     [0, 1] that fits, keeping the curvature vl : vr. When no such s exists, see the fallback in
-    :func:`_reachable_toward` (keep the curvature at s > 1, else turn toward it, else brake).
+    :func:`_reachable_toward` (keep the curvature at s > 1, else turn toward it, else brake), bounded
+    so that no wheel ends farther from zero than its command asks unless one tick cannot slow it
+    more, and then at the slowest speed it can reach: braking comes before the curvature, and a stop
+    or a slow-down (the safety filter's) is never turned into motion. A previous command beyond the
+    speed limit (its acceleration box misses the speed box) leaves the speed box alone, as in the
+    safety filter.
     """
     dt_s = _check_dt(dt_s)
     u = (float(vl_m_s), float(vr_m_s))
@@ -144,19 +149,31 @@ def limit_wheels(
     if all(abs(u[i]) <= speed_max and abs(u[i] - p[i]) <= step_max for i in (0, 1)):
         return (vl_m_s, vr_m_s)
 
-    # The reachable box: the speed box intersected with the acceleration box around prev.
-    # If prev is so far outside the speed box that the two do not meet, the speed limit
-    # wins and that wheel is pinned to the speed bound nearest prev.
-    box = []
-    for i in (0, 1):
-        lo, hi = max(p[i] - step_max, -speed_max), min(p[i] + step_max, speed_max)
-        if lo > hi:
-            lo = hi = math.copysign(speed_max, p[i])
-        box.append((lo, hi))
+    # The reachable box: the speed box intersected with the acceleration box around prev. If prev
+    # is so far outside the speed box that the two do not meet (for either wheel), the acceleration
+    # limit yields and the speed box alone remains, as in the safety filter (n_accel_relaxed).
+    box = [(max(p[i] - step_max, -speed_max), min(p[i] + step_max, speed_max)) for i in (0, 1)]
+    if any(lo > hi for lo, hi in box):
+        box = [(-speed_max, speed_max)] * 2
 
     out = _reachable_toward(u, box)
-    # Clamping into the box moves the result by rounding error only; it makes the limits exact.
-    return (min(max(out[0], box[0][0]), box[0][1]), min(max(out[1], box[1][0]), box[1][1]))
+    # No wheel ends farther from zero than its command asks unless the box forces it, and then at
+    # the box's speed nearest zero: keeping (s > 1) or turning toward (a corner) the curvature never
+    # costs braking, so a stop or a slow-down (the safety filter's) is never turned into motion.
+    # Clamping into these bounds, within the box, also makes the limits exact against rounding.
+    return tuple(_clamp(out[i], *_toward_zero(u[i], *box[i])) for i in (0, 1))
+
+
+def _clamp(x: float, lo: float, hi: float) -> float:
+    return min(max(x, lo), hi)
+
+
+def _toward_zero(u: float, lo: float, hi: float) -> tuple[float, float]:
+    """The part of [lo, hi] between zero and u, or (both ends) the point of [lo, hi] nearest zero."""
+    a, b = max(lo, min(0.0, u)), min(hi, max(0.0, u))
+    if a > b:
+        a = b = min(max(0.0, lo), hi)
+    return a, b
 
 
 def _reachable_toward(u: tuple[float, float], box) -> tuple[float, float]:
@@ -166,6 +183,9 @@ def _reachable_toward(u: tuple[float, float], box) -> tuple[float, float]:
     2. Else, if some point of the box lies within 90 deg of u: the box corner at the smallest
        angle to u (turn as far toward the commanded curvature as one tick allows).
     3. Else (u points away from everything reachable, e.g. a reversal): the point nearest zero.
+    :func:`limit_wheels` then bounds each wheel between zero and its command (or, if the box lies
+    beyond, at the box's point nearest zero): after 1 at s > 1 this is each wheel braking toward
+    its command as far as the box allows.
     """
     s_lo, s_hi = 0.0, math.inf
     for ui, (lo, hi) in zip(u, box):
@@ -252,7 +272,8 @@ def limit_wheels_v(wheels_m_s: np.ndarray, wheels_prev_m_s: np.ndarray, dt_s: fl
     """:func:`limit_wheels` for every row: commands (n, 2) [m/s] clipped to each robot's envelope.
 
     Same rule (the ray s u with the largest s <= 1, else the smallest s > 1; else the box corner
-    nearest in angle within 90 deg; else the point nearest zero), checked equal in the tests.
+    nearest in angle within 90 deg; else the point nearest zero; then no wheel farther from zero
+    than its command asks unless the box forces it), checked equal in the tests.
     """
     dt_s = _check_dt(dt_s)
     out = np.empty((len(wheels_m_s), 2))
@@ -312,7 +333,8 @@ def limit_wheels_v_reference(wheels_m_s: np.ndarray, wheels_prev_m_s: np.ndarray
     """:func:`limit_wheels` for every row: commands (n, 2) [m/s] clipped to each robot's envelope.
 
     Same rule (the ray s u with the largest s <= 1, else the smallest s > 1; else the box corner
-    nearest in angle within 90 deg; else the point nearest zero), checked equal in the tests;
+    nearest in angle within 90 deg; else the point nearest zero; then no wheel farther from zero
+    than its command asks unless the box forces it), checked equal in the tests;
     numpy, the reference of the compiled core behind :func:`limit_wheels_v`.
     """
     dt_s = _check_dt(dt_s)
@@ -335,10 +357,11 @@ def _limit_rows(u: np.ndarray, p: np.ndarray, vmax: np.ndarray, step: np.ndarray
     """The clipping rule of :func:`limit_wheels_v_reference` for rows that need it (all infeasible)."""
     lo = np.maximum(p - step, -vmax)
     hi = np.minimum(p + step, vmax)
-    pinned = lo > hi
-    edge = np.copysign(np.broadcast_to(vmax, u.shape), p)
-    lo = np.where(pinned, edge, lo)
-    hi = np.where(pinned, edge, hi)
+    # the previous command beyond the speed box: the accel limit yields, the speed box alone (the filter's rule)
+    relaxed = np.any(lo > hi, axis=1, keepdims=True)
+    speed = np.broadcast_to(vmax, u.shape)
+    lo = np.where(relaxed, -speed, lo)
+    hi = np.where(relaxed, speed, hi)
     # 1. the ray {s u}: per wheel the interval of s that lands in [lo, hi]
     with np.errstate(divide="ignore", invalid="ignore"):
         a, b = lo / u, hi / u
@@ -366,4 +389,10 @@ def _limit_rows(u: np.ndarray, p: np.ndarray, vmax: np.ndarray, step: np.ndarray
     # 3. the point nearest zero
     zero = np.minimum(np.maximum(0.0, lo), hi)
     out = np.where(on_ray[:, None], ray, np.where(corner_ok[:, None], corner, zero))
-    return np.minimum(np.maximum(out, lo), hi)
+    # 4. no wheel farther from zero than its command asks, unless the box forces it (then nearest zero)
+    a = np.maximum(lo, np.minimum(0.0, u))
+    b = np.minimum(hi, np.maximum(0.0, u))
+    forced = a > b
+    a = np.where(forced, zero, a)
+    b = np.where(forced, zero, b)
+    return np.minimum(np.maximum(out, a), b)

@@ -4,7 +4,6 @@
 #include "vscore.h"
 
 #include <math.h>   /* sqrt only (and the constant HUGE_VAL) */
-#include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -89,12 +88,6 @@ int vs_integrate_arcs(const double *pose_world, const double *wheels_m_s, double
 
 static double vmaxd(double a, double b) { return a > b ? a : b; }   /* np.maximum on non-NaN values */
 static double vmind(double a, double b) { return a < b ? a : b; }
-static double copysign_d(double mag, double sgn)   /* copysign without libm */
-{
-    uint64_t b;
-    memcpy(&b, &sgn, sizeof b);
-    return (b >> 63) ? -vs_fabs(mag) : vs_fabs(mag);
-}
 
 void vs_limit_row(double u0, double u1, double p0, double p1, double vmax, double step, double out[2])
 {
@@ -102,7 +95,12 @@ void vs_limit_row(double u0, double u1, double p0, double p1, double vmax, doubl
     for (int k = 0; k < 2; k++) {
         lo[k] = vmaxd(p[k] - step, -vmax);
         hi[k] = vmind(p[k] + step, vmax);
-        if (lo[k] > hi[k]) lo[k] = hi[k] = copysign_d(vmax, p[k]);
+    }
+    /* the previous command beyond the speed box (its accel box misses it): the accel limit yields and
+     * the speed box alone limits the command, as in the safety filter (vs_safety.c, n_accel_relaxed) */
+    if (lo[0] > hi[0] || lo[1] > hi[1])
+        for (int k = 0; k < 2; k++) { lo[k] = -vmax; hi[k] = vmax; }
+    for (int k = 0; k < 2; k++) {
         int zero_in = lo[k] <= 0.0 && 0.0 <= hi[k];
         if (u[k] > 0.0) { slo_w[k] = lo[k] / u[k]; shi_w[k] = hi[k] / u[k]; }
         else if (u[k] < 0.0) { slo_w[k] = hi[k] / u[k]; shi_w[k] = lo[k] / u[k]; }
@@ -137,8 +135,15 @@ void vs_limit_row(double u0, double u1, double p0, double p1, double vmax, doubl
             r[1] = vmind(vmaxd(0.0, lo[1]), hi[1]);
         }
     }
-    out[0] = vmind(vmaxd(r[0], lo[0]), hi[0]);
-    out[1] = vmind(vmaxd(r[1], lo[1]), hi[1]);
+    /* 4. no wheel farther from zero than its command asks, unless the box forces it (then at the
+     * box's point nearest zero): the curvature kept (s > 1) or turned toward (a corner) never costs
+     * braking, and a stop or a slow-down (the safety filter's) is never turned into motion.  Clamping
+     * into [a, b], within the box, also makes the limits exact against rounding. */
+    for (int k = 0; k < 2; k++) {
+        double a = vmaxd(lo[k], vmind(0.0, u[k])), b = vmind(hi[k], vmaxd(0.0, u[k]));
+        if (a > b) a = b = vmind(vmaxd(0.0, lo[k]), hi[k]);
+        out[k] = vmind(vmaxd(r[k], a), b);
+    }
 }
 
 int vs_limit_wheels(const double *wheels_m_s, const double *wheels_prev_m_s, double dt_s,

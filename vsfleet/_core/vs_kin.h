@@ -44,7 +44,12 @@ void vs_limit_row(double u0, double u1, double p0, double p1, double speed_max_m
 /* Wheel commands (n, 2) [m/s] clipped to each row's speed limit wheel_speed_max_m_s [m/s] and to a
  * change of at most wheel_accel_max_m_s2 * dt_s from wheels_prev_m_s (n, 2).  Feasible rows come back
  * unchanged; otherwise the ray s u with the largest s <= 1, else the smallest s > 1 (curvature kept);
- * else the box corner nearest in angle within 90 deg; else the reachable point nearest zero.
+ * else the box corner nearest in angle within 90 deg; else the reachable point nearest zero; then
+ * each wheel is bounded between zero and its command, or (when the box lies beyond) put at the box's
+ * point nearest zero: no wheel ends faster than its command asks unless one tick cannot slow it more,
+ * so a stop or a slow-down (the safety filter's) is never turned into motion.  A previous command
+ * beyond the speed limit (an accel box that misses the speed box) leaves the speed box alone for
+ * both wheels, as in vs_safety_filter (n_accel_relaxed).
  * dt_s must be > 0 (VS_EVALUE). */
 int vs_limit_wheels(const double *wheels_m_s, const double *wheels_prev_m_s, double dt_s,
                     const double *wheel_speed_max_m_s, const double *wheel_accel_max_m_s2, size_t n, double *out);
