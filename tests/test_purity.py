@@ -1,6 +1,7 @@
 """The pure core never imports zenoh, time, logging or cv2 (I/O and OpenCV stay at the edges)."""
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -177,3 +178,124 @@ def test_the_import_rules_catch_a_tool_importing_a_program_by_name():
     assert vsfleet_imports(probe, "import sys\nCMD = [sys.executable, '-m', 'vsfleet.agent.main']\n") == set()
     cli = {m for m in vsfleet_imports(ROOT / "fleetctl" / "cli.py") if room_of(m) not in MAY_IMPORT["fleetctl"]}
     assert {room_of(m) for m in cli} == {"agent", "simfleet", "tracker"}  # seen, and allowed as the table
+
+
+# ---------------------------------------------------------------- the compiled core's C files (vsfleet/_core)
+# No circle among them either: a graph of the files, an edge from a file to every header it includes
+# ("...") and from a file to every other file that defines an external function it uses (a call, or
+# its address taken) in a function body, an initialiser or a macro.
+
+C_CORE = ROOT / "vsfleet" / "_core"
+C_NOT_CALLS = {"if", "for", "while", "switch", "return", "sizeof"}
+
+
+def c_strip(text: str, strings: bool = True) -> str:
+    """C text without its comments and (strings) the contents of its string and char literals;
+    newlines are kept."""
+    out, i, n = [], 0, len(text)
+    while i < n:
+        c = text[i]
+        if text.startswith("/*", i):
+            j = text.find("*/", i + 2)
+            j = n if j < 0 else j + 2
+            out.append(re.sub(r"[^\n]", " ", text[i:j]))
+            i = j
+        elif text.startswith("//", i):
+            j = text.find("\n", i)
+            i = n if j < 0 else j
+        elif strings and c in "\"'":
+            j = i + 1
+            while j < n and text[j] != c:
+                j += 2 if text[j] == "\\" else 1
+            out.append(c + c)
+            i = j + 1
+        else:
+            out.append(c)
+            i += 1
+    return "".join(out)
+
+
+def c_parts(text: str) -> tuple[set[str], set[str], set[str]]:
+    """(headers included with "...", external functions defined, identifiers used) of one C file.
+    Used: in function bodies and initialisers (brace depth >= 1) and in macro bodies; a prototype
+    at file scope is no use. Defined: `name(...) {` at file scope, not static."""
+    includes = set(re.findall(r'^[ \t]*#[ \t]*include[ \t]*"([^"]+)"', c_strip(text, strings=False), re.M))
+    code = c_strip(text)
+    directive = r"^[ \t]*#.*(?:\\\n.*)*$"
+    macros = " ".join(re.findall(directive, code, re.M))
+    macros = " ".join(re.findall(r"#[ \t]*define[ \t]+\w+(?:\([^)]*\))?(.*)", macros, re.S))
+    code = re.sub(directive, "", code, flags=re.M)
+    defined, used = set(), set(re.findall(r"[A-Za-z_]\w*", macros))
+    depth, start = 0, 0
+    for m in re.finditer(r"[{};]|[A-Za-z_]\w*", code):
+        tok = m.group()
+        if tok == "{":
+            if depth == 0:
+                head = code[start:m.start()]
+                f = re.search(r"([A-Za-z_]\w*)\s*\([^;{}=]*\)\s*$", head)
+                if f and f.group(1) not in C_NOT_CALLS and not re.search(r"\bstatic\b", head):
+                    defined.add(f.group(1))
+            depth += 1
+        elif tok == "}":
+            depth -= 1
+            start = m.end() if depth == 0 else start
+        elif tok == ";":
+            start = m.end() if depth == 0 else start
+        elif depth > 0:
+            used.add(tok)
+    return includes, defined, used
+
+
+def c_graph(texts: dict[str, str] | None = None) -> dict[str, set[str]]:
+    """File name -> the core's files it depends on (its includes, the files of the functions it uses).
+    ``texts``: file name -> text to read instead (or a file that is not there)."""
+    files = {p.name: p.read_text() for p in sorted(C_CORE.glob("*.[ch]"))}
+    files.update(texts or {})
+    parts = {name: c_parts(text) for name, text in files.items()}
+    owner: dict[str, set[str]] = {}
+    for name, (_, defined, _) in parts.items():
+        for fn in defined:
+            owner.setdefault(fn, set()).add(name)
+    return {name: {h for h in inc if h in files}
+            | {o for fn in used - defined for o in owner.get(fn, ()) if o != name}
+            for name, (inc, defined, used) in parts.items()}
+
+
+def c_cycles(graph: dict[str, set[str]]) -> list[tuple[str, str]]:
+    """The edges (a, b) of the graph where b reaches a again."""
+    def reaches(start: str, goal: str, seen: set[str]) -> bool:
+        return any(n == goal or (n not in seen and not seen.add(n) and reaches(n, goal, seen)) for n in graph[start])
+
+    return sorted((a, b) for a in graph for b in graph[a] if reaches(b, a, set()))
+
+
+def test_no_two_c_files_of_the_compiled_core_depend_on_each_other():
+    """vs_fit.c called vs_fit_l1.c and vs_fit_linf.c (the evaluators), which called back into vs_fit.c
+    for the helpers they share: those live in vs_fit_common.c now, which depends on neither."""
+    graph = c_graph()
+    assert not c_cycles(graph), f"circles among the core's C files: {c_cycles(graph)}"
+    assert {"vs_fit_l1.c", "vs_fit_linf.c", "vs_fit_common.c"} <= graph["vs_fit.c"]
+    assert "vs_fit_common.c" in graph["vs_fit_l1.c"] and "vs_fit_common.c" in graph["vs_fit_linf.c"]
+
+
+def test_the_c_cycle_check_sees_a_call_back_and_an_include_back():
+    """It does fail: the l1 evaluator calling the fit (a circle through vs_fit.c), a header including
+    one that includes it; a prototype, a comment or a string naming a function is no call."""
+    l1 = (C_CORE / "vs_fit_l1.c").read_text()
+    back = l1 + "\nint vs_fit_probe(void)\n{\n    vs_fit_result r;\n    return vs_fit(0, 0, 0, 0, 0, &r);\n}\n"
+    assert c_cycles(c_graph({"vs_fit_l1.c": back})) == [("vs_fit.c", "vs_fit_l1.c"), ("vs_fit_l1.c", "vs_fit.c")]
+    quiet = l1 + '\nint vs_fit(const double *a, const double *b, const double *w, size_t n, int m, vs_fit_result *o);\n' \
+                 '/* vs_fit(...) */\nstatic const char *probe = "vs_fit(";\n'
+    assert not c_cycles(c_graph({"vs_fit_l1.c": quiet}))
+    math_h = (C_CORE / "vs_math.h").read_text().replace("#define", '#include "vscore.h"\n#define', 1)
+    assert ("vs_math.h", "vscore.h") in c_cycles(c_graph({"vs_math.h": math_h}))
+
+
+def test_no_function_of_the_compiled_core_is_told_apart_by_its_address():
+    """vs_fit.c chose linf's flat bound by comparing its evaluator to vs_fit_eval_linf; the metric is
+    passed instead."""
+    defined = set().union(*(c_parts(p.read_text())[1] for p in C_CORE.glob("*.c")))
+    names = "|".join(sorted(defined, key=len, reverse=True))
+    bad = [(p.name, m.group()) for p in sorted(C_CORE.glob("*.c"))
+           for m in re.finditer(rf"(?:[=!]=\s*(?:{names})\b(?!\s*\())|(?:\b(?:{names})\s*[=!]=)", c_strip(p.read_text()))]
+    assert not bad, f"functions compared by address: {bad}"

@@ -1,8 +1,11 @@
 /* vs_fit.c - the fit's frame: validation, the centred problem, l2 (Procrustes), degenerate cases,
  * the certified search over the rotation (certify.search: minorants, cell bounds, refinement),
- * residuals and cost.  The evaluators are in vs_fit_l1.c and vs_fit_linf.c.  A port of
+ * residuals and cost.  The evaluators are in vs_fit_l1.c and vs_fit_linf.c, the helpers they share
+ * with this file in vs_fit_common.c (calls go one way: here -> evaluators -> common).  A port of
  * vsfleet/fit (numpy reference) that follows its steps in the same order; docs/fit.md. */
-#include "vs_fit_internal.h"
+#include "vs_fit.h"
+#include "vs_fit_l1.h"
+#include "vs_fit_linf.h"
 
 #include <math.h>   /* sqrt only (and the INFINITY / NAN macros) */
 #include <stdlib.h>
@@ -15,43 +18,14 @@ static const double LEAN_OFF[4] = {1e-6, 1e-4, 1e-3, 1e-2};
 #define GRID 8
 #define LADDER 6
 
-double vs_fit_remainder(double x, double y)
-{
-    double r = vs_fmod(x, y);
-    if (2.0 * vs_fabs(r) > y) r = r > 0.0 ? r - y : r + y;
-    return r;
-}
-
-double vs_fit_npmod(double x, double y)
-{
-    double m = vs_fmod(x, y);
-    if (m != 0.0) {
-        if ((y < 0.0) != (m < 0.0)) m += y;
-    } else {
-        m = y < 0.0 ? -0.0 : 0.0;
-    }
-    return m;
-}
-
 static double npmax(double a, double b) { return (a != a || b != b) ? a + b : (a > b ? a : b); }
 
-void vs_fit_minorant(const vs_prob *pr, const double *kx, const double *ky, const size_t *rows, size_t k,
-                     double *K, double *A, double *B)
+/* The metric's evaluator at one angle: VS_METRIC_L1 vs_fit_l1.c's, VS_METRIC_LINF vs_fit_linf.c's. */
+static void evaluate(int metric, const vs_prob *pr, double c, double s, double tx0, double ty0, int rough,
+                     vs_ang *out)
 {
-    double sk = 0.0, sa = 0.0, sb = 0.0, fx = 0.0, fy = 0.0, ka = 0.0;
-    for (size_t i = 0; i < k; i++) {
-        size_t r = rows ? rows[i] : i;
-        double px = pr->Px[r], py = pr->Py[r], qx = pr->Qx[r], qy = pr->Qy[r];
-        sk += kx[i] * qx + ky[i] * qy;
-        sa += kx[i] * px + ky[i] * py;
-        sb += ky[i] * px - kx[i] * py;
-        fx += kx[i];
-        fy += ky[i];
-        ka += sqrt(kx[i] * kx[i] + ky[i] * ky[i]);
-    }
-    *K = sk - pr->bound * (sqrt(fx * fx + fy * fy) + 64.0 * VS_EPS * ka);
-    *A = sa;
-    *B = sb;
+    if (metric == VS_METRIC_LINF) vs_fit_eval_linf(pr, c, s, tx0, ty0, rough, out);
+    else vs_fit_eval_l1(pr, c, s, tx0, ty0, rough, out);
 }
 
 /* certify.cell_bounds for one cell (a -> b) */
@@ -90,7 +64,7 @@ typedef struct { double th; int rough; } ask_t;
 
 typedef struct {
     const vs_prob *pr;
-    vs_eval_fn ev;
+    int metric;   /* VS_METRIC_L1 or VS_METRIC_LINF: whose evaluator */
     double t0x, t0y;
     vs_ang *a;
     size_t m, cap, limit, evals;
@@ -182,7 +156,7 @@ static int angles_add(angles_t *S, const double *ths, size_t nt, const double *r
         o->th = th;
         vs_sincos(th, &o->s, &o->c);
         o->e[0] = o->e[1] = o->e[2] = 0.0;
-        S->ev(S->pr, o->c, o->s, tx0, ty0, ask[i].rough, o);
+        evaluate(S->metric, S->pr, o->c, o->s, tx0, ty0, ask[i].rough, o);
         o->rough = ask[i].rough ? 1.0 : 0.0;
     }
     S->evals += k;
@@ -278,13 +252,13 @@ static void push(dvec *d, double x)
  * with g_P the optimal cost of the template points alone, which no rotation changes; likewise with
  * P and Q swapped.  g_P is bounded below by the evaluator's own weak-duality minorant for the
  * problem (P, 0) at one angle.  -inf if neither helps; NaN if out of memory. */
-static double flat_bound(const vs_prob *pr, vs_eval_fn ev)
+static double flat_bound(const vs_prob *pr, int metric)
 {
     size_t n = pr->n;
     double *zero = calloc(n, sizeof(double));
     if (zero == NULL) return NAN;
     double best = -INFINITY, sp = 0.0, sq = 0.0, mp = 0.0, mq = 0.0;
-    int linf = ev == vs_fit_eval_linf;
+    int linf = metric == VS_METRIC_LINF;
     for (size_t i = 0; i < n; i++) {
         double a = sqrt(pr->Px[i] * pr->Px[i] + pr->Py[i] * pr->Py[i]);
         double b = sqrt(pr->Qx[i] * pr->Qx[i] + pr->Qy[i] * pr->Qy[i]);
@@ -301,7 +275,7 @@ static double flat_bound(const vs_prob *pr, vs_eval_fn ev)
         a.e[0] = a.e[1] = a.e[2] = 0.0;
         /* (P, 0) at th = pi: q_i = P_i; (0, Q) at th = 0: q_i = Q_i */
         double c = side == 0 ? -1.0 : 1.0;
-        ev(&sub, c, 0.0, 0.0, 0.0, 0, &a);
+        evaluate(metric, &sub, c, 0.0, 0.0, 0.0, 0, &a);
         double g = a.K - a.A * c;
         double v = g - rest - 64.0 * VS_EPS * (pr->bound * pr->W + rest);
         if (v > best) best = v;
@@ -311,14 +285,14 @@ static double flat_bound(const vs_prob *pr, vs_eval_fn ev)
 }
 
 /* certify.search: (th, centred tx, ty, lower bound); rounds out. */
-static int search(const vs_prob *pr, vs_eval_fn ev, double th0, const double *guess, int ng, int split,
+static int search(const vs_prob *pr, int metric, double th0, const double *guess, int ng, int split,
                   double t0x, double t0y, int lean, int refine, double *th_out, double *tx_out, double *ty_out,
                   double *lower_out, int *rounds_out)
 {
     size_t n = pr->n;
     angles_t S;
     memset(&S, 0, sizeof S);
-    S.pr = pr; S.ev = ev; S.t0x = t0x; S.t0y = t0y;
+    S.pr = pr; S.metric = metric; S.t0x = t0x; S.t0y = t0y;
     S.limit = VS_FIT_WORK / n > VS_FIT_MIN_ANGLES ? VS_FIT_WORK / n : VS_FIT_MIN_ANGLES;
     dvec nw = {NULL, 0, 0, 0};
     double *lb = NULL, *bc = NULL, *bs = NULL, *g = NULL;
@@ -359,7 +333,7 @@ static int search(const vs_prob *pr, vs_eval_fn ev, double th0, const double *gu
         frac[k] = v;
         frac[nlv + k] = 1.0 - v;
     }
-    double flat = flat_bound(pr, ev);
+    double flat = flat_bound(pr, metric);
     if (flat != flat) { rc = VS_ENOMEM; goto done; }
     double lower = 0.0;
     for (int round = 0; round < VS_FIT_MAX_ROUNDS; round++) {
@@ -586,7 +560,6 @@ int vs_fit(const double *tpl, const double *pos, const double *weights, size_t n
         if (Qx[i] != Qx[0] || Qy[i] != Qy[0]) rigid_q = 0;
     }
     rigid = rigid || rigid_q;
-    vs_eval_fn ev = metric == VS_METRIC_L1 ? vs_fit_eval_l1 : vs_fit_eval_linf;
     double th = 0.0, tx = 0.0, ty = 0.0, lower = 0.0;
     int have_lower = 0, rounds = 0, rc = VS_OK;
     if (kept == 1) {
@@ -598,7 +571,7 @@ int vs_fit(const double *tpl, const double *pos, const double *weights, size_t n
             double c, s;
         vs_sincos(th, &s, &c);
             a.e[0] = a.e[1] = a.e[2] = 0.0;
-            ev(&pr, c, s, 0.0, 0.0, 0, &a);
+            evaluate(metric, &pr, c, s, 0.0, 0.0, 0, &a);
             tx = a.tx; ty = a.ty;
             lower = a.K - a.A * c - a.B * s;
             have_lower = 1;
@@ -617,7 +590,7 @@ int vs_fit(const double *tpl, const double *pos, const double *weights, size_t n
             if (ng == 0 && lean) { guess[0] = th0; ng = 1; }
             split = VS_LINF_SPLIT;
         }
-        rc = search(&pr, ev, th0, guess, ng, split, t0x, t0y, lean, metric == VS_METRIC_LINF,
+        rc = search(&pr, metric, th0, guess, ng, split, t0x, t0y, lean, metric == VS_METRIC_LINF,
                     &th, &tx, &ty, &lower, &rounds);
         have_lower = 1;
     }

@@ -1,6 +1,6 @@
 /* vs_fit_l1.c - l1: the weighted geometric median of the q_i at one angle with balanced duals
  * (median.evaluate, median._duals), and the Newton start at large n (median.newton). */
-#include "vs_fit_internal.h"
+#include "vs_fit_l1.h"
 
 #include <math.h>   /* sqrt only (and the INFINITY / NAN macros) */
 

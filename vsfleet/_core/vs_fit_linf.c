@@ -1,7 +1,7 @@
 /* vs_fit_linf.c - linf: the minimum enclosing circle of the q_i at one angle, exact, with its basis
  * duals (minimax.evaluate), the n = 3 rotation guesses and basis hints (minimax.guesses, kinks), and
  * the descent to a local minimum from n = 4 (minimax.descend). */
-#include "vs_fit_internal.h"
+#include "vs_fit_linf.h"
 
 #include <math.h>   /* sqrt only (and the INFINITY / NAN macros) */
 
