@@ -15,8 +15,27 @@ static long long ifloor(double v)
 }
 
 /* the neighbour order, fixed: 8 moves at the same heading, then heading + 1, heading - 1 */
-static const int NB_DX[8] = {1, -1, 0, 0, 1, -1, 1, -1};
-static const int NB_DY[8] = {0, 0, 1, -1, 1, 1, -1, -1};
+
+/* every neighbour of state s in the fixed order (8 moves at its heading, then heading + 1, heading - 1), those
+ * inside the lattice only: their states in t[], base weights in w[]; returns how many */
+static int neighbours_of(const vs_field *f, size_t s, size_t t[10], uint32_t w[10])
+{
+    /* 32-bit division: the lattice holds < 2^32 states (max_states <= 1e9), and it is several times faster */
+    const uint32_t nx = (uint32_t)f->nx, ny = (uint32_t)f->ny, plane = nx * ny, nh = (uint32_t)f->n_headings;
+    const uint32_t s32 = (uint32_t)s, k = s32 / plane, rem = s32 - k * plane, row = rem / nx, col = rem - row * nx;
+    int e = col + 1 < nx, wst = col > 0, nth = row + 1 < ny, sth = row > 0, c = 0;
+    if (e) { t[c] = s + 1; w[c++] = VS_FIELD_W_AXIS; }
+    if (wst) { t[c] = s - 1; w[c++] = VS_FIELD_W_AXIS; }
+    if (nth) { t[c] = s + nx; w[c++] = VS_FIELD_W_AXIS; }
+    if (sth) { t[c] = s - nx; w[c++] = VS_FIELD_W_AXIS; }
+    if (e && nth) { t[c] = s + nx + 1; w[c++] = VS_FIELD_W_DIAG; }
+    if (wst && nth) { t[c] = s + nx - 1; w[c++] = VS_FIELD_W_DIAG; }
+    if (e && sth) { t[c] = s - nx + 1; w[c++] = VS_FIELD_W_DIAG; }
+    if (wst && sth) { t[c] = s - nx - 1; w[c++] = VS_FIELD_W_DIAG; }
+    t[c] = (size_t)(k + 1 == nh ? 0 : k + 1) * plane + rem; w[c++] = f->w_rot;
+    t[c] = (size_t)(k == 0 ? nh - 1 : k - 1) * plane + rem; w[c++] = f->w_rot;
+    return c;
+}
 
 typedef struct {
     uint32_t *items;
@@ -34,22 +53,6 @@ static int bucket_push(bucket *b, uint32_t v)
     }
     b->items[b->len++] = v;
     return VS_OK;
-}
-
-/* the neighbour j (0..9) of state s, or -1 if it leaves the lattice; *w its base weight */
-static long neighbour(const vs_field *f, size_t s, int j, uint32_t *w)
-{
-    size_t plane = f->nx * f->ny;
-    size_t k = s / plane, rem = s % plane, row = rem / f->nx, col = rem % f->nx;
-    if (j < 8) {
-        long c = (long)col + NB_DX[j], r = (long)row + NB_DY[j];
-        if (c < 0 || r < 0 || c >= (long)f->nx || r >= (long)f->ny) return -1;
-        *w = j < 4 ? VS_FIELD_W_AXIS : VS_FIELD_W_DIAG;
-        return (long)(k * plane + (size_t)r * f->nx + (size_t)c);
-    }
-    size_t kk = j == 8 ? (k + 1) % f->n_headings : (k + f->n_headings - 1) % f->n_headings;
-    *w = f->w_rot;
-    return (long)(kk * plane + rem);
 }
 
 /* Dial's algorithm over the free states (f->cost != WALL) from the sources src (distance 0): dist holds
@@ -74,15 +77,16 @@ static int dial(const vs_field *f, const unsigned char *tight, const uint32_t *s
             uint32_t s = b->items[q];
             pending--;
             if (dist[s] != d) continue;        /* a stale entry: reached cheaper since */
-            for (int j = 0; j < 10; j++) {
-                uint32_t w;
-                long t = neighbour(f, s, j, &w);
-                if (t < 0 || f->cost[t] == VS_FIELD_WALL) continue;
-                if ((tight[s] | tight[t]) & 1u) w *= 2;
-                uint32_t nd = d + w;
-                if (nd < dist[t]) {
-                    dist[t] = nd;
-                    if ((rc = bucket_push(&bk[nd % nb], (uint32_t)t)) != VS_OK) goto done;
+            size_t t[10];
+            uint32_t w[10];
+            int c = neighbours_of(f, s, t, w);
+            unsigned char ts = tight[s];
+            for (int j = 0; j < c; j++) {
+                if (f->cost[t[j]] == VS_FIELD_WALL) continue;
+                uint32_t nd = d + (((ts | tight[t[j]]) & 1u) ? 2 * w[j] : w[j]);
+                if (nd < dist[t[j]]) {
+                    dist[t[j]] = nd;
+                    if ((rc = bucket_push(&bk[nd % nb], (uint32_t)t[j])) != VS_OK) goto done;
                     pending++;
                 }
             }
@@ -263,10 +267,12 @@ int vs_field_build(const double *template_xy, const double *radius_m, size_t n, 
             long long c = (long long)(rem % f.nx) + f.ix_lo, r = (long long)(rem / f.nx) + f.iy_lo;
             long long d2 = c * c + r * r;
             if (best_d2 < 0 || d2 < best_d2 || (d2 == best_d2 && u < best)) { best_d2 = d2; best = u; }
-            for (int j = 0; j < 10; j++) {
-                uint32_t w;
-                long t = neighbour(&f, u, j, &w);
-                if (t < 0 || f.cost[t] == VS_FIELD_WALL || dist[t] != VS_FIELD_WALL) continue;
+            size_t nbr[10];
+            uint32_t wts[10];
+            int cnt = neighbours_of(&f, u, nbr, wts);
+            for (int j = 0; j < cnt; j++) {
+                size_t t = nbr[j];
+                if (f.cost[t] == VS_FIELD_WALL || dist[t] != VS_FIELD_WALL) continue;
                 dist[t] = VS_FIELD_WALL - 1u;
                 queue[tail++] = (uint32_t)t;
             }
@@ -355,15 +361,18 @@ static long descend(const vs_field *f, size_t s, uint32_t *w_out)
     if (cs == 0) return -1;
     long best = -1;
     uint32_t best_v = 0, best_w = 0;
-    for (int j = 0; j < 10; j++) {
-        uint32_t w;
-        long t = neighbour(f, s, j, &w);
-        if (t < 0 || f->cost[t] == VS_FIELD_WALL) continue;
+    size_t nbr[10];
+    uint32_t wts[10];
+    int cnt = neighbours_of(f, s, nbr, wts);
+    for (int j = 0; j < cnt; j++) {
+        size_t t = nbr[j];
+        uint32_t w = wts[j];
+        if (f->cost[t] == VS_FIELD_WALL) continue;
         uint32_t ct = f->cost[t] & VS_FIELD_COST_MASK;
         if (ct >= cs) continue;
         if ((f->cost[s] | f->cost[t]) & VS_FIELD_TIGHT_BIT) w *= 2;
         uint32_t v = ct + w;
-        if (best < 0 || v < best_v) { best = t; best_v = v; best_w = w; }
+        if (best < 0 || v < best_v) { best = (long)t; best_v = v; best_w = w; }
     }
     *w_out = best_w;
     return best;
