@@ -17,8 +17,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components, dijkstra
 
 from . import _core
 from .errors import VsfleetValueError
@@ -118,6 +116,7 @@ def _floor(v: float) -> int:
 def build_field_reference(template_xy, radius_m, margin_m: float, obstacles, goal: Pose2, cell_m: float = CELL_M,
                           n_headings: int = HEADINGS, max_states: int = MAX_STATES) -> Field:
     """vs_field_build in numpy and scipy: the same lattice, the same raster, the same integer costs."""
+    from scipy.sparse.csgraph import connected_components, dijkstra  # noqa: PLC0415 - the reference only
     if not (4 <= n_headings <= 1024 and 1024 <= max_states <= 1_000_000_000 and 9 * n_headings <= max_states):
         raise VsfleetValueError("build_field: n_headings in [4, 1024], max_states in [1024, 1e9] and >= 9 n_headings")
     tpl = np.asarray(template_xy, dtype=float).reshape(-1, 2)
@@ -204,6 +203,7 @@ def build_field_reference(template_xy, radius_m, margin_m: float, obstacles, goa
 def _graph(K: int, ny: int, nx: int, free: np.ndarray, tight: np.ndarray, w_rot: int):
     """The lattice's edges between free states as a sparse matrix (each edge once; weights doubled where
     an end is tight)."""
+    from scipy.sparse import coo_matrix  # noqa: PLC0415 - the reference only (agents never import scipy)
     idx = np.arange(K * ny * nx).reshape(K, ny, nx)
     rows, cols, ws = [], [], []
 
