@@ -169,3 +169,27 @@ def test_without_a_room_no_circles_are_drawn():
 
     ax = plot.trajectory_figure(extract(synthetic_log())).axes[0]
     assert not [p for p in ax.patches if isinstance(p, Circle)]
+
+
+def test_in_a_room_the_plan_from_the_first_fitted_pose_and_the_bodies_swept_along_it_are_drawn():
+    import dataclasses
+
+    from matplotlib.patches import Circle
+
+    from vsfleet.geometry import Pose2
+    from vsfleet.step import planned_way
+
+    room = dataclasses.replace(MISSION, goal=(1.6, 0.0, 0.0), obstacles=((0.8, 0.0, 0.2),), robots=tuple(
+        (r, dataclasses.replace(s, radius=0.05)) for r, s in MISSION.robots))
+    log = [rec("vs/demo/mission", encode_mission(room), T0 - 0.5), *synthetic_log(mission=False)]
+    ax = plot.trajectory_figure(extract(log)).axes[0]
+    plan = [line for line in ax.get_lines() if line.get_label().startswith("plan from the start")]
+    way, blocked = planned_way(room, Pose2(0.0, 0.0, 0.0))
+    assert len(plan) == 1 and not blocked
+    assert np.array_equal(plan[0].get_xdata(), way[:, 0]) and np.array_equal(plan[0].get_ydata(), way[:, 1])
+    assert tuple(way[-1]) == (1.6, 0.0, 0.0)
+    assert np.hypot(way[:, 0] - 0.8, way[:, 1]).min() > 0.2           # around the pillar, not through it
+    swept = [p for p in ax.patches if isinstance(p, Circle) and p.get_gid() == "swept body"]
+    assert len(swept) >= 3 * 10 and all(p.radius == 0.05 for p in swept)
+    for p in swept:                                                     # no swept body touches the pillar
+        assert math.hypot(p.center[0] - 0.8, p.center[1]) >= 0.2 + 0.05

@@ -52,7 +52,7 @@ from .fit import fit_structure, fit_structure_reference
 from .frames import Frame
 from .geometry import Pose2
 from .kinematics import integrate_arcs, integrate_arcs_reference
-from .field import Field, build_field, build_field_reference, follow_field_reference
+from .field import Field, build_field, build_field_reference, follow_field, follow_field_reference
 from .safety import SafetyParams, safety_filter, safety_filter_reference
 from .wire import CmdMsg, EventMsg, HealthMsg, Mission, StateMsg
 
@@ -249,6 +249,17 @@ def structure_step(arrays: MissionArrays, metric: str, pose_world: np.ndarray, s
                      at_goal=adv.at_goal and not blocked, used=used, points_now=now_pts,
                      points_next=adv.pose.apply(arrays.template), deviations_m=np.where(seen, dist, np.inf),
                      blocked=blocked, left_m=left_m)
+
+
+def planned_way(mission: Mission, pose: Pose2, cap: int = 100_000) -> tuple[np.ndarray, bool] | None:
+    """The whole way the room's field gives from a structure pose [m, rad; world] to the goal (or the closest
+    safe pose: blocked True), as (k, 3) poses; None without a field (no obstacles, or a twist goal). For tools
+    that draw the plan (vsfleet plot, the Foxglove scene); agents follow 2 m of it a frame."""
+    field = mission_arrays(mission).field
+    if field is None:
+        return None
+    way, blocked, _left = follow_field(field, pose, path_m=1e9, cap=cap)
+    return way, blocked
 
 
 def _reference_field(arrays: MissionArrays) -> Field:
