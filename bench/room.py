@@ -20,7 +20,10 @@ margin 0.02 m, motions checked every 0.5 cm of body travel, seed 1, at most 300 
 4-8 s, then simplified). Our plan
 (vsfleet.field.build_field + follow_field from the start pose, the agents' own lattice) is reported next
 to it; then the fleet runs (run_offline) for max(60 s, 2.5 x the reference time), at most 150 s; the
-reference time is OMPL's path length / 0.1 m/s (ours where OMPL found none).
+reference time is OMPL's path length / 0.1 m/s (ours where OMPL found none). The goal is reached when the
+fitted structure is within 5 mm of the goal's position AND 0.03 rad of its heading (run_offline's t_goal_s
+looks at the position only and ends the run there; when the heading is not there yet, the room's run is
+made again, to its end, and the first frame at the goal pose counts).
 
     .venv/bin/python -m bench.room --rooms 200        # progress on stderr, tables on stdout
     .venv/bin/python -m bench.room --rooms 8 --out /tmp/rooms   # rooms.json and rooms.png there
@@ -33,9 +36,11 @@ run there, as before.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import math
 import platform
+import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
@@ -43,6 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vsfleet import _core
 from vsfleet.field import PATH_CAP, PATH_M, build_field, follow_field
 from vsfleet.geometry import Pose2
 from vsfleet.scenario import scenario_from_dict
@@ -60,6 +66,8 @@ CLEAR_M = 0.05           # every body this far from every obstacle at the start 
 WALL_R = 0.1             # wall discs [m] ...
 WALL_STEP = 0.15         # ... this far apart (overlapping: the wall is >= 0.13 m thick everywhere)
 WITHIN = 1.5             # "reached in time": within this many reference times
+GOAL_M = 0.005           # the goal pose is reached: the fitted structure within this of its position (as
+GOAL_RAD = 0.03          # run_offline's t_goal_s) and within this of its heading (run_offline does not look)
 MAX_OBSTACLES = 256      # a mission's limit
 
 
@@ -364,6 +372,18 @@ def min_gaps_m(pos: np.ndarray, radii: np.ndarray, obstacles: np.ndarray) -> tup
     return bb, bo
 
 
+def heading_error(pose: Pose2, goal) -> float:
+    return abs(math.remainder(pose.th - goal[2], 2 * math.pi))
+
+
+def goal_time(run, goal) -> float | None:
+    """The first time the fitted structure is within GOAL_M and GOAL_RAD of the goal pose (None: never)."""
+    for t, p in run.trace:
+        if math.hypot(p.x - goal[0], p.y - goal[1]) < GOAL_M and heading_error(p, goal) <= GOAL_RAD:
+            return float(t)
+    return None
+
+
 def evaluate(seed: int, ompl_checks: int = ompl_ref.MAX_CHECKS, cap_s: float = 150.0) -> dict:
     room = make_room(seed)
     ref = ompl_ref.plan_ompl(room.template, room.radii, room.obstacles, room.start, room.goal,
@@ -373,12 +393,17 @@ def evaluate(seed: int, ompl_checks: int = ompl_ref.MAX_CHECKS, cap_s: float = 1
     ref_s = length / SPEED if not math.isnan(length) else math.nan
     duration = min(cap_s, max(60.0, 2.5 * ref_s)) if not math.isnan(ref_s) else 60.0
     t0 = time.perf_counter()
-    run = run_offline(to_scenario(room, duration), duration, seed=seed)
+    scenario = to_scenario(room, duration)
+    run = run_offline(scenario, duration, seed=seed, goal_tol_m=GOAL_M)
+    if run.t_goal_s is not None and heading_error(run.trace[-1][1], room.goal) > GOAL_RAD:
+        # at the goal's position but not yet at its heading: the same run again, to its end this time
+        run = run_offline(scenario, duration, seed=seed, goal_tol_m=GOAL_M, stop_at_goal=False)
+    t_goal = goal_time(run, room.goal)
     wall = time.perf_counter() - t0
     bb, bo = min_gaps_m(run.positions_m, room.radii, room.obstacles)
     said = {r: [d.kind for d in ds if d.kind in ("blocked", "unblocked")] for r, ds in run.decisions.items()}
     first = next(iter(said.values()))
-    ended_blocked = run.t_goal_s is None and any(k and k[-1] == "blocked" for k in said.values())
+    ended_blocked = t_goal is None and any(k and k[-1] == "blocked" for k in said.values())
     trace = np.array([[p.x, p.y, p.th] for _, p in run.trace])
     end = trace[-1]
     return {
@@ -388,14 +413,15 @@ def evaluate(seed: int, ompl_checks: int = ompl_ref.MAX_CHECKS, cap_s: float = 1
                  "status": ref.status},
         "ours": {k: v for k, v in ours.items() if k != "path"},
         "ref_length_m": length, "ref_s": ref_s, "duration_s": duration,
-        "t_goal_s": run.t_goal_s,
-        "in_time": run.t_goal_s is not None and not math.isnan(ref_s) and run.t_goal_s <= WITHIN * ref_s,
+        "t_goal_s": t_goal, "t_position_s": run.t_goal_s,
+        "in_time": t_goal is not None and not math.isnan(ref_s) and t_goal <= WITHIN * ref_s,
         "gap_bodies_m": bb, "gap_obstacles_m": bo, "gap_m": min(bb, bo),
         "blocked_events": sum(k == "blocked" for k in first),
         "agents_ended_blocked": sum(bool(k) and k[-1] == "blocked" for k in said.values()),
         "ended_blocked": ended_blocked,
         "other_decisions": sorted({d.kind for ds in run.decisions.values() for d in ds} - {"blocked", "unblocked"}),
         "end_goal_m": float(math.hypot(end[0] - room.goal[0], end[1] - room.goal[1])),
+        "end_heading_rad": heading_error(Pose2(*end), room.goal),
         "wall_s": wall,
         # for the figure: the room, the origin's path every 0.5 s, the bodies at the start and at the end
         "draw": {"obstacles": room.obstacles.round(4).tolist(), "radii": room.radii.round(4).tolist(),
@@ -574,6 +600,14 @@ def picture(path: str, scenario_path: str, seed: int = 1) -> None:
     plt.close(fig)
 
 
+def _commit() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=True,
+                              cwd=Path(__file__).resolve().parent).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "?"
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rooms", type=int, default=200)
@@ -602,7 +636,8 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     meta = {"machine": f"{platform.machine()} {platform.processor() or ''}".strip(), "python": platform.python_version(),
             "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "rooms": a.rooms, "first": a.first,
-            "ompl_checks": a.ompl_checks, "cap_s": a.cap_s}
+            "ompl_checks": a.ompl_checks, "cap_s": a.cap_s, "commit": _commit(),
+            "core_sha256": hashlib.sha256(Path(_core.__file__).read_bytes()).hexdigest()[:16]}
     rows, t0 = [], time.perf_counter()
     for k in range(a.rooms):
         r = evaluate(a.first + k, a.ompl_checks, a.cap_s)
