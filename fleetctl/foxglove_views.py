@@ -29,6 +29,8 @@ from typing import Any, Callable, Iterable, NamedTuple
 
 import foxglove.messages as fm
 
+from vsfleet.geometry import Pose2
+from vsfleet.step import planned_way
 from vsfleet.wire import (
     MAX_ROBOTS,
     FrameMsg,
@@ -62,6 +64,8 @@ BODY_HEIGHT_M = 0.01      # a robot's body: a flat disc of its radius on the gro
 BODY_BLUE = fm.Color(r=0.15, g=0.45, b=0.95, a=0.35)   # the robot's arrow colour, translucent
 BODY_RED = fm.Color(r=0.95, g=0.1, b=0.1, a=0.35)
 BODY_GREY = fm.Color(r=0.55, g=0.55, b=0.55, a=0.35)
+PLAN_SWEPT = fm.Color(r=0.1, g=0.75, b=0.3, a=0.2)      # the plan's swept bodies (GREEN, faint) ...
+PLAN_SWEPT_BLOCKED = fm.Color(r=0.45, g=0.3, b=0.2, a=0.2)  # ... on a blocked plan (OBSTACLE, faint)
 
 EVENT_LEVEL = {"fail": fm.LogLevel.Warning, "drop": fm.LogLevel.Warning,
                "recover": fm.LogLevel.Info, "rejoin": fm.LogLevel.Info}
@@ -180,6 +184,35 @@ def mission_entity(t_ns: int, mission: Mission) -> fm.SceneEntity:
         prims["lines"] = [fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineStrip, thickness=0.004,
                                            color=PURPLE, points=[_p3(x, y) for x, y, _ in mission.path])]
     return _entity(t_ns, "mission", {"version": str(mission.version)}, **prims)
+
+
+PLAN_SWEEP_M = 0.3          # the plan's swept bodies: one set every this far along it [m]
+PLAN_MAX_DISCS = 2000       # ... at most this many discs in all (a long way for a large fleet: fewer sets)
+
+
+def plan_entity(t_ns: int, mission: Mission, pose: tuple[float, float, float], meta: dict[str, str]) -> fm.SceneEntity | None:
+    """The room's plan from a fitted structure pose (vsfleet.step.planned_way: the field's whole descent), a
+    line, and the robots' bodies swept along it (thin discs of their radius); None without a room's field."""
+    planned = planned_way(mission, Pose2(*pose))
+    if planned is None:
+        return None
+    way, blocked = planned
+    color = OBSTACLE if blocked else GREEN
+    line = fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineStrip, thickness=0.004, color=color,
+                            points=[_p3(x, y) for x, y, _ in way])
+    bodies = [r for r in mission.radii if r > 0.0]
+    sets, run, last = [], math.inf, None
+    for x, y, th in way:
+        run += 0.0 if last is None else math.hypot(x - last[0], y - last[1])
+        last = (x, y)
+        if run >= PLAN_SWEEP_M:
+            sets.append((x, y, th))
+            run = 0.0
+    if bodies:
+        sets = sets[:: max(1, math.ceil(len(sets) * len(bodies) / PLAN_MAX_DISCS))]
+    swept = [_disc(px, py, r, 0.002, PLAN_SWEPT_BLOCKED if blocked else PLAN_SWEPT)
+             for x, y, th in sets for (px, py, _), r in zip(structure_points(mission, x, y, th), mission.radii) if r > 0.0]
+    return _entity(t_ns, "plan", {**meta, "blocked": str(blocked).lower()}, lines=[line], cylinders=swept)
 
 
 def log_message(t_ns: int, level: fm.LogLevel, name: str, text: str) -> fm.Log:
@@ -334,6 +367,9 @@ class FleetViews:
             entities = [fitted, advanced, _entity(t, "targets", meta, lines=lines)]
             if t - f.mission_drawn_ns >= MISSION_REDRAW_NS:
                 entities.append(mission_entity(t, mission))
+                plan = plan_entity(t, mission, (m.x, m.y, m.th), meta)   # what the agents follow from here
+                if plan is not None:
+                    entities.append(plan)
                 f.mission_drawn_ns = t
             views.append(View(f"{base}/scene", fm.SceneUpdate(entities=entities), t))
             if self.wanted(f"{base}/tf"):

@@ -202,3 +202,23 @@ def test_a_mission_without_a_room_draws_no_cylinders():
     assert not scene_of(out)["entities"][0]["cylinders"]
     out = views.on_message("vs/lab/frame/cam0", encode_frame(frame(1)), 0)
     assert not scene_of(out)["entities"][0]["cylinders"]
+
+
+def test_in_a_room_the_scene_shows_the_plan_from_the_fitted_pose_and_the_bodies_swept_along_it():
+    from vsfleet.fleetctl.foxglove_views import FleetViews
+    from vsfleet.geometry import Pose2
+    from vsfleet.step import planned_way
+
+    views = FleetViews()
+    views.on_message("vs/lab/mission", encode_mission(ROOM), seconds_to_ns(T0))
+    state = StateMsg(t=T0 + 1.0, seq=5, x=-0.2, y=-0.1, th=0.0, gx=-0.2, gy=-0.1, gth=0.0, cost=0.0, err=0.0,
+                     used=("r1", "r2"), rejected=0)
+    entities = {e["id"]: e for e in scene_of(views.on_message("vs/lab/state/r1", encode(state), 0))["entities"]}
+    plan = entities["plan"]
+    way, blocked = planned_way(ROOM, Pose2(-0.2, -0.1, 0.0))
+    assert not blocked and plan["metadata"][-1] == {"key": "blocked", "value": "false"}
+    (line,) = plan["lines"]
+    assert [(p["x"], p["y"]) for p in line["points"]] == [(x, y) for x, y, _ in way]
+    assert (way[-1][0], way[-1][1]) == (1.0, 0.5)
+    swept = plan["cylinders"]
+    assert swept and all(c["size"]["x"] == 0.1 for c in swept)         # r1's body only: r2 is a point robot
