@@ -30,7 +30,10 @@ from dataclasses import dataclass, field
 import zenoh
 
 from vsfleet.analysis import pose_spread
+from vsfleet.geometry import Pose2
+from vsfleet.step import planned_way
 from vsfleet.wire import (
+    Mission,
     WireError,
     check_name,
     decode_cmd,
@@ -89,6 +92,9 @@ class FleetView:
     events: list[tuple[float, str, dict]]   # (receive time [s], key suffix, map), newest last
     bad_messages: int
     obstacles: tuple[tuple[float, float, float], ...] = ()  # the mission's (x, y, r) [m; world]
+    # the room's plan from the structure pose above (vsfleet.step.planned_way): its length [m], whether it is
+    # blocked (it ends at the closest safe pose), and its end (x, y, th); None without a room
+    plan: tuple[float, bool, tuple[float, float, float]] | None = None
 
 
 @dataclass
@@ -120,6 +126,7 @@ class FleetModel:
         self.mission_version: int | None = None
         self.radii: dict[str, float] = {}     # robot -> body radius [m] (robots with a body)
         self.obstacles: tuple[tuple[float, float, float], ...] = ()
+        self.mission: Mission | None = None
         self.events: deque = deque(maxlen=events_kept)
         self.bad = 0
         self.frames_seen = False  # pose rates from frames once any frame came
@@ -185,6 +192,7 @@ class FleetModel:
                 self.mission_version = mission.version
                 self.radii = {r: s.radius for r, s in mission.robots if s.radius is not None}
                 self.obstacles = mission.obstacles
+                self.mission = mission
             elif kind == "fault" and rid:
                 f = decode_fault(payload)
                 self.events.append((t_recv_s, f"fault/{rid}",
@@ -267,7 +275,19 @@ class FleetModel:
                          structure_seq=structure_seq, mission_version=version, agreement_seq=seq,
                          agreement_complete=complete,
                          agreement_pos_m=pos, agreement_th_rad=th, agents_compared=n,
-                         events=list(self.events), bad_messages=self.bad, obstacles=self.obstacles)
+                         events=list(self.events), bad_messages=self.bad, obstacles=self.obstacles,
+                         plan=self._plan(structure))
+
+    def _plan(self, structure: tuple[float, float, float] | None):
+        """The room's plan from the structure pose: (length [m], blocked, end pose), or None."""
+        if structure is None or self.mission is None:
+            return None
+        planned = planned_way(self.mission, Pose2(*structure))
+        if planned is None:
+            return None
+        way, blocked = planned
+        length = float(sum(math.hypot(b[0] - a[0], b[1] - a[1]) for a, b in zip(way[:-1], way[1:])))
+        return length, blocked, (float(way[-1][0]), float(way[-1][1]), float(way[-1][2]))
 
 
 # ---------------------------------------------------------------- rendering
@@ -316,6 +336,10 @@ def render(view: FleetView):
         lines.append(f"obstacles ({len(view.obstacles)}, x y r [m]): " + ", ".join(
             f"{i}: ({x:+.3f}, {y:+.3f}, {r:.3f})" for i, (x, y, r) in enumerate(view.obstacles[:8]))
             + (f", ... {len(view.obstacles) - 8} more" if len(view.obstacles) > 8 else ""))
+    if view.plan is not None:
+        length, blocked, (ex, ey, eth) = view.plan
+        lines.append(f"plan: {length:.2f} m to " + ("the closest safe pose (BLOCKED: no way to the goal)" if blocked
+                                                      else "the goal") + f" at ({ex:+.3f}, {ey:+.3f}, {eth:+.3f})")
     if view.agreement_seq is not None:
         ran = "run complete" if view.agreement_complete else "none run complete by every agent"
         lines.append(f"agreement on frame {view.agreement_seq} ({ran}) over {view.agents_compared} agents: "

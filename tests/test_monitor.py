@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import msgpack
 import pytest
 from rich.console import Console
@@ -208,3 +210,28 @@ def test_a_touching_body_shows_a_negative_gap_and_a_mission_without_a_room_adds_
     assert {r.robot: r for r in m.view().robots}["r1"].gap_m == pytest.approx(-0.03)
     text = _text(fed().view())
     assert "gap [cm]" not in text and "body r" not in text and "obstacles" not in text
+
+
+def test_in_a_room_the_monitor_shows_the_plans_length_and_end_from_the_structure_pose():
+    from vsfleet.wire import FrameMsg, Mission, RobotSpec, encode_frame, encode_mission
+
+    def room(obstacles):
+        return Mission(6, "l2", (("r1", RobotSpec((0.3, 0.0), 0.12, 0.3, 0.8, radius=0.05)),
+                                 ("r2", RobotSpec((-0.3, 0.0), 0.12, 0.3, 0.8, radius=0.05))),
+                       0.08, 0.3, 0.0, goal=(2.0, 0.0, 0.0), obstacles=obstacles)
+
+    m = FleetModel("demo")
+    m.ingest(T0, "vs/demo/mission", encode_mission(room(((1.0, 0.0, 0.2),))))
+    m.ingest(T0, "vs/demo/frame/sim", encode_frame(FrameMsg(T0, 1, "sim", {"r1": (0.3, 0.0, 0.0)})))
+    m.ingest(T0 + 0.004, "vs/demo/state/r1", encode(StateMsg(t=T0, seq=1, x=0.0, y=0.0, th=0.0, gx=0.0, gy=0.0,
+                                                             gth=0.0, cost=0.0, err=0.0, used=("r1", "r2"),
+                                                             rejected=0, mission=6)))
+    length, blocked, end = m.view().plan
+    assert not blocked and end == (2.0, 0.0, 0.0) and 2.0 < length < 3.0   # round the pillar, to the goal
+    assert "plan: " in _text(m.view()) and "to the goal at (+2.000, +0.000, +0.000)" in _text(m.view())
+    ring = tuple((2.0 + 0.6 * math.cos(a), 0.6 * math.sin(a), 0.12) for a in [k * math.pi / 10 for k in range(20)])
+    m.ingest(T0 + 0.1, "vs/demo/mission", encode_mission(room(ring)))   # the goal walled in
+    length, blocked, end = m.view().plan
+    assert blocked and math.hypot(end[0] - 2.0, end[1]) > 0.6
+    assert "BLOCKED" in _text(m.view())
+    assert fed().view().plan is None                                     # no room, no plan
