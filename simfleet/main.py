@@ -6,11 +6,17 @@ loop is paced to the wall clock so that agents see real time. Each truth
 message says why the wheels do what they do (``why``: idle, commanded,
 expired, fault), since when (``why_t``, sim time of the step it began) and
 when the robot's command last expired (``expired_t``).
+
+The engine under the robots is the scenario's ``[sim] engine`` or ``--engine``: ``kinematic`` (exact
+arcs, the default) or ``mujoco`` (rigid bodies with mass, friction and contacts; the optional extra
+vsfleet[mujoco]; docs/engine.md). Each contact between bodies (robot-robot, robot-obstacle) that an
+engine reports is logged as it begins and counted in the final log line.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import math
 import threading
@@ -28,7 +34,8 @@ from vsfleet.geometry import Pose2
 from vsfleet.scenario import Scenario
 from vsfleet.wire import Keys, TruthMsg, decode_cmd, decode_fault, encode
 
-from .physics import Fault, FaultArrays, FleetParams, RobotState, step_robots
+from .engine import ENGINES, check_engine, make_engine
+from .physics import Fault, FaultArrays, FleetParams, RobotState
 
 log = logging.getLogger("vsfleet.sim")
 
@@ -44,9 +51,11 @@ class _Cmd:
 
 
 class Fleet:
-    """The simulated robots and their inputs. Thread-safe inputs, single-threaded step()."""
+    """The simulated robots and their inputs. Thread-safe inputs, single-threaded step().
 
-    def __init__(self, scenario: Scenario, keys: Keys, t0: float) -> None:
+    engine: the physics engine's name (simfleet.engine.ENGINES; None: the scenario's [sim] engine)."""
+
+    def __init__(self, scenario: Scenario, keys: Keys, t0: float, engine: str | None = None) -> None:
         self.scenario = scenario
         self.keys = keys
         self.robots = {r.robot: r for r in scenario.robots}
@@ -54,8 +63,11 @@ class Fleet:
         self.row = {r: i for i, r in enumerate(self.ids)}
         n = len(self.ids)
         self.params = FleetParams.of(list(self.robots.values()))
-        self.pose = np.array([r.start for r in scenario.robots], dtype=float).reshape(n, 3)
-        self.wheels = np.zeros((n, 2))
+        self.dt_s = 1.0 / scenario.sim.rate_hz
+        self.engine = make_engine(engine or scenario.sim.engine, scenario.robots, scenario.mission.obstacles,
+                                  self.dt_s)
+        self.pose, self.wheels = self.engine.pose, self.engine.wheels
+        self.contacts = 0  # contacts between bodies that began, as the engine reported them
         self.cmds: dict[str, _Cmd] = {}
         self.cmd = np.zeros((n, 2))                  # the latest command's wheels [m/s] ...
         self.cmd_arrived_t = np.full(n, -math.inf)   # ... when it arrived [s, sim clock] ...
@@ -65,7 +77,6 @@ class Fleet:
         self.timeline = list(scenario.faults)
         self.t0 = t0
         self.k = 0
-        self.dt_s = 1.0 / scenario.sim.rate_hz
         self.lock = threading.Lock()
         self.rejections = Rejections(log)
         self.fresh = np.zeros(n, dtype=bool)  # has a fresh command (within its ttl)
@@ -160,7 +171,10 @@ class Fleet:
             self.why_t = np.where(moved, t, self.why_t)
             self.expired_at = np.where(moved & (why == EXPIRED), t, self.expired_at)
             self.why_code = why
-        self.pose, self.wheels = step_robots(self.pose, self.wheels, cmd, fresh, faults, self.params, t, self.dt_s)
+        for contact in self.engine.step(cmd, fresh, faults, t):
+            self.contacts += 1
+            log.warning("%s", contact.describe())
+        self.pose, self.wheels = self.engine.pose, self.engine.wheels
         self.k += 1
 
     def truth(self) -> dict[str, TruthMsg]:
@@ -194,7 +208,8 @@ def run_sim(conf: zenoh.Config, scenario: Scenario, stop: StopFlag | None = None
             session.declare_subscriber(keys.fault(), lambda s: fleet.on_fault(
                 str(s.key_expr), s.payload.to_bytes(), fleet.t)),
         ]
-        log.info("simfleet up: %d robots at %.0f Hz", len(fleet.robots), scenario.sim.rate_hz)
+        log.info("simfleet up: %d robots at %.0f Hz, engine %s", len(fleet.robots), scenario.sim.rate_hz,
+                 fleet.engine.name)
         late = 0
         try:
             while not stop.is_set():
@@ -206,8 +221,8 @@ def run_sim(conf: zenoh.Config, scenario: Scenario, stop: StopFlag | None = None
                     late += 1
                 pace(fleet.t, stop, clock)
         finally:
-            log.info("simfleet stopping at step %d (%d steps over 100 ms late), %d rejected",
-                     fleet.k, late, fleet.rejections.count)
+            log.info("simfleet stopping at step %d (%d steps over 100 ms late), %d rejected, %d contacts (engine %s)",
+                     fleet.k, late, fleet.rejections.count, fleet.contacts, fleet.engine.name)
             for s in subs:
                 s.undeclare()
             token.undeclare()
@@ -218,6 +233,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="vsfleet sim", description=__doc__.splitlines()[0])
     p.add_argument("scenario", help="scenario TOML file (robots, start poses, faults)")
     p.add_argument("--fleet", default=None, help="override the scenario's fleet name")
+    p.add_argument("--engine", choices=ENGINES, default=None,
+                   help="physics engine (default: the scenario's [sim] engine, else kinematic); mujoco needs "
+                        "pip install 'vsfleet[mujoco]'")
     return common_flags(p)
 
 
@@ -225,6 +243,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(args: argparse.Namespace) -> int:
     with refusing(OSError, ValueError):
         scenario = load_scenario(args.scenario, fleet=args.fleet)
+        if args.engine is not None:
+            scenario = dataclasses.replace(scenario, sim=dataclasses.replace(scenario.sim, engine=args.engine))
+        check_engine(scenario.sim.engine)  # its package is there (else one line: how to install it)
     run_sim(zenoh_config(args), scenario)
     return 0
 

@@ -28,7 +28,8 @@ from vsfleet.wire import FrameMsg, Keys, decode_cmd, decode_event, encode_frame,
 
 from vsfleet.agent.main import Agent
 
-from .physics import Fault, RobotState, step_fleet
+from .engine import make_engine, step_engine_fleet
+from .physics import Contact, Fault, RobotState, step_fleet
 
 
 @dataclass(frozen=True)
@@ -49,16 +50,20 @@ class OfflineRun:
     decisions: dict  # robot -> the failure-policy decisions its agent made, in order
     positions_m: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 0, 2)))  # (frames, n, 2) truth
     commands_m_s: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 0, 2)))  # (frames, n, 2) sent
+    engine: str = "kinematic"     # the physics engine under the robots (simfleet.engine)
+    contacts: tuple[Contact, ...] = ()  # contacts between bodies that began, as the engine reported them
 
 
 def run_offline(scenario: Scenario, duration_s: float, controller: str | None = None,
                 metric: str | None = None, noise_xy_m: float | None = None,
                 noise_th_rad: float | None = None, latency_frames: int = 1, seed: int = 0,
                 goal_tol_m: float = 0.005, stop_at_goal: bool = True, tracker_clock_ahead_s: float = 0.0,
-                share_structures: bool = True, reference: bool = False, **gains: float) -> OfflineRun:
+                share_structures: bool = True, reference: bool = False, engine: str | None = None,
+                **gains: float) -> OfflineRun:
     """The fleet of ``scenario`` offline: one agent per robot on counted frames, simfleet's physics.
 
-    reference: the agents run the numpy reference of the step instead of the compiled core (tests)."""
+    reference: the agents run the numpy reference of the step instead of the compiled core (tests).
+    engine: the physics engine (simfleet.engine.ENGINES; None: the scenario's [sim] engine)."""
     mission = scenario.mission
     if metric is not None:
         mission = dataclasses.replace(mission, metric=metric)
@@ -78,6 +83,10 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
     substeps = max(1, round(scenario.sim.rate_hz / tr.rate_hz))
     dt_phys = dt / substeps
     cmds = {r: (0.0, 0.0) for r in robots}
+    engine = engine or scenario.sim.engine
+    # the kinematic engine through step_fleet as always; another through the same rule on its object
+    phys = None if engine == "kinematic" else make_engine(engine, [robots[r] for r in robots],
+                                                           mission.obstacles, dt_phys)
     pending: list[dict] = []
     t = 0.0
     tv = 0.0
@@ -115,7 +124,10 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
             if t_goal is None:
                 tv += sum(abs(applied[r][0] - cmds[r][0]) + abs(applied[r][1] - cmds[r][1]) for r in robots)
             cmds = applied
-        t = step_fleet(states, robots, cmds, faults, timeline, t, dt_phys, substeps)
+        if phys is None:
+            t = step_fleet(states, robots, cmds, faults, timeline, t, dt_phys, substeps)
+        else:
+            t = step_engine_fleet(phys, states, robots, cmds, faults, timeline, t, dt_phys, substeps)
         xy = np.array([[states[r].pose.x, states[r].pose.y] for r in ids])
         positions.append(xy)
         fit = fit_structure(template, xy, metric=mission.metric)
@@ -130,7 +142,8 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
                       wheel_tv_m_s2=tv / len(robots) / max(span, 1e-9), trace=tuple(trace),
                       final_poses={r: s.pose for r, s in states.items()},
                       decisions=decisions,
-                      positions_m=np.array(positions), commands_m_s=np.array(sent_log, dtype=float))
+                      positions_m=np.array(positions), commands_m_s=np.array(sent_log, dtype=float),
+                      engine=engine, contacts=tuple(phys.contacts) if phys is not None else ())
 
 
 def _wheels(payload: bytes) -> tuple[float, float]:

@@ -78,13 +78,13 @@ class FaultArrays:
                    np.array([f.until_t for f in faults], dtype=float))
 
 
-def step_robots(pose_world: np.ndarray, wheels_m_s: np.ndarray, cmd_m_s: np.ndarray, cmd_fresh: np.ndarray,
-                faults: FaultArrays, params: FleetParams, t: float, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """Advance every robot by one physics step of dt_s [s] at sim time t [s].
+def applied_wheels(wheels_m_s: np.ndarray, cmd_m_s: np.ndarray, cmd_fresh: np.ndarray, faults: FaultArrays,
+                   params: FleetParams, t: float, dt_s: float) -> np.ndarray:
+    """The wheel speeds [m/s] (n, 2) the motors apply over the step of dt_s [s] at sim time t [s].
 
-    pose_world (n, 3) [m, m, rad], wheels_m_s (n, 2) the applied wheel speeds, cmd_m_s (n, 2) the
-    commanded ones, cmd_fresh (n,) within their ttl. Returns the new poses (heading wrapped) and
-    applied wheel speeds.
+    wheels_m_s (n, 2): those of the previous step; cmd_m_s (n, 2) the commanded ones, cmd_fresh (n,)
+    within their ttl. The true/commanded gains, the faults, the speed limit and the acceleration limit
+    (a stop or stall cuts at once). Every engine's actuators follow this rule.
     """
     u = np.where(np.asarray(cmd_fresh, dtype=bool)[:, None], cmd_m_s, 0.0) * params.gain
     active = (faults.kind != 0) & (t < faults.until_t)
@@ -96,7 +96,18 @@ def step_robots(pose_world: np.ndarray, wheels_m_s: np.ndarray, cmd_m_s: np.ndar
     u = np.clip(u, -vmax, vmax)
     # a halted robot halts now (motor cut), not after a ramp
     dv = np.where(halted, np.inf, params.accel_max_m_s2 * dt_s)[:, None]
-    wheels = wheels_m_s + np.clip(u - wheels_m_s, -dv, dv)
+    return wheels_m_s + np.clip(u - wheels_m_s, -dv, dv)
+
+
+def step_robots(pose_world: np.ndarray, wheels_m_s: np.ndarray, cmd_m_s: np.ndarray, cmd_fresh: np.ndarray,
+                faults: FaultArrays, params: FleetParams, t: float, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Advance every robot by one physics step of dt_s [s] at sim time t [s].
+
+    pose_world (n, 3) [m, m, rad], wheels_m_s (n, 2) the applied wheel speeds, cmd_m_s (n, 2) the
+    commanded ones, cmd_fresh (n,) within their ttl. Returns the new poses (heading wrapped) and
+    applied wheel speeds (applied_wheels), the pose integrated exactly over the step.
+    """
+    wheels = applied_wheels(wheels_m_s, cmd_m_s, cmd_fresh, faults, params, t, dt_s)
     pose = integrate_arcs(pose_world, wheels, dt_s, params.wheel_base_m)
     pose[:, 2] = wrap_angles(pose[:, 2])
     return pose, wheels
@@ -135,3 +146,43 @@ def step_fleet(states: dict[str, RobotState], robots: dict[str, SimRobot],
     for i, r in enumerate(ids):
         states[r] = RobotState(Pose2(*pose[i]), float(wheels[i, 0]), float(wheels[i, 1]))
     return t
+
+
+@dataclass(frozen=True)
+class Contact:
+    """A contact that began: robot ``robot`` touched ``other`` (a robot id, kind "robot", or an obstacle's
+    index in the mission, kind "obstacle") at sim time t [s], at (x, y) [m; world], ``depth_m`` [m] into
+    each other (the engine's soft contact) when it was first seen."""
+
+    t: float
+    robot: str
+    other: str | int
+    kind: str
+    x: float
+    y: float
+    depth_m: float
+
+    def describe(self) -> str:
+        what = f"robot {self.other}" if self.kind == "robot" else f"obstacle {self.other}"
+        return (f"contact: {self.robot} with {what} at t={self.t:.3f} ({self.x:+.4f}, {self.y:+.4f}) m, "
+                f"depth {1000 * self.depth_m:.2f} mm")
+
+
+class KinematicEngine:
+    """The kinematic engine as an object (simfleet/engine.py's interface): every robot's pose (n, 3) and
+    applied wheel speeds (n, 2), advanced by step_robots; no body stops another, so no contacts."""
+
+    name = "kinematic"
+
+    def __init__(self, robots, obstacles, dt_s: float) -> None:
+        self.params = FleetParams.of(list(robots))
+        self.pose = np.array([r.start for r in robots], dtype=float).reshape(len(robots), 3)
+        self.wheels = np.zeros((len(robots), 2))
+        self.dt_s = dt_s
+        self.contacts: list = []
+
+    def step(self, cmd_m_s: np.ndarray, cmd_fresh: np.ndarray, faults: FaultArrays, t: float) -> list:
+        """One physics step at sim time t [s] (step_robots); returns the new contacts (none)."""
+        self.pose, self.wheels = step_robots(self.pose, self.wheels, cmd_m_s, cmd_fresh, faults, self.params, t,
+                                             self.dt_s)
+        return []

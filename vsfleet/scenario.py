@@ -45,12 +45,16 @@ Example::
     [sim]
     rate_hz = 200.0
     truth_rate_hz = 100.0
+    engine = "kinematic"       # kinematic | mujoco (physics engine; `vsfleet sim --engine` overrides)
 
     [defaults]                 # every robot (wheel_base, wheel_speed_max, wheel_accel_max, radius, gain, type)
     wheel_base = 0.1           # [m]
     radius = 0.05              # [m] optional: the robot's body, a disc about its tracked point
     wheel_speed_max = 0.3      # [m/s]
     wheel_accel_max = 1.0      # [m/s^2]
+    mass = 0.5                 # [kg] the physics engine's body (engine = "mujoco"; the kinematic one ignores them)
+    wheel_radius = 0.02        # [m] nominal; gain scales each wheel's true radius
+    friction = 0.8             # wheel-floor sliding friction coefficient
 
     [robot_types.slow]         # robots of this type (the same keys but type)
     wheel_speed_max = 0.25
@@ -93,11 +97,14 @@ from .wire import (
 )
 
 SCHEMA = 1  # the fleet-file format this code reads
-ROBOT_LAYER_KEYS = ("wheel_base", "wheel_speed_max", "wheel_accel_max", "radius", "gain")  # defaults and types
+PHYSICAL_KEYS = ("mass", "wheel_radius", "friction")  # a robot's body in a physics engine ([sim] engine)
+ROBOT_LAYER_KEYS = ("wheel_base", "wheel_speed_max", "wheel_accel_max", "radius", "gain",
+                    *PHYSICAL_KEYS)  # defaults and types
 OBSTACLE_KEYS = ("x", "y", "r")  # an obstacle written as a table {x, y, r} rather than [x, y, r]
 ROBOT_KEYS = ("type", "p", "start", *ROBOT_LAYER_KEYS)
 ROBOT_DEFAULTS: dict[str, Any] = {"wheel_base": 0.1, "wheel_speed_max": 0.3, "wheel_accel_max": 1.0,
-                                  "gain": [1.0, 1.0]}
+                                  "gain": [1.0, 1.0], "mass": 0.5, "wheel_radius": 0.02, "friction": 0.8}
+ENGINES = ("kinematic", "mujoco")  # [sim] engine: simfleet's physics (mujoco: the optional extra vsfleet[mujoco])
 
 
 class ScenarioError(VsfleetValueError):
@@ -117,6 +124,8 @@ class SimRobot:
     """A simulated robot: start pose [m, rad; world], true envelope, wheel gains (left, right).
 
     radius [m]: its body (a disc about its tracked point), as in its mission spec; None: a point.
+    mass [kg], wheel_radius [m] (nominal: the true one is wheel_radius * gain, per wheel) and friction
+    (wheel-floor sliding coefficient): its body in a physics engine ([sim] engine = "mujoco").
     """
 
     robot: str
@@ -126,6 +135,9 @@ class SimRobot:
     wheel_accel_max: float
     gain: tuple[float, float]
     radius: float | None = None
+    mass: float = 0.5
+    wheel_radius: float = 0.02
+    friction: float = 0.8
 
 
 @dataclass(frozen=True)
@@ -160,6 +172,7 @@ class TrackerParams:
 class SimParams:
     rate_hz: float = 200.0
     truth_rate_hz: float = 100.0
+    engine: str = "kinematic"  # one of ENGINES
 
 
 @dataclass(frozen=True)
@@ -314,7 +327,9 @@ def scenario_from_dict(doc: Mapping[str, Any], name: str = "scenario") -> Scenar
             wheel_base=_float(r, "wheel_base", where, lo=1e-6),
             wheel_speed_max=_float(r, "wheel_speed_max", where, lo=1e-6),
             wheel_accel_max=_float(r, "wheel_accel_max", where, lo=1e-6),
-            gain=_floats(r["gain"], 2, f"[{where}] gain"), radius=_radius(r, where)))
+            gain=_floats(r["gain"], 2, f"[{where}] gain"), radius=_radius(r, where),
+            mass=_float(r, "mass", where, lo=1e-6), wheel_radius=_float(r, "wheel_radius", where, lo=1e-6),
+            friction=_float(r, "friction", where, lo=1e-6)))
         s = sim_robots[-1]
         mission_robots[rid] = {"p": list(p), "wheel_base": s.wheel_base,
                                "wheel_speed_max": s.wheel_speed_max, "wheel_accel_max": s.wheel_accel_max}
@@ -373,9 +388,12 @@ def scenario_from_dict(doc: Mapping[str, Any], name: str = "scenario") -> Scenar
         raise ScenarioError("[tracker] drop_prob must be in [0, 1]")
 
     sm = _table(doc, "sim")
-    _only(sm, {"rate_hz", "truth_rate_hz"}, "sim")
+    _only(sm, {"rate_hz", "truth_rate_hz", "engine"}, "sim")
+    engine = sm.get("engine", "kinematic")
+    if engine not in ENGINES:
+        raise ScenarioError(f"[sim] engine must be one of {ENGINES}, got {engine!r}")
     sim = SimParams(rate_hz=_float(sm, "rate_hz", "sim", 200.0, lo=1.0),
-                    truth_rate_hz=_float(sm, "truth_rate_hz", "sim", 100.0, lo=1e-3))
+                    truth_rate_hz=_float(sm, "truth_rate_hz", "sim", 100.0, lo=1e-3), engine=engine)
 
     faults = []
     for i, f in enumerate(doc.get("faults", [])):
