@@ -46,7 +46,7 @@ from vsfleet.analysis import (
     truth_frames,
 )
 from vsfleet.geometry import angle_diff
-from vsfleet.scenario import Scenario
+from vsfleet.scenario import ENGINES, Scenario
 from vsfleet.wire import Keys, Mission, WireError, decode_state, decode_truth, encode_mission
 
 from vsfleet.zglue.lifecycle import StopFlag, wall_clock
@@ -252,7 +252,7 @@ def tracker_args(scenario: Scenario, scenario_path: str, kind: str | None, camer
 def run(scenario_path: str, duration_s: float | None = None, out_dir: str = "runs",
         fleet: str | None = None, stop: StopFlag | None = None, until_goal: bool = True,
         progress: bool = True, tracker: str | None = None, camera: str | None = None,
-        foxglove_port: int | None = None) -> tuple[RunSummary, Path]:
+        foxglove_port: int | None = None, engine: str | None = None) -> tuple[RunSummary, Path]:
     scenario = load_scenario(scenario_path, fleet=fleet)
     duration = scenario.duration_s if duration_s is None else duration_s
     keys = Keys(scenario.fleet)
@@ -276,7 +276,8 @@ def run(scenario_path: str, duration_s: float | None = None, out_dir: str = "run
         payload = encode_mission(mission)
         router.declare_queryable(keys.mission, lambda q: q.reply(keys.mission, payload), complete=True)
         tr = scenario.tracker
-        children.start("sim", child_command("sim", str(scenario_path), "--fleet", scenario.fleet, *flags))
+        children.start("sim", child_command("sim", str(scenario_path), "--fleet", scenario.fleet,
+                                            *(("--engine", engine) if engine else ()), *flags))
         children.start("tracker", child_command("tracker", *tracker_cmd, *flags))
         agents = [f"agent-{r}" for r in mission.robot_ids]
         for r in mission.robot_ids:
@@ -362,6 +363,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "deploy/camera/overhead.toml)")
     p.add_argument("--foxglove", type=int, nargs="?", const=8765, default=None, metavar="PORT",
                    help="also serve the fleet live to Foxglove on ws://127.0.0.1:PORT (default 8765)")
+    p.add_argument("--engine", choices=ENGINES, default=None,
+                   help="the simulated fleet's physics engine (default: the scenario's [sim] engine)")
     return common_flags(p, zenoh=False)  # run starts its own router; the children get their flags
 
 
@@ -370,7 +373,7 @@ def main(args: argparse.Namespace) -> int:
     with refusing(OSError, ValueError):
         summary, run_dir = run(args.scenario, args.duration, args.out, args.fleet,
                                until_goal=not args.no_stop_at_goal, tracker=args.tracker, camera=args.camera,
-                               foxglove_port=args.foxglove)
+                               foxglove_port=args.foxglove, engine=args.engine)
     print(summary.table())
     print(f"run written to {run_dir}")
     return 0 if summary.children_ok else 1
