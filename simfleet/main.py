@@ -85,6 +85,13 @@ class Fleet:
         self.why_t = np.full(n, float(t0))      # sim time [s] the reason began
         self.expired_at = np.zeros(n)           # sim time [s] of each robot's latest expiry
 
+    def start_at(self, t0: float) -> None:
+        """Start the sim clock at t0 [s] instead (before the first step): once the engine is built, so that
+        building it (MuJoCo: importing, compiling the scene, settling the bodies) leaves no lag to catch up."""
+        assert self.k == 0, "the sim clock starts before the first step"
+        self.t0 = t0
+        self.why_t = np.full(len(self.ids), float(t0))
+
     @property
     def states(self) -> dict[str, RobotState]:
         """Each robot's pose [m, rad; world] and applied wheel speeds [m/s], by id."""
@@ -198,6 +205,7 @@ def run_sim(conf: zenoh.Config, scenario: Scenario, stop: StopFlag | None = None
     stop = stop or StopFlag()
     keys = Keys(scenario.fleet)
     fleet = Fleet(scenario, keys, t0=clock())
+    fleet.start_at(clock())  # the engine is built: simulated time starts now
     truth_every = max(1, round(scenario.sim.rate_hz / scenario.sim.truth_rate_hz))
     with open_session(conf) as session:
         pubs = {r: session.declare_publisher(keys.truth(r), **TRUTH_QOS) for r in fleet.robots}
