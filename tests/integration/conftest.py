@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import re
 import signal
 import subprocess
 import threading
@@ -250,6 +251,12 @@ def open_client(endpoint: str) -> zenoh.Session:
     return zenoh.open(conf)
 
 
+#: a line that reports an error: zenoh's log level (possibly in colour), our programs' logging format
+#: ("<time> <logger> ERROR <message>"), or a Python traceback
+ERROR_LINE = re.compile(r"\bERROR\b|\bCRITICAL\b|^Traceback \(most recent call last\)")
+ANSI = re.compile(r"\x1b\[[0-9;]*m")   # zenoh colours its level ("\x1b[31mERROR"): no word boundary before it
+
+
 class LoopbackFleet:
     """The fleet's processes on loopback. The router is embedded in the test's own session, or
     (router_process=True) a `vsfleet router` child that a test can kill and restart."""
@@ -273,6 +280,12 @@ class LoopbackFleet:
         self.alive_sub = self.router.liveliness().declare_subscriber(
             self.keys.alive(), self.observed.on_liveliness, history=True)
         self.mission = stamp(self.scenario.mission, time.time(), 0.0, version=1)
+        self.expected_errors: list[re.Pattern] = []
+
+    def expect_errors(self, *patterns: str) -> None:
+        """Error lines this test provokes on purpose (regular expressions, searched in each line): the others
+        fail the test when the fleet is closed."""
+        self.expected_errors.extend(re.compile(p) for p in patterns)
 
     def start(self, name: str, *args: str) -> subprocess.Popen:
         flags = [] if name == "router" else self.flags
@@ -368,10 +381,40 @@ def closing(fleet: LoopbackFleet, request) -> None:
     fleet.close()
 
 
+def error_lines(root: Path, allowed=()) -> list[str]:
+    """Every line of every *.log under root that reports an error (ERROR_LINE) and that no pattern of
+    ``allowed`` (regular expressions, searched in the line) covers, as "<file>: <line>"."""
+    patterns = [re.compile(p) if isinstance(p, str) else p for p in allowed]
+    bad = []
+    for f in sorted(root.rglob("*.log")):
+        for line in f.read_text(errors="replace").splitlines():
+            plain = ANSI.sub("", line)
+            if ERROR_LINE.search(plain) and not any(p.search(plain) for p in patterns):
+                bad.append(f"{f.relative_to(root)}: {line}")
+    return bad
+
+
+@pytest.fixture(autouse=True)
+def no_unprovoked_errors(request, tmp_path):
+    """Every multi-process test: once it (and its fleet) is done, no process it started (their logs under its
+    tmp_path: LoopbackFleet's, and vsfleet run's out_dir) may have logged an error line the test did not
+    provoke (mark: provokes_errors(*patterns); LoopbackFleet.expect_errors). Torn down last: after the
+    fleets close, so their last lines are in."""
+    yield
+    if getattr(request.node, "failed_call", True):   # failed (or never ran): its own report says why
+        return
+    allowed = [p for m in request.node.iter_markers("provokes_errors") for p in m.args]
+    allowed += [p for f in getattr(request.node, "fleets", ()) for p in f.expected_errors]
+    bad = error_lines(tmp_path, allowed)
+    if bad:
+        pytest.fail(f"{len(bad)} error line(s) the test did not provoke:\n" + "\n".join(bad[:20]), pytrace=False)
+
+
 @pytest.fixture
 def fleet(tmp_path, request):
     """The e2e-triangle fleet with the router embedded in the test's session (nothing started yet)."""
     f = LoopbackFleet(E2E, tmp_path)
+    request.node.fleets = [*getattr(request.node, "fleets", ()), f]
     yield f
     closing(f, request)
 
@@ -380,5 +423,6 @@ def fleet(tmp_path, request):
 def fleet_with_router_process(tmp_path, request):
     """The e2e-triangle fleet with `vsfleet router` as a child the test may kill and restart."""
     f = LoopbackFleet(E2E, tmp_path, router_process=True)
+    request.node.fleets = [*getattr(request.node, "fleets", ()), f]
     yield f
     closing(f, request)

@@ -55,6 +55,7 @@ def quaternion(th: float) -> dict:
     return {"x": 0.0, "y": 0.0, "z": math.sin(th / 2.0), "w": math.cos(th / 2.0)}
 
 
+@pytest.mark.provokes_errors(r"foxglove\.websocket\.server ERROR Dropping client .*: handshake failed")  # the port probe
 def test_a_foxglove_client_decodes_poses_and_the_scene_that_match_the_fleets_truth_and_state(tmp_path):
     fleet = LoopbackFleet(E2E, tmp_path)
     poses = Poses()
