@@ -90,6 +90,7 @@ class Agent:
         # prepare(mission): called with every new mission before it takes effect (run_agent: its arrays and its
         # room's field built on a thread of their own, so a plan never stalls the frames; None: at its first frame)
         self.prepare = prepare
+        self.following: frozenset[str] = frozenset()   # the tracker sources of the last frame run
         self.keys = keys
         self.put_cmd, self.put_state, self.put_event = put_cmd, put_state, put_event
         self.clock = clock
@@ -301,6 +302,10 @@ class Agent:
         self.take_frames()
         frame = self.merger.ready(self.clock())
         if frame is not None:
+            if frame.sources != self.following:   # which trackers this agent follows (every agent: the same)
+                self.following = frame.sources
+                log.info("following tracker source(s) %s (%d poses of other sources shadowed so far: a source "
+                         "first in sort order sees the same robots)", sorted(frame.sources), self.merger.shadowed)
             self.tick(frame)
         return frame
 

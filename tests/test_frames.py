@@ -91,18 +91,54 @@ def test_objects_no_mission_names_are_ignored_not_held():
     assert fm.ignored == 1 and set(fm.ready(10.0).poses) == {"r1"} and "forklift" not in fm.held
 
 
-def test_two_cameras_merge_the_freshest_pose_of_each_robot_whatever_the_arrival_order():
+def test_two_cameras_whose_views_overlap_take_the_shared_robot_from_the_first_camera_whatever_the_arrival_order():
+    """Once both have been heard (max_age_s), a robot both see comes from the camera first in sort order, so every
+    agent merges the same frame whichever camera's frame reaches it first."""
+    before = [FrameMsg(t=9.967, seq=6, src="cam1", poses={"r1": (0.0, 0.0, 0.0), "r2": (4.9, 0.0, 0.0)}),
+              FrameMsg(t=9.968, seq=6, src="cam2", poses={"r2": (0.9, 0.0, 0.0)})]
     a = FrameMsg(t=10.0, seq=7, src="cam1", poses={"r1": (0.0, 0.0, 0.0), "r2": (5.0, 0.0, 0.0)})
     b = FrameMsg(t=10.001, seq=7, src="cam2", poses={"r2": (1.0, 0.0, 0.0)})
     runs = []
     for order in ((a, b), (b, a)):
         fm = FrameMerger(("r1", "r2"), deadline_s=0.02)
+        for m in before:
+            fm.offer(m, 9.97)
+        fm.ready(9.97)
         for m in order:
             fm.offer(m, 10.002)
         runs.append(fm.ready(10.002))                 # every robot seen at this instant: at once
     assert runs[0] == runs[1]                          # the same frame, bit for bit
-    assert runs[0].poses == {"r1": (0.0, 0.0, 0.0), "r2": (1.0, 0.0, 0.0)} and runs[0].src == "cam2"
-    assert runs[0].fresh == {"r1", "r2"}                # both of the same instant
+    assert runs[0].poses == {"r1": (0.0, 0.0, 0.0), "r2": (5.0, 0.0, 0.0)} and runs[0].src == "cam1"
+    assert runs[0].fresh == {"r1", "r2"} and runs[0].sources == {"cam1"}
+
+
+def test_two_trackers_of_the_same_robots_only_the_first_in_sort_order_is_followed_until_it_falls_silent():
+    fm = FrameMerger(("r1", "r2"), deadline_s=0.02, max_age_s=0.25)
+    poses = {"r1": (0.0, 0.0, 0.0), "r2": (1.0, 0.0, 0.0)}
+    run = []
+    for k in range(30):                                 # "alpha" at 30 Hz, "beta" 10 ms later, arriving first half the time
+        ta, tb = 10.0 + k / 30, 10.0 + k / 30 + 0.01
+        a, b = FrameMsg(ta, k, "alpha", poses), FrameMsg(tb, 1000 + k, "beta", poses)
+        for m in ((a, b) if k % 2 else (b, a)):
+            fm.offer(m, tb + 0.001)
+            f = fm.ready(tb + 0.001)
+            if f is not None:
+                run.append((f.src, f.sources))
+    assert run[0][0] == "beta"                         # before alpha was ever heard: beta's first frame ran
+    assert all(r == ("alpha", frozenset({"alpha"})) for r in run[1:])   # from then on alpha only
+    assert fm.shadowed >= 2 * 28
+    t = 10.0 + 30 / 30 + 0.01                           # alpha falls silent; beta takes over after max_age_s
+    assert fm.offer(FrameMsg(t, 2000, "beta", poses), t) is False and fm.ready(t) is None
+    t2 = 10.0 + 29 / 30 + 0.26
+    assert fm.offer(FrameMsg(t2, 2001, "beta", poses), t2) and fm.ready(t2).sources == {"beta"}
+
+
+def test_two_cameras_of_different_robots_are_both_followed():
+    fm = FrameMerger(("r1", "r2"), deadline_s=0.02)
+    fm.offer(FrameMsg(10.0, 1, "camR", {"r2": (1.0, 0.0, 0.0)}), 10.0)
+    fm.offer(FrameMsg(10.0, 1, "camL", {"r1": (0.0, 0.0, 0.0)}), 10.0)
+    out = fm.ready(10.0)
+    assert out.complete and out.sources == {"camL", "camR"} and fm.shadowed == 0
 
 
 def test_with_two_cameras_a_frame_missing_robots_waits_for_its_deadline():

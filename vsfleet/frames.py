@@ -17,6 +17,13 @@ Frame rule (docs/protocol.md, "Frames"):
   robot is missing commands it to stop.
 - A frame whose ``t`` is more than ``max_future_s`` ahead of the local clock is
   refused (counted): a skewed tracker must not block the frames after it.
+- Two sources that see the same robot (two trackers of one fleet, or two cameras
+  whose views overlap): the robot's pose is taken from the source whose name is
+  first in sort order among those that listed it within ``max_age_s`` before
+  the frame; the other source's pose of it is shadowed (counted), and a frame
+  whose every pose is shadowed is not run. So every agent follows the same
+  source whatever order the two sources' frames reach it in, and the copies
+  agree; the other takes over ``max_age_s`` after the first falls silent.
 - A frame runs at most once, and never one older (by ``(t, seq)``) than the
   last frame run; so a tracker that restarts its ``seq`` is followed at once.
 """
@@ -43,6 +50,7 @@ class Frame:
     complete: bool
     fresh: frozenset[str] = frozenset()
     src: str = ""
+    sources: frozenset[str] = frozenset()   # the sources whose poses this frame runs with
 
 
 class FrameMerger:
@@ -66,12 +74,15 @@ class FrameMerger:
         self.refused_sources = 0  # frames from a source beyond MAX_SOURCES
         self.refused_future = 0   # frames stamped more than max_future_s ahead of the local clock
         self.ignored = 0          # poses of objects that no mission names (not an error)
+        self.shadowed = 0         # poses of a robot that a source first in sort order also sees
+        self.listed: dict[tuple[str, str], float] = {}   # (source, robot) -> t of its newest frame listing it
 
     def set_robots(self, robots: tuple[str, ...], known: tuple[str, ...] | None = None) -> None:
         """The robots a frame must list (the newest mission's), and every robot whose pose is kept."""
         self.robots = tuple(robots)
         self.known = frozenset(robots if known is None else known)
         self.held = {r: h for r, h in self.held.items() if r in self.known}
+        self.listed = {k: t for k, t in self.listed.items() if k[1] in self.known}
 
     def offer(self, msg: FrameMsg, now: float) -> bool:
         """Take a frame's poses; False if it is refused or no newer than the last frame run."""
@@ -80,20 +91,30 @@ class FrameMerger:
             return False
         if msg.src not in self.heard and len(self.heard) >= self.MAX_SOURCES:
             self.heard = {s: t for s, t in self.heard.items() if t >= msg.t - self.max_age_s}
+            self.listed = {k: t for k, t in self.listed.items() if k[0] in self.heard}
             if len(self.heard) >= self.MAX_SOURCES:
                 self.refused_sources += 1
                 return False
-        self.heard[msg.src] = max(msg.t, self.heard.get(msg.src, float("-inf")))
         key = (msg.t, msg.seq)
+        oldest = msg.t - self.max_age_s
+        taken = 0
         for robot, pose in msg.poses.items():
             if robot not in self.known:
                 self.ignored += 1
                 continue
+            self.listed[(msg.src, robot)] = max(msg.t, self.listed.get((msg.src, robot), float("-inf")))
+            if any(src < msg.src and self.listed.get((src, robot), float("-inf")) >= oldest for src in self.heard):
+                self.shadowed += 1   # a source first in sort order sees this robot: its pose is the one taken
+                continue
+            taken += 1
             held = self.held.get(robot)
             if held is not None and key <= (held[0], held[1]):
                 self.dropped_old += 1
                 continue
             self.held[robot] = (msg.t, msg.seq, msg.src, pose)
+        if taken == 0 and any(r in self.known for r in msg.poses):
+            return False             # every pose shadowed: this source is not the one followed
+        self.heard[msg.src] = max(msg.t, self.heard.get(msg.src, float("-inf")))
         if key <= self.done:
             return False
         if self.pending is None or key > (self.pending.t, self.pending.seq):
@@ -117,15 +138,17 @@ class FrameMerger:
         self.pending, self.deadline_at = None, None
         self.done = (msg.t, msg.seq)
         oldest = msg.t - self.max_age_s
-        poses, fresh = {}, []
+        poses, fresh, sources = {}, [], set()
         for r in self.robots:
             held = self.held.get(r)
             if held is None or held[0] < oldest:
                 continue
             poses[r] = held[3]
+            sources.add(held[2])
             if self._of_instant(held, msg):
                 fresh.append(r)
-        return Frame(seq=msg.seq, t=msg.t, poses=poses, complete=listed, fresh=frozenset(fresh), src=msg.src)
+        return Frame(seq=msg.seq, t=msg.t, poses=poses, complete=listed, fresh=frozenset(fresh), src=msg.src,
+                     sources=frozenset(sources))
 
     def _of_instant(self, held: tuple[float, int, str, tuple[float, float, float]], msg: FrameMsg) -> bool:
         """A held pose is of msg's instant if msg itself brought it, or another source's frame at most

@@ -1,0 +1,60 @@
+"""Two trackers publish frames of the same fleet at once, with different noise and latency (issue 30): every
+agent follows the same one, so the copies stay bit-identical, and each agent says which it follows."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+
+from vsfleet.wire import WireError, decode_frame
+
+from .conftest import at_goal, start_fleet
+
+pytestmark = pytest.mark.integration
+
+
+def test_with_two_trackers_of_the_same_robots_every_agent_follows_the_same_one_and_the_copies_agree(fleet):
+    published: dict[tuple[float, int], str] = {}     # (t, seq) -> the source that published that frame
+    lock = threading.Lock()
+
+    def on_frame(sample):
+        try:
+            msg = decode_frame(sample.payload.to_bytes())
+        except WireError:
+            return
+        with lock:
+            published[(msg.t, msg.seq)] = msg.src
+
+    frames_sub = fleet.router.declare_subscriber(f"{fleet.keys.prefix}/frame/*", on_frame)
+    start_fleet(fleet)
+    fleet.start("tracker-cam2", "tracker", "sim", "--fleet", fleet.scenario.fleet, "--src", "cam2", "--rate", "30",
+                "--noise-xy", "0.004", "--noise-th", "0.01", "--latency", "0.02", "--seed", "7")
+    fleet.wait_alive("tracker", ("sim", "cam2"))
+    t_up = time.time()
+    fleet.observed.wait_for(lambda o: sum(1 for t, _, _ in o.state if t > t_up + 1.0) >= 3 * 150, timeout_s=30)
+    states = list(fleet.observed.state)
+    newest = max(m.t for _, _, m in states)
+    with lock:   # from half a second after cam2's first frame: before it, sim's frames are the only ones
+        t_both = min(t for (t, _), src in published.items() if src == "cam2") + 0.5
+    runs: dict[tuple[float, int], dict[str, object]] = {}
+    for _, agent, m in states:   # by the frame's own time (the same for every agent), not by arrival; the
+        if t_both < m.t < newest - 0.5:   # newest half second's states may still be on their way
+            runs.setdefault((m.t, m.seq), {})[agent] = m
+    by_all = [group for group in runs.values() if len(group) == 3]
+    identical = [g for g in by_all if len({(m.x, m.y, m.th, m.gx, m.gy, m.gth) for m in g.values()}) == 1]
+    ts = sorted(t for t, _ in runs)
+    print(f"frames run after both trackers were up: {len(runs)} over {ts[-1] - ts[0]:.2f} s of tracker time; "
+          f"by every agent: {len(by_all)}; identical: {len(identical)}")
+    with lock:
+        sources = {published.get(key, "?") for key in runs}
+    frames_sub.undeclare()
+    print(f"sources of the frames run: {sorted(sources)}")
+    assert sources == {"cam2"}                      # one tracker's (first in sort order), for every agent ...
+    assert len(by_all) >= 0.99 * len(runs)          # ... every agent ran them ...
+    assert len(identical) == len(by_all)            # ... and computed the same bits on each
+    fleet.observed.wait_for(at_goal(fleet), timeout_s=40)
+    for robot in ("r1", "r2", "r3"):                # and each agent says which tracker it follows
+        log = (fleet.log_dir / f"agent-{robot}.log").read_text()
+        assert "following tracker source(s) ['cam2']" in log, log[-2000:]
