@@ -205,11 +205,11 @@ def run_sim(conf: zenoh.Config, scenario: Scenario, stop: StopFlag | None = None
     stop = stop or StopFlag()
     keys = Keys(scenario.fleet)
     fleet = Fleet(scenario, keys, t0=clock())
-    fleet.start_at(clock())  # the engine is built: simulated time starts now
     truth_every = max(1, round(scenario.sim.rate_hz / scenario.sim.truth_rate_hz))
     with open_session(conf) as session:
         pubs = {r: session.declare_publisher(keys.truth(r), **TRUTH_QOS) for r in fleet.robots}
         token = session.liveliness().declare_token(keys.alive("sim", "simfleet"))
+        fleet.start_at(clock())  # the engine built, the session open: simulated time starts now (before any input)
         subs = [
             session.declare_subscriber(keys.cmd(), lambda s: fleet.on_cmd(
                 str(s.key_expr), s.payload.to_bytes(), fleet.t)),
