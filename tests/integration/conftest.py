@@ -18,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import os
 import re
 import signal
 import subprocess
@@ -287,11 +288,13 @@ class LoopbackFleet:
         fail the test when the fleet is closed."""
         self.expected_errors.extend(re.compile(p) for p in patterns)
 
-    def start(self, name: str, *args: str) -> subprocess.Popen:
+    def start(self, name: str, *args: str, env: dict[str, str] | None = None) -> subprocess.Popen:
+        """Start a child (env: variables added to this process's environment)."""
         flags = [] if name == "router" else self.flags
         with (self.log_dir / f"{name}.log").open("ab") as out:
             p = subprocess.Popen(child_command(*args, *flags), stdout=out, stderr=subprocess.STDOUT,
-                                 stdin=subprocess.DEVNULL, start_new_session=True)
+                                 stdin=subprocess.DEVNULL, start_new_session=True,
+                                 env=None if env is None else {**os.environ, **env})
         self.procs[name] = p
         return p
 
@@ -312,8 +315,9 @@ class LoopbackFleet:
                    "--noise-xy", str(tr.noise_xy_m), "--noise-th", str(tr.noise_th_rad),
                    "--latency", str(tr.latency_s), *tracker_extra)
 
-    def start_agent(self, robot: str, *extra: str) -> subprocess.Popen:
-        return self.start(f"agent-{robot}", "agent", "--robot", robot, "--fleet", self.scenario.fleet, *extra)
+    def start_agent(self, robot: str, *extra: str, env: dict[str, str] | None = None) -> subprocess.Popen:
+        return self.start(f"agent-{robot}", "agent", "--robot", robot, "--fleet", self.scenario.fleet, *extra,
+                          env=env)
 
     def wait_alive(self, role: str, ids, timeout_s: float = 20.0) -> None:
         want = {self.keys.alive(role, i) for i in ids}
@@ -346,7 +350,7 @@ class LoopbackFleet:
 
 
 def start_fleet(fleet: LoopbackFleet, *tracker_extra: str, robots=ROBOTS, on_failure: str | None = None,
-                ttl_s: float | None = TTL_S, timeout_s: float = 30.0) -> float:
+                ttl_s: float | None = TTL_S, timeout_s: float = 30.0, agent_env=None) -> float:
     """Start simfleet, the simulated tracker and one agent per robot, publish the mission (with
     ``on_failure`` if given), and wait until the fleet is up: every robot commanded (simfleet's
     truth says so) and every agent's state seen. Returns the time [s, this host] it was up."""
@@ -354,7 +358,8 @@ def start_fleet(fleet: LoopbackFleet, *tracker_extra: str, robots=ROBOTS, on_fai
         fleet.mission = dataclasses.replace(fleet.mission, on_failure=on_failure)
     fleet.start_sim_and_tracker(*tracker_extra)
     for r in robots:
-        fleet.start_agent(r, *(("--ttl", str(ttl_s)) if ttl_s is not None else ()))
+        fleet.start_agent(r, *(("--ttl", str(ttl_s)) if ttl_s is not None else ()),
+                          env=(agent_env or {}).get(r))
     fleet.wait_alive("agent", robots, timeout_s)
     fleet.wait_alive("tracker", ("sim",), timeout_s)
     fleet.wait_alive("sim", ("simfleet",), timeout_s)
