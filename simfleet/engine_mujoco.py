@@ -8,7 +8,8 @@ Built from the scenario (vsfleet.scenario.SimRobot), one body per robot on a fre
 - two driven wheels on hinges, ``wheel_base`` apart, on the axle through the tracked point (the pose
   the tracker reports). Their true radii are ``wheel_radius * gain`` (left, right): the scenario's gains,
   true/commanded wheel speed, become a mismatch of wheel radii. Each is driven by a velocity servo
-  (MuJoCo's ``velocity`` actuator) whose torque is limited to ``MOTOR_ACCEL_G`` g of the robot's mass;
+  (MuJoCo's ``velocity`` actuator, time constant ``SERVO_TAU_S``) on the wheel's share of the mass and its
+  rotor (``ROTOR_INERTIA``), its torque limited to accelerate that at ``MOTOR_ACCEL_G`` g;
   its set point is the wheel speed physics.applied_wheels gives (gains, faults, speed and acceleration
   limits, a stale command braking to rest), over the wheel's true radius;
 - two passive casters, frictionless balls (contact normal only) fore and aft;
