@@ -139,10 +139,10 @@ class EngineFleet(LoopbackFleet):
         super().__init__(scenario_path, log_dir)
         self.engine = engine
 
-    def start(self, name: str, *args: str):
+    def start(self, name: str, *args: str, **kwargs):
         if name == "sim":
             args = (*args, "--engine", self.engine)
-        return super().start(name, *args)
+        return super().start(name, *args, **kwargs)
 
 
 def traffic_of(engine: str, log_dir) -> tuple[dict, set, list]:
