@@ -16,11 +16,10 @@ DOCS = ROOT / "docs"
 
 # every bench that writes files -> where --docs puts them
 WRITERS = {"bench.faults": DOCS / "img", "bench.precision": DOCS / "img", "bench.loop": DOCS / "bench",
-           "bench.run_all": DOCS}
+           "bench.run_all": DOCS, "bench.engine": DOCS / "bench" / "sections", "bench.room": DOCS / "bench" / "room"}
 # benches that write only where they are told
 WHERE_TOLD = {
     "bench.report": "run_all's plots and sections, into the directory run_all was given",
-    "bench.room": "its --picture PATH, nothing without it",
 }
 WRITES = re.compile(r"savefig\(|\.write_(text|bytes)\(|json\.dump\(|open\([^)]*[\"'][wa]")
 
