@@ -470,6 +470,7 @@ def table(rows: list[dict], key: str, groups) -> str:
         p = pooled(sel)
         if not p["rooms"]:
             continue
+        way_ms = f"{1e3 * np.median(p['ompl_s_way']):.0f} ms" if p["ompl_s_way"] else "-"
         out.append(
             f"| {name} | {p['rooms']} | {p['ompl_way']} | {p['ours_way']} | {p['agree']} | {_pct(p['way_in_time'], p['ompl_way'])} | "
             f"{p['way_reached']}/{p['ompl_way']} | {_t(float(np.median(p['ratio'])) if p['ratio'] else math.nan)} | "
@@ -477,7 +478,7 @@ def table(rows: list[dict], key: str, groups) -> str:
             f"{p['way_blocked']} | {p['contacts']} | {1e3 * p['min_gap_m']:.1f} mm | "
             f"{1e3 * np.median(p['ours_build_s']):.0f} / {1e3 * max(p['ours_build_s']):.0f} ms | "
             f"{1e3 * np.median(p['ompl_s']):.0f} / {1e3 * max(p['ompl_s']):.0f} ms; "
-            f"{(1e3 * np.median(p['ompl_s_way'])) if p['ompl_s_way'] else math.nan:.0f} ms |")
+            f"{way_ms} |")
     return "\n".join(out)
 
 
@@ -489,13 +490,14 @@ def summary(rows: list[dict]) -> str:
     if odd:
         lines.append("Rooms with a way (OMPL) not reached within "
                      f"{WITHIN:g}x the reference time:\n")
-        lines.append("| room | kind | fleet | obstacles | OMPL length | ours: a way / length | reached | ref | ended blocked | "
+        lines.append("| room | kind | fleet | obstacles | OMPL length | ours: a way / length | goal pose reached | ref | ended blocked | "
                      "end, from goal | gap |")
         lines.append("|---|" + "---|" * 10)
         for r in odd:
+            reached = "-" if r["t_goal_s"] is None else f"{r['t_goal_s']:.1f} s (position {r['t_position_s']:.1f} s)"
             lines.append(f"| {r['seed']} | {r['kind']} | {r['shape']} ({r['n']}) | {r['obstacles']} | "
                          f"{r['ompl']['length_m']:.2f} m | {'yes' if r['ours']['success'] else 'no'} / "
-                         f"{r['ours']['length_m']:.2f} m | {_t(r['t_goal_s'])} s | {r['ref_s']:.1f} s | "
+                         f"{r['ours']['length_m']:.2f} m | {reached} | {r['ref_s']:.1f} s | "
                          f"{'yes' if r['ended_blocked'] else 'no'} | {r['end_goal_m']:.2f} m | {1e3 * r['gap_m']:.1f} mm |")
     return "\n".join(lines)
 
