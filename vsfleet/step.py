@@ -50,7 +50,7 @@ from .failure import (
 )
 from .fit import fit_structure, fit_structure_reference
 from .frames import Frame
-from .geometry import Pose2
+from .geometry import Pose2, angle_diff
 from .kinematics import integrate_arcs, integrate_arcs_reference
 from .field import Field, build_field, build_field_reference, follow_field, follow_field_reference
 from .safety import SafetyParams, safety_filter, safety_filter_reference
@@ -381,6 +381,11 @@ class AgentState:
     stale: int = 0
     unnamed: frozenset[int] = frozenset()  # mission versions that do not name this robot (noted once)
     blocked: bool = False  # the structure has no path to the goal around the obstacles (evented on change)
+    # the room's stall watch (stall_state): since when [s] the fleet has looked stuck and from which structure
+    # pose, and whether it is taken as stuck (evented as blocked / unblocked with the plan's own)
+    stall_since_t: float = math.nan
+    stall_pose: tuple | None = None   # (x, y, th [m, rad; world] where the watch began, filter seen since)
+    stalled: bool = False
 
     @property
     def predicted_m_s(self) -> dict[str, tuple[float, float]]:
@@ -444,7 +449,7 @@ def _enter_mission(state: AgentState, mission: Mission, policy: FailurePolicy, c
                     dropped=frozenset(r for r in health.dropped if r in ids))
     failure = with_health(FailureState.initial(len(ids), policy, config.dt_s), health, ids)
     return replace(state, mission_version=mission.version, ids=ids, health=health, failure=failure,
-                   wheels_m_s=np.zeros((len(ids), 2)), ctrl=None)
+                   wheels_m_s=np.zeros((len(ids), 2)), ctrl=None, stall_since_t=math.nan, stall_pose=None)
 
 
 def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: float,
@@ -506,8 +511,11 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
         point_next_world=s.points_next, wheels_prev_m_s=wheels_prev, dt_s=config.dt_s, age_s=config.age_s,
         envelopes=arrays.envelopes, active=active))
     wheels = np.where(active[:, None], wheels, 0.0)
+    filtered = False
     if arrays.room:  # bodies or obstacles: every robot's command through the fleet-wide safety filter
+        nominal = wheels
         wheels = _safe_wheels(arrays, pose, seen, active, wheels, wheels_prev, config)
+        filtered = bool(np.any(wheels != nominal))
     vl, vr = float(wheels[own, 0]), float(wheels[own, 1])
     cmd = CmdMsg(t=frame.t, seq=frame.seq, vl=vl, vr=vr, ttl=config.ttl_s)
     state_msg = None
@@ -532,19 +540,69 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
                            dropped=tuple(sorted(health.dropped)), since=tuple(sorted(health.since_t.items())))
     events = tuple(EventMsg(t=d.t, seq=frame.seq, robot=d.robot, kind=d.kind, dev=d.deviation_m, by=state.robot)
                    for d in decisions)
-    if s.blocked != state.blocked:  # the room: no path to the goal (stopping short), or one again
-        events += (EventMsg(t=frame.t, seq=frame.seq, robot=state.robot, kind="blocked" if s.blocked else "unblocked",
-                            dev=s.left_m, by=state.robot),)
+    stall_since, stall_pose, stalled = stall_state(state, arrays, s, filtered, bool(failure.failed.any()), frame.t)
+    was, now = state.blocked or state.stalled, s.blocked or stalled
+    if now != was:  # the room: no path to the goal (stopping short) or stuck on the way, or going again
+        short = s.left_m if s.blocked else _goal_distance(arrays, s.fit_pose)
+        events += (EventMsg(t=frame.t, seq=frame.seq, robot=state.robot, kind="blocked" if now else "unblocked",
+                            dev=short, by=state.robot),)
         notes.append(Note("warning", f"frame {frame.seq}: no path to the goal around the obstacles: the structure "
-                                     f"stops at the closest safe pose, {s.left_m:.3f} m short") if s.blocked else
-                     Note("info", f"frame {frame.seq}: a path to the goal around the obstacles is open again"))
+                                     f"stops at the closest safe pose, {short:.3f} m short") if s.blocked else
+                     Note("warning", f"frame {frame.seq}: stuck on the way, {short:.3f} m short: for {STALL_S:.0f} s "
+                                     "the safety filter has held robots back and the structure has not moved (a "
+                                     "passage tighter than the plan allowed for)") if now else
+                     Note("info", f"frame {frame.seq}: the structure is on its way to the goal again"))
     notes.extend(Note("warning", f"frame {frame.seq}: robot {d.robot} {d.kind} (deviation {d.deviation_m:.3f} m, "
                                  f"on_failure={mission.on_failure})") for d in decisions)
     state = _evolve(state, wheels_m_s=wheels, ctrl=ctrl, failure=failure, health=health, last_seq=frame.seq,
-                    blocked=s.blocked,
+                    blocked=s.blocked, stall_since_t=stall_since, stall_pose=stall_pose, stalled=stalled,
                     last_cmd_t=frame.t, ticks=state.ticks + 1)
     return state, StepOutput(cmd=cmd, state=state_msg, health=health_msg, events=events, notes=tuple(notes),
                              structure=s, wheels_m_s=wheels)
+
+
+#: the stall watch (stall_state): stuck after STALL_S [s] of the safety filter changing commands while the
+#: structure stays within STALL_MOVE_M [m] and STALL_TURN_RAD [rad] of where the watch began
+STALL_S = 3.0
+STALL_MOVE_M = 0.02
+STALL_TURN_RAD = 0.05
+
+
+def stall_state(state: AgentState, arrays: MissionArrays, s: Structure, filtered: bool, failed_any: bool,
+                t: float) -> tuple[float, tuple | None, bool]:
+    """The stall watch of a room (its field): (stall_since_t, stall_watch, stalled) after a frame at t [s].
+
+    Watched while the structure is neither at the goal nor blocked, no robot is failed (the failure rule
+    speaks for those) and every robot used is within the failure rule's deviation of its point (so not a
+    fleet still assembling). Stuck: watched for STALL_S, the fitted structure all the while within
+    STALL_MOVE_M and STALL_TURN_RAD of where the watch began, and the safety filter changed some command on
+    some frame of it. The plan said go, the filter said no: without this the fleet stood still and said
+    nothing (issue 28). Going again: the structure moved more than that from where it stuck. stall_watch:
+    (x, y, th, filter seen). A pure function of the frames run, as the failure rule is."""
+    if arrays.field is None:
+        return math.nan, None, False
+    dev = s.deviations_m[s.used]
+    watched = not s.at_goal and not s.blocked and not failed_any and dev.size > 0 and \
+        float(dev.max()) < arrays.policy.fail_deviation_m
+    p = s.fit_pose
+    since, at, stalled = state.stall_since_t, state.stall_pose, state.stalled
+    moved = at is None or (math.hypot(p.x - at[0], p.y - at[1]) > STALL_MOVE_M
+                           or abs(angle_diff(p.th, at[2])) > STALL_TURN_RAD)
+    if stalled:
+        return (since, at, not moved)
+    if not watched:
+        return math.nan, None, False
+    if math.isnan(since) or moved:
+        return t, (p.x, p.y, p.th, filtered), False
+    at = (*at[:3], at[3] or filtered)
+    return since, at, bool(at[3]) and t - since >= STALL_S
+
+
+def _goal_distance(arrays: MissionArrays, pose: Pose2) -> float:
+    """How far [m] a structure pose is from the mission's final goal position."""
+    goal = arrays.goal
+    target = goal.pose if isinstance(goal, GoalPose) else goal.waypoints[-1] if isinstance(goal, GoalPath) else None
+    return 0.0 if target is None else math.hypot(target.x - pose.x, target.y - pose.y)
 
 
 @lru_cache(maxsize=8)
