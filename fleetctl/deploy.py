@@ -95,7 +95,7 @@ def access_control(fleet: str, robots: list[str] | tuple[str, ...], auth: str = 
         _rule("tracker-alive", "ingress", ["liveliness_token"], [f"{p}/alive/tracker/*"]),
     ]
     if sim:
-        rules += [_rule("sim-truth", "ingress", ["put"], [f"{p}/truth/**"]),
+        rules += [_rule("sim-truth", "ingress", ["put"], [f"{p}/truth/**", f"{p}/contact/**"]),
                   _rule("sim-alive", "ingress", ["liveliness_token"], [f"{p}/alive/sim/*"])]
     rules += [
         _rule("operator-put", "ingress", ["put"], [k.mission, f"{p}/fault/**"]),

@@ -29,10 +29,10 @@ import zenoh
 from vsfleet.zglue.lifecycle import Rejections, StopFlag, pace, wall_clock
 from vsfleet.zglue.scenario_file import load_scenario
 from vsfleet.zglue.program import common_flags, program, refusing
-from vsfleet.zglue.zconf import TRUTH_QOS, open_session, zenoh_config
+from vsfleet.zglue.zconf import RELIABLE_QOS, TRUTH_QOS, open_session, zenoh_config
 from vsfleet.geometry import Pose2
 from vsfleet.scenario import Scenario
-from vsfleet.wire import Keys, TruthMsg, decode_cmd, decode_fault, encode
+from vsfleet.wire import ContactMsg, Keys, TruthMsg, decode_cmd, decode_fault, encode
 
 from .engine import ENGINES, check_engine, make_engine
 from .physics import Fault, FaultArrays, FleetParams, RobotState
@@ -68,6 +68,7 @@ class Fleet:
                                   self.dt_s)
         self.pose, self.wheels = self.engine.pose, self.engine.wheels
         self.contacts = 0  # contacts between bodies that began, as the engine reported them
+        self.new_contacts: list = []  # the ones not yet published (run_sim puts each on contact/<robot>)
         self.cmds: dict[str, _Cmd] = {}
         self.cmd = np.zeros((n, 2))                  # the latest command's wheels [m/s] ...
         self.cmd_arrived_t = np.full(n, -math.inf)   # ... when it arrived [s, sim clock] ...
@@ -180,6 +181,7 @@ class Fleet:
             self.why_code = why
         for contact in self.engine.step(cmd, fresh, faults, t):
             self.contacts += 1
+            self.new_contacts.append(contact)
             log.warning("%s", contact.describe())
         self.pose, self.wheels = self.engine.pose, self.engine.wheels
         self.k += 1
@@ -198,6 +200,11 @@ class Fleet:
 
 WHY = ("idle", "commanded", "expired", "fault")  # what sets a robot's wheels (truth's ``why``):
 IDLE, COMMANDED, EXPIRED, FAULT = range(4)       # never commanded / fresh / outlived its ttl / a fault alters it
+
+
+def contact_msg(c) -> ContactMsg:
+    """The wire form (vsfleet.wire.ContactMsg, key contact/<robot>) of an engine's Contact."""
+    return ContactMsg(t=c.t, robot=c.robot, kind=c.kind, other=str(c.other), x=c.x, y=c.y, depth=c.depth_m)
 
 
 def run_sim(conf: zenoh.Config, scenario: Scenario, stop: StopFlag | None = None,
@@ -225,6 +232,9 @@ def run_sim(conf: zenoh.Config, scenario: Scenario, stop: StopFlag | None = None
                     for rid, msg in fleet.truth().items():
                         pubs[rid].put(encode(msg))
                 fleet.step()
+                for c in fleet.new_contacts:   # reliable puts, from this loop only: every contact reaches the tools
+                    session.put(keys.contact(c.robot), encode(contact_msg(c)), **RELIABLE_QOS)
+                fleet.new_contacts.clear()
                 if clock() > fleet.t + 0.1:
                     late += 1
                 pace(fleet.t, stop, clock)

@@ -18,6 +18,7 @@ from vsfleet.control import make_controller
 from vsfleet.failure import FailurePolicy
 from vsfleet.wire import (
     DECODERS,
+    ContactMsg,
     PROTOCOL_V,
     CmdMsg,
     EventMsg,
@@ -61,8 +62,9 @@ TABLE = {
     "mission": (MISSION, encode_mission),
     "event": (EventMsg(T, 42, "r2", "fail", 0.061, "r1"), encode_event),
     "health": (HealthMsg(T, 42, 7, ("r2",), ("r2",), (("r1", T - 1.0),)), encode_health),
+    "contact": (ContactMsg(T, "r1", "obstacle", "3", 0.8, 0.3, 0.0004), encode),
 }
-TELEMETRY = ("pose", "state", "truth", "event")
+TELEMETRY = ("pose", "state", "truth", "event", "contact")
 CLOSED = tuple(k for k in TABLE if k not in TELEMETRY)
 
 

@@ -173,3 +173,16 @@ def test_each_agent_answers_and_decides_under_its_own_key():
                 "vs/other/peer/r3/health", "vs/lab/peer/*/health"):
         with pytest.raises(WireError):
             k.peer_of(bad, "health")
+
+
+def test_a_contact_round_trips_and_a_bad_kind_or_other_is_refused():
+    from vsfleet.wire import ContactMsg, Keys, WireError, decode_contact, encode
+
+    for msg in (ContactMsg(10.0, "r1", "robot", "r2", 0.5, -0.25, 0.001),
+                ContactMsg(10.0, "r3", "obstacle", "12", 1.0, 2.0, 0.0)):
+        assert decode_contact(encode(msg)) == msg
+    assert Keys("demo").contact("r1") == "vs/demo/contact/r1"
+    for bad in (ContactMsg(10.0, "r1", "wall", "0", 0.0, 0.0, 0.0), ContactMsg(10.0, "r1", "obstacle", "x1", 0.0, 0.0, 0.0),
+                ContactMsg(10.0, "r1", "robot", "r 2", 0.0, 0.0, 0.0), ContactMsg(10.0, "r1", "robot", "r2", 0.0, 0.0, -1.0)):
+        with pytest.raises(WireError):
+            decode_contact(encode(bad))

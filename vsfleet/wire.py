@@ -104,6 +104,10 @@ class Keys:
         """Failure-policy decisions of robot ``robot``'s agent (only that login may put here)."""
         return f"{self.prefix}/event/{robot}"
 
+    def contact(self, robot: str = "*") -> str:
+        """Contacts of robot ``robot``'s body that a physics engine saw (only the simulated fleet puts here)."""
+        return f"{self.prefix}/contact/{robot}"
+
     def peer(self, robot: str = "*") -> str:
         """Everything agent ``robot`` answers queries on: ``vs/<fleet>/peer/<robot>``."""
         return f"{self.prefix}/peer/{robot}"
@@ -393,6 +397,41 @@ def decode_event(payload: bytes) -> EventMsg:
     dev = m.get("dev")
     dev = math.inf if dev == "inf" else _pos({"dev": dev}, "dev", allow_zero=True)
     return EventMsg(t=_num(m, "t"), seq=_int(m, "seq"), robot=robot, kind=kind, dev=dev, by=by, v=v)
+
+
+CONTACT_KINDS = ("robot", "obstacle")
+
+
+@dataclass(frozen=True)
+class ContactMsg:
+    """A contact that began: the simulated fleet's physics engine saw robot ``robot``'s body touch ``other`` at
+    sim time t [s], at (x, y) [m; world], ``depth`` [m] into each other when first seen. kind "robot": other
+    is a robot id; kind "obstacle": other is the obstacle's index in the mission, as a string."""
+
+    t: float
+    robot: str
+    kind: str
+    other: str
+    x: float
+    y: float
+    depth: float
+    v: int = PROTOCOL_V  # telemetry: the protocol version followed
+
+
+def decode_contact(payload: bytes) -> ContactMsg:
+    m = unpack_map(payload)
+    v = _version(m, ContactMsg, "a contact")
+    kind = _str(m, "kind")
+    if kind not in CONTACT_KINDS:
+        raise WireError(f"unknown contact kind {kind!r}; expected one of {CONTACT_KINDS}")
+    robot, other = _str(m, "robot"), _str(m, "other")
+    check_name(robot, "robot")
+    if kind == "robot":
+        check_name(other, "other")
+    elif not (other.isdigit() and len(other) <= 6):
+        raise WireError(f"field 'other' of an obstacle contact must be its index, got {other!r}")
+    return ContactMsg(t=_num(m, "t"), robot=robot, kind=kind, other=other, x=_num(m, "x"), y=_num(m, "y"),
+                      depth=_pos(m, "depth", allow_zero=True), v=v)
 
 
 def encode_event(msg: EventMsg) -> bytes:
@@ -880,6 +919,6 @@ def decode_mission(payload: bytes) -> Mission:
 
 DECODERS = {
     "frame": decode_frame, "pose": decode_pose, "cmd": decode_cmd, "state": decode_state, "truth": decode_truth,
-    "fault": decode_fault, "mission": decode_mission, "event": decode_event,
+    "fault": decode_fault, "mission": decode_mission, "event": decode_event, "contact": decode_contact,
     "health": decode_health,
 }

@@ -2,9 +2,8 @@
 
 - A robot driven into a pillar with no safety filter in the way (the test itself commands it on
   cmd/<robot>: no agent, so no filter) stops at the pillar: truth/<robot> shows it there, still
-  commanded, its wheels turning, never through it. The contact is reported by simfleet's log (a line per
-  contact, the count in its last line): the wire has no event kind for a contact yet (docs/engine.md),
-  so that log, read once simfleet has exited, is the one place it is told.
+  commanded, its wheels turning, never through it. The contact is published on ``contact/r1`` (one reliable
+  message, seen through the key space) and counted in simfleet's last log line.
 - The agents' traffic is the same with either engine: the same keys, the same message kinds with the
   same fields, the same liveliness tokens, every message decoding under the wire's own rules.
 """
@@ -20,7 +19,7 @@ import time
 import msgpack
 import pytest
 
-from vsfleet.wire import DECODERS, CmdMsg, WireError, encode
+from vsfleet.wire import DECODERS, CmdMsg, WireError, decode_contact, encode
 from vsfleet.zglue.zconf import RELIABLE_QOS
 
 from .conftest import E2E, ROBOTS, LoopbackFleet, closing, start_fleet
@@ -69,6 +68,14 @@ def pillar_fleet(tmp_path, request):
 def test_a_robot_driven_into_a_pillar_stops_at_it_and_the_contact_is_reported(pillar_fleet):
     fleet = pillar_fleet
     keys = fleet.keys
+    contacts = []
+
+    def on_contact(sample):
+        with fleet.observed.cond:
+            contacts.append((str(sample.key_expr), decode_contact(sample.payload.to_bytes())))
+            fleet.observed.cond.notify_all()
+
+    contact_sub = fleet.router.declare_subscriber(keys.contact(), on_contact)
     fleet.start("sim", "sim", fleet.scenario_path)  # [sim] engine = "mujoco" from the scenario
     fleet.wait_alive("sim", ("simfleet",))
     reach = PILLAR[0] - PILLAR[2] - RADIUS  # where its body touches the pillar: 0.27 m
@@ -100,9 +107,15 @@ def test_a_robot_driven_into_a_pillar_stops_at_it_and_the_contact_is_reported(pi
     assert all(math.hypot(m.x - held[-1].x, m.y - held[-1].y) < 0.005 for m in held)
     assert max(abs(m.vl) for m in held) > 0.05  # its wheels turn on (slip) against the pillar
 
+    # the contact, through the key space: one message on contact/r1 (reliable), the pillar, where r1 met it
+    (key, c), = fleet.observed.wait_for(lambda o: list(contacts) or None, 10.0)
+    contact_sub.undeclare()
+    assert key == keys.contact("r1") and (c.robot, c.kind, c.other) == ("r1", "obstacle", "0")
+    assert abs(c.x - (PILLAR[0] - PILLAR[2])) < 0.01 and abs(c.t - t_touch) < 0.5 and c.depth < 0.005
     fleet.procs["sim"].send_signal(signal.SIGTERM)
     assert fleet.procs["sim"].wait(timeout=10) == 0
     log = (fleet.log_dir / "sim.log").read_text()
+    assert len(contacts) == 1
     assert len(re.findall(r"contact: r1 with obstacle 0 at t=", log)) == 1, log[-2000:]
     assert re.search(r"simfleet stopping at step \d+ .*, 1 contacts \(engine mujoco\)", log), log[-2000:]
 
