@@ -316,8 +316,8 @@ class LoopbackFleet:
                    "--latency", str(tr.latency_s), *tracker_extra)
 
     def start_agent(self, robot: str, *extra: str, env: dict[str, str] | None = None) -> subprocess.Popen:
-        return self.start(f"agent-{robot}", "agent", "--robot", robot, "--fleet", self.scenario.fleet, *extra,
-                          env=env)
+        name, args = f"agent-{robot}", ("agent", "--robot", robot, "--fleet", self.scenario.fleet, *extra)
+        return self.start(name, *args) if env is None else self.start(name, *args, env=env)
 
     def wait_alive(self, role: str, ids, timeout_s: float = 20.0) -> None:
         want = {self.keys.alive(role, i) for i in ids}

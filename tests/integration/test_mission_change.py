@@ -42,14 +42,18 @@ def events(o, kind: str, robot: str | None = None) -> dict[str, object]:
 def test_a_goal_walled_in_stops_the_fleet_blocked_and_a_mission_that_opens_the_ring_takes_it_to_the_goal(fleet):
     fleet.mission = dataclasses.replace(fleet.mission, goal=GOAL, obstacles=ring(None))
     start_fleet(fleet)
+    # blocked from the first frame of the mission: each agent says so on the first frame it runs (one under load
+    # may have missed that frame), and with the same plan: the same closest safe pose, as far short
     blocked = fleet.observed.wait_for(lambda o: b if len(b := events(o, "blocked")) == 3 else None, timeout_s=30)
-    assert len({e.seq for e in blocked.values()}) == 1      # every agent on the same frame
+    assert len({round(e.dev, 9) for e in blocked.values()}) == 1
     t_open = time.time()
     fleet.mission = dataclasses.replace(fleet.mission, version=2, obstacles=ring(0.9), effective_t=t_open + 1.5)
     fleet.publish_mission()
     unblocked = fleet.observed.wait_for(
         lambda o: u if len(u := events(o, "unblocked")) == 3 else None, timeout_s=20)
-    assert len({e.seq for e in unblocked.values()}) == 1
+    switch = min(e.seq for e in unblocked.values())   # the first v2 frame; an agent that missed it, on its next
+    ran_switch = {r for _, r, m in fleet.observed.state if m.seq == switch}
+    assert all(e.seq == switch for by, e in unblocked.items() if by in ran_switch), unblocked
     fleet.observed.wait_for(at_goal(fleet, tol_m=0.02), timeout_s=60)
     first_v2 = min(e.seq for e in unblocked.values())
     a = agreement([(r, m) for _, r, m in fleet.observed.state if m.seq >= first_v2], min_agents=3)
@@ -63,7 +67,9 @@ def test_a_mission_change_while_a_robot_is_failed_and_dropped_keeps_it_dropped_a
     fleet.router.put(fleet.keys.fault("r2"), encode(FaultMsg("stop", 0.0, 0.0)))
     dropped = fleet.observed.wait_for(lambda o: d if len(d := events(o, "drop", "r2")) == 3 else None,
                                       timeout_s=20)
-    assert len({e.seq for e in dropped.values()}) == 1
+    first = min(e.seq for e in dropped.values())      # every agent that ran that frame decided on it
+    ran_first = {r for _, r, m in fleet.observed.state if m.seq == first}
+    assert all(e.seq == first for by, e in dropped.items() if by in ran_first), dropped
     new_goal = (-0.3, 0.3, -0.4)
     fleet.mission = dataclasses.replace(fleet.mission, version=2, goal=new_goal, on_failure="drop",
                                         effective_t=time.time() + 1.5)
