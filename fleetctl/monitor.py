@@ -391,15 +391,22 @@ def main(args: argparse.Namespace) -> int:
     stop = StopFlag()
     t_end = time.monotonic() + args.duration if args.duration > 0 else math.inf
     with open_session(zenoh_config(args)) as session:
-        session.declare_subscriber(key_expr, on_sample)
-        session.liveliness().declare_subscriber(key_expr, on_token, history=True)
-        for key, payload in current_missions(session, fleet, timeout_s=2.0):
-            with lock:
-                model.ingest(time.time(), key, payload)
-        with Live(current(), refresh_per_second=args.refresh, get_renderable=current, screen=False):
-            while not stop.wait(min(0.25, max(0.0, t_end - time.monotonic()))):
-                if time.monotonic() >= t_end:
-                    break
+        # kept and undeclared before the session closes: a callback subscription still declared at the close
+        # gets samples the closing session no longer has the ids of ('Received Data for unknown key_expr:
+        # Remote resource 1 not found', seen in a CI rehearsal's monitor.log)
+        subs = [session.declare_subscriber(key_expr, on_sample),
+                session.liveliness().declare_subscriber(key_expr, on_token, history=True)]
+        try:
+            for key, payload in current_missions(session, fleet, timeout_s=2.0):
+                with lock:
+                    model.ingest(time.time(), key, payload)
+            with Live(current(), refresh_per_second=args.refresh, get_renderable=current, screen=False):
+                while not stop.wait(min(0.25, max(0.0, t_end - time.monotonic()))):
+                    if time.monotonic() >= t_end:
+                        break
+        finally:
+            for sub in reversed(subs):
+                sub.undeclare()
     return 0
 
 

@@ -3,7 +3,7 @@ src and calibration, draw the fleet's truth through two different simulated came
 (deploy/camera/overhead.toml and overhead-2.toml). Both see every robot here, so the agents follow one
 of them, the first in sort order (cam1; docs/protocol.md, "Frames": a robot two sources see is taken from
 the first, so every agent runs the same frames), and close the loop on tests/data/e2e-triangle.toml; cam2
-is shadowed, ready to take over if cam1 falls silent.
+is shadowed but for a robot cam1 has missed for 0.25 s, and takes over if cam1 falls silent.
 """
 
 from __future__ import annotations
@@ -87,5 +87,7 @@ def test_two_cameras_with_their_own_src_drive_the_fleet_in_formation_to_its_goal
     print(f"agent steps per camera: {ran} ({both} from the same (t, seq) of both, {unseen} unseen); "
           f"{complete} of {len(states)} complete; "
           f"poses per camera: { {src: sum(1 for _, m in seen if m.src == src) for src in srcs} }")
+    # mostly cam1's: cam2's poses count only for a robot cam1 has not listed for max_age_s (a camera misses a
+    # robot now and then: a loaded CI rehearsal ran {cam1: 459, cam2: 96}; before the rule, both ran alike)
     first = min(srcs)
-    assert ran[first] > 0 and all(n == 0 for src, n in ran.items() if src != first), ran
+    assert ran[first] > 0.7 * sum(ran.values()), ran
