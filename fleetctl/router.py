@@ -53,6 +53,7 @@ def loopback_router_config(port: int) -> zenoh.Config:
     conf.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
     conf.insert_json5("scouting/multicast/enabled", "false")
     conf.insert_json5("adminspace/enabled", "true")
+    conf.insert_json5("transport/shared_memory/enabled", "false")   # as every program's default (zglue.zconf)
     return conf
 
 
@@ -167,6 +168,7 @@ def router_config(args: argparse.Namespace) -> zenoh.Config:
         raise RouterModeError(f"{args.config} sets mode {mode!r}: `vsfleet router` runs a router; "
                               f"set \"mode\": \"router\" in it or leave mode out")
     conf.insert_json5("adminspace/enabled", "true")
+    conf.insert_json5("transport/shared_memory/enabled", "false")   # as every program's default (zglue.zconf)
     return conf
 
 

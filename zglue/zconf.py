@@ -73,6 +73,10 @@ def add_zenoh_args(parser: argparse.ArgumentParser) -> None:
 #: a fleet's sessions are back within about 1 s of a restarted router (zenoh's own default starts at 1 s and
 #: doubles to 4 s: 30 agents came back 2.15-2.32 s after a restart, tests/integration/test_router_restart_30.py)
 RECONNECT_RETRY = "{period_init_ms: 250, period_max_ms: 1000, period_increase_factor: 1.5}"
+# Shared memory is off unless a config file turns it on: every session that talks to a process over SHM has
+# that process map its 16 MiB pool, and keep it mapped after the session ends; bench/soak.py's 29 fuzzer
+# sessions grew simfleet's RSS by 17.25 MiB each (+617 MiB in 30 min). Our messages are small (a frame of
+# 100 robots is 4 KiB): the network path costs them nothing that matters.
 
 
 def zenoh_config(args: argparse.Namespace) -> zenoh.Config:
@@ -84,8 +88,9 @@ def zenoh_config(args: argparse.Namespace) -> zenoh.Config:
     settings = []
     if args.mode is not None or not args.config:
         settings.append(("--mode", "mode", json.dumps(args.mode or "client")))
-    if not args.config:  # a file's own retry settings stand; --cfg overrides either
+    if not args.config:  # a file's own settings stand; --cfg overrides either
         settings.append(("(default)", "connect/retry", RECONNECT_RETRY))
+        settings.append(("(default)", "transport/shared_memory/enabled", "false"))
     if args.connect:
         settings.append(("--connect", "connect/endpoints", json.dumps(args.connect)))
     if args.listen:
