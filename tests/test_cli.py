@@ -238,7 +238,7 @@ def test_without_a_config_file_sessions_retry_a_lost_router_quickly_and_announce
     add_zenoh_args(parser)
     conf = zenoh_config(parser.parse_args([]))
     assert json.loads(conf.get_json("transport/shared_memory/enabled")) is False
-    assert json.loads(conf.get_json("connect/retry")) == {"period_init_ms": 250, "period_max_ms": 1000,
+    assert json.loads(conf.get_json("connect/retry")) == {"period_init_ms": 250, "period_max_ms": 500,
                                                           "period_increase_factor": 1.5}
     conf = zenoh_config(parser.parse_args(["--cfg", "transport/shared_memory/enabled:true"]))
     assert json.loads(conf.get_json("transport/shared_memory/enabled")) is True

@@ -69,10 +69,12 @@ def add_zenoh_args(parser: argparse.ArgumentParser) -> None:
                         "(same as --cfg connect/timeout_ms:-1); default: fail at once if none is reachable")
 
 
-#: how often a session tries its router again after losing it: from 0.25 s, growing 1.5x to at most 1 s, so that
-#: a fleet's sessions are back within about 1 s of a restarted router (zenoh's own default starts at 1 s and
-#: doubles to 4 s: 30 agents came back 2.15-2.32 s after a restart, tests/integration/test_router_restart_30.py)
-RECONNECT_RETRY = "{period_init_ms: 250, period_max_ms: 1000, period_increase_factor: 1.5}"
+#: how often a session tries its router again after losing it: from 0.25 s, growing 1.5x to at most 0.5 s, so that
+#: a fleet's sessions are back within about 0.5 s of a restarted router (zenoh's own default starts at 1 s and
+#: doubles to 4 s: 30 agents came back 2.15-2.32 s after a restart, tests/integration/test_router_restart_30.py;
+#: at most 1 s: 0.3-0.7 s on a quiet host, 2.31 s beside a busy loop, the slowest sessions' tries falling just
+#: before the new router listened and the next one 1 s later)
+RECONNECT_RETRY = "{period_init_ms: 250, period_max_ms: 500, period_increase_factor: 1.5}"
 # Shared memory is off unless a config file turns it on: every session that talks to a process over SHM has
 # that process map its 16 MiB pool, and keep it mapped after the session ends; bench/soak.py's 29 fuzzer
 # sessions grew simfleet's RSS by 17.25 MiB each (+617 MiB in 30 min). Our messages are small (a frame of
