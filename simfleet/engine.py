@@ -18,13 +18,10 @@ step (Contact), and ``contacts`` keeps them all.
 
 from __future__ import annotations
 
-import numpy as np
-
 from vsfleet.errors import VsfleetValueError
 from vsfleet.scenario import ENGINES
 
-from .physics import Contact, Fault, FaultArrays, KinematicEngine, RobotState
-from vsfleet.geometry import Pose2
+from .physics import Contact, KinematicEngine, step_engine_fleet  # noqa: F401 (re-exported)
 
 __all__ = ["ENGINES", "Contact", "EngineUnavailable", "check_engine", "make_engine", "step_engine_fleet"]
 
@@ -55,23 +52,3 @@ def make_engine(name: str, robots, obstacles, dt_s: float):
     return MujocoEngine(robots, obstacles, dt_s)
 
 
-def step_engine_fleet(engine, states: dict[str, RobotState], robots: dict, cmds: dict[str, tuple[float, float]],
-                      faults: dict[str, Fault], timeline: list, t: float, dt_s: float, substeps: int) -> float:
-    """physics.step_fleet on an engine (its rows in the order of ``robots``): ``substeps`` steps from sim
-    time t [s], starting the timeline's faults when due; ``states`` (from the engine), ``faults`` and
-    ``timeline`` updated in place, commands fresh; returns the new time."""
-    ids = list(robots)
-    cmd = np.array([cmds[r] for r in ids], dtype=float)
-    fresh = np.ones(len(ids), dtype=bool)
-    arrays = FaultArrays.of([faults[r] for r in ids])
-    for _ in range(substeps):
-        if timeline and timeline[0].at_s <= t:
-            while timeline and timeline[0].at_s <= t:
-                ev = timeline.pop(0)
-                faults[ev.robot] = Fault(ev.kind, ev.factor, t + ev.duration if ev.duration > 0 else float("inf"))
-            arrays = FaultArrays.of([faults[r] for r in ids])
-        engine.step(cmd, fresh, arrays, t)
-        t += dt_s
-    for i, r in enumerate(ids):
-        states[r] = RobotState(Pose2(*engine.pose[i]), float(engine.wheels[i, 0]), float(engine.wheels[i, 1]))
-    return t

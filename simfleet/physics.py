@@ -127,11 +127,21 @@ def step_fleet(states: dict[str, RobotState], robots: dict[str, SimRobot],
                t: float, dt_s: float, substeps: int) -> float:
     """Advance every robot by ``substeps`` physics steps of ``dt_s`` from sim time ``t`` [s],
     starting the timeline's faults (FaultEvent, ordered by at_s) when they are due; returns the
-    new time. ``states``, ``faults`` and ``timeline`` are updated in place; commands are fresh."""
+    new time. ``states``, ``faults`` and ``timeline`` are updated in place; commands are fresh.
+    The kinematic engine from ``states``, stepped by step_engine_fleet (the same rule as any engine)."""
     ids = list(robots)
-    params = FleetParams.of([robots[r] for r in ids])
-    pose = np.array([states[r].pose.as_tuple() for r in ids], dtype=float)
-    wheels = np.array([(states[r].vl, states[r].vr) for r in ids], dtype=float)
+    engine = KinematicEngine([robots[r] for r in ids], (), dt_s)
+    engine.pose = np.array([states[r].pose.as_tuple() for r in ids], dtype=float)
+    engine.wheels = np.array([(states[r].vl, states[r].vr) for r in ids], dtype=float)
+    return step_engine_fleet(engine, states, robots, cmds, faults, timeline, t, dt_s, substeps)
+
+
+def step_engine_fleet(engine, states: dict[str, RobotState], robots: dict, cmds: dict[str, tuple[float, float]],
+                      faults: dict[str, Fault], timeline: list, t: float, dt_s: float, substeps: int) -> float:
+    """step_fleet on an engine (its rows in the order of ``robots``): ``substeps`` steps from sim time t [s],
+    starting the timeline's faults when due; ``states`` (from the engine), ``faults`` and ``timeline``
+    updated in place, commands fresh; returns the new time."""
+    ids = list(robots)
     cmd = np.array([cmds[r] for r in ids], dtype=float)
     fresh = np.ones(len(ids), dtype=bool)
     arrays = FaultArrays.of([faults[r] for r in ids])
@@ -141,10 +151,10 @@ def step_fleet(states: dict[str, RobotState], robots: dict[str, SimRobot],
                 ev = timeline.pop(0)
                 faults[ev.robot] = Fault(ev.kind, ev.factor, t + ev.duration if ev.duration > 0 else float("inf"))
             arrays = FaultArrays.of([faults[r] for r in ids])
-        pose, wheels = step_robots(pose, wheels, cmd, fresh, arrays, params, t, dt_s)
+        engine.step(cmd, fresh, arrays, t)
         t += dt_s
     for i, r in enumerate(ids):
-        states[r] = RobotState(Pose2(*pose[i]), float(wheels[i, 0]), float(wheels[i, 1]))
+        states[r] = RobotState(Pose2(*engine.pose[i]), float(engine.wheels[i, 0]), float(engine.wheels[i, 1]))
     return t
 
 
