@@ -6,10 +6,19 @@
    max formation error (every robot's distance from its point on the structure fitted to the true
    positions, every frame until the goal), time to goal, wheel-command jitter (total variation of the
    commands per robot per second, until the goal), contacts the engine reported.
-2. Contacts: a pillar on the path (scenarios/paper-triangle-obstacle.toml) and a crowded start
-   (scenarios/tight-row.toml, bodies 2 cm apart), on each engine: the contacts MuJoCo reports and the
-   smallest gap between bodies and obstacles from the true positions.
-3. Real time at 200 Hz for 30 robots (bodies 0.08 m, 0.3 m apart, all driven): CPU per simulated second
+2. Contacts: a pillar on the path (scenarios/paper-triangle-obstacle.toml), a tight row
+   (scenarios/tight-row.toml, 3 bodies 2 cm apart) and a crowded start (scenarios/crowd-10.toml, 10 bodies
+   packed in a 2 x 5 block 2 cm apart, spreading into a line), on each engine: the contacts MuJoCo reports
+   and the smallest gap between bodies and obstacles from the true positions.
+3. Rooms: bench/room.py's randomised rooms (bench.room.make_room(seed), to_scenario; --rooms SEED ...), each
+   offline on each engine as bench/room.py runs it: reached (the goal pose: 5 mm and 0.03 rad) or not and
+   when, ended blocked, the contacts MuJoCo reports, the smallest gap.
+4. The camera loop: `vsfleet run scenarios/camera-triangle.toml --engine ENGINE` (real processes; the
+   synthetic overhead camera renders the truth, the ArUco tracker detects it, the agents follow its
+   frames) on each engine: time to goal (from the agents' first state to the first truth frame whose
+   fitted structure is within 1 cm and 0.02 rad of the goal), mean and max formation error until then, the
+   contacts simfleet counted, agreement across agents.
+5. Real time at 200 Hz for 30 robots (bodies 0.08 m, 0.3 m apart, all driven): CPU per simulated second
    of the engine's step alone and of simfleet's step with its truth messages encoded, in this process;
    then `vsfleet sim` itself as a process on a loopback router (3 runs per engine), with this process
    commanding all 30 robots at 30 Hz and reading their truth: simulated seconds per wall second, steps
@@ -17,9 +26,10 @@
    message on), with the machine's load average.
 
 Writes engine.md (a section of docs/benchmarks.md), engine.summary and engine.json under
-runs/bench/engine/, or --out DIR, or with --docs docs/bench/sections/.
+runs/bench/engine/, or --out DIR, or with --docs docs/bench/sections/. Progress goes to stderr.
 
-Run: .venv/bin/python bench/engine.py [--seeds 1 2 3] [--live-seconds 15] [--live-runs 3] [--out DIR | --docs]
+Run: .venv/bin/python bench/engine.py [--seeds 1 2 3] [--rooms 0 8 ...] [--camera-runs 1] [--live-seconds 15]
+     [--live-runs 3] [--out DIR | --docs]
 """
 
 from __future__ import annotations
@@ -38,26 +48,39 @@ import threading
 import time
 from pathlib import Path
 
+import msgpack
 import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from bench import room as rooms  # noqa: E402
 from bench.outputs import DOCS, add_output_flags  # noqa: E402
+from vsfleet.analysis import fitted_truth, goal_distance, truth_frames  # noqa: E402
 from vsfleet.fleetctl.router import open_loopback_router  # noqa: E402
-from vsfleet.fleetctl.run import child_command  # noqa: E402
+from vsfleet.fleetctl.run import child_command, decoded  # noqa: E402
+from vsfleet.geometry import angle_diff  # noqa: E402
 from vsfleet.scenario import ENGINES  # noqa: E402
 from vsfleet.simfleet.engine import make_engine  # noqa: E402
 from vsfleet.simfleet.main import Fleet  # noqa: E402
 from vsfleet.simfleet.offline import run_offline  # noqa: E402
 from vsfleet.simfleet.physics import Fault, FaultArrays  # noqa: E402
-from vsfleet.wire import CmdMsg, Keys, decode_truth, encode  # noqa: E402
+from vsfleet.wire import CmdMsg, Keys, decode_state, decode_truth, encode  # noqa: E402
 from vsfleet.zglue.scenario_file import load_scenario  # noqa: E402
 from vsfleet.zglue.zconf import zenoh_flags  # noqa: E402
 
 SCENARIOS = ROOT / "scenarios"
 LOOP_CASES = (("paper triangle", "paper-triangle"), ("halted robot (r2 stops at 8 s, hold)", "paper-failure"))
-CONTACT_CASES = (("pillar on the path", "paper-triangle-obstacle"), ("crowded start (2 cm apart)", "tight-row"))
+CONTACT_CASES = (("pillar on the path", "paper-triangle-obstacle"), ("tight row (3 bodies 2 cm apart)", "tight-row"),
+                 ("crowded start (10 bodies packed 2 cm apart, into a line)", "crowd-10"))
+# bench/room.py's rooms: each kind (pillars, wall, bend, sealed) for 3, 4 and 10 robots, and pillars for 30. In its
+# 80-room run (docs/bench/sections/rooms.md): 0 (a wall with a gap) stood stalled in the gap, 9 (sealed) has no
+# way and ended blocked, 28 passed 15 mm from a wall, the rest reached the goal
+ROOM_SEEDS = (0, 8, 9, 12, 13, 20, 22, 28, 11)
+ROOM_CAP_S = 90.0  # each room's run [s] (it stops at the goal's position)
+CAMERA = "camera-triangle"
+CAMERA_GOAL_M = 0.01      # vsfleet run's goal: the structure within this of the goal position ...
+CAMERA_GOAL_RAD = 0.02    # ... and this of its heading
 N_ROBOTS = 30
 SPACING_M = 0.3
 RADIUS_M = 0.08
@@ -65,7 +88,7 @@ CMD = (0.10, 0.12)  # every robot's wheels [m/s]: the same gentle arc, so no two
 FLEET30 = "engine30"
 
 
-# ---------------------------------------------------------------- 1, 2: the closed loop on each engine
+# ---------------------------------------------------------------- 1, 2: the closed loop and contacts on each engine
 
 
 def min_gap_m(run, scenario) -> float:
@@ -105,7 +128,75 @@ def summarise(cases: list[dict]) -> dict:
             "cpu_per_sim_s": float(sum(c["cpu_s"] for c in cases) / sum(c["sim_s"] for c in cases))}
 
 
-# ---------------------------------------------------------------- 3: 30 robots at 200 Hz
+# ---------------------------------------------------------------- 3: rooms on each engine
+
+
+def room_case(seed: int, engine: str, cap_s: float = ROOM_CAP_S) -> dict:
+    """bench/room.py's room ``seed`` offline on ``engine``, run as bench/room.py runs it (to the goal's
+    position, then again to the end if the heading is not there yet): when it reached the goal pose, whether
+    it ended blocked, the contacts the engine reported and the smallest gaps [m]."""
+    room = rooms.make_room(seed)
+    sc = rooms.to_scenario(room, cap_s)
+    t0 = time.process_time()
+    run = run_offline(sc, cap_s, seed=seed, goal_tol_m=rooms.GOAL_M, engine=engine)
+    sim_s = float(run.trace[-1][0])
+    if run.t_goal_s is not None and rooms.heading_error(run.trace[-1][1], room.goal) > rooms.GOAL_RAD:
+        run = run_offline(sc, cap_s, seed=seed, goal_tol_m=rooms.GOAL_M, stop_at_goal=False, engine=engine)
+        sim_s += float(run.trace[-1][0])
+    cpu = time.process_time() - t0
+    t_goal = rooms.goal_time(run, room.goal)
+    said = [[d.kind for d in ds if d.kind in ("blocked", "unblocked")] for ds in run.decisions.values()]
+    bb, bo = rooms.min_gaps_m(run.positions_m, room.radii, room.obstacles)
+    return {"seed": seed, "engine": engine, "kind": room.kind, "shape": room.shape, "n": room.n,
+            "obstacles": len(room.obstacles), "t_goal_s": t_goal,
+            "ended_blocked": t_goal is None and any(k and k[-1] == "blocked" for k in said),
+            "contacts": [c.describe() for c in run.contacts], "gap_bodies_m": bb, "gap_obstacles_m": bo,
+            "gap_m": min(bb, bo), "sim_s": sim_s, "cpu_s": cpu}
+
+
+# ---------------------------------------------------------------- 4: the camera loop on each engine
+
+
+def camera_case(engine: str, work: Path, k: int = 0) -> dict:
+    """`vsfleet run scenarios/camera-triangle.toml --engine ENGINE` (real processes, the ArUco tracker on
+    rendered frames of the engine's truth): time to goal, formation error until then, contacts, agreement."""
+    path = SCENARIOS / f"{CAMERA}.toml"
+    fleet = f"bench{os.getpid()}{engine[:3]}{k}"
+    out = work / f"camera-{engine}-{k}"
+    t0 = time.monotonic()
+    done = subprocess.run(child_command("run", str(path), "--engine", engine, "--fleet", fleet, "--out", str(out)),
+                          capture_output=True, text=True, stdin=subprocess.DEVNULL, timeout=300)
+    wall = time.monotonic() - t0
+    run_dirs = [d for d in out.glob(f"*/{CAMERA}") if (d / "summary.json").exists()]
+    if len(run_dirs) != 1:  # a run that ends with a child failed still writes its record: children_ok says so
+        raise RuntimeError(f"vsfleet run --engine {engine} wrote no record ({done.returncode}):\n"
+                           f"{done.stdout[-3000:]}{done.stderr[-3000:]}")
+    run_dir = run_dirs[0]
+    summary = json.loads((run_dir / "summary.json").read_text())
+    with (run_dir / "log.msgpack").open("rb") as f:
+        records = list(msgpack.Unpacker(f, raw=False))
+    sc = load_scenario(path, fleet=fleet)
+    keys, mission = Keys(fleet), sc.mission
+    states = decoded(records, keys, "state", decode_state)
+    t_first = min(m.t for _, m in states)  # the agents' first answer (the clock is the truth's: sim time)
+    fitted = [f for f in fitted_truth(mission, truth_frames(decoded(records, keys, "truth", decode_truth)))
+              if f[0] >= t_first]
+    t_goal = next((t for t, pose, _ in fitted if goal_distance(mission, pose) <= CAMERA_GOAL_M
+                   and abs(angle_diff(mission.goal[2], pose.th)) <= CAMERA_GOAL_RAD), None)
+    until = [d for t, _, dev in fitted if t_goal is None or t <= t_goal for d in dev.values()]
+    sim_log = (run_dir / "sim.log").read_text(errors="replace")
+    m = re.search(r"(\d+) contacts \(engine (\w+)\)", sim_log)
+    if m is None or m.group(2) != engine:
+        raise RuntimeError(f"no final line from vsfleet sim --engine {engine}:\n{sim_log[-2000:]}")
+    a = summary["agreement"]
+    return {"engine": engine, "t_goal_s": None if t_goal is None else t_goal - t_first,
+            "mean_m": float(np.mean(until)), "max_m": float(np.max(until)), "frames": len(fitted),
+            "reached_goal": summary["reached_goal"], "goal_distance_end_m": summary["goal_distance_end_m"],
+            "children_ok": summary["children_ok"], "agreement": f"{a['identical']}/{a['frames']}",
+            "contacts": int(m.group(1)), "wall_s": wall}
+
+
+# ---------------------------------------------------------------- 5: 30 robots at 200 Hz
 
 
 def fleet30_toml() -> str:
@@ -234,6 +325,26 @@ def machine() -> str:
             f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")
 
 
+def code_state() -> str:
+    """The commit measured, and the tracked files that differed from it (the tree is shared)."""
+    def git(*args: str) -> str:
+        try:
+            return subprocess.run(["git", *args], cwd=ROOT, capture_output=True, text=True, timeout=30).stdout
+        except (OSError, subprocess.TimeoutExpired):
+            return ""
+    head = git("rev-parse", "--short", "HEAD").strip() or "unknown"
+    dirty = [line[3:] for line in git("status", "--porcelain", "--untracked-files=no").splitlines() if line[3:]]
+    return f"code at `{head}`" + (f", with uncommitted changes to {', '.join(dirty)}" if dirty else "")
+
+
+def _t(t_s: float | None) -> str:
+    return "-" if t_s is None else f"{t_s:.1f} s"
+
+
+def _room_goal(r: dict) -> str:
+    return _t(r["t_goal_s"]) if r["t_goal_s"] is not None else "blocked" if r["ended_blocked"] else "not reached"
+
+
 def _goal(s: dict) -> str:
     if s["t_goal_s"] is None:
         return f"not reached (0/{s['runs']})"
@@ -243,7 +354,9 @@ def _goal(s: dict) -> str:
 def report(res: dict) -> tuple[str, str]:
     seeds = res["seeds"]
     lines = ["## Physics engines: kinematic and MuJoCo", "",
-             f"`bench/engine.py` ({res['machine']}; seeds {seeds}; the machine was shared). The same fleet on "
+             f"`bench/engine.py` ({res['machine']}; {res.get('code', 'code unknown')}; seeds {seeds}; "
+             f"{res.get('wall_s', 0) / 60:.0f} min; the "
+             f"machine was shared, 1-minute load average {res.get('load_start', '?')} at the start). The same fleet on "
              "simfleet's kinematic engine (exact unicycle arcs, perfect traction, bodies pass through each "
              "other) and on MuJoCo (`--engine mujoco`: rigid bodies with mass, servo-driven wheels whose "
              "radii differ by the scenario's gains, frictionless casters, friction and contacts; "
@@ -269,6 +382,40 @@ def report(res: dict) -> tuple[str, str]:
             s = res["contacts"][name][engine]
             lines.append(f"| {label} | {engine} | {s['contacts'] if engine == 'mujoco' else 'n/a'} | "
                          f"{s['min_gap_cm']:.2f} | {_goal(s)} |")
+    if res["rooms"]:
+        lines += ["", "Rooms: bench/room.py's randomised rooms, by seed (`make_room(seed)`, `to_scenario`: the fleet "
+                  "starts assembled, each robot its own body, wheel base and wheel gains; physics at 120 Hz, tracker "
+                  f"at 30 Hz with σ 2 mm), offline on each engine for at most {ROOM_CAP_S:.0f} s. *Goal*: the first "
+                  f"time the fitted structure is within {1000 * rooms.GOAL_M:.0f} mm and {rooms.GOAL_RAD} rad of the "
+                  "goal pose; *blocked*: not reached and the agents' last word was `blocked` (a sealed room "
+                  "has no way). Gaps are the smallest between bodies, or a body and an "
+                  "obstacle, from the true positions.", "",
+                  "| room | kind | robots | obstacles | kinematic: goal | kinematic: smallest gap (mm) | "
+                  "mujoco: goal | mujoco: smallest gap (mm) | mujoco: contacts |",
+                  "|---|---|---|---|---|---|---|---|---|"]
+        by = {(r["seed"], r["engine"]): r for r in res["rooms"]}
+        for seed in dict.fromkeys(r["seed"] for r in res["rooms"]):
+            k, m = by[seed, "kinematic"], by[seed, "mujoco"]
+            lines.append(f"| {seed} | {k['kind']} | {k['n']} | {k['obstacles']} | {_room_goal(k)} | "
+                         f"{1000 * k['gap_m']:.1f} | {_room_goal(m)} | {1000 * m['gap_m']:.1f} | "
+                         f"{len(m['contacts'])} |")
+    if res["camera"]:
+        runs = len(next(iter(res["camera"].values())))
+        lines += ["", f"The camera loop: `vsfleet run scenarios/{CAMERA}.toml --engine ENGINE` ({runs} run"
+                  f"{'s' if runs > 1 else ''} per engine, real processes on a loopback router): the synthetic "
+                  "overhead camera renders the engine's truth at 30 Hz, the ArUco tracker detects the markers, "
+                  "the agents follow its frames. Time to goal: from the agents' first state to the first truth "
+                  f"frame whose fitted structure is within {100 * CAMERA_GOAL_M:.0f} cm and {CAMERA_GOAL_RAD} rad "
+                  "of the goal (`vsfleet run`'s goal rule). Formation error from the truth, over that time. "
+                  "At the end: `vsfleet run`'s own summary once the fleet has stood still at the goal for 1 s.", "",
+                  "| engine | time to goal | mean formation error (cm) | max (cm) | at the end: goal reached, "
+                  "distance (cm) | frames bit-identical across agents | contacts | wall time |",
+                  "|---|---|---|---|---|---|---|---|"]
+        for engine in ENGINES:
+            for c in res["camera"].get(engine, ()):
+                lines.append(f"| {engine} | {_t(c['t_goal_s'])} | {100 * c['mean_m']:.3f} | {100 * c['max_m']:.3f} | "
+                             f"{'yes' if c['reached_goal'] else 'NO'}, {100 * c['goal_distance_end_m']:.2f} | "
+                             f"{c['agreement']} | {c['contacts']} | {c['wall_s']:.0f} s |")
     lines += ["", f"Real time at 200 Hz for {N_ROBOTS} robots (bodies {RADIUS_M} m, {SPACING_M} m apart, "
               "every robot driven). In this process: the engine's step alone, and simfleet's step with its "
               f"truth messages encoded (its loop without zenoh), over {res['inproc_sim_s']:.0f} simulated s. "
@@ -292,12 +439,26 @@ def report(res: dict) -> tuple[str, str]:
     paper = res["loop"]["paper-triangle"]["mujoco"]
     contacts = sum(res["contacts"][n]["mujoco"]["contacts"] for _, n in CONTACT_CASES)
     lv = res["live"]["mujoco"]
-    summary = (f"- **Physics engines** (kinematic vs MuJoCo, seeds {seeds}): the paper triangle on MuJoCo "
-               f"{paper['mean_cm']:.3f} cm mean / {paper['max_cm']:.3f} cm max formation error, goal in "
-               f"{_goal(paper)} (kinematic {res['loop']['paper-triangle']['kinematic']['mean_cm']:.3f} cm, "
-               f"{_goal(res['loop']['paper-triangle']['kinematic'])}); a pillar on the path and a crowded start: "
-               f"{contacts} contacts; `vsfleet sim --engine mujoco` with {N_ROBOTS} robots at 200 Hz: "
-               f"{1000 * lv['cpu_per_sim_s']:.0f} ms CPU per simulated s, late steps per run {lv['late_steps']}.")
+    summary = (f"- **Physics engines** ({res['machine'].rsplit(', ', 1)[-1][:10]}, `bench/engine.py`, kinematic vs "
+               f"MuJoCo, seeds {seeds}): the paper triangle on MuJoCo {paper['mean_cm']:.3f} cm mean / "
+               f"{paper['max_cm']:.3f} cm max formation error, goal in {_goal(paper)} (kinematic "
+               f"{res['loop']['paper-triangle']['kinematic']['mean_cm']:.3f} cm, "
+               f"{_goal(res['loop']['paper-triangle']['kinematic'])}); a pillar on the path, a tight row and 10 "
+               f"robots packed 2 cm apart: {contacts} contacts")
+    if res["rooms"]:
+        mj = [r for r in res["rooms"] if r["engine"] == "mujoco"]
+        kin = [r for r in res["rooms"] if r["engine"] == "kinematic"]
+        summary += (f"; {len(mj)} of bench/room.py's rooms: reached {sum(r['t_goal_s'] is not None for r in mj)} "
+                    f"on MuJoCo, {sum(r['t_goal_s'] is not None for r in kin)} kinematic, "
+                    f"{sum(len(r['contacts']) for r in mj)} contacts, smallest gap "
+                    f"{1000 * min(r['gap_m'] for r in mj):.1f} mm")
+    if res["camera"].get("mujoco"):
+        cams = res["camera"]["mujoco"]
+        summary += ("; the camera loop on MuJoCo's truth: goal in "
+                    + ", ".join(_t(c["t_goal_s"]) for c in cams) + ", "
+                    + ", ".join(f"{100 * c['mean_m']:.3f}" for c in cams) + " cm mean")
+    summary += (f"; `vsfleet sim --engine mujoco` with {N_ROBOTS} robots at 200 Hz: "
+                f"{1000 * lv['cpu_per_sim_s']:.0f} ms CPU per simulated s, late steps per run {lv['late_steps']}.")
     return "\n".join(lines) + "\n", summary + "\n"
 
 
@@ -307,12 +468,20 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--inproc-seconds", type=float, default=10.0, help="simulated seconds of the in-process timing")
     ap.add_argument("--live-seconds", type=float, default=15.0, help="wall seconds of each `vsfleet sim` run")
     ap.add_argument("--live-runs", type=int, default=3, help="`vsfleet sim` runs per engine")
+    ap.add_argument("--rooms", type=int, nargs="*", default=list(ROOM_SEEDS), help="bench/room.py's room seeds")
+    ap.add_argument("--camera-runs", type=int, default=1, help="camera-loop runs (vsfleet run) per engine")
     add_output_flags(ap, "engine", DOCS / "bench" / "sections", "engine.md, engine.summary and engine.json")
     args = ap.parse_args(argv)
     logging.getLogger("vsfleet").setLevel(logging.ERROR)  # the agents' decisions are not this bench's
     res: dict = {"machine": machine(), "seeds": args.seeds, "inproc_sim_s": args.inproc_seconds,
-                 "live_wall_s": args.live_seconds, "live_runs": args.live_runs, "loop": {}, "contacts": {}, "inproc": {}, "live": {},
-                 "runs": []}
+                 "live_wall_s": args.live_seconds, "live_runs": args.live_runs, "loop": {}, "contacts": {},
+                 "rooms": [], "camera": {}, "inproc": {}, "live": {}, "runs": [],
+                 "load_start": f"{os.getloadavg()[0]:.1f}", "code": code_state()}
+    t_bench = time.monotonic()
+
+    def progress(text: str) -> None:
+        print(f"[{time.monotonic() - t_bench:6.0f} s] {text}", file=sys.stderr, flush=True)
+
     for cases, key in ((LOOP_CASES, "loop"), (CONTACT_CASES, "contacts")):
         for label, name in cases:
             res[key][name] = {}
@@ -320,21 +489,34 @@ def main(argv: list[str] | None = None) -> int:
                 runs = [loop_case(name, engine, s) for s in args.seeds]
                 res["runs"] += runs
                 res[key][name][engine] = s = summarise(runs)
-                print(f"{label} / {engine}: mean {s['mean_cm']:.3f} cm, max {s['max_cm']:.3f} cm, goal {_goal(s)}, "
-                      f"jitter {s['jitter_m_s2']:.3f}, contacts {s['contacts']}, gap {s['min_gap_cm']:.2f} cm",
-                      file=sys.stderr, flush=True)
+                progress(f"{label} / {engine}: mean {s['mean_cm']:.3f} cm, max {s['max_cm']:.3f} cm, goal "
+                         f"{_goal(s)}, jitter {s['jitter_m_s2']:.3f}, contacts {s['contacts']}, gap "
+                         f"{s['min_gap_cm']:.2f} cm")
+    for seed in args.rooms:
+        for engine in ENGINES:
+            res["rooms"].append(r := room_case(seed, engine))
+            progress(f"room {seed} ({r['kind']}, {r['n']} robots, {r['obstacles']} obstacles) / {engine}: goal "
+                     f"{_t(r['t_goal_s'])}{', ended blocked' if r['ended_blocked'] else ''}, contacts "
+                     f"{len(r['contacts'])}, gap "
+                     f"{1000 * r['gap_m']:.1f} mm, {r['cpu_s']:.0f} s CPU")
     with tempfile.TemporaryDirectory(prefix="vsfleet-engine-") as tmp:
         work = Path(tmp)
+        for engine in ENGINES:
+            res["camera"][engine] = each = [camera_case(engine, work, k) for k in range(args.camera_runs)]
+            for c in each:
+                progress(f"camera loop / {engine}: goal {_t(c['t_goal_s'])}, mean {100 * c['mean_m']:.3f} cm, max "
+                         f"{100 * c['max_m']:.3f} cm, contacts {c['contacts']}, agreement {c['agreement']}, "
+                         f"{c['wall_s']:.0f} s wall")
         path = work / f"{FLEET30}.toml"
         path.write_text(fleet30_toml())
         sc = load_scenario(path)
         for engine in ENGINES:
             res["inproc"][engine] = p = in_process(sc, engine, args.inproc_seconds)
             res["live"][engine] = lv = live_runs(path, engine, args.live_seconds, work, args.live_runs)
-            print(f"{N_ROBOTS} robots / {engine}: step {1000 * p['step_cpu_per_sim_s']:.0f} ms, simfleet "
-                  f"{1000 * p['sim_cpu_per_sim_s']:.0f} ms per simulated s; live pace {lv['pace']:.3f}, "
-                  f"late {lv['late_steps']}, {1000 * lv['cpu_per_sim_s']:.0f} ms CPU per simulated s",
-                  file=sys.stderr, flush=True)
+            progress(f"{N_ROBOTS} robots / {engine}: step {1000 * p['step_cpu_per_sim_s']:.0f} ms, simfleet "
+                     f"{1000 * p['sim_cpu_per_sim_s']:.0f} ms per simulated s; live pace {lv['pace']:.3f}, "
+                     f"late {lv['late_steps']}, {1000 * lv['cpu_per_sim_s']:.0f} ms CPU per simulated s")
+    res["wall_s"] = time.monotonic() - t_bench
     section, summary = report(res)
     print(section)
     args.out.mkdir(parents=True, exist_ok=True)

@@ -6,15 +6,24 @@
   message, seen through the key space) and counted in simfleet's last log line.
 - The agents' traffic is the same with either engine: the same keys, the same message kinds with the
   same fields, the same liveliness tokens, every message decoding under the wire's own rules.
+- The camera loop runs on MuJoCo's truth: `vsfleet run scenarios/camera-triangle.toml --engine mujoco`
+  (the synthetic camera renders the engine's truth, the ArUco tracker detects it, the agents follow its
+  frames) settles at the goal in formation, with no contact.
 """
 
 from __future__ import annotations
 
+import json
 import math
+import os
 import re
 import signal
+import subprocess
+import sys
 import threading
 import time
+import uuid
+from pathlib import Path
 
 import msgpack
 import pytest
@@ -23,6 +32,7 @@ from vsfleet.wire import DECODERS, CmdMsg, WireError, decode_contact, encode
 from vsfleet.zglue.zconf import RELIABLE_QOS
 
 from .conftest import E2E, ROBOTS, LoopbackFleet, closing, start_fleet
+from .test_run import fleet_pids
 
 pytestmark = pytest.mark.integration
 
@@ -194,3 +204,41 @@ def test_the_agents_traffic_is_the_same_with_either_engine(tmp_path):
     assert set(kinematic[0]) >= {f"{kind}/{r}" for kind in ("truth", "cmd", "state", "pose") for r in ROBOTS}
     assert kinematic[0] == mujoco_[0]  # each with the same fields
     assert kinematic[1] == mujoco_[1]  # the same processes alive
+
+
+CAMERA_SCENARIO = Path(__file__).parent.parent.parent / "scenarios" / "camera-triangle.toml"
+
+
+def test_the_camera_loop_on_mujocos_truth_reaches_the_goal_in_formation(tmp_path):
+    pytest.importorskip("cv2")
+    fleet = "t" + uuid.uuid4().hex[:8]
+    proc = subprocess.Popen([sys.executable, "-m", "vsfleet.fleetctl.cli", "run", str(CAMERA_SCENARIO), "--engine",
+                             "mujoco", "--fleet", fleet, "--out", str(tmp_path)],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, stdin=subprocess.DEVNULL)
+    try:
+        out, _ = proc.communicate(timeout=180)  # it settles in about 12 s (bench/engine.py); a busy host is slower
+    except subprocess.TimeoutExpired:
+        proc.send_signal(signal.SIGINT)
+        out, _ = proc.communicate(timeout=30)
+        pytest.fail("vsfleet run did not end\n" + out)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        for pid in fleet_pids(fleet).values():
+            os.kill(pid, signal.SIGKILL)
+    assert proc.returncode == 0, out
+    (run_dir,) = tmp_path.glob("*/camera-triangle")
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["children_ok"] and summary["reached_goal"], out
+    assert summary["goal_distance_end_m"] <= 0.01  # vsfleet run's goal
+    # the paper's real robots' bound (2.5 cm, as the kinematic camera loop's test); measured here 0.29 cm, at the start
+    assert {d["robot"] for d in summary["deviation"]} == {"r1", "r2", "r3"}
+    assert all(d["max_m"] < 0.025 for d in summary["deviation"]), summary["deviation"]
+    a = summary["agreement"]
+    assert a["frames"] > 0 and a["identical"] == a["frames"]
+    sim_log = (run_dir / "sim.log").read_text()
+    assert re.search(r"simfleet stopping at step \d+ .*, 0 contacts \(engine mujoco\)", sim_log), sim_log[-2000:]
+    tracker_log = (run_dir / "tracker.log").read_text()  # the agents followed the camera's frames, not the sim tracker
+    assert "camera tracker cam1 up: source render" in tracker_log, tracker_log[-2000:]
+    poses = re.search(r"camera tracker cam1 stopping after \d+ frames .*?, (\d+) poses", tracker_log)
+    assert poses and int(poses.group(1)) > 0, tracker_log[-2000:]
