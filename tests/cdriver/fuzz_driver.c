@@ -6,6 +6,12 @@
  * from NaN, +-inf, +-1e300, +-0, denormals, duplicates and ordinary numbers.  A call must
  * either refuse (-1) or return outputs; the sanitizers abort on any out-of-bounds access,
  * use of uninitialised memory they can see, overflow or leak.  Deterministic (own PRNG).
+ *
+ * Then the frame decoder (vs_wire.h) with hostile bytes: frames written in random msgpack forms,
+ * then truncated, bit-flipped, overwritten with header bytes, given huge lengths, spliced, or
+ * plain random bytes; each payload sits in a buffer of exactly its size (ASan sees a read past
+ * its end) and the caller's buffers are sometimes too small.  An unmutated frame must be
+ * accepted; an accepted one must hold what the contract allows; a refusal must give a reason.
  */
 #include <stdio.h>
 #include <stdlib.h>
@@ -14,6 +20,7 @@
 
 #include "vscore.h"
 #include "vs_golden.h"
+#include "vs_wire.h"
 
 static uint64_t state = 0x9e3779b97f4a7c15ULL;
 static uint64_t next(void)
@@ -122,6 +129,276 @@ static long safety_filter_input(double *in)
     return len;
 }
 
+/* ---------------------------------------------------------------- the frame decoder */
+
+/* A msgpack writer that picks, for each header, a random one of the forms that can hold it. */
+typedef struct {
+    unsigned char *b;
+    size_t n, cap;
+} wbuf;
+
+static void put(wbuf *w, const void *p, size_t k)
+{
+    if (w->n + k <= w->cap) memcpy(w->b + w->n, p, k);
+    w->n += k;
+}
+
+static void put_be(wbuf *w, uint64_t v, int k)
+{
+    unsigned char t[8];
+    for (int i = 0; i < k; i++) t[i] = (unsigned char)(v >> (8 * (k - 1 - i)));
+    put(w, t, (size_t)k);
+}
+
+static void put_byte(wbuf *w, unsigned c) { unsigned char b = (unsigned char)c; put(w, &b, 1); }
+
+/* a header for a length or count: the fix form (when fix_max allows), else a random wider one */
+static void put_head(wbuf *w, uint64_t len, int fix, uint64_t fix_max, const unsigned *codes, const int *widths, int k)
+{
+    int choice = (int)(next() % (uint64_t)(k + 1));
+    if (fix >= 0 && len <= fix_max && choice == k) { put_byte(w, (unsigned)fix | (unsigned)len); return; }
+    for (int j = 0; j < k; j++) {
+        int c = (choice + j) % k;
+        if (widths[c] == 4 || len < ((uint64_t)1 << (8 * widths[c]))) { put_byte(w, codes[c]); put_be(w, len, widths[c]); return; }
+    }
+}
+
+static void put_str(wbuf *w, const char *s, size_t len)
+{
+    static const unsigned codes[] = {0xd9, 0xda, 0xdb};
+    static const int widths[] = {1, 2, 4};
+    put_head(w, len, 0xa0, 31, codes, widths, 3);
+    put(w, s, len);
+}
+
+static void put_map(wbuf *w, uint64_t count)
+{
+    static const unsigned codes[] = {0xde, 0xdf};
+    static const int widths[] = {2, 4};
+    put_head(w, count, 0x80, 15, codes, widths, 2);
+}
+
+static void put_array(wbuf *w, uint64_t count)
+{
+    static const unsigned codes[] = {0xdc, 0xdd};
+    static const int widths[] = {2, 4};
+    put_head(w, count, 0x90, 15, codes, widths, 2);
+}
+
+/* an integer in a random form that holds it */
+static void put_int(wbuf *w, int64_t v)
+{
+    int r = (int)(next() % 4);
+    if (v >= 0 && v < 128 && r == 0) { put_byte(w, (unsigned)v); return; }
+    if (v < 0 && v >= -32 && r == 0) { put_byte(w, (unsigned)(v + 256)); return; }
+    if (v >= 0 && r <= 1) { put_byte(w, 0xcf); put_be(w, (uint64_t)v, 8); return; }
+    if (v >= -2147483647 - 1 && v <= 2147483647 && r == 2) { put_byte(w, 0xd2); put_be(w, (uint64_t)v & 0xffffffffu, 4); return; }
+    put_byte(w, 0xd3);
+    put_be(w, (uint64_t)v, 8);
+}
+
+static void put_f64(wbuf *w, double v)
+{
+    uint64_t b;
+    memcpy(&b, &v, 8);
+    put_byte(w, 0xcb);
+    put_be(w, b, 8);
+}
+
+static void put_f32(wbuf *w, float v)
+{
+    uint32_t b;
+    memcpy(&b, &v, 4);
+    put_byte(w, 0xca);
+    put_be(w, b, 4);
+}
+
+/* a number the contract accepts, |v| <= lim: float64, float32 or an integer */
+static void put_number(wbuf *w, double lim)
+{
+    double v = (uniform() * 2.0 - 1.0) * lim;
+    switch (next() % 6) {
+    case 0: put_f32(w, (float)(v * 0.5)); break;
+    case 1: put_int(w, (int64_t)v); break;
+    case 2: put_f64(w, (next() & 1) ? lim : -lim); break;
+    case 3: put_f64(w, (next() & 1) ? 0.0 : -0.0); break;
+    default: put_f64(w, v); break;
+    }
+}
+
+static const char NAME_CHARS[] = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789_-";
+
+/* a valid frame of n robots (ids unique: each begins with its row number, then "_"); *src its src */
+static size_t wire_valid_frame(unsigned char *buf, size_t cap, size_t n, char *src, size_t *src_len)
+{
+    wbuf w = {buf, 0, cap};
+    int order[4] = {0, 1, 2, 3};
+    for (int i = 3; i > 0; i--) { int j = (int)(next() % (uint64_t)(i + 1)), t = order[i]; order[i] = order[j]; order[j] = t; }
+    *src_len = 1 + (size_t)(next() % ((next() % 8) ? 8 : 127));
+    for (size_t i = 0; i < *src_len; i++) src[i] = NAME_CHARS[next() % 64];
+    if (next() % 8 == 0) src[*src_len - 1] = '\n';     /* the reference's quirk: a final newline passes */
+    if (*src_len == 1) src[0] = 'a';
+    put_map(&w, 4);
+    for (int f = 0; f < 4; f++) {
+        if (order[f] == 0) { put_str(&w, "t", 1); put_number(&w, 1e11); }
+        if (order[f] == 1) { put_str(&w, "seq", 3); put_int(&w, (next() & 1) ? (int64_t)(next() >> 1) : (int64_t)(next() % 1000)); }
+        if (order[f] == 2) { put_str(&w, "src", 3); put_str(&w, src, *src_len); }
+        if (order[f] == 3) {
+            put_str(&w, "poses", 5);
+            put_map(&w, n);
+            for (size_t j = 0; j < n; j++) {
+                char id[64];
+                int len = snprintf(id, sizeof id, "%zu_", j);
+                int extra = (int)(next() % 12);
+                for (int c = 0; c < extra; c++) {
+                    /* a NUL between two name characters (the reference's quirk), never first, last or twice */
+                    char ch = (c > 0 && c < extra - 1 && id[len - 1] != 0 && next() % 6 == 0) ? 0 : NAME_CHARS[next() % 64];
+                    id[len++] = ch;
+                }
+                put_str(&w, id, (size_t)len);
+                put_array(&w, 3);
+                for (int c = 0; c < 3; c++) put_number(&w, 1e6);
+            }
+        }
+    }
+    return w.n;
+}
+
+static const unsigned char HEADS[][6] = {
+    {1, 0xc1}, {1, 0xc0}, {1, 0xc2}, {1, 0xc3}, {1, 0x9f}, {1, 0x8f}, {1, 0xbf}, {1, 0xff}, {1, 0x00},
+    {5, 0xdb, 0xff, 0xff, 0xff, 0xff}, {5, 0xdd, 0xff, 0xff, 0xff, 0xff}, {5, 0xdf, 0xff, 0xff, 0xff, 0xff},
+    {5, 0xc6, 0xff, 0xff, 0xff, 0xff}, {5, 0xc9, 0x7f, 0xff, 0xff, 0xff}, {3, 0xdc, 0xff, 0xff}, {3, 0xde, 0x80, 0x00},
+    {2, 0xd9, 0xff}, {5, 0xca, 0x7f, 0xc0, 0x00, 0x00}, {2, 0xd4, 0xff}, {1, 0xd8}, {3, 0xc7, 0x01, 0x01}};
+
+/* mutate buf (len bytes of cap) in place: the new length */
+static size_t wire_mutate(unsigned char *buf, size_t len, size_t cap)
+{
+    int ops = 1 + (int)(next() % 4);
+    for (int k = 0; k < ops; k++) {
+        size_t at = len ? (size_t)(next() % len) : 0;
+        switch (next() % 6) {
+        case 0: len = len ? (size_t)(next() % len) : 0; break;                              /* truncate */
+        case 1: if (len) buf[at] ^= (unsigned char)(1u << (next() % 8)); break;               /* flip a bit */
+        case 2: if (len) buf[at] = (unsigned char)next(); break;                              /* a random byte */
+        case 3: {                                                                              /* a header in */
+            const unsigned char *h = HEADS[next() % (sizeof HEADS / sizeof HEADS[0])];
+            size_t hl = h[0];
+            if (len + hl > cap) break;
+            memmove(buf + at + hl, buf + at, len - at);
+            memcpy(buf + at, h + 1, hl);
+            len += hl;
+            break;
+        }
+        case 4: {                                                                              /* splice a copy */
+            size_t a = len ? (size_t)(next() % len) : 0, b = a + (len ? (size_t)(next() % (len - a + 1)) : 0);
+            if (len + (b - a) > cap) break;
+            memmove(buf + at + (b - a), buf + at, len - at);
+            memmove(buf + at, buf + (a <= at ? a : a + (b - a)), b - a);
+            len += b - a;
+            break;
+        }
+        default: {                                                                             /* delete */
+            size_t d = 1 + (size_t)(next() % 4);
+            if (at + d > len) d = len - at;
+            memmove(buf + at, buf + at + d, len - at - d);
+            len -= d;
+            break;
+        }
+        }
+    }
+    return len;
+}
+
+static int slice_in(vs_wire_slice s, size_t len) { return (size_t)s.off <= len && (size_t)s.len <= len - s.off; }
+
+/* the decoder on hostile bytes; 1 on a broken promise */
+static int fuzz_wire(long iters)
+{
+    enum { BUF = 1 << 17 };
+    unsigned char *work = malloc(BUF);
+    char src[200];
+    long accepted = 0, refused = 0, short_bufs = 0;
+    if (!work) return 2;
+    for (long it = 0; it < iters; it++) {
+        size_t n = (next() % 16 == 0) ? (size_t)(next() % 1002) : (size_t)(next() % 41), src_len = 0;
+        size_t len;
+        int mutated = 1;
+        if (next() % 10 == 0) {                                  /* plain random bytes */
+            len = (size_t)(next() % 64);
+            for (size_t i = 0; i < len; i++) work[i] = (unsigned char)((next() & 1) ? 0x80 + next() % 0x60 : next());
+            if (len && next() % 2) work[0] = 0x84;
+        } else {
+            len = wire_valid_frame(work, BUF, n, src, &src_len);
+            mutated = next() % 3 != 0;
+            if (mutated) len = wire_mutate(work, len, BUF);
+        }
+        size_t cap = (next() % 8 == 0) ? (size_t)(next() % 50) : VS_WIRE_MAX_ROBOTS;
+        unsigned char *payload = malloc(len ? len : 1);          /* exactly len bytes: ASan sees a read past it */
+        vs_wire_slice *ids = malloc(sizeof(vs_wire_slice) * (cap ? cap : 1));
+        double *poses = malloc(sizeof(double) * 3 * (cap ? cap : 1));
+        if (!payload || !ids || !poses) return 2;
+        memcpy(payload, work, len);
+        const unsigned char *want = NULL;
+        size_t want_len = 0;
+        int want_other = 0;
+        if (src_len && next() % 4 == 0) {
+            want = (const unsigned char *)src;
+            want_len = src_len;
+            want_other = next() % 2;
+            if (want_other) want_len = src_len - 1;              /* a shorter key chunk: must be refused */
+        }
+        vs_frame fr;
+        vs_wire_error err;
+        int rc = vs_wire_decode_frame(payload, len, want, want_len, ids, poses, cap, &fr, &err);
+        int broken = 0;
+        if (rc == VS_OK) {
+            accepted++;
+            broken |= !(fr.n <= cap && fr.n <= VS_WIRE_MAX_ROBOTS && slice_in(fr.src, len) && fr.src.len >= 1
+                        && fr.src.len <= VS_WIRE_MAX_SRC && fr.t >= -1e11 && fr.t <= 1e11 && fr.seq < ((uint64_t)1 << 63));
+            for (size_t j = 0; j < fr.n && !broken; j++) {
+                broken |= !slice_in(ids[j], len) || ids[j].len == 0;
+                for (int c = 0; c < 3; c++) broken |= !(poses[3 * j + (size_t)c] >= -1e6 && poses[3 * j + (size_t)c] <= 1e6);
+            }
+            broken |= want_other;
+        } else {
+            refused++;
+            short_bufs += rc == VS_ENOMEM;
+            broken |= !(rc == VS_EVALUE || rc == VS_ENONFINITE || rc == VS_ENOMEM) || err.why == NULL || err.field == NULL
+                       || err.at > len || err.robot >= (long)(cap > VS_WIRE_MAX_ROBOTS ? VS_WIRE_MAX_ROBOTS : cap);
+            broken |= !mutated && n <= VS_WIRE_MAX_ROBOTS && n <= cap && !want_other;  /* a valid frame refused */
+        }
+        if (broken) {
+            fprintf(stderr, "fuzz wire_frame: broken promise at iteration %ld (rc %d, %s)\n", it, rc, rc ? err.why : "ok");
+            return 1;
+        }
+        free(payload);
+        free(ids);
+        free(poses);
+    }
+    /* the reader alone, item by item over random bytes, to its first error or the end */
+    for (long it = 0; it < iters; it++) {
+        size_t len = (size_t)(next() % 48);
+        unsigned char *payload = malloc(len ? len : 1);
+        if (!payload) return 2;
+        for (size_t i = 0; i < len; i++) payload[i] = (unsigned char)next();
+        vs_mp_reader r;
+        vs_mp_item item;
+        vs_mp_init(&r, payload, len);
+        while (r.pos < len && vs_mp_next(&r, &item)) {
+            if (r.pos > len || ((item.kind == VS_MP_STR || item.kind == VS_MP_BIN || item.kind == VS_MP_EXT)
+                                && (item.off > len || item.u > len - item.off))) {
+                fprintf(stderr, "fuzz wire_reader: item past the end at iteration %ld\n", it);
+                return 1;
+            }
+        }
+        free(payload);
+    }
+    printf("fuzz %-14s %ld calls: %ld accepted, %ld refused (%ld short of caller buffers)\n", "wire_frame", iters,
+           accepted, refused, short_bufs);
+    free(work);
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     long iters = argc > 1 ? atol(argv[1]) : 2000;
@@ -152,5 +429,5 @@ int main(int argc, char **argv)
         printf("fuzz %-14s %ld calls: %ld ran, %ld refused\n", all[e].name, iters, ran, refused);
     }
     free(in); free(out);
-    return 0;
+    return fuzz_wire(iters * 5);
 }

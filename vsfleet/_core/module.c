@@ -18,11 +18,12 @@ extern PyMethodDef vs_py_golden_methods[];
 extern PyMethodDef vs_py_safety_methods[];
 extern PyMethodDef vs_py_plan_methods[];
 extern PyMethodDef vs_py_field_methods[];
+extern PyMethodDef vs_py_wire_methods[];
 
 static PyMethodDef *tables[] = {vs_py_math_methods, vs_py_fit_methods, vs_py_advance_methods,
                                 vs_py_control_methods, vs_py_failure_methods, vs_py_step_methods,
                                 vs_py_golden_methods, vs_py_safety_methods, vs_py_plan_methods,
-                                vs_py_field_methods};
+                                vs_py_field_methods, vs_py_wire_methods};
 
 static struct PyModuleDef moddef = {PyModuleDef_HEAD_INIT, "vsfleet._core",
     "The compiled core of the agent step (C99; see vsfleet/_core/vscore.h).", -1, NULL};
