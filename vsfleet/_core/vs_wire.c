@@ -40,14 +40,23 @@ static const unsigned char *take(vs_mp_reader *r, size_t k)
     return at;
 }
 
+/* A big-endian unsigned integer of 4 bytes, written out so that compilers see a byte swap. */
+static uint64_t be32(const unsigned char *p)
+{
+    return (uint64_t)p[0] << 24 | (uint64_t)p[1] << 16 | (uint64_t)p[2] << 8 | (uint64_t)p[3];
+}
+
 /* A big-endian unsigned integer of k (1, 2, 4 or 8) bytes; 0 after an error. */
 static uint64_t take_be(vs_mp_reader *r, size_t k)
 {
     const unsigned char *p = take(r, k);
-    uint64_t v = 0;
     if (p == NULL) return 0;
-    for (size_t i = 0; i < k; i++) v = (v << 8) | p[i];
-    return v;
+    switch (k) {
+    case 1: return p[0];
+    case 2: return (uint64_t)p[0] << 8 | (uint64_t)p[1];
+    case 4: return be32(p);
+    default: return be32(p) << 32 | be32(p + 4);
+    }
 }
 
 /* A two's-complement integer of `bits` bits (8..64) as read, as an item: UINT when >= 0, else NEGINT. */
