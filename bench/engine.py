@@ -354,7 +354,9 @@ def _goal(s: dict) -> str:
 def report(res: dict) -> tuple[str, str]:
     seeds = res["seeds"]
     lines = ["## Physics engines: kinematic and MuJoCo", "",
-             f"`bench/engine.py` ({res['machine']}; {res.get('code', 'code unknown')}; seeds {seeds}; "
+             f"`bench/engine.py` ({res['machine']}; {res.get('code', 'code unknown')}"
+             f"{'' if res.get('code_end', res.get('code')) == res.get('code') else '; at the end: ' + res['code_end']}"
+             f"; seeds {seeds}; "
              f"{res.get('wall_s', 0) / 60:.0f} min; the "
              f"machine was shared, 1-minute load average {res.get('load_start', '?')} at the start). The same fleet on "
              "simfleet's kinematic engine (exact unicycle arcs, perfect traction, bodies pass through each "
@@ -517,6 +519,7 @@ def main(argv: list[str] | None = None) -> int:
                      f"{1000 * p['sim_cpu_per_sim_s']:.0f} ms per simulated s; live pace {lv['pace']:.3f}, "
                      f"late {lv['late_steps']}, {1000 * lv['cpu_per_sim_s']:.0f} ms CPU per simulated s")
     res["wall_s"] = time.monotonic() - t_bench
+    res["code_end"] = code_state()  # the tree is shared: it may have changed during the run
     section, summary = report(res)
     print(section)
     args.out.mkdir(parents=True, exist_ok=True)
