@@ -1,6 +1,7 @@
 """The agent's reaction to messages, without transport: nothing a peer sends ends it or moves a robot."""
 
 import dataclasses
+import struct
 
 import msgpack
 import pytest
@@ -95,6 +96,30 @@ def test_hostile_messages_are_counted_and_never_raise_or_command_motion():
     frame(agent, clock, 2**62, 100.0, POSES)
     frame(agent, clock, 1, 100.05, POSES)
     assert [decode_cmd(c).seq for c in cmds] == [2**62, 1]
+
+
+@pytest.mark.parametrize("reference", [False, True], ids=["core", "reference"])
+def test_a_frame_is_decoded_by_the_core_or_by_the_readable_decoder_to_the_same_message(monkeypatch, reference):
+    """The agent decodes frames with the compiled core (vsfleet._core.decode_frame, the key's src checked there),
+    and with StepConfig.reference with vsfleet.wire.decode_frame: the same message, the same refusals."""
+    used = []
+    for name in ("decode_frame", "decode_frame_core"):
+        real = getattr(agent_main, name)
+        monkeypatch.setattr(agent_main, name, lambda *a, real=real, name=name: used.append(name) or real(*a))
+    agent = Agent("r1", KEYS, lambda b: None, lambda b: None, clock=Clock(100.0), reference=reference)
+    msg = FrameMsg(100.0, 1, "cam-1", {"r1": (0.1, -0.0, 3.0), "r2": (1e6, -1e6, 5e-324)})
+    agent.on_frame(KEYS.frame("cam-1"), encode_frame(msg), wake=False)
+    assert agent._slot == {"cam-1": msg} and used == ["decode_frame" if reference else "decode_frame_core"]
+    assert [struct.pack("<3d", *p) for p in agent._slot["cam-1"].poses.values()] == \
+        [struct.pack("<3d", *p) for p in msg.poses.values()]
+    bad = [(KEYS.frame("cam-2"), msg), (Keys("other").frame("cam-1"), msg), (KEYS.frame("cam-1") + "/x", msg),
+           (KEYS.frame("cam-1") + "\n", msg), ("vs/demo/frames/cam-1", msg), (KEYS.frame(""), msg),
+           (KEYS.frame("cam1\n"), FrameMsg(100.0, 2, "cam1\n", msg.poses)),
+           (KEYS.frame("cam-1"), FrameMsg(100.0, 2, "cam-1", {"r1\x00r2": (0.0, 0.0, 0.0)}))]
+    for key, m in bad:
+        agent.on_frame(key, msgpack.packb({"t": m.t, "seq": m.seq, "src": m.src,
+                                           "poses": {r: list(p) for r, p in m.poses.items()}}), wake=False)
+    assert agent.rejections.count == len(bad) and agent._slot == {"cam-1": msg}
 
 
 def test_a_robot_that_no_mission_names_is_ignored_not_rejected():

@@ -21,7 +21,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from vsfleet import _core
-from vsfleet.wire import MAX_FRAME_BYTES, MAX_ROBOTS, FrameMsg, WireError, decode_frame, encode_frame
+from vsfleet.wire import (MAX_FRAME_BYTES, MAX_ROBOTS, FrameMsg, WireError, decode_frame, decode_frame_core,
+                          encode_frame)
 
 # the core's reason (the end of its message) -> the reference's message for the same fault
 REASONS = {
@@ -47,7 +48,7 @@ REASONS = {
     "must be a map {robot: [x, y, th]}": r"field 'poses' must be a map",
     "more than 1000 robots": r"more than 1000",
     "a robot id that is not a string": r"robot id must match|^not valid msgpack: ValueError",
-    # "invalid poses": the reference's own wording when its slow path finds no culprit ("a\\n": see below)
+    # "invalid poses": the reference's own wording, should its slow path find no culprit
     "robot id must match [A-Za-z0-9_-]+": r"robot id must match|^invalid poses$|^not valid msgpack: UnicodeDecodeError",
     "robot listed twice (a duplicate key)": r"^duplicate key",
     "pose must be [x, y, th]": r"must be \[x, y, th\]",
@@ -234,6 +235,19 @@ def test_a_frame_as_the_tracker_encodes_it_decodes_to_the_same_bits(n):
     assert memoryview(xyth).cast("d").tolist() == [v for p in msg.poses.values() for v in p]
 
 
+@pytest.mark.parametrize("n", [0, 1, 3, 100, 1000])
+def test_decode_frame_core_gives_the_references_message_bit_for_bit(n):
+    """vsfleet.wire.decode_frame_core (the agent's decoder): the FrameMsg decode_frame gives, poses in the order sent;
+    WireError when src is not the key's."""
+    payload = encode_frame(tracker_frame(n, seed=n))
+    ref, got = decode_frame(payload), decode_frame_core(payload, "sim")
+    assert got == ref and list(got.poses) == list(ref.poses) and decode_frame_core(payload) == ref
+    assert [bits(v) for p in got.poses.values() for v in (got.t, *p)] == \
+        [bits(v) for p in ref.poses.values() for v in (ref.t, *p)]
+    with pytest.raises(WireError, match="key's last chunk"):
+        decode_frame_core(payload, "sim2")
+
+
 def test_the_payload_may_be_bytes_bytearray_or_a_memoryview_and_nothing_else():
     payload = encode_frame(tracker_frame(3))
     for p in (payload, bytearray(payload), memoryview(payload)):
@@ -302,8 +316,8 @@ def test_a_random_frame_with_bytes_overwritten_gets_the_same_verdict(case, edits
 # ---------------------------------------------------------------- (c) hostile bytes
 
 SEEDS = [encode_frame(tracker_frame(3, seed=1)), encode_frame(tracker_frame(0)),
-         pack(frame(t=F32(2.5), seq=2**40, poses={"a": [1, -2, F32(0.5)], "b\x00c": [0, 0, 0]}), random.Random(5)),
-         pack(frame(src="cam1\n"))]
+         pack(frame(t=F32(2.5), seq=2**40, poses={"a": [1, -2, F32(0.5)], "b-c_9": [0, 0, 0]}), random.Random(5)),
+         pack(frame(src="x" * 128, poses={"A" * 300: [0, 0, 0]}))]
 
 
 @pytest.mark.parametrize("k", range(len(SEEDS)))
@@ -412,24 +426,36 @@ def test_extra_missing_and_misnamed_fields_are_refused_by_both():
     same_reason(pack({}))
 
 
-def test_src_and_robot_ids_follow_the_references_rules_including_its_quirks():
-    """The reference accepts src "cam1\\n" (re.match's $ matches before a final newline) and a robot id
-    "a\\x00b" (its ids are checked joined by NUL); the core mirrors both so the two never disagree."""
-    for src in ("a", "A-z_9", "x" * 128, "cam1\n", "x" * 127 + "\n"):
+def test_src_and_robot_ids_are_key_chunks_for_both():
+    """src and every robot id must be [A-Za-z0-9_-]+ and nothing else: "cam1\\n" (which re.match's $ once let
+    through) and an id "a\\x00b" (which once passed as two ids, the ids being checked joined by NUL) are refused
+    by both decoders."""
+    for src in ("a", "A-z_9", "x" * 128):
         assert agree(pack(with_field("src", src))) == "ok"
-    for src in ("", "x" * 129, "x" * 128 + "\n", "\n", "cam1\n\n", "\ncam1", "cam 1", "cam1\r", "cam\x001", "cam/1",
-                "caméra", "\u00e9" * 64, "*"):
+    for src in ("", "x" * 129, "x" * 128 + "\n", "\n", "cam1\n", "x" * 127 + "\n", "cam1\n\n", "\ncam1", "cam 1",
+                "cam1\r", "cam\x001", "cam1\x00", "cam/1", "caméra", "\u00e9" * 64, "*"):
         same_reason(pack(with_field("src", src)))
     pose = [0.0, 0.0, 0.0]
-    for rid in ("a", "a\x00b", "a\x00b\x00c", "A" * 5000, "-_"):
+    for rid in ("a", "A" * 5000, "-_"):
         assert agree(pack(frame(poses={rid: pose}))) == "ok"
         assert agree(pack(frame(poses={"z": pose, rid: pose}))) == "ok"
-    for rid in ("", "\x00", "\x00a", "a\x00", "a\x00\x00b", "a\n", "a b", "é", "a/b", "*", "a\x01b"):
+    for rid in ("", "\x00", "\x00a", "a\x00", "a\x00b", "a\x00b\x00c", "a\x00\x00b", "a\n", "a b", "é", "a/b", "*",
+                "a\x01b"):
         same_reason(pack(frame(poses={rid: pose})))
         same_reason(pack(frame(poses={"z": pose, rid: pose})))
-    # ids that are valid alone but whose joins would overlap are still told apart
-    assert agree(pack(frame(poses={"a\x00b": pose, "a": pose, "b": pose}))) == "ok"
-    same_reason(pack(frame(poses={"a\x00b": pose, "b": pose, "a\x00b ": pose})))
+        same_reason(pack(frame(poses={rid: pose, "z": pose})))
+    # an id with a NUL is refused even where the join of all ids would look like valid ids
+    same_reason(pack(frame(poses={"a\x00b": pose, "a": pose, "b": pose})))
+    same_reason(pack(frame(poses={"a": pose, "b\x00c": pose})))
+
+
+def test_a_src_ending_in_a_newline_or_an_id_holding_a_nul_is_refused_with_the_keys_src_too():
+    """The agent's path: the key's last chunk given as src. A frame whose src is "cam1\\n" is refused even
+    when the key ends in that newline, and an id "a\\x00b" whatever the key."""
+    pose = [0.0, 0.0, 0.0]
+    assert agree(pack(with_field("src", "cam1\n")), "cam1\n") == "refused"
+    assert agree(pack(frame(src="cam1", poses={"a\x00b": pose})), "cam1") == "refused"
+    assert agree(pack(frame(src="cam1", poses={"a": pose})), "cam1") == "ok"
     # invalid UTF-8 in a src or an id
     same_reason(pack(with_field("src", Raw(b"\xa2\xff\xfe"))))
     same_reason(pack(frame(poses=Pairs(((Raw(b"\xa2\xc3\x28"), pose),)))))

@@ -20,6 +20,7 @@ from vsfleet.wire import (
     decode_mission,
     decode_pose,
     decode_state,
+    decode_frame,
     decode_truth,
     encode,
     encode_mission,
@@ -157,9 +158,26 @@ def test_keys_follow_the_contract_and_refuse_bad_names():
         k.robot_of("vs/lab-1/pose/a/b", "pose")
     with pytest.raises(WireError):
         k.robot_of("vs/other/pose/r1", "pose")
-    for bad in ("a/b", "", "*", "x y", "r$"):
+    for bad in ("a/b", "", "*", "x y", "r$", "lab\n", "lab\x00", "\nlab"):
         with pytest.raises(WireError):
             Keys(bad)
+
+
+def test_a_frame_whose_src_ends_in_a_newline_or_whose_robot_id_holds_a_nul_is_refused():
+    """Names are whole key chunks: re.match's ``$`` once let "cam1\\n" through, and an id "a\\x00b" once passed
+    as two ids (the ids are checked joined by NUL)."""
+    def payload(src="cam1", poses=None):
+        return msgpack.packb({"t": 1.0, "seq": 1, "src": src, "poses": {"r1": [0.0, 0.0, 0.0]} if poses is None
+                              else poses})
+    assert decode_frame(payload()).src == "cam1"
+    for src in ("cam1\n", "cam1\x00", "cam1\n\n", "\ncam1"):
+        with pytest.raises(WireError, match="src must match"):
+            decode_frame(payload(src=src))
+    pose = [0.0, 0.0, 0.0]
+    for poses in ({"a\x00b": pose}, {"a\x00b": pose, "a": pose, "b": pose}, {"r1": pose, "a\x00b\x00c": pose},
+                  {"r1\n": pose}):
+        with pytest.raises(WireError, match="robot id must match"):
+            decode_frame(payload(poses=poses))
 
 
 def test_each_agent_answers_and_decides_under_its_own_key():

@@ -23,12 +23,13 @@ from typing import Any, Callable, Mapping
 import msgpack
 import numpy as np
 
+from . import _core
 from .control import CONTROLLERS
 from .errors import VsfleetValueError
 from .failure import DECISION_KINDS, FailurePolicy
 from .fit import METRICS  # noqa: F401 (a mission's metric: one of the fit's; re-exported)
 
-NAME_RE = re.compile(r"^[A-Za-z0-9_-]+$")
+NAME_RE = re.compile(r"^[A-Za-z0-9_-]+\Z")  # \Z, not $: $ also matches before a final newline ("cam1\n")
 MAX_PAYLOAD_BYTES = 4096          # pose, cmd, state, truth, fault, event
 MAX_MISSION_BYTES = 1 << 20       # a mission lists every robot
 MAX_FRAME_BYTES = 1 << 16         # a frame lists every robot a tracker sees (1000 robots fit)
@@ -502,6 +503,7 @@ def encode_frame(msg: FrameMsg) -> bytes:
                   "poses": {r: [float(p[0]), float(p[1]), float(p[2])] for r, p in msg.poses.items()}})
 
 
+# every robot id at once: the ids joined by NUL (no id may hold one: the count of NULs is checked too)
 _IDS_RE = re.compile(r"[A-Za-z0-9_-]+(?:\x00[A-Za-z0-9_-]+)*")
 
 
@@ -535,7 +537,8 @@ def decode_frame(payload: bytes) -> FrameMsg:
         raise WireError(f"a frame lists {len(poses)} robots, more than {MAX_ROBOTS}")
     ids, values = list(poses), list(poses.values())
     # the fast path checks every robot at once; _frame_pose_error names the first bad one
-    if ids and not (set(map(type, ids)) == {str} and _IDS_RE.fullmatch("\x00".join(ids))
+    joined = "\x00".join(ids) if set(map(type, ids)) == {str} else None
+    if ids and not (joined is not None and _IDS_RE.fullmatch(joined) and joined.count("\x00") == len(ids) - 1
                     and set(map(type, values)) == {list} and set(map(len, values)) == {3}
                     and set(map(type, itertools.chain.from_iterable(values))) <= {float, int}):
         raise WireError(_frame_pose_error(poses))
@@ -546,6 +549,15 @@ def decode_frame(payload: bytes) -> FrameMsg:
         raise WireError(f"pose of {ids[i]!r} holds {values[i]!r}: not finite or beyond {MAX_ABS:g}")
     out = dict(zip(ids, map(tuple, xyth.tolist())))
     return FrameMsg(t=t, seq=seq, src=src, poses=out)
+
+
+def decode_frame_core(payload: bytes, src: str | None = None) -> FrameMsg:
+    """decode_frame in the compiled core (vsfleet/_core/vs_wire.c, docs/decoder.md): the same FrameMsg, bit for bit,
+    for every payload decode_frame accepts, WireError for every one it refuses (tests/test_core_wire.py).
+    src: the key's last chunk, which the frame's src must equal (None: any)."""
+    t, seq, got, ids, xyth = _core.decode_frame(payload, src)
+    xs = iter(memoryview(xyth).cast("d").tolist())
+    return FrameMsg(t=t, seq=seq, src=got, poses=dict(zip(ids, zip(xs, xs, xs))))
 
 
 def decode_cmd(payload: bytes) -> CmdMsg:

@@ -11,7 +11,8 @@
  * then truncated, bit-flipped, overwritten with header bytes, given huge lengths, spliced, or
  * plain random bytes; each payload sits in a buffer of exactly its size (ASan sees a read past
  * its end) and the caller's buffers are sometimes too small.  An unmutated frame must be
- * accepted; an accepted one must hold what the contract allows; a refusal must give a reason.
+ * accepted (refused if a src ends in a newline or an id holds a NUL); an accepted one must hold
+ * what the contract allows; a refusal must give a reason.
  */
 #include <stdio.h>
 #include <stdlib.h>
@@ -228,15 +229,20 @@ static void put_number(wbuf *w, double lim)
 
 static const char NAME_CHARS[] = "ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789_-";
 
-/* a valid frame of n robots (ids unique: each begins with its row number, then "_"); *src its src */
-static size_t wire_valid_frame(unsigned char *buf, size_t cap, size_t n, char *src, size_t *src_len)
+/* a valid frame of n robots (ids unique: each begins with its row number, then "_"); *src its src.
+ * Sometimes (then *bad_name is 1) a name is not a key chunk: src ends in "\n", or an id holds a NUL
+ * between two name characters: both must be refused (the reference once let them through). */
+static size_t wire_valid_frame(unsigned char *buf, size_t cap, size_t n, char *src, size_t *src_len, int *bad_name)
 {
     wbuf w = {buf, 0, cap};
     int order[4] = {0, 1, 2, 3};
     for (int i = 3; i > 0; i--) { int j = (int)(next() % (uint64_t)(i + 1)), t = order[i]; order[i] = order[j]; order[j] = t; }
     *src_len = 1 + (size_t)(next() % ((next() % 8) ? 8 : 127));
     for (size_t i = 0; i < *src_len; i++) src[i] = NAME_CHARS[next() % 64];
-    if (next() % 8 == 0) src[*src_len - 1] = '\n';     /* the reference's quirk: a final newline passes */
+    int bad = next() % 8 == 0 ? 1 + (int)(next() % 2) : 0;   /* 1: src "cam1\n", 2: an id "3_a\0b" */
+    size_t bad_row = n ? (size_t)(next() % n) : 0;
+    *bad_name = 0;
+    if (bad == 1 && *src_len > 1) { src[*src_len - 1] = '\n'; *bad_name = 1; }
     if (*src_len == 1) src[0] = 'a';
     put_map(&w, 4);
     for (int f = 0; f < 4; f++) {
@@ -250,10 +256,10 @@ static size_t wire_valid_frame(unsigned char *buf, size_t cap, size_t n, char *s
                 char id[64];
                 int len = snprintf(id, sizeof id, "%zu_", j);
                 int extra = (int)(next() % 12);
-                for (int c = 0; c < extra; c++) {
-                    /* a NUL between two name characters (the reference's quirk), never first, last or twice */
-                    char ch = (c > 0 && c < extra - 1 && id[len - 1] != 0 && next() % 6 == 0) ? 0 : NAME_CHARS[next() % 64];
-                    id[len++] = ch;
+                for (int c = 0; c < extra; c++) id[len++] = NAME_CHARS[next() % 64];
+                if (bad == 2 && j == bad_row && extra >= 3) {   /* a NUL between two name characters */
+                    id[len - 2 - (int)(next() % (unsigned)(extra - 2))] = 0;
+                    *bad_name = 1;
                 }
                 put_str(&w, id, (size_t)len);
                 put_array(&w, 3);
@@ -322,13 +328,13 @@ static int fuzz_wire(long iters)
     for (long it = 0; it < iters; it++) {
         size_t n = (next() % 16 == 0) ? (size_t)(next() % 1002) : (size_t)(next() % 41), src_len = 0;
         size_t len;
-        int mutated = 1;
+        int mutated = 1, bad_name = 0;
         if (next() % 10 == 0) {                                  /* plain random bytes */
             len = (size_t)(next() % 64);
             for (size_t i = 0; i < len; i++) work[i] = (unsigned char)((next() & 1) ? 0x80 + next() % 0x60 : next());
             if (len && next() % 2) work[0] = 0x84;
         } else {
-            len = wire_valid_frame(work, BUF, n, src, &src_len);
+            len = wire_valid_frame(work, BUF, n, src, &src_len, &bad_name);
             mutated = next() % 3 != 0;
             if (mutated) len = wire_mutate(work, len, BUF);
         }
@@ -359,13 +365,13 @@ static int fuzz_wire(long iters)
                 broken |= !slice_in(ids[j], len) || ids[j].len == 0;
                 for (int c = 0; c < 3; c++) broken |= !(poses[3 * j + (size_t)c] >= -1e6 && poses[3 * j + (size_t)c] <= 1e6);
             }
-            broken |= want_other;
+            broken |= want_other || (!mutated && bad_name);         /* "cam1\n" or "a\0b" accepted */
         } else {
             refused++;
             short_bufs += rc == VS_ENOMEM;
             broken |= !(rc == VS_EVALUE || rc == VS_ENONFINITE || rc == VS_ENOMEM) || err.why == NULL || err.field == NULL
                        || err.at > len || err.robot >= (long)(cap > VS_WIRE_MAX_ROBOTS ? VS_WIRE_MAX_ROBOTS : cap);
-            broken |= !mutated && n <= VS_WIRE_MAX_ROBOTS && n <= cap && !want_other;  /* a valid frame refused */
+            broken |= !mutated && !bad_name && n <= VS_WIRE_MAX_ROBOTS && n <= cap && !want_other;  /* a valid frame refused */
         }
         if (broken) {
             fprintf(stderr, "fuzz wire_frame: broken promise at iteration %ld (rc %d, %s)\n", it, rc, rc ? err.why : "ok");

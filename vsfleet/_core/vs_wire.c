@@ -229,35 +229,14 @@ static int name_char(unsigned c)
     return (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z') || (c >= '0' && c <= '9') || c == '_' || c == '-';
 }
 
-/* src, as the reference checks it: 1..128 characters (bytes, once ASCII) matching re.match(
- * "^[A-Za-z0-9_-]+$"), whose $ also matches before one final "\n": so "cam1\n" passes too. */
-static int src_ok(const unsigned char *s, size_t n)
+/* A key chunk, as the reference's check_name: 1..max_len characters (bytes, once ASCII) of
+ * [A-Za-z0-9_-] and nothing else (no final newline, no NUL).  A robot id: the same, of any length. */
+static int name_ok(const unsigned char *s, size_t n, size_t max_len)
 {
-    if (n == 0 || n > VS_WIRE_MAX_SRC) return 0;
-    if (s[n - 1] == '\n') n--;
-    if (n == 0) return 0;
+    if (n == 0 || n > max_len) return 0;
     for (size_t i = 0; i < n; i++)
         if (!name_char(s[i])) return 0;
     return 1;
-}
-
-/* A robot id, as the reference checks them: the ids joined by NUL fullmatch
- * [A-Za-z0-9_-]+(\x00[A-Za-z0-9_-]+)*, which holds exactly when each id is key chunks joined by
- * single NULs ("a\0b" passes; "", "\0a", "a\0", "a\0\0b" do not). */
-static int robot_id_ok(const unsigned char *s, size_t n)
-{
-    int after_sep = 1;   /* at the start, as after a NUL: a chunk must begin */
-    for (size_t i = 0; i < n; i++) {
-        if (s[i] == 0) {
-            if (after_sep) return 0;
-            after_sep = 1;
-        } else if (name_char(s[i])) {
-            after_sep = 0;
-        } else {
-            return 0;
-        }
-    }
-    return !after_sep;
 }
 
 static uint32_t fnv1a(const unsigned char *s, size_t n)
@@ -297,7 +276,7 @@ static void read_poses(vs_mp_reader *r, vs_wire_slice *ids, double *poses, size_
         size_t len, off = vs_mp_expect_str(r, &len, "a robot id that is not a string");
         if (r->why != NULL) break;
         const unsigned char *id = r->buf + off;
-        if (!robot_id_ok(id, len)) { vs_mp_fail(r, VS_EVALUE, "robot id must match [A-Za-z0-9_-]+"); break; }
+        if (!name_ok(id, len, SIZE_MAX)) { vs_mp_fail(r, VS_EVALUE, "robot id must match [A-Za-z0-9_-]+"); break; }
         ids[j].off = (uint32_t)off;
         ids[j].len = (uint32_t)len;
         *row = (long)j;   /* from here on, an error names this robot */
@@ -363,7 +342,7 @@ int vs_wire_decode_frame(const unsigned char *payload, size_t len,
             seq = vs_mp_expect_uint63(&r, "must be an integer");
         } else if (f == FIELD_SRC) {
             src_off = vs_mp_expect_str(&r, &src_len, "must be a non-empty string of <= 128 chars");
-            if (r.why == NULL && !src_ok(payload + src_off, src_len))
+            if (r.why == NULL && !name_ok(payload + src_off, src_len, VS_WIRE_MAX_SRC))
                 vs_mp_fail(&r, VS_EVALUE, "must match [A-Za-z0-9_-]+ (1 to 128 chars)");
             if (r.why == NULL && expect_src != NULL
                     && (src_len != expect_src_len || memcmp(payload + src_off, expect_src, src_len) != 0))
