@@ -1,5 +1,11 @@
 """Merging frames and choosing the mission (vsfleet.frames: no transport; the clock is passed in)."""
 
+import math
+import random
+
+import pytest
+
+from tests import frames_reference as ref
 from vsfleet.frames import FrameMerger, MissionBook
 from vsfleet.wire import FrameMsg, Mission, RobotSpec
 
@@ -177,3 +183,74 @@ def test_the_mission_book_holds_a_bounded_number_of_pending_versions():
     for v in range(200):
         book.add(mission(v, 1e12))
     assert len(book.by_version) == MissionBook.MAX_PENDING
+
+
+COUNTS = ("dropped_old", "refused_sources", "refused_future", "ignored", "shadowed")
+
+
+def random_stream(rng: random.Random, steps: int):
+    """Offers, polls and mission changes as an agent sees them: one to twenty sources (usually one or two)
+    at about 30 Hz with jitter, robots some sources miss or see twice, objects no mission names, frames late,
+    duplicated, replaced, from the future, sources falling silent, a tracker restarting its seq."""
+    robots = [f"r{i}" for i in range(rng.choice([1, 2, 3, 5, 12]))]
+    n_src = rng.choice([1, 1, 2, 2, 3, 4, 20])
+    sources = [f"cam{k}" for k in rng.sample(range(40), n_src)]
+    steps_s = [0.0, 0.001, 1 / 30, 1 / 30, 1 / 30, 0.1, 0.5] if n_src <= 16 else [0.0, 0.001, 0.001, 1 / 30]
+    seqs = {s: rng.randrange(100) for s in sources}
+    t, now, sent = 10.0, 10.0, []
+    for _ in range(steps):
+        op = rng.random()
+        if op < 0.03:
+            mission = tuple(sorted(rng.sample(robots, rng.randint(0, len(robots)))))
+            yield "robots", mission, tuple(sorted(set(mission) | set(rng.sample(robots, rng.randint(0, len(robots))))))
+            continue
+        if op < 0.25:
+            now += rng.choice([0.0, 0.001, 0.01, 0.02, 0.033, 0.3])
+            yield "ready", now
+            continue
+        if op < 0.3 and sent:       # a late, duplicated or reordered frame
+            yield "offer", rng.choice(sent), now
+            continue
+        src = rng.choice(sources[:1] * 3 + sources) if n_src <= 16 else rng.choice(sources)
+        if rng.random() < 0.02:
+            seqs[src] = 0                                 # a restarted tracker
+        seqs[src] += rng.choice([1, 1, 1, 2, 0])
+        t += rng.choice(steps_s)
+        at = t + rng.choice([0.0, 0.0, -0.01, 0.005, -0.3, 2.0])   # jitter, a late or a future frame
+        seen = [r for r in robots if rng.random() < 0.9] if rng.random() < 0.5 else list(robots)
+        if rng.random() < 0.1:
+            seen.append("forklift")
+        rng.shuffle(seen) if rng.random() < 0.2 else None
+        poses = {r: (rng.uniform(-1, 1), rng.choice([0.0, -0.0, 1.5]), rng.uniform(-3, 3)) for r in seen}
+        msg = FrameMsg(t=at, seq=seqs[src], src=src, poses=poses)
+        sent = (sent + [msg])[-20:]
+        now = max(now, t + rng.choice([0.0, 0.001, 0.004]))
+        yield "offer", msg, now
+
+
+@pytest.mark.parametrize("seed", range(60))
+def test_the_merger_gives_the_plain_mergers_frames_and_counts_on_random_streams(seed):
+    """FrameMerger's fast paths (one source listing every robot) against the plain one-loop merger
+    (tests/frames_reference.py): every offer's verdict, every frame (bit for bit: the same pose objects,
+    fresh, sources, complete) and every count, after every step."""
+    rng = random.Random(seed)
+    deadline_s, max_age_s = rng.choice([(0.02, 0.25), (0.033, 0.25), (0.6, 0.25), (0.02, 0.0)])
+    ours, plain = (cls((), deadline_s, max_age_s) for cls in (FrameMerger, ref.FrameMerger))
+    frames = 0
+    for step in random_stream(rng, 600):
+        if step[0] == "robots":
+            for m in (ours, plain):
+                m.set_robots(step[1], step[2])
+        elif step[0] == "offer":
+            assert ours.offer(step[1], step[2]) == plain.offer(step[1], step[2])
+        else:
+            got, want = ours.ready(step[1]), plain.ready(step[1])
+            assert got == want and (got is None or list(got.poses) == list(want.poses))
+            if got is not None:
+                frames += 1
+                assert all(got.poses[r] is want.poses[r] for r in got.poses)
+                assert [math.copysign(1, got.t)] == [math.copysign(1, want.t)]
+        assert [getattr(ours, c) for c in COUNTS] == [getattr(plain, c) for c in COUNTS]
+        assert (ours.pending, ours.deadline_at, ours.done) == (plain.pending, plain.deadline_at, plain.done)
+        assert ours.heard == plain.heard
+    assert frames > 0

@@ -54,18 +54,25 @@ class Frame:
 
 
 class FrameMerger:
-    """The freshest pose per robot across sources, and the rule for when a frame runs."""
+    """The freshest pose per robot across sources, and the rule for when a frame runs.
+
+    The common case, one source whose frames list every mission robot, costs no Python loop over the
+    robots: a frame's poses are taken with dict updates, and a frame whose every robot's pose came with it
+    is recognised by one count. The other cases take the same rule robot by robot (tests/test_frames.py
+    holds both to tests/frames_reference.py, the plain one-loop merger, bit for bit).
+    """
 
     MAX_SOURCES = 16
 
     def __init__(self, robots: tuple[str, ...] = (), deadline_s: float = 0.02, max_age_s: float = 0.25,
                  max_future_s: float = 1.0) -> None:
-        self.robots = tuple(robots)
-        self.known = frozenset(robots)
         self.deadline_s = deadline_s
         self.max_age_s = max_age_s
         self.max_future_s = max_future_s
-        self.held: dict[str, tuple[float, int, str, tuple[float, float, float]]] = {}
+        # robot -> (t, seq, src) of the frame its held pose came from (one tuple shared by that frame's robots)
+        self.held: dict[str, tuple[float, int, str]] = {}
+        self.held_pose: dict[str, tuple[float, float, float]] = {}   # robot -> its held pose
+        self.newest_held: tuple[float, int] = (float("-inf"), -1)   # >= every held (t, seq)
         self.heard: dict[str, float] = {}       # source -> t of its newest frame
         self.pending: FrameMsg | None = None
         self.deadline_at: float | None = None
@@ -75,46 +82,72 @@ class FrameMerger:
         self.refused_future = 0   # frames stamped more than max_future_s ahead of the local clock
         self.ignored = 0          # poses of objects that no mission names (not an error)
         self.shadowed = 0         # poses of a robot that a source first in sort order also sees
-        self.listed: dict[tuple[str, str], float] = {}   # (source, robot) -> t of its newest frame listing it
+        self.listed: dict[str, dict[str, float]] = {}   # source -> robot -> t of its newest frame listing it
+        self.listed_newest: dict[str, float] = {}        # source -> >= every t in listed[source]
+        self.set_robots(tuple(robots))
 
     def set_robots(self, robots: tuple[str, ...], known: tuple[str, ...] | None = None) -> None:
         """The robots a frame must list (the newest mission's), and every robot whose pose is kept."""
         self.robots = tuple(robots)
+        self.robot_set = frozenset(self.robots)
         self.known = frozenset(robots if known is None else known)
         self.held = {r: h for r, h in self.held.items() if r in self.known}
-        self.listed = {k: t for k, t in self.listed.items() if k[1] in self.known}
+        self.held_pose = {r: p for r, p in self.held_pose.items() if r in self.known}
+        self.listed = {s: {r: t for r, t in by.items() if r in self.known} for s, by in self.listed.items()}
 
     def offer(self, msg: FrameMsg, now: float) -> bool:
         """Take a frame's poses; False if it is refused or no newer than the last frame run."""
         if msg.t > now + self.max_future_s:
             self.refused_future += 1
             return False
-        if msg.src not in self.heard and len(self.heard) >= self.MAX_SOURCES:
+        src = msg.src
+        if src not in self.heard and len(self.heard) >= self.MAX_SOURCES:
             self.heard = {s: t for s, t in self.heard.items() if t >= msg.t - self.max_age_s}
-            self.listed = {k: t for k, t in self.listed.items() if k[0] in self.heard}
+            self.listed = {s: by for s, by in self.listed.items() if s in self.heard}
+            self.listed_newest = {s: t for s, t in self.listed_newest.items() if s in self.heard}
             if len(self.heard) >= self.MAX_SOURCES:
                 self.refused_sources += 1
                 return False
         key = (msg.t, msg.seq)
-        oldest = msg.t - self.max_age_s
-        taken = 0
-        for robot, pose in msg.poses.items():
-            if robot not in self.known:
-                self.ignored += 1
-                continue
-            self.listed[(msg.src, robot)] = max(msg.t, self.listed.get((msg.src, robot), float("-inf")))
-            if any(src < msg.src and self.listed.get((src, robot), float("-inf")) >= oldest for src in self.heard):
-                self.shadowed += 1   # a source first in sort order sees this robot: its pose is the one taken
-                continue
-            taken += 1
-            held = self.held.get(robot)
-            if held is not None and key <= (held[0], held[1]):
-                self.dropped_old += 1
-                continue
-            self.held[robot] = (msg.t, msg.seq, msg.src, pose)
-        if taken == 0 and any(r in self.known for r in msg.poses):
+        poses = msg.poses
+        # the robots some mission names (all of them, usually)
+        robots = poses if poses.keys() <= self.known else [r for r in poses if r in self.known]
+        self.ignored += len(poses) - len(robots)
+        # which robots this source lists, and when last
+        listed = self.listed.get(src)
+        if listed is None:
+            listed = self.listed[src] = {}
+        if msg.t >= self.listed_newest.get(src, float("-inf")):   # its newest frame: msg.t is every robot's max
+            listed.update(dict.fromkeys(robots, msg.t))
+            self.listed_newest[src] = msg.t
+        else:
+            for r in robots:
+                listed[r] = max(msg.t, listed.get(r, float("-inf")))
+        # a robot that a heard source first in sort order listed within max_age_s is that source's to give
+        first = [self.listed[s] for s in self.heard if s < src and s in self.listed]
+        taken = robots
+        if first:
+            oldest = msg.t - self.max_age_s
+            theirs = {r for by in first for r, t in by.items() if t >= oldest}
+            taken = [r for r in robots if r not in theirs]
+            self.shadowed += len(robots) - len(taken)
+        if taken:
+            stamp = (msg.t, msg.seq, src)
+            if key > self.newest_held:   # newer than every pose held (one source's next frame): all taken
+                self.held.update(dict.fromkeys(taken, stamp))
+                self.held_pose.update(poses if taken is poses else {r: poses[r] for r in taken})
+                self.newest_held = key
+            else:
+                for r in taken:
+                    held = self.held.get(r)
+                    if held is not None and key <= (held[0], held[1]):
+                        self.dropped_old += 1
+                        continue
+                    self.held[r] = stamp        # (key <= newest_held here: it stays the bound)
+                    self.held_pose[r] = poses[r]
+        elif robots:
             return False             # every pose shadowed: this source is not the one followed
-        self.heard[msg.src] = max(msg.t, self.heard.get(msg.src, float("-inf")))
+        self.heard[src] = max(msg.t, self.heard.get(src, float("-inf")))
         if key <= self.done:
             return False
         if self.pending is None or key > (self.pending.t, self.pending.seq):
@@ -131,38 +164,48 @@ class FrameMerger:
         msg = self.pending
         if msg is None or not self.robots:
             return None
-        listed = self._instant(msg)
-        alone = all(s == msg.src or t < msg.t - self.max_age_s for s, t in self.heard.items())
-        if not (listed or alone) and self.deadline_at is not None and now < self.deadline_at:
-            return None
+        oldest = msg.t - self.max_age_s
+        stamp = (msg.t, msg.seq, msg.src)
+        stamps = list(map(self.held.get, self.robots))
+        if stamps.count(stamp) == len(stamps) and msg.t >= oldest:
+            # every robot's pose came with this very frame (one source listing every robot): of its instant
+            complete, fresh, sources = True, self.robot_set, frozenset((msg.src,))
+            poses = dict(zip(self.robots, map(self.held_pose.__getitem__, self.robots)))
+        else:
+            complete, poses, fresh, sources = self._merge(msg, stamps)
+        if not complete and self.deadline_at is not None and now < self.deadline_at \
+                and not all(s == msg.src or t < oldest for s, t in self.heard.items()):
+            return None   # another source's frame of this instant may still come
         self.pending, self.deadline_at = None, None
         self.done = (msg.t, msg.seq)
-        oldest = msg.t - self.max_age_s
-        poses, fresh, sources = {}, [], set()
-        for r in self.robots:
-            held = self.held.get(r)
-            if held is None or held[0] < oldest:
+        return Frame(seq=msg.seq, t=msg.t, poses=poses, complete=complete, fresh=fresh, src=msg.src,
+                     sources=sources)
+
+    def _merge(self, msg: FrameMsg, stamps: list) -> tuple[bool, dict, frozenset[str], frozenset[str]]:
+        """(complete, poses, fresh, sources) of the robots' held poses (stamps: each robot's, in order) for
+        msg's frame: every robot's pose no older than max_age_s, which of them are of msg's instant, and
+        whether every robot has one of its instant (complete).
+
+        A held pose is of msg's instant if msg itself brought it, or another source's frame at most half
+        the deadline older did. Never a pose held over from an earlier frame of msg's own source: one
+        source's frames are distinct instants, and which of them an agent got (a newer frame replaces one
+        not yet run) differs between agents, so such a pose would make copies disagree."""
+        oldest, near = msg.t - self.max_age_s, msg.t - 0.5 * self.deadline_s
+        complete, poses, fresh, sources = True, {}, [], set()
+        for r, held in zip(self.robots, stamps):
+            if held is None:
+                complete = False
                 continue
-            poses[r] = held[3]
-            sources.add(held[2])
-            if self._of_instant(held, msg):
+            t, seq, src = held
+            instant = (t == msg.t and seq == msg.seq) if src == msg.src else t >= near
+            complete = complete and instant
+            if t < oldest:
+                continue
+            poses[r] = self.held_pose[r]
+            sources.add(src)
+            if instant:
                 fresh.append(r)
-        return Frame(seq=msg.seq, t=msg.t, poses=poses, complete=listed, fresh=frozenset(fresh), src=msg.src,
-                     sources=frozenset(sources))
-
-    def _of_instant(self, held: tuple[float, int, str, tuple[float, float, float]], msg: FrameMsg) -> bool:
-        """A held pose is of msg's instant if msg itself brought it, or another source's frame at most
-        half the deadline older did. Never a pose held over from an earlier frame of msg's own source:
-        one source's frames are distinct instants, and which of them an agent got (a newer frame
-        replaces one not yet run) differs between agents, so such a pose would make copies disagree."""
-        if held[2] == msg.src:
-            return held[0] == msg.t and held[1] == msg.seq
-        return held[0] >= msg.t - 0.5 * self.deadline_s
-
-    def _instant(self, msg: FrameMsg) -> bool:
-        """Every robot has a pose of msg's instant (_of_instant)."""
-        held = self.held
-        return all(r in held and self._of_instant(held[r], msg) for r in self.robots)
+        return complete, poses, frozenset(fresh), frozenset(sources)
 
 
 class MissionBook:
