@@ -19,7 +19,6 @@ import collections
 import logging
 import queue
 import threading
-from dataclasses import replace
 from typing import Callable
 
 import zenoh
@@ -329,7 +328,7 @@ class Agent:
         if out.cmd is not None:
             self.put_cmd(encode(out.cmd))
         if out.state is not None:
-            self.put_state(encode(replace(out.state, rejected=self.rejections.count)))
+            self.put_state(encode(out.state, rejected=self.rejections.count))
         if out.health is not None:
             self._health_msg = out.health  # encoded only when a peer asks (health_payload)
         for ev in out.events:

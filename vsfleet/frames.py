@@ -230,6 +230,9 @@ class MissionBook:
         return self.by_version[max(self.by_version)] if self.by_version else None
 
     def active(self, t: float) -> Mission | None:
+        if len(self.by_version) == 1:   # one mission held (the usual case): no older one to forget
+            (only,) = self.by_version.values()
+            return only if only.effective_t <= t else None
         eligible = [m for m in self.by_version.values() if m.effective_t <= t]
         if not eligible:
             return None

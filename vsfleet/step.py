@@ -21,7 +21,8 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import dataclass, field, replace
-from functools import lru_cache
+from functools import cached_property, lru_cache
+from itertools import chain, repeat
 from typing import Callable, Mapping
 
 import numpy as np
@@ -50,7 +51,7 @@ from .failure import (
 )
 from .fit import fit_structure, fit_structure_reference
 from .frames import Frame
-from .geometry import Pose2, angle_diff
+from .geometry import Pose2, angle_diff, wrap_angle
 from .kinematics import integrate_arcs, integrate_arcs_reference
 from .field import Field, build_field, build_field_reference, follow_field, follow_field_reference
 from .safety import SafetyParams, safety_filter, safety_filter_reference
@@ -99,9 +100,9 @@ class MissionArrays:
     core: tuple = ()
     field: Field | None = None     # the room's navigation function (vsfleet.field), built once per mission
 
-    @property
+    @cached_property
     def room(self) -> bool:
-        """The mission knows robot bodies or obstacles: commands go through the safety filter."""
+        """The mission knows robot bodies or obstacles: commands go through the safety filter (once per mission)."""
         return bool(self.radii.any()) or len(self.obstacles) > 0               # the same, packed for vsfleet._core.structure_step (core_mission)
 
 
@@ -188,9 +189,13 @@ _UNSEEN = (math.nan, math.nan, math.nan)
 def frame_arrays(ids: tuple[str, ...], poses: Mapping[str, tuple[float, float, float]],
                  fresh: frozenset[str] = frozenset()) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(pose_world (n, 3) [m, m, rad], seen (n,), fresh (n,)) of a frame's poses; NaN rows unseen."""
-    pose = np.array([poses.get(r, _UNSEEN) for r in ids], dtype=float).reshape(len(ids), 3)
+    n = len(ids)
+    pose = np.fromiter(chain.from_iterable(map(poses.get, ids, repeat(_UNSEEN))), dtype=float, count=3 * n)
+    pose = pose.reshape(n, 3)
     seen = ~np.isnan(pose[:, 0])
-    return pose, seen, seen & np.array([r in fresh for r in ids], dtype=bool)
+    if fresh.issuperset(ids):   # every robot listed by the frame itself: the common case
+        return pose, seen, seen.copy()
+    return pose, seen, seen & np.fromiter(map(fresh.__contains__, ids), dtype=bool, count=n)
 
 
 @dataclass(frozen=True)
@@ -281,9 +286,20 @@ def _structure_step_core(arrays: MissionArrays, pose_world: np.ndarray, seen: np
     if r is None:
         return None
     fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m = r
-    return Structure(fit_pose=Pose2(fx, fy, fth), goal_pose=Pose2(gx, gy, gth), twist=Twist2(vx, vy, w), cost=cost,
-                     at_goal=at_goal, used=used, points_now=now, points_next=nxt, deviations_m=dev,
-                     blocked=blocked, left_m=left_m)
+    # the frozen dataclasses filled without their __init__s (as advance._result and _evolve do), every field given
+    # as __init__ would set it (Pose2: x and y as floats, th wrapped by wrap_angle): 2 Pose2, a Twist2 and the
+    # Structure cost about 6 us through their __init__s at n = 10
+    fit, goal, twist, out = _new(Pose2), _new(Pose2), _new(Twist2), _new(Structure)
+    _set(fit, "__dict__", {"x": float(fx), "y": float(fy), "th": wrap_angle(fth)})
+    _set(goal, "__dict__", {"x": float(gx), "y": float(gy), "th": wrap_angle(gth)})
+    _set(twist, "__dict__", {"vx_m_s": vx, "vy_m_s": vy, "w_rad_s": w})
+    _set(out, "__dict__", {"fit_pose": fit, "goal_pose": goal, "twist": twist, "cost": cost, "at_goal": at_goal,
+                           "used": used, "points_now": now, "points_next": nxt, "deviations_m": dev,
+                           "blocked": blocked, "left_m": left_m})
+    return out
+
+
+_new, _set = object.__new__, object.__setattr__
 
 
 def _shared_structure_step(shared: dict | None, mission: Mission, arrays: MissionArrays, pose_world: np.ndarray,
@@ -506,8 +522,9 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
         return state, StepOutput(notes=tuple(notes))
     # every robot's command, as its own agent computes it: seen, and not dropped (rejoin: driven on)
     active = seen & (~failure.dropped if policy.mode != "rejoin" else True)
+    pose_seen = np.where(seen[:, None], pose, 0.0)   # unseen rows zeroed: the controller, kinematics, failure rule
     ctrl, wheels = (controller.reference if config.reference else controller)(ctrl, ControlInput(
-        pose_world=np.where(seen[:, None], pose, 0.0), point_now_world=s.points_now,
+        pose_world=pose_seen, point_now_world=s.points_now,
         point_next_world=s.points_next, wheels_prev_m_s=wheels_prev, dt_s=config.dt_s, age_s=config.age_s,
         envelopes=arrays.envelopes, active=active))
     wheels = np.where(active[:, None], wheels, 0.0)
@@ -529,10 +546,10 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
     # would count as "did not move" here and double next frame, and agents that got that pose in
     # time would disagree on the frame of a decision
     moved = fresh & active
-    expected = np.where(moved[:, None], expected_steps_m(np.where(seen[:, None], pose, 0.0), wheels, config.dt_s,
+    expected = np.where(moved[:, None], expected_steps_m(pose_seen, wheels, config.dt_s,
                                                          arrays.envelopes.wheel_base_m, config.reference), 0.0)
     failure, decisions = (failure_step_reference if config.reference else failure_step)(policy, failure, arrays.ids, frame.t, seen=seen, fresh=fresh,
-                                      xy_world=np.where(seen[:, None], pose[:, :2], 0.0),
+                                      xy_world=pose_seen[:, :2],
                                       deviations_m=s.deviations_m, expected_step_m=expected,
                                       step_s=config.dt_s, max_gap_s=config.ttl_s)
     health = _health(failure, arrays.ids)
@@ -540,7 +557,8 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
                            dropped=tuple(sorted(health.dropped)), since=tuple(sorted(health.since_t.items())))
     events = tuple(EventMsg(t=d.t, seq=frame.seq, robot=d.robot, kind=d.kind, dev=d.deviation_m, by=state.robot)
                    for d in decisions)
-    stall_since, stall_pose, stalled = stall_state(state, arrays, s, filtered, bool(failure.failed.any()), frame.t)
+    failed_any = arrays.field is not None and bool(np.count_nonzero(failure.failed))  # (stall_state's only use)
+    stall_since, stall_pose, stalled = stall_state(state, arrays, s, filtered, failed_any, frame.t)
     was, now = state.blocked or state.stalled, s.blocked or stalled
     if now != was:  # the room: no path to the goal (stopping short) or stuck on the way, or going again
         short = s.left_m if s.blocked else _goal_distance(arrays, s.fit_pose)
@@ -642,7 +660,7 @@ def _evolve(state: AgentState, **changes) -> AgentState:
 
 def _used_ids(ids: tuple[str, ...], used: np.ndarray) -> tuple[str, ...]:
     """The ids of the rows used (all of them, usually: no loop then)."""
-    return ids if used.all() else tuple(ids[i] for i in np.flatnonzero(used))
+    return ids if np.count_nonzero(used) == len(ids) else tuple(ids[i] for i in np.flatnonzero(used))
 
 
 _HEALTHY = Health()
@@ -651,7 +669,8 @@ _HEALTHY = Health()
 def _health(failure: FailureState, ids: tuple[str, ...]) -> Health:
     """The failure state in the peers' wire form (as failure.to_health; rows visited only where set)."""
     since = failure.since_t
-    if not (failure.failed.any() or failure.dropped.any()) and np.isnan(since).all():
+    if not (np.count_nonzero(failure.failed) or np.count_nonzero(failure.dropped)) \
+            and np.count_nonzero(np.isnan(since)) == len(since):
         return _HEALTHY  # every robot healthy and compliant: the common case
     return Health(since_t={ids[i]: float(since[i]) for i in np.flatnonzero(~np.isnan(since))},
                   failed=frozenset(ids[i] for i in np.flatnonzero(failure.failed)),

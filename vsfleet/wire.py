@@ -16,8 +16,10 @@ import difflib
 import inspect
 import itertools
 import math
+import operator
 import re
 from dataclasses import dataclass, fields
+from functools import cached_property
 from typing import Any, Callable, Mapping
 
 import msgpack
@@ -436,7 +438,8 @@ def decode_contact(payload: bytes) -> ContactMsg:
 
 
 def encode_event(msg: EventMsg) -> bytes:
-    d = {f.name: getattr(msg, f.name) for f in fields(msg)}
+    names, values = message_fields(EventMsg)
+    d = dict(zip(names, values(msg)))
     if not math.isfinite(d["dev"]):
         d["dev"] = "inf"  # a robot not seen in the frame
     return _pack(d)
@@ -481,12 +484,34 @@ def encode_health(msg: HealthMsg) -> bytes:
                   "dropped": list(msg.dropped), "since": dict(msg.since)})
 
 
-def encode(msg: Any) -> bytes:
-    """msgpack map of a message dataclass (tuples become arrays)."""
-    out = {}
-    for f in fields(msg):
-        v = getattr(msg, f.name)
-        out[f.name] = list(v) if isinstance(v, tuple) else v
+_MESSAGE_FIELDS: dict[type, tuple[tuple[str, ...], Callable[[Any], tuple]]] = {}
+
+
+def message_fields(cls: type) -> tuple[tuple[str, ...], Callable[[Any], tuple]]:
+    """A message dataclass's field names, in order, and a getter of all their values as a tuple: built once per
+    class (dataclasses.fields walks the class's fields on every call)."""
+    hit = _MESSAGE_FIELDS.get(cls)
+    if hit is None:
+        names = tuple(f.name for f in fields(cls))
+        if len(names) > 1:
+            values = operator.attrgetter(*names)
+        else:   # attrgetter of one name gives the value itself, and takes no empty list
+            def values(msg: Any, names: tuple[str, ...] = names) -> tuple:
+                return tuple(getattr(msg, n) for n in names)
+        hit = _MESSAGE_FIELDS[cls] = (names, values)
+    return hit
+
+
+def encode(msg: Any, **changes: Any) -> bytes:
+    """msgpack map of a message dataclass (tuples become arrays, as msgpack packs them). ``changes``: fields
+    sent with other values, as ``encode(dataclasses.replace(msg, **changes))`` without building that message."""
+    names, values = message_fields(type(msg))
+    out = dict(zip(names, values(msg)))
+    if changes:
+        unknown = changes.keys() - out.keys()
+        if unknown:
+            raise TypeError(f"{type(msg).__name__} has no field {', '.join(sorted(unknown))}")
+        out.update(changes)
     return _pack(out)
 
 
@@ -652,8 +677,9 @@ class Mission:
     controller_gains: tuple[tuple[str, float], ...] = ()
     obstacles: tuple[tuple[float, float, float], ...] = ()
 
-    @property
+    @cached_property
     def robot_ids(self) -> tuple[str, ...]:
+        """The robots' ids, sorted (the fit's order); computed once per mission."""
         return tuple(r for r, _ in self.robots)
 
     def spec(self, robot: str) -> RobotSpec:
