@@ -135,7 +135,7 @@ def poses_near(draw, pose: Pose2):
 
 @st.composite
 def goals(draw, pose: Pose2):
-    kind = draw(st.sampled_from(["pose", "path", "twist"]))
+    kind = draw(st.sampled_from(["pose", "path", "plan", "twist"]))
     if kind == "twist":
         return GoalTwist(draw(small), draw(small), draw(st.floats(-1.0, 1.0)))
     if kind == "pose":
@@ -145,7 +145,7 @@ def goals(draw, pose: Pose2):
     for _ in range(k):
         prev = wps[-1] if wps else pose
         wps.append(draw(st.one_of(poses_near(prev), poses_near(pose))))
-    return GoalPath(tuple(wps))
+    return GoalPath(tuple(wps), synced=kind == "plan")
 
 
 @st.composite
@@ -242,6 +242,37 @@ def test_paths_with_one_waypoint_repeated_waypoints_and_zero_length_segments_mat
         for start in (Pose2(0, 0, 0), p, Pose2(1, 0, 3.1), Pose2(0.5, 0.5, -1.0)):
             both(start, GoalPath(wps), DT, LIMITS, TRIANGLE, ENV)
             both(start, GoalPath(wps), DT, LIMITS, TRIANGLE, ENV, twist_prev=Twist2(0.1, 0.0, 0.5), elapsed_s=0.3)
+
+
+def test_a_plan_turns_in_step_with_the_move_so_the_structure_keeps_to_the_straight_way_in_se2():
+    """A room's plan (GoalPath synced, VS_GOAL_PLAN): the structure's heading turns in proportion to the way
+    it moves toward the carrot, where a mission's path turns on its own profile, ahead of the move."""
+    start, end = Pose2(0.0, 0.0, 0.0), Pose2(1.0, 0.0, 0.6)
+    lim = StructureLimits(speed_max_m_s=0.1, turn_rate_max_rad_s=0.5)
+    for synced in (False, True):
+        core, ref = both(start, GoalPath((start, end), synced=synced), DT, lim, TRIANGLE, ENV, elapsed_s=10.0)
+        assert core == ref
+        # the carrot is path_lookahead_m (0.15 m) along: its heading 0.09 rad; the move covers it in 1.5 s
+        carrot_th = 0.6 * lim.path_lookahead_m / 1.0
+        v = math.hypot(core.twist.vx_m_s, core.twist.vy_m_s)
+        in_step = carrot_th * v / lim.path_lookahead_m   # the turn that ends with the move
+        if synced:
+            assert core.twist.w_rad_s == pytest.approx(in_step, rel=1e-12)
+        else:   # the turn's own profile: carrot_th / turn_settle_s, whatever the move's pace
+            assert core.twist.w_rad_s == pytest.approx(carrot_th / lim.turn_settle_s, rel=1e-12)
+            assert core.twist.w_rad_s != pytest.approx(in_step, rel=1e-3)
+
+
+def test_a_plan_whose_turn_is_slower_than_its_move_makes_the_move_wait():
+    """A carrot mostly ahead in heading: the turn at its rate limit, the move slowed in proportion."""
+    start = Pose2(0.0, 0.0, 0.0)
+    plan = GoalPath((start, Pose2(0.0, 0.0, 1.5), Pose2(0.3, 0.0, 1.5)), synced=True)
+    lim = StructureLimits(speed_max_m_s=0.1, turn_rate_max_rad_s=0.2)
+    core, ref = both(start, plan, DT, lim, TRIANGLE, ENV, elapsed_s=10.0)
+    assert core == ref
+    assert abs(core.twist.w_rad_s) <= 0.2 * core.scale + 1e-15
+    v = math.hypot(core.twist.vx_m_s, core.twist.vy_m_s)
+    assert v < 0.1 * core.scale
 
 
 def test_a_turn_about_a_robots_own_point_skips_it_in_the_alignment_as_the_reference_does():

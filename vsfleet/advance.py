@@ -57,9 +57,14 @@ class GoalPose:
 
 @dataclass(frozen=True)
 class GoalPath:
-    """Follow waypoints (structure poses [m, rad; world frame]) and stop at the last one."""
+    """Follow waypoints (structure poses [m, rad; world frame]) and stop at the last one.
+
+    synced: turn in step with the move toward the carrot (the straight way in SE(2), VS_GOAL_PLAN): a room's
+    plan, whose poses keep the bodies clear only if the structure never turns ahead of them. A mission's path
+    (False) turns and moves each on its own profile."""
 
     waypoints: tuple[Pose2, ...]
+    synced: bool = False
 
     def __post_init__(self) -> None:
         if len(self.waypoints) == 0:
@@ -158,6 +163,25 @@ def _twist_toward(pose: Pose2, target: Pose2, dist_to_stop: float, limits: Struc
     dth = angle_diff(target.th, pose.th)
     w = math.copysign(_profile_speed(abs(dth), limits.turn_rate_max_rad_s, alpha_rad_s2, dt_s, limits.turn_settle_s), dth)
     return Twist2(vx, vy, w)
+
+
+def _twist_straight(pose: Pose2, target: Pose2, dist_to_stop: float, limits: StructureLimits,
+                    accel_m_s2: float, alpha_rad_s2: float, dt_s: float) -> Twist2:
+    """_twist_toward with the turn in step with the move: the straight way in SE(2) to ``target`` (the heading
+    turns in proportion to the way moved), each no faster than its own profile (the turn's: its rate and its
+    acceleration, not the settling time, as the move sets the pace); a slower turn makes the move wait."""
+    t = _twist_toward(pose, target, dist_to_stop, limits, accel_m_s2, alpha_rad_s2, dt_s)
+    ex, ey = target.x - pose.x, target.y - pose.y
+    d, v = math.hypot(ex, ey), math.hypot(t.vx_m_s, t.vy_m_s)
+    dth = angle_diff(target.th, pose.th)
+    if d > 0.0 and v > 0.0:
+        w_move = dth * (v / d)
+        w_max = _profile_speed(abs(dth), limits.turn_rate_max_rad_s, alpha_rad_s2, dt_s, dt_s)
+        if abs(w_move) > w_max:
+            k = w_max / abs(w_move)
+            return Twist2(k * t.vx_m_s, k * t.vy_m_s, math.copysign(w_max, dth))
+        return Twist2(t.vx_m_s, t.vy_m_s, w_move)
+    return t
 
 
 def _path_carrot(pose: Pose2, waypoints: Sequence[Pose2], lookahead_m: float) -> tuple[Pose2, float]:
@@ -361,7 +385,8 @@ def advance_structure_reference(pose_fit: Pose2, goal: Goal, dt_s: float, limits
                    and abs(angle_diff(goal.pose.th, pose_fit.th)) <= limits.heading_tolerance_rad)
     elif isinstance(goal, GoalPath):
         carrot, remaining = _path_carrot(pose_fit, goal.waypoints, limits.path_lookahead_m)
-        desired = _twist_toward(pose_fit, carrot, remaining, limits, accel, alpha, dt_s)
+        desired = (_twist_straight if goal.synced else _twist_toward)(pose_fit, carrot, remaining, limits, accel,
+                                                                      alpha, dt_s)
         end = goal.waypoints[-1]
         at_goal = (carrot == end
                    and math.hypot(end.x - pose_fit.x, end.y - pose_fit.y) <= limits.position_tolerance_m
@@ -395,7 +420,7 @@ def advance_structure_reference(pose_fit: Pose2, goal: Goal, dt_s: float, limits
 
 # --- the compiled core behind advance_structure ------------------------------------------
 
-_GOAL_POSE, _GOAL_PATH, _GOAL_TWIST = 0, 1, 2   # vs_advance.h VS_GOAL_*
+_GOAL_POSE, _GOAL_PATH, _GOAL_TWIST, _GOAL_PLAN = 0, 1, 2, 3   # vs_advance.h VS_GOAL_*
 _LIMIT_FIELDS = ("speed_max_m_s", "turn_rate_max_rad_s", "position_tolerance_m", "heading_tolerance_rad",
                  "path_lookahead_m", "comply_full_m", "comply_stop_m", "settle_s", "turn_settle_s")
 _CACHE = "_vs_core"   # a frozen goal's / limits' packed form for the core, kept in its __dict__ (not a field)
@@ -411,7 +436,8 @@ def _core_goal(goal) -> tuple[int, np.ndarray]:
     elif isinstance(goal, GoalPose):
         packed = (_GOAL_POSE, np.array(goal.pose.as_tuple(), dtype=float))
     elif isinstance(goal, GoalPath):
-        packed = (_GOAL_PATH, np.array([w.as_tuple() for w in goal.waypoints], dtype=float).reshape(-1))
+        packed = (_GOAL_PLAN if goal.synced else _GOAL_PATH,
+                  np.array([w.as_tuple() for w in goal.waypoints], dtype=float).reshape(-1))
     else:
         raise GoalError(f"unknown goal type {type(goal).__name__}")
     packed[1].flags.writeable = False

@@ -242,7 +242,7 @@ def structure_step(arrays: MissionArrays, metric: str, pose_world: np.ndarray, s
     goal, blocked, left_m = arrays.goal, False, 0.0
     if arrays.field is not None:  # the room: follow the field's descent from the fitted pose
         way, blocked, left_m = follow_field_reference(_reference_field(arrays), fit.pose)
-        goal = GoalPath(tuple(Pose2(*w) for w in way))
+        goal = GoalPath(tuple(Pose2(*w) for w in way), synced=True)
     adv = advance_fn(fit.pose, goal, dt_s, arrays.limits, arrays.template, arrays.envelopes,
                      elapsed_s=elapsed_s, headings_rad=np.where(used, pose_world[:, 2], np.nan),
                      deviations_m=np.where(used, dist, np.nan))

@@ -152,6 +152,31 @@ static twist3 twist_toward(const double pose[3], const double target[3], double 
     return t;
 }
 
+/* twist_toward, the turn and the move in step: the structure goes the straight way in SE(2) to the target
+ * (its heading turns in proportion to the way it moves), each no faster than its own profile */
+static twist3 twist_straight(const double pose[3], const double target[3], double dist_to_stop,
+                             const vs_limits *lim, double accel, double alpha, double dt_s)
+{
+    twist3 t = twist_toward(pose, target, dist_to_stop, lim, accel, alpha, dt_s);
+    double ex = target[0] - pose[0], ey = target[1] - pose[1];
+    double d = vs_hypot_cr(ex, ey), v = vs_hypot_cr(t.vx, t.vy);
+    double dth = vs_wrap_angle(target[2] - pose[2]);
+    if (d > 0.0 && v > 0.0) {
+        double w_move = dth * (v / d);           /* the turn rate that ends the turn with the move */
+        /* the turn's own bound: its rate and its acceleration (not the settling time: the move sets the pace) */
+        double w_max = profile_speed(vs_fabs(dth), lim->turn_rate_max_rad_s, alpha, dt_s, dt_s);
+        if (vs_fabs(w_move) > w_max) {           /* the turn is the slower: the move waits for it */
+            double k = w_max / vs_fabs(w_move);
+            t.w = copy_sign(w_max, dth);
+            t.vx = k * t.vx;
+            t.vy = k * t.vy;
+        } else {
+            t.w = w_move;
+        }
+    }
+    return t;
+}
+
 /* _path_carrot: carrot (x, y, th) on the polyline wp (m waypoints, th already as stored), the
  * remaining length [m], and whether the carrot equals the last waypoint (Pose2 ==). */
 static void path_carrot(const double pose[3], const double *wp, size_t m, double lookahead,
@@ -339,8 +364,9 @@ int vs_advance(const double pose_fit[3], const vs_goal *goal, double dt_s, const
             || wheel_speed_max_m_s == NULL || wheel_accel_max_m_s2 == NULL || out == NULL || n == 0)
         return VS_EVALUE;
     if (goal->poses == NULL || goal->n_poses == 0 || goal->n_poses > ((size_t)-1) / 3
-            || (goal->kind != VS_GOAL_PATH && goal->n_poses != 1)
-            || (goal->kind != VS_GOAL_POSE && goal->kind != VS_GOAL_PATH && goal->kind != VS_GOAL_TWIST))
+            || (goal->kind != VS_GOAL_PATH && goal->kind != VS_GOAL_PLAN && goal->n_poses != 1)
+            || (goal->kind != VS_GOAL_POSE && goal->kind != VS_GOAL_PATH && goal->kind != VS_GOAL_TWIST
+                && goal->kind != VS_GOAL_PLAN))
         return VS_EVALUE;
     if (n > ((size_t)-1) / 2) return VS_EVALUE;
     if (!vs_isfinite(dt_s)) return VS_ENONFINITE;
@@ -395,7 +421,8 @@ int vs_advance(const double pose_fit[3], const vs_goal *goal, double dt_s, const
         double carrot[3], remaining;
         int is_end;
         path_carrot(pose, goal->poses, goal->n_poses, limits->path_lookahead_m, carrot, &remaining, &is_end);
-        desired = twist_toward(pose, carrot, remaining, limits, accel, alpha, dt_s);
+        desired = goal->kind == VS_GOAL_PLAN ? twist_straight(pose, carrot, remaining, limits, accel, alpha, dt_s)
+                               : twist_toward(pose, carrot, remaining, limits, accel, alpha, dt_s);
         const double *e = goal->poses + 3 * (goal->n_poses - 1);
         at_goal = is_end && vs_hypot_cr(e[0] - pose[0], e[1] - pose[1]) <= limits->position_tolerance_m
                   && vs_fabs(vs_wrap_angle(as_wrapped(e[2]) - pose[2])) <= limits->heading_tolerance_rad;

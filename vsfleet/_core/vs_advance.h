@@ -16,6 +16,9 @@
 #define VS_GOAL_POSE 0
 #define VS_GOAL_PATH 1
 #define VS_GOAL_TWIST 2
+#define VS_GOAL_PLAN 3    /* a room's plan: a path whose carrot is followed turning in step with the move, the
+                             * straight way in SE(2), so the structure never turns ahead of the plan (a path
+                             * turns and moves each on its own profile) */
 
 /* As vsfleet.advance.StructureLimits: every field finite and >= 0, comply_stop_m > comply_full_m. */
 typedef struct {

@@ -88,7 +88,7 @@ int vs_structure_step(const vs_mission *m, const double *pose_world, const unsig
         size_t n_way = 0;
         rc = vs_field_follow(m->field, pose_fit, VS_STEP_PATH_M, plan, VS_STEP_PATH_CAP, &n_way, &blocked, &left_m);
         if (rc != VS_OK) goto done;
-        goal.kind = VS_GOAL_PATH;
+        goal.kind = VS_GOAL_PLAN;   /* turn in step with the move: keep to the plan in SE(2) */
         goal.poses = plan;
         goal.n_poses = n_way;
     }
