@@ -47,6 +47,7 @@ from dataclasses import dataclass, field
 from typing import Mapping
 
 from vsfleet import failure
+from vsfleet.coreconst import FAILURE_SETTLED_RATIO
 
 
 # The policy, health and decision types are the array code's own (only the rule is re-implemented here).
@@ -93,7 +94,7 @@ def update_motion(policy: FailurePolicy, motion: Motion, poses: Mapping[str, tup
             sx = math.fsum(item[1] for item in w)
             sy = math.fsum(item[2] for item in w)
             e2 = sx * sx + sy * sy
-            if t - w[0][0] >= 0.8 * policy.fail_after_s and e2 >= policy.min_expected_m ** 2:
+            if t - w[0][0] >= FAILURE_SETTLED_RATIO * policy.fail_after_s and e2 >= policy.min_expected_m ** 2:
                 ox = math.fsum(item[3] for item in w)
                 oy = math.fsum(item[4] for item in w)
                 ratios[r] = (ox * sx + oy * sy) / e2

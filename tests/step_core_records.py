@@ -14,13 +14,13 @@ import dataclasses
 import numpy as np
 
 from golden_step import load
+from vsfleet.coreconst import METRICS
 from vsfleet.step import core_mission, frame_arrays, mission_arrays
 
 #: the room's field in these records: a coarse lattice (8 cm, 16 headings), so that the replay under
 #: qemu builds its 240 fields in seconds; the agents' own lattice is vsfleet.field's
 FIELD = (0.08, 16.0, 200000.0)
 
-METRICS = ("l1", "l2", "linf")
 PILLAR = ((0.8, 0.5, 0.3),)
 WALL = tuple((1.3 + 0.0 * k, -1.0 + 0.25 * k, 0.14) for k in range(13))  # x = 1.3 m, y from -1 to 2 m
 

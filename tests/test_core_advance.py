@@ -12,6 +12,7 @@ from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from vsfleet import _core
+from vsfleet.coreconst import GOAL_PLAN, GOAL_POSE, LIMIT_FIELDS
 from vsfleet.advance import (
     AdvanceResult,
     GoalError,
@@ -413,14 +414,13 @@ def test_an_unknown_goal_is_a_goal_error():
 
 
 def test_the_core_function_refuses_bad_kinds_sizes_and_limits_with_typed_errors():
-    lim = tuple(float(getattr(LIMITS, f)) for f in ("speed_max_m_s", "turn_rate_max_rad_s", "position_tolerance_m",
-                                                     "heading_tolerance_rad", "path_lookahead_m", "comply_full_m",
-                                                     "comply_stop_m", "settle_s", "turn_settle_s"))
+    lim = tuple(float(getattr(LIMITS, f)) for f in LIMIT_FIELDS)
     g = np.zeros(3)
-    args = [0.0, 0.0, 0.0, 0, g, DT, lim, TRIANGLE, ENV.wheel_base_m, ENV.wheel_speed_max_m_s,
+    args = [0.0, 0.0, 0.0, GOAL_POSE, g, DT, lim, TRIANGLE, ENV.wheel_base_m, ENV.wheel_speed_max_m_s,
             ENV.wheel_accel_max_m_s2, None, None, None, None]
     assert _core.advance(*args)[7] is True
-    for i, v in ((3, 7), (4, np.zeros(6)), (4, np.zeros(4)), (4, np.zeros(0)), (6, lim[:5] + (-1.0,) + lim[6:]),
+    for i, v in ((3, GOAL_PLAN + 1), (4, np.zeros(6)), (4, np.zeros(4)), (4, np.zeros(0)),
+                 (6, lim[:5] + (-1.0,) + lim[6:]),
                  (6, lim[:5] + (0.02, 0.01) + lim[7:]), (9, np.array([0.3, 0.0, 0.3])), (7, TRIANGLE[:2].copy())):
         a = list(args)
         a[i] = v

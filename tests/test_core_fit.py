@@ -18,12 +18,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from vsfleet import _core
+from vsfleet.coreconst import METRIC_CODES as CODES, METRICS
 from vsfleet.errors import NonFiniteError, ShapeError, UnknownMetricError, VsfleetValueError, WeightError
 from vsfleet.fit import (CERT_TOL, fit_structure, fit_structure_reference, structure_cost,
                          structure_cost_reference)
 from vsfleet.geometry import Pose2
 
-CODES = {"l1": 0, "l2": 1, "linf": 2}
 MAX_ROUNDS = 60  # vs_fit.h VS_FIT_MAX_ROUNDS
 EPS = np.finfo(float).eps
 SETTINGS = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -216,19 +216,19 @@ def test_bad_inputs_raise_the_typed_errors(fit):
 def test_the_binding_refuses_bad_buffers_with_typed_errors():
     tri = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
     with pytest.raises(VsfleetValueError):
-        _core.fit(tri, tri, None, 3, None)  # unknown metric code
+        _core.fit(tri, tri, None, len(METRICS), None)  # unknown metric code
     with pytest.raises(VsfleetValueError):
-        _core.fit(np.zeros((0, 2)), np.zeros((0, 2)), None, 1, None)  # n = 0
+        _core.fit(np.zeros((0, 2)), np.zeros((0, 2)), None, CODES["l2"], None)  # n = 0
     with pytest.raises(NonFiniteError):
-        _core.fit(tri, np.where(tri == 1.0, np.nan, tri), None, 0, None)
+        _core.fit(tri, np.where(tri == 1.0, np.nan, tri), None, CODES["l1"], None)
     with pytest.raises(VsfleetValueError):
-        _core.fit(tri, tri, np.array([1.0, 2.0, 1.0]), 2, None)  # linf, unequal weights
+        _core.fit(tri, tri, np.array([1.0, 2.0, 1.0]), CODES["linf"], None)  # linf, unequal weights
     with pytest.raises(ValueError):
-        _core.fit(tri, tri[:2], None, 1, None)  # lengths differ
+        _core.fit(tri, tri[:2], None, CODES["l2"], None)  # lengths differ
     with pytest.raises(TypeError):
-        _core.fit(tri.astype(np.float32), tri, None, 1, None)
+        _core.fit(tri.astype(np.float32), tri, None, CODES["l2"], None)
     with pytest.raises(NonFiniteError):
-        _core.fit_cost(tri, tri, None, 0, math.nan, 0.0, 0.0)
+        _core.fit_cost(tri, tri, None, CODES["l1"], math.nan, 0.0, 0.0)
 
 
 def test_structure_cost_matches_the_reference_and_the_fit():

@@ -23,6 +23,7 @@ from typing import Sequence, Union
 import numpy as np
 
 from . import _core
+from .coreconst import GOAL_PATH, GOAL_PLAN, GOAL_POSE, GOAL_TWIST, LIMIT_FIELDS
 from .envelope import Envelope, Envelopes
 from .errors import ShapeError, VsfleetValueError
 from .geometry import Pose2, angle_diff
@@ -112,9 +113,7 @@ class StructureLimits:
     turn_settle_s: float = 2.0
 
     def __post_init__(self) -> None:
-        for name in ("speed_max_m_s", "turn_rate_max_rad_s", "position_tolerance_m",
-                     "heading_tolerance_rad", "path_lookahead_m", "comply_full_m", "comply_stop_m",
-                     "settle_s", "turn_settle_s"):
+        for name in LIMIT_FIELDS:   # every field (the core's order of them)
             v = getattr(self, name)
             if not math.isfinite(v) or v < 0.0:
                 raise VsfleetValueError(f"{name} must be finite and >= 0, got {v!r}")
@@ -420,9 +419,6 @@ def advance_structure_reference(pose_fit: Pose2, goal: Goal, dt_s: float, limits
 
 # --- the compiled core behind advance_structure ------------------------------------------
 
-_GOAL_POSE, _GOAL_PATH, _GOAL_TWIST, _GOAL_PLAN = 0, 1, 2, 3   # vs_advance.h VS_GOAL_*
-_LIMIT_FIELDS = ("speed_max_m_s", "turn_rate_max_rad_s", "position_tolerance_m", "heading_tolerance_rad",
-                 "path_lookahead_m", "comply_full_m", "comply_stop_m", "settle_s", "turn_settle_s")
 _CACHE = "_vs_core"   # a frozen goal's / limits' packed form for the core, kept in its __dict__ (not a field)
 
 
@@ -432,11 +428,11 @@ def _core_goal(goal) -> tuple[int, np.ndarray]:
     if packed is not None:
         return packed
     if isinstance(goal, GoalTwist):
-        packed = (_GOAL_TWIST, np.array([goal.vx_m_s, goal.vy_m_s, goal.w_rad_s], dtype=float))
+        packed = (GOAL_TWIST, np.array([goal.vx_m_s, goal.vy_m_s, goal.w_rad_s], dtype=float))
     elif isinstance(goal, GoalPose):
-        packed = (_GOAL_POSE, np.array(goal.pose.as_tuple(), dtype=float))
+        packed = (GOAL_POSE, np.array(goal.pose.as_tuple(), dtype=float))
     elif isinstance(goal, GoalPath):
-        packed = (_GOAL_PLAN if goal.synced else _GOAL_PATH,
+        packed = (GOAL_PLAN if goal.synced else GOAL_PATH,
                   np.array([w.as_tuple() for w in goal.waypoints], dtype=float).reshape(-1))
     else:
         raise GoalError(f"unknown goal type {type(goal).__name__}")
@@ -448,7 +444,7 @@ def _core_goal(goal) -> tuple[int, np.ndarray]:
 def _core_limits(limits: StructureLimits) -> tuple:
     packed = limits.__dict__.get(_CACHE)
     if packed is None:
-        packed = tuple(float(getattr(limits, f)) for f in _LIMIT_FIELDS)
+        packed = tuple(float(getattr(limits, f)) for f in LIMIT_FIELDS)
         object.__setattr__(limits, _CACHE, packed)
     return packed
 

@@ -26,6 +26,7 @@ from typing import Callable
 import numpy as np
 
 from . import _core
+from .coreconst import PRECISION_GAIN_FIELDS, PRECISION_HISTORY as _HISTORY, TRACKING_GAIN_FIELDS
 from .envelope import Envelopes
 from .errors import ShapeError, VsfleetValueError
 from .kinematics import (
@@ -300,7 +301,7 @@ class Tracking:
 
     def __post_init__(self) -> None:
         _check_gains(self)
-        _core_gains(self, [getattr(self, f.name) for f in fields(self)])
+        _core_gains(self, [getattr(self, f) for f in TRACKING_GAIN_FIELDS])   # vs_tracking_gains' order
 
     def initial(self, n: int) -> Stateless:
         return Stateless()
@@ -357,8 +358,7 @@ class PrecisionState:
     ready: np.ndarray
 
 
-# Commands kept besides the last one sent: an age of up to this many ticks is compensated.
-_HISTORY = 5
+# Commands kept besides the last one sent (_HISTORY, the core's): an age of up to this many ticks is compensated.
 _STATE_FIELDS = tuple(f.name for f in fields(PrecisionState))
 
 
@@ -402,7 +402,7 @@ class Precision:
         _check_gains(self)
         if not self.gain_min_ratio <= 1.0 <= self.gain_max_ratio:
             raise ControllerGainError("gain_min_ratio <= 1 <= gain_max_ratio is required")
-        _core_gains(self, [getattr(self, f.name) for f in fields(self)])   # vs_precision_gains' order
+        _core_gains(self, [getattr(self, f) for f in PRECISION_GAIN_FIELDS])   # vs_precision_gains' order
 
     def initial(self, n: int) -> PrecisionState:
         z2 = np.zeros((n, 2))

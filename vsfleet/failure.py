@@ -53,11 +53,11 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from . import _core
+from .coreconst import DECISION_KINDS, FAILURE_MODES, FAILURE_NM_PER_M as _NM_PER_M, FAILURE_SETTLED_RATIO
 from .errors import VsfleetValueError
 
-# the rule's decisions, in the order of their codes in vs_failure.h (VS_DECISION_*); vsfleet.wire's
-# EVENT_KINDS begins with them
-DECISION_KINDS = ("fail", "drop", "rejoin", "recover")
+# the rule's decisions (DECISION_KINDS, by their codes in vs_failure.h: VS_DECISION_*; vsfleet.wire's
+# EVENT_KINDS begins with them) and its modes (FAILURE_MODES, VS_FAILURE_*) are the core's (vsfleet.coreconst)
 
 
 @dataclass(frozen=True)
@@ -74,7 +74,7 @@ class FailurePolicy:
     min_expected_m: float = 0.05
 
     def __post_init__(self) -> None:
-        if self.mode not in ("hold", "drop", "rejoin"):
+        if self.mode not in FAILURE_MODES:
             raise VsfleetValueError(f"on_failure must be hold, drop or rejoin, got {self.mode!r}")
         for name in ("fail_deviation_m", "fail_after_s", "rejoin_deviation_m", "rejoin_after_s",
                      "recover_after_s", "min_progress_ratio", "min_expected_m"):
@@ -104,8 +104,7 @@ class Decision:
 
 # The motion window's displacements are held in integer nanometres: their sums are then exact, so
 # they do not depend on the order of the items in the ring (agents that missed different frames
-# hold the same items in different slots, and still sum them to the same bits).
-_NM_PER_M = 1e9
+# hold the same items in different slots, and still sum them to the same bits): _NM_PER_M per metre.
 
 
 @dataclass(frozen=True)
@@ -212,7 +211,7 @@ def _motion(policy: FailurePolicy, state: FailureState, t: float, fresh: np.ndar
     sx, sy, ox, oy = total[:, 0], total[:, 1], total[:, 2], total[:, 3]
     e2 = sx * sx + sy * sy
     first_t = np.min(np.where(in_window, window_t, np.inf), axis=1)
-    known = had & (t - first_t >= 0.8 * policy.fail_after_s) & (e2 >= policy.min_expected_m ** 2)
+    known = had & (t - first_t >= FAILURE_SETTLED_RATIO * policy.fail_after_s) & (e2 >= policy.min_expected_m ** 2)
     ratio = np.where(known, (ox * sx + oy * sy) / np.where(known, e2, 1.0), np.nan)
     last_t = np.where(fresh, t, state.last_t)
     last_xy = np.where(fresh[:, None], xy, state.last_xy)

@@ -38,6 +38,7 @@ from .advance import (
     advance_structure,
     advance_structure_reference,
 )
+from .coreconst import GOAL_PATH, GOAL_POSE, GOAL_TWIST, LIMIT_FIELDS, METRIC_CODES
 from .control import DEFAULT_CONTROLLER, ControlInput, make_controller
 from .envelope import Envelope, Envelopes
 from .failure import (
@@ -106,11 +107,6 @@ class MissionArrays:
         return bool(self.radii.any()) or len(self.obstacles) > 0               # the same, packed for vsfleet._core.structure_step (core_mission)
 
 
-_METRIC_CODES = {"l1": 0, "l2": 1, "linf": 2}  # VS_METRIC_* (vsfleet/_core/vs_fit.h)
-_LIMIT_FIELDS = ("speed_max_m_s", "turn_rate_max_rad_s", "position_tolerance_m", "heading_tolerance_rad",
-                 "path_lookahead_m", "comply_full_m", "comply_stop_m", "settle_s", "turn_settle_s")
-
-
 #: clearance [m] the structure's planned way keeps between every robot body and every obstacle: beyond the
 #: safety filter's own margin (15 mm), so that on the plan the filter stays idle (docs/planning.md); the
 #: field's states keep this plus its inflation (>= 21 mm), its edges this
@@ -122,15 +118,15 @@ def core_mission(metric: str, template: np.ndarray, envelopes: Envelopes, goal: 
     """The mission's constants as the compiled core takes them (vs_mission in vs_step.h), in
     structure_step's argument order: the first eight, then (radius_m, obstacles, margin_m, field)."""
     if isinstance(goal, GoalPose):
-        kind, poses = 0, [goal.pose.as_tuple()]
+        kind, poses = GOAL_POSE, [goal.pose.as_tuple()]
     elif isinstance(goal, GoalPath):
-        kind, poses = 1, [w.as_tuple() for w in goal.waypoints]
+        kind, poses = GOAL_PATH, [w.as_tuple() for w in goal.waypoints]
     else:
-        kind, poses = 2, [(goal.vx_m_s, goal.vy_m_s, goal.w_rad_s)]
+        kind, poses = GOAL_TWIST, [(goal.vx_m_s, goal.vy_m_s, goal.w_rad_s)]
     return (np.ascontiguousarray(template, dtype=float), np.ascontiguousarray(envelopes.wheel_base_m),
             np.ascontiguousarray(envelopes.wheel_speed_max_m_s), np.ascontiguousarray(envelopes.wheel_accel_max_m_s2),
-            _METRIC_CODES[metric], kind, np.array(poses, dtype=float).ravel(),
-            np.array([getattr(limits, f) for f in _LIMIT_FIELDS], dtype=float),
+            METRIC_CODES[metric], kind, np.array(poses, dtype=float).ravel(),
+            np.array([getattr(limits, f) for f in LIMIT_FIELDS], dtype=float),
             np.zeros(len(template)) if radii is None else np.array(radii, dtype=float),
             np.array(obstacles, dtype=float).reshape(-1), PLAN_MARGIN_M, None if field is None else field.handle)
 

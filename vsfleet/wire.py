@@ -27,8 +27,9 @@ import numpy as np
 
 from . import _core
 from .control import CONTROLLERS
+from .coreconst import DECISION_KINDS, FAILURE_MODES
 from .errors import VsfleetValueError
-from .failure import DECISION_KINDS, FailurePolicy
+from .failure import FailurePolicy
 from .fit import METRICS  # noqa: F401 (a mission's metric: one of the fit's; re-exported)
 
 NAME_RE = re.compile(r"^[A-Za-z0-9_-]+\Z")  # \Z, not $: $ also matches before a final newline ("cam1\n")
@@ -41,7 +42,7 @@ MAX_ABS = 1e6           # any number field: |v| <= 1e6 (metres, seconds apart fr
 MAX_TTL_S = 5.0         # a command may keep a robot moving for at most this long
 CONTROLLER_NAMES = tuple(sorted(CONTROLLERS))  # a mission's controller: one of vsfleet.control's
 FAULT_KINDS = ("none", "stop", "slow", "stall", "wheel")
-ON_FAILURE = ("hold", "drop", "rejoin")
+ON_FAILURE = FAILURE_MODES   # a mission's on_failure: the failure rule's modes (vs_failure.h VS_FAILURE_*)
 PROTOCOL_V = 1          # the telemetry version (field ``v``) this code writes and reads in full
 
 
@@ -364,7 +365,7 @@ class FaultMsg:
     duration: float
 
 
-# the failure rule's decisions (vsfleet.failure.DECISION_KINDS, in vs_failure.h's code order), then the
+# the failure rule's decisions (vsfleet.coreconst.DECISION_KINDS, in vs_failure.h's code order), then the
 # structure's own: blocked (no path to the goal around the obstacles: it stops at the closest safe pose;
 # dev = how far that is from the goal [m]) and unblocked (a path is open again)
 EVENT_KINDS = (*DECISION_KINDS, "blocked", "unblocked")

@@ -5,8 +5,14 @@
  * microsecond, and numpy arrays pass through the buffer protocol without numpy's headers.
  * Each area of the core has its own binding file (py_*.c) with its own method table.
  */
+#include <stddef.h>
+
 #include "py_util.h"
 #include "vscore.h"
+#include "vs_advance.h"
+#include "vs_control.h"
+#include "vs_failure.h"
+#include "vs_fit.h"
 
 extern PyMethodDef vs_py_math_methods[];
 extern PyMethodDef vs_py_fit_methods[];
@@ -25,6 +31,111 @@ static PyMethodDef *tables[] = {vs_py_math_methods, vs_py_fit_methods, vs_py_adv
                                 vs_py_golden_methods, vs_py_safety_methods, vs_py_plan_methods,
                                 vs_py_field_methods, vs_py_wire_methods};
 
+/* ------------------------------------------------------------------ the interface's constants
+ * Exported as module attributes, so that Python reads them here and never writes them again
+ * (vsfleet/coreconst.py is the one Python module that reads them). */
+
+typedef struct { const char *name; long value; } int_const;
+typedef struct { const char *name; double value; } double_const;
+typedef struct { const char *name; int code; } coded;         /* a Python name and its VS_* code */
+typedef struct { const char *name; size_t offset; } member;   /* a struct's double member and its offset */
+
+static const int_const ints[] = {
+    {"GOAL_POSE", VS_GOAL_POSE}, {"GOAL_PATH", VS_GOAL_PATH}, {"GOAL_TWIST", VS_GOAL_TWIST},
+    {"GOAL_PLAN", VS_GOAL_PLAN},
+    {"METRIC_L1", VS_METRIC_L1}, {"METRIC_L2", VS_METRIC_L2}, {"METRIC_LINF", VS_METRIC_LINF},
+    {"FAILURE_HOLD", VS_FAILURE_HOLD}, {"FAILURE_DROP", VS_FAILURE_DROP}, {"FAILURE_REJOIN", VS_FAILURE_REJOIN},
+    {"DECISION_FAIL", VS_DECISION_FAIL}, {"DECISION_DROP", VS_DECISION_DROP},
+    {"DECISION_REJOIN", VS_DECISION_REJOIN}, {"DECISION_RECOVER", VS_DECISION_RECOVER},
+    {"PRECISION_HISTORY", VS_PRECISION_HISTORY},
+};
+
+static const double_const doubles[] = {
+    {"FAILURE_NM_PER_M", VS_FAILURE_NM_PER_M}, {"FAILURE_SETTLED_RATIO", VS_FAILURE_SETTLED_RATIO},
+};
+
+/* the names Python gives the codes: a tuple indexed by code */
+static const coded metrics[] = {{"l1", VS_METRIC_L1}, {"l2", VS_METRIC_L2}, {"linf", VS_METRIC_LINF}};
+static const coded decisions[] = {{"fail", VS_DECISION_FAIL}, {"drop", VS_DECISION_DROP},
+                                  {"rejoin", VS_DECISION_REJOIN}, {"recover", VS_DECISION_RECOVER}};
+static const coded modes[] = {{"hold", VS_FAILURE_HOLD}, {"drop", VS_FAILURE_DROP}, {"rejoin", VS_FAILURE_REJOIN}};
+
+/* a struct of doubles' members: a tuple of their names in the struct's order (by offset) */
+#define MEMBER(s, f) {#f, offsetof(s, f)}
+static const member limits[] = {
+    MEMBER(vs_limits, speed_max_m_s), MEMBER(vs_limits, turn_rate_max_rad_s), MEMBER(vs_limits, position_tolerance_m),
+    MEMBER(vs_limits, heading_tolerance_rad), MEMBER(vs_limits, path_lookahead_m), MEMBER(vs_limits, comply_full_m),
+    MEMBER(vs_limits, comply_stop_m), MEMBER(vs_limits, settle_s), MEMBER(vs_limits, turn_settle_s),
+};
+static const member precision[] = {
+    MEMBER(vs_precision_gains, position_gain_per_s), MEMBER(vs_precision_gains, offset_m),
+    MEMBER(vs_precision_gains, pose_gain_ratio), MEMBER(vs_precision_gains, heading_gain_ratio),
+    MEMBER(vs_precision_gains, target_gain_ratio), MEMBER(vs_precision_gains, feed_gain_ratio),
+    MEMBER(vs_precision_gains, turn_gain_ratio), MEMBER(vs_precision_gains, reverse_cos_ratio),
+    MEMBER(vs_precision_gains, gain_rate_ratio), MEMBER(vs_precision_gains, gain_min_ratio),
+    MEMBER(vs_precision_gains, gain_max_ratio), MEMBER(vs_precision_gains, moving_speed_m_s),
+    MEMBER(vs_precision_gains, travel_floor_m),
+};
+static const member tracking[] = {
+    MEMBER(vs_tracking_gains, along_gain_per_s), MEMBER(vs_tracking_gains, lateral_gain_per_m2),
+    MEMBER(vs_tracking_gains, heading_gain_per_m), MEMBER(vs_tracking_gains, regulate_gain_per_s),
+    MEMBER(vs_tracking_gains, regulate_radius_m), MEMBER(vs_tracking_gains, moving_speed_m_s),
+};
+#undef MEMBER
+
+#define COUNT(a) (sizeof (a) / sizeof (a)[0])
+
+/* m.<attr> = the tuple of the k names, each at its code (codes 0 .. k-1, each once) */
+static int add_coded(PyObject *m, const char *attr, const coded *c, size_t k)
+{
+    PyObject *t = PyTuple_New((Py_ssize_t)k);
+    if (t == NULL) return -1;
+    for (size_t i = 0; i < k; i++) {
+        if (c[i].code < 0 || (size_t)c[i].code >= k || PyTuple_GET_ITEM(t, c[i].code) != NULL) {
+            PyErr_Format(PyExc_SystemError, "vsfleet._core: the codes of %s are not 0 .. %zu", attr, k - 1);
+            Py_DECREF(t);
+            return -1;
+        }
+        PyObject *s = PyUnicode_FromString(c[i].name);
+        if (s == NULL) { Py_DECREF(t); return -1; }
+        PyTuple_SET_ITEM(t, c[i].code, s);
+    }
+    return PyModule_AddObject(m, attr, t) < 0 ? (Py_DECREF(t), -1) : 0;
+}
+
+/* m.<attr> = the tuple of the members' names in their struct's order; the k members of doubles
+ * must fill the struct of size bytes, each once */
+static int add_members(PyObject *m, const char *attr, const member *f, size_t k, size_t size)
+{
+    if (k * sizeof(double) != size) {
+        PyErr_Format(PyExc_SystemError, "vsfleet._core: %s does not name every member of its struct", attr);
+        return -1;
+    }
+    coded c[16];
+    for (size_t i = 0; i < k && i < COUNT(c); i++) c[i] = (coded){f[i].name, (int)(f[i].offset / sizeof(double))};
+    return k > COUNT(c) ? -1 : add_coded(m, attr, c, k);
+}
+
+static int add_constants(PyObject *m)
+{
+    for (size_t i = 0; i < COUNT(ints); i++)
+        if (PyModule_AddIntConstant(m, ints[i].name, ints[i].value) < 0) return -1;
+    for (size_t i = 0; i < COUNT(doubles); i++) {
+        PyObject *v = PyFloat_FromDouble(doubles[i].value);
+        if (v == NULL) return -1;
+        if (PyModule_AddObject(m, doubles[i].name, v) < 0) { Py_DECREF(v); return -1; }
+    }
+    if (add_coded(m, "METRICS", metrics, COUNT(metrics)) < 0) return -1;
+    if (add_coded(m, "DECISION_KINDS", decisions, COUNT(decisions)) < 0) return -1;
+    if (add_coded(m, "FAILURE_MODES", modes, COUNT(modes)) < 0) return -1;
+    if (add_members(m, "LIMIT_FIELDS", limits, COUNT(limits), sizeof(vs_limits)) < 0) return -1;
+    if (add_members(m, "PRECISION_GAIN_FIELDS", precision, COUNT(precision), sizeof(vs_precision_gains)) < 0)
+        return -1;
+    if (add_members(m, "TRACKING_GAIN_FIELDS", tracking, COUNT(tracking), sizeof(vs_tracking_gains)) < 0)
+        return -1;
+    return 0;
+}
+
 static struct PyModuleDef moddef = {PyModuleDef_HEAD_INIT, "vsfleet._core",
     "The compiled core of the agent step (C99; see vsfleet/_core/vscore.h).", -1, NULL};
 
@@ -41,5 +152,6 @@ PyMODINIT_FUNC PyInit__core(void)
     for (size_t t = 0; t < sizeof tables / sizeof tables[0]; t++) {
         if (PyModule_AddFunctions(m, tables[t]) < 0) { Py_DECREF(m); return NULL; }
     }
+    if (add_constants(m) < 0) { Py_DECREF(m); return NULL; }
     return m;
 }

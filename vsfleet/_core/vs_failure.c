@@ -3,7 +3,6 @@
 
 #include "vs_failure.h"
 
-#define NM_PER_M 1e9
 #define TWO63 9223372036854775808.0     /* 2^63: |q| below it converts to int64 */
 
 /* round half to even, as numpy's rint, without libm: |x| < 2^52 lands in [2^52, 2^53), where
@@ -80,7 +79,7 @@ static int validate(const vs_failure_policy *p, const vs_failure_state *s, const
             double item[4];
             motion_item(s, in, i, item);
             for (int k = 0; k < 4; k++) {
-                double q = item[k] * NM_PER_M;
+                double q = item[k] * VS_FAILURE_NM_PER_M;
                 if (vs_isnan(q)) return VS_ENONFINITE;
                 if (!(vs_fabs(q) < TWO63)) return VS_EVALUE;
             }
@@ -120,17 +119,17 @@ static int motion_step(const vs_failure_policy *p, vs_failure_state *s, const vs
         motion_item(s, in, i, item);
         wt[at] = t;
         for (int k = 0; k < 4; k++) {
-            int64_t q = (int64_t)rint_even(item[k] * NM_PER_M);
+            int64_t q = (int64_t)rint_even(item[k] * VS_FAILURE_NM_PER_M);
             nm[4 * at + k] = q;
             sums[k] = add_i64(sums[k], q);
         }
         inw[at] = 1;
         s->head[i] += 1;
         if (t < first_t) first_t = t;
-        double sx = (double)sums[0] / NM_PER_M, sy = (double)sums[1] / NM_PER_M;
-        double ox = (double)sums[2] / NM_PER_M, oy = (double)sums[3] / NM_PER_M;
+        double sx = (double)sums[0] / VS_FAILURE_NM_PER_M, sy = (double)sums[1] / VS_FAILURE_NM_PER_M;
+        double ox = (double)sums[2] / VS_FAILURE_NM_PER_M, oy = (double)sums[3] / VS_FAILURE_NM_PER_M;
         double e2 = sx * sx + sy * sy;
-        int known = (t - first_t >= 0.8 * p->fail_after_s) && (e2 >= p->min_expected_m2);
+        int known = (t - first_t >= VS_FAILURE_SETTLED_RATIO * p->fail_after_s) && (e2 >= p->min_expected_m2);
         if (known && e2 != 0.0) {                  /* e2 == 0: the ratio is not finite */
             double ratio = (ox * sx + oy * sy) / e2;
             stuck = vs_isfinite(ratio) && ratio < p->min_progress_ratio;

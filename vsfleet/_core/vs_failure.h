@@ -37,6 +37,12 @@
  * window item then stays far inside int64 nanometres */
 #define VS_FAILURE_MAX_M 1e9
 
+/* the motion window's items are held in integer nanometres: this many per metre */
+#define VS_FAILURE_NM_PER_M 1e9
+
+/* the progress test judges a robot once its window's oldest item is this share of fail_after_s old */
+#define VS_FAILURE_SETTLED_RATIO 0.8
+
 /* vsfleet.failure.FailurePolicy: every value finite and >= 0. */
 typedef struct {
     int mode;                   /* VS_FAILURE_HOLD / _DROP / _REJOIN */

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import _core
+from ..coreconst import METRIC_CODES as _CODES, METRICS
 from ..errors import NonFiniteError, ShapeError, UnknownMetricError, WeightError
 from ..geometry import Pose2, wrap_angle
 from . import certify, median, minimax, procrustes
@@ -26,9 +27,7 @@ from .certify import CERT_TOL, Problem
 __all__ = ["CERT_TOL", "METRICS", "FitResult", "fit_structure", "fit_structure_reference", "structure_cost",
            "structure_cost_reference"]
 
-METRICS = ("l1", "l2", "linf")
 _EVALUATORS = {"l1": median.evaluate, "linf": minimax.evaluate}
-_CODES = {"l1": 0, "l2": 1, "linf": 2}  # vs_fit.h: VS_METRIC_L1, _L2, _LINF
 #: Largest accepted |coordinate| [m] and weight: beyond it squares overflow (vs_fit.h VS_FIT_MAX_ABS).
 MAX_ABS = 1e150
 

@@ -1,0 +1,161 @@
+"""The core's interface constants are defined once, in its C headers, and Python reads them from vsfleet.coreconst.
+
+The values vsfleet._core exports (module.c) are the headers' #defines and struct orders, parsed here from the
+headers themselves; and no Python file of vsfleet/ or tests/ writes one of them again where it should import
+it (goal kinds, metric codes, decision codes, failure modes, field orders, the failure rule's 0.8 factor, the
+motion window's nanometres, Precision's history).
+"""
+
+from __future__ import annotations
+
+import ast
+import dataclasses
+import re
+from pathlib import Path
+
+import pytest
+
+from vsfleet import _core, coreconst
+from vsfleet.advance import StructureLimits
+from vsfleet.control import Precision, Tracking
+from vsfleet.failure import FailurePolicy
+from vsfleet.wire import EVENT_KINDS, ON_FAILURE
+
+ROOT = Path(__file__).parent.parent
+HEADERS = ROOT / "vsfleet" / "_core"
+
+
+def defines() -> dict[str, str]:
+    """Every ``#define VS_NAME value`` of the core's headers: name -> value text (comments dropped)."""
+    out = {}
+    for h in sorted(HEADERS.glob("vs*.h")):
+        text = re.sub(r"/\*.*?\*/", " ", h.read_text(), flags=re.S)
+        out.update(re.findall(r"^[ \t]*#[ \t]*define[ \t]+(VS_\w+)[ \t]+(\S[^\n]*?)[ \t]*$", text, re.M))
+    return out
+
+
+def struct_members(name: str) -> tuple[str, ...]:
+    """The member names of ``typedef struct {...} name;`` in the core's headers, in declaration order."""
+    for h in sorted(HEADERS.glob("vs*.h")):
+        text = re.sub(r"/\*.*?\*/", " ", h.read_text(), flags=re.S)
+        m = re.search(r"typedef\s+struct\s*\{([^{}]*)\}\s*" + name + r"\s*;", text)
+        if m:
+            members = []
+            for decl in filter(None, map(str.strip, m.group(1).split(";"))):   # "double a, b" or "int c"
+                first, *rest = decl.split(",")
+                members += [n.strip().lstrip("*").split("[")[0] for n in (first.split()[-1], *rest)]
+            return tuple(members)
+    raise AssertionError(f"no struct {name} in {HEADERS}")
+
+
+DEFINES = defines()
+
+
+def test_the_codes_python_reads_are_the_headers_defines():
+    for kind in ("POSE", "PATH", "TWIST", "PLAN"):
+        assert getattr(coreconst, f"GOAL_{kind}") == int(DEFINES[f"VS_GOAL_{kind}"])
+    assert {f"VS_METRIC_{m.upper()}": c for m, c in coreconst.METRIC_CODES.items()} == \
+        {k: int(v) for k, v in DEFINES.items() if k.startswith("VS_METRIC_")}
+    assert {f"VS_DECISION_{k.upper()}": c for c, k in enumerate(coreconst.DECISION_KINDS)} == \
+        {k: int(v) for k, v in DEFINES.items() if k.startswith("VS_DECISION_")}
+    modes = {f"VS_FAILURE_{m.upper()}": c for c, m in enumerate(coreconst.FAILURE_MODES)}
+    assert modes == {k: int(DEFINES[k]) for k in modes} and len(modes) == 3
+    assert coreconst.PRECISION_HISTORY == int(DEFINES["VS_PRECISION_HISTORY"])
+    assert coreconst.FAILURE_NM_PER_M == float(DEFINES["VS_FAILURE_NM_PER_M"])
+    assert coreconst.FAILURE_SETTLED_RATIO == float(DEFINES["VS_FAILURE_SETTLED_RATIO"])
+
+
+def test_the_field_orders_python_reads_are_the_structs_and_name_the_dataclasses_fields():
+    for names, struct, cls in ((coreconst.LIMIT_FIELDS, "vs_limits", StructureLimits),
+                               (coreconst.PRECISION_GAIN_FIELDS, "vs_precision_gains", Precision),
+                               (coreconst.TRACKING_GAIN_FIELDS, "vs_tracking_gains", Tracking)):
+        assert names == struct_members(struct), struct
+        assert set(names) == {f.name for f in dataclasses.fields(cls)}, cls.__name__
+
+
+def test_the_python_modules_take_the_cores_constants():
+    """The names the modules use are coreconst's own objects (not copies that happen to be equal)."""
+    assert coreconst.DECISION_KINDS is _core.DECISION_KINDS and EVENT_KINDS[:4] == coreconst.DECISION_KINDS
+    assert ON_FAILURE is coreconst.FAILURE_MODES
+    assert coreconst.METRICS is _core.METRICS
+    for mode in coreconst.FAILURE_MODES:
+        FailurePolicy(mode)
+
+
+# ---------------------------------------------------------------- no number of the interface written again
+
+ORDERS = {"LIMIT_FIELDS": coreconst.LIMIT_FIELDS, "PRECISION_GAIN_FIELDS": coreconst.PRECISION_GAIN_FIELDS,
+          "TRACKING_GAIN_FIELDS": coreconst.TRACKING_GAIN_FIELDS, "DECISION_KINDS": coreconst.DECISION_KINDS}
+DEFINED = {"METRICS": coreconst.METRICS, "FAILURE_MODES": coreconst.FAILURE_MODES}   # as a module's own name
+CODED = set(coreconst.METRICS) | set(coreconst.DECISION_KINDS) | set(coreconst.FAILURE_MODES)
+CODE_NAME = re.compile(r"^_?(GOAL_(POSE|PATH|TWIST|PLAN)|METRIC_(L1|L2|LINF)|DECISION_[A-Z]+|(PRECISION_)?HISTORY"
+                       r"|FAILURE_(HOLD|DROP|REJOIN)|(FAILURE_)?NM_PER_M|(FAILURE_)?SETTLED_RATIO)$", re.I)
+SOURCES = sorted(p for d in ("vsfleet", "tests") for p in (ROOT / d).rglob("*.py")
+                 if p.name not in ("coreconst.py", "test_coreconst.py"))
+
+
+def _strings(node) -> tuple | None:
+    if isinstance(node, (ast.Tuple, ast.List)) and node.elts and all(
+            isinstance(e, ast.Constant) and isinstance(e.value, str) for e in node.elts):
+        return tuple(e.value for e in node.elts)
+    return None
+
+
+def _numbers(node) -> bool:
+    """An int / float literal, or a tuple of them."""
+    if isinstance(node, ast.Tuple):
+        return bool(node.elts) and all(_numbers(e) for e in node.elts)
+    return isinstance(node, ast.Constant) and type(node.value) in (int, float)
+
+
+def copies(text: str) -> list[str]:
+    """What in this Python text writes one of the core's constants again."""
+    tree = ast.parse(text)
+    found = []
+    top = set(map(id, tree.body))
+    for node in ast.walk(tree):
+        seq = _strings(node)
+        for name, order in ORDERS.items():
+            if seq == order:
+                found.append(f"line {node.lineno}: {name} written out")
+        if isinstance(node, ast.Dict) and len(node.keys) >= 2 and all(
+                isinstance(k, ast.Constant) and k.value in CODED for k in node.keys) and all(
+                isinstance(v, ast.Constant) and type(v.value) is int for v in node.values):
+            found.append(f"line {node.lineno}: a name -> code table written out")
+        if isinstance(node, ast.Assign):
+            targets = [t for tg in node.targets for t in (tg.elts if isinstance(tg, ast.Tuple) else [tg])]
+            names = [t.id for t in targets if isinstance(t, ast.Name)]
+            if _numbers(node.value) and any(CODE_NAME.search(n) for n in names):
+                found.append(f"line {node.lineno}: {', '.join(names)} = a number of the core's")
+            if id(node) in top and _strings(node.value) in DEFINED.values():
+                found.append(f"line {node.lineno}: {', '.join(names)} defined again")
+        if isinstance(node, ast.BinOp) and isinstance(node.op, ast.Mult):
+            for a, b in ((node.left, node.right), (node.right, node.left)):
+                if isinstance(a, ast.Constant) and a.value == coreconst.FAILURE_SETTLED_RATIO \
+                        and "fail_after_s" in ast.unparse(b):
+                    found.append(f"line {node.lineno}: the failure rule's factor written out")
+    return found
+
+
+@pytest.mark.parametrize("path", SOURCES, ids=lambda p: str(p.relative_to(ROOT)))
+def test_no_python_file_writes_a_constant_of_the_core_again(path):
+    found = copies(path.read_text())
+    assert not found, f"{path.relative_to(ROOT)}: import it from vsfleet.coreconst instead: {found}"
+
+
+def test_the_check_catches_the_copies_it_replaced():
+    """The forms these constants had before vsfleet.coreconst, each caught."""
+    old = {
+        "advance": "_GOAL_POSE, _GOAL_PATH, _GOAL_TWIST, _GOAL_PLAN = 0, 1, 2, 3\n",
+        "limits": "_LIMIT_FIELDS = (" + ", ".join(repr(f) for f in coreconst.LIMIT_FIELDS) + ")\n",
+        "metrics": '_METRIC_CODES = {"l1": 0, "l2": 1, "linf": 2}\n',
+        "decisions": 'DECISION_KINDS = ("fail", "drop", "rejoin", "recover")\n',
+        "modes": 'ON_FAILURE = ("hold", "drop", "rejoin")\n',
+        "history": "_HISTORY = 5\n",
+        "nm": "_NM_PER_M = 1e9\n",
+        "factor": "known = t - first >= 0.8 * policy.fail_after_s\n",
+        "records": 'METRICS = ("l1", "l2", "linf")\n',
+    }
+    for what, text in old.items():
+        assert copies(text), what
+    assert not copies('for metric in ("l1", "l2", "linf"):\n    pass\nx = 0.8 * width\n')
