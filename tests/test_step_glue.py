@@ -20,7 +20,7 @@ import pytest
 from vsfleet.advance import Twist2
 from vsfleet.frames import MissionBook
 from vsfleet.geometry import Pose2
-import vsfleet.step as step_module
+import vsfleet.structure as structure_module
 from vsfleet.step import Structure, frame_arrays, mission_arrays, structure_step
 from vsfleet.wire import (
     CmdMsg,
@@ -123,21 +123,21 @@ MISSION = Mission(1, "linf", (("r1", RobotSpec((0.3, 0.0), 0.12, 0.3, 0.8)),
 
 
 def test_the_cores_structure_is_the_one_its_dataclasses_init_would_build(monkeypatch):
-    """_structure_step_core fills Structure, Pose2 and Twist2 without their __init__s: every field is there,
+    """structure_step_core fills Structure, Pose2 and Twist2 without their __init__s: every field is there,
     with the values the __init__s give from the core's result (th wrapped by Pose2's wrap_angle)."""
     results = []
 
     class Core:   # vsfleet._core, recording what structure_step returns
         def __getattr__(self, name):
-            return getattr(step_module._core_module, name)
+            return getattr(structure_module._core_module, name)
 
         @staticmethod
         def structure_step(*args):
-            results.append(step_module._core_module.structure_step(*args))
+            results.append(structure_module._core_module.structure_step(*args))
             return results[-1]
 
-    monkeypatch.setattr(step_module, "_core_module", step_module._core, raising=False)
-    monkeypatch.setattr(step_module, "_core", Core())
+    monkeypatch.setattr(structure_module, "_core_module", structure_module._core, raising=False)
+    monkeypatch.setattr(structure_module, "_core", Core())
     arrays = mission_arrays(MISSION)
     rng = np.random.default_rng(1)
     for k in range(50):

@@ -27,35 +27,17 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from . import _core
-from .advance import (
-    Goal,
-    GoalPath,
-    GoalPose,
-    GoalTwist,
-    StructureLimits,
-    Twist2,
-    advance_structure,
-    advance_structure_reference,
-)
+from .advance import Goal, GoalPath, GoalPose, GoalTwist, StructureLimits
 from .coreconst import GOAL_PATH, GOAL_POSE, GOAL_TWIST, LIMIT_FIELDS, METRIC_CODES
 from .control import DEFAULT_CONTROLLER, ControlInput, make_controller
 from .envelope import Envelope, Envelopes
-from .failure import (
-    FailurePolicy,
-    FailureState,
-    Health,
-    failure_step,
-    failure_step_reference,
-    restart_timers,
-    with_health,
-)
-from .fit import fit_structure, fit_structure_reference
+from .failure import FailurePolicy, FailureState, Health, restart_timers, with_health
 from .frames import Frame
-from .geometry import Pose2, angle_diff, wrap_angle
-from .kinematics import integrate_arcs, integrate_arcs_reference
-from .field import Field, build_field, build_field_reference, follow_field, follow_field_reference
-from .safety import SafetyParams, safety_filter, safety_filter_reference
+from .geometry import Pose2, angle_diff
+from .field import Field, build_field, follow_field
+from .impl import Impl, choose as choose_impl, core as core_impl
+from .safety import SafetyParams
+from .structure import PLAN_MARGIN_M, Structure, room_field  # noqa: F401 (re-exported: the step's names)
 from .wire import CmdMsg, EventMsg, HealthMsg, Mission, StateMsg
 
 Controller = Callable  # vsfleet.control: controller(state, ControlInput) -> (state, wheels (n, 2))
@@ -107,12 +89,6 @@ class MissionArrays:
         return bool(self.radii.any()) or len(self.obstacles) > 0               # the same, packed for vsfleet._core.structure_step (core_mission)
 
 
-#: clearance [m] the structure's planned way keeps between every robot body and every obstacle: beyond the
-#: safety filter's own margin (15 mm), so that on the plan the filter stays idle (docs/planning.md); the
-#: field's states keep this plus its inflation (>= 21 mm), its edges this
-PLAN_MARGIN_M = 0.02
-
-
 def core_mission(metric: str, template: np.ndarray, envelopes: Envelopes, goal: Goal,
                  limits: StructureLimits, radii=None, obstacles=(), field: Field | None = None) -> tuple:
     """The mission's constants as the compiled core takes them (vs_mission in vs_step.h), in
@@ -131,30 +107,6 @@ def core_mission(metric: str, template: np.ndarray, envelopes: Envelopes, goal: 
             np.array(obstacles, dtype=float).reshape(-1), PLAN_MARGIN_M, None if field is None else field.handle)
 
 
-_FIELDS: dict[tuple, Field] = {}
-
-
-def room_field(template: np.ndarray, radii, obstacles: np.ndarray, goal: Goal, reference: bool = False) -> Field | None:
-    """The room's navigation function for a mission (None without obstacles or with a twist goal), memoised by
-    what it depends on: missions that differ only in speed, version or metric (and the agents of one offline
-    run, each with its own decoded mission) share one field."""
-    if len(obstacles) == 0 or isinstance(goal, GoalTwist):
-        return None
-    target = goal.pose if isinstance(goal, GoalPose) else goal.waypoints[-1]
-    tpl = np.ascontiguousarray(template, dtype=float)
-    rad = np.ascontiguousarray(np.broadcast_to(np.asarray(radii, dtype=float), (len(tpl),)))
-    obs = np.ascontiguousarray(obstacles, dtype=float).reshape(-1, 3)
-    key = (tpl.tobytes(), rad.tobytes(), obs.tobytes(), target.as_tuple(), PLAN_MARGIN_M, reference)
-    hit = _FIELDS.get(key)
-    if hit is not None:
-        return hit
-    field = (build_field_reference if reference else build_field)(tpl, rad, PLAN_MARGIN_M, obs, target)
-    if len(_FIELDS) >= 4:  # a few rooms at a time: each field holds its lattice (up to 8 MB)
-        _FIELDS.clear()
-    _FIELDS[key] = field
-    return field
-
-
 _ARRAYS: dict[int, tuple[Mission, MissionArrays]] = {}
 
 
@@ -167,7 +119,7 @@ def mission_arrays(mission: Mission) -> MissionArrays:
     template, envelopes, goal = mission_template(mission), mission_envelope_arrays(mission), mission_goal(mission)
     limits = StructureLimits(speed_max_m_s=mission.speed_max, turn_rate_max_rad_s=mission.turn_rate_max)
     obstacles = np.array(mission.obstacles, dtype=float).reshape(-1, 3)
-    field = room_field(template, mission.radii, obstacles, goal)
+    field = room_field(template, mission.radii, obstacles, goal, build_field)   # the core's build
     arrays = MissionArrays(ids=ids, index={r: i for i, r in enumerate(ids)}, template=template,
                            envelopes=envelopes, goal=goal, limits=limits, policy=mission_policy(mission),
                            radii=np.array(mission.radii, dtype=float), obstacles=obstacles,
@@ -194,63 +146,18 @@ def frame_arrays(ids: tuple[str, ...], poses: Mapping[str, tuple[float, float, f
     return pose, seen, seen & np.fromiter(map(fresh.__contains__, ids), dtype=bool, count=n)
 
 
-@dataclass(frozen=True)
-class Structure:
-    """The structure at one frame. fit_pose / goal_pose [m, rad; world]: fitted and advanced;
-    points_now / points_next (n, 2) [m; world]: every robot's point on them; deviations_m (n,):
-    each robot's distance to the point it is judged on (inf when unseen); cost [m]: the fit's."""
-
-    fit_pose: Pose2
-    goal_pose: Pose2
-    twist: Twist2
-    cost: float
-    at_goal: bool
-    used: np.ndarray
-    points_now: np.ndarray
-    points_next: np.ndarray
-    deviations_m: np.ndarray
-    blocked: bool = False   # obstacles: no path to the goal; the structure stops at the closest safe pose
-    left_m: float = 0.0     # obstacles, blocked: how far [m] that pose is from the goal
-
-
 def structure_step(arrays: MissionArrays, metric: str, pose_world: np.ndarray, seen: np.ndarray,
                    excluded: np.ndarray, judged_apart: np.ndarray, elapsed_s: float, dt_s: float,
-                   reference: bool = False) -> Structure | None:
-    """Fit the structure to the robots seen and not excluded, advance it one dt_s toward the goal.
+                   impl: Impl = core_impl) -> Structure | None:
+    """Fit the structure to the robots seen and not excluded, advance it one dt_s toward the goal, in the
+    implementation ``impl`` (vsfleet.impl: the compiled core, or the numpy reference for tests).
 
-    reference: the numpy reference implementations instead of the compiled core (tests).
     Robots absent or excluded are left out of the fit but still bound the advance. The
     deviations are measured on the structure fitted without the ``judged_apart`` robots (when two
     or more others remain): under hold a failed robot bends the structure the robots follow, and
     the healthy robots it bends must not look non-compliant for it. None if no robot is usable.
     """
-    if not reference:
-        return _structure_step_core(arrays, pose_world, seen, excluded, judged_apart, elapsed_s, dt_s)
-    used = seen & ~excluded
-    if not used.any():
-        return None
-    fit_fn, advance_fn = (fit_structure_reference, advance_structure_reference) if reference else \
-        (fit_structure, advance_structure)
-    xy = pose_world[:, :2]
-    fit = fit_fn(arrays.template[used], xy[used], metric=metric)
-    now_pts = fit.pose.apply(arrays.template)
-    dist = np.hypot(xy[:, 0] - now_pts[:, 0], xy[:, 1] - now_pts[:, 1])
-    goal, blocked, left_m = arrays.goal, False, 0.0
-    if arrays.field is not None:  # the room: follow the field's descent from the fitted pose
-        way, blocked, left_m = follow_field_reference(_reference_field(arrays), fit.pose)
-        goal = GoalPath(tuple(Pose2(*w) for w in way), synced=True)
-    adv = advance_fn(fit.pose, goal, dt_s, arrays.limits, arrays.template, arrays.envelopes,
-                     elapsed_s=elapsed_s, headings_rad=np.where(used, pose_world[:, 2], np.nan),
-                     deviations_m=np.where(used, dist, np.nan))
-    judges = used & ~judged_apart
-    if 2 <= int(judges.sum()) < int(used.sum()):  # a rigid fit needs two points to fix the heading
-        judged = fit_fn(arrays.template[judges], xy[judges], metric=metric).pose.apply(arrays.template)
-        dist = np.hypot(xy[:, 0] - judged[:, 0], xy[:, 1] - judged[:, 1])
-    return Structure(fit_pose=fit.pose, goal_pose=adv.pose, twist=adv.twist, cost=float(fit.cost),
-                     at_goal=adv.at_goal and not blocked, used=used, points_now=now_pts,
-                     points_next=adv.pose.apply(arrays.template), deviations_m=np.where(seen, dist, np.inf),
-                     blocked=blocked, left_m=left_m)
-
+    return impl.structure_step(arrays, metric, pose_world, seen, excluded, judged_apart, elapsed_s, dt_s)
 
 def planned_way(mission: Mission, pose: Pose2, cap: int = 100_000) -> tuple[np.ndarray, bool] | None:
     """The whole way the room's field gives from a structure pose [m, rad; world] to the goal (or the closest
@@ -263,55 +170,20 @@ def planned_way(mission: Mission, pose: Pose2, cap: int = 100_000) -> tuple[np.n
     return way, blocked
 
 
-def _reference_field(arrays: MissionArrays) -> Field:
-    """The reference build of a mission's field (memoised by room_field)."""
-    return room_field(arrays.template, arrays.radii, arrays.obstacles, arrays.goal, reference=True)
-
-
-def _structure_step_core(arrays: MissionArrays, pose_world: np.ndarray, seen: np.ndarray, excluded: np.ndarray,
-                         judged_apart: np.ndarray, elapsed_s: float, dt_s: float) -> Structure | None:
-    """structure_step in the compiled core (vs_structure_step): one call for the fit, the advance and the
-    judged fit."""
-    n = len(arrays.ids)
-    used, now, nxt, dev = np.empty(n, dtype=bool), np.empty((n, 2)), np.empty((n, 2)), np.empty(n)
-    c = arrays.core
-    r = _core.structure_step(*c[:8], np.ascontiguousarray(pose_world, dtype=float),
-                             np.ascontiguousarray(seen, dtype=bool), np.ascontiguousarray(excluded, dtype=bool),
-                             np.ascontiguousarray(judged_apart, dtype=bool), float(elapsed_s), float(dt_s),
-                             used, now, nxt, dev, *c[8:])
-    if r is None:
-        return None
-    fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m = r
-    # the frozen dataclasses filled without their __init__s (as advance._result and _evolve do), every field given
-    # as __init__ would set it (Pose2: x and y as floats, th wrapped by wrap_angle): 2 Pose2, a Twist2 and the
-    # Structure cost about 6 us through their __init__s at n = 10
-    fit, goal, twist, out = _new(Pose2), _new(Pose2), _new(Twist2), _new(Structure)
-    _set(fit, "__dict__", {"x": float(fx), "y": float(fy), "th": wrap_angle(fth)})
-    _set(goal, "__dict__", {"x": float(gx), "y": float(gy), "th": wrap_angle(gth)})
-    _set(twist, "__dict__", {"vx_m_s": vx, "vy_m_s": vy, "w_rad_s": w})
-    _set(out, "__dict__", {"fit_pose": fit, "goal_pose": goal, "twist": twist, "cost": cost, "at_goal": at_goal,
-                           "used": used, "points_now": now, "points_next": nxt, "deviations_m": dev,
-                           "blocked": blocked, "left_m": left_m})
-    return out
-
-
-_new, _set = object.__new__, object.__setattr__
-
-
 def _shared_structure_step(shared: dict | None, mission: Mission, arrays: MissionArrays, pose_world: np.ndarray,
                            seen: np.ndarray, excluded: np.ndarray, judged_apart: np.ndarray, elapsed_s: float,
-                           dt_s: float, reference: bool = False) -> Structure | None:
+                           dt_s: float, impl: Impl = core_impl) -> Structure | None:
     """structure_step, taken from ``shared`` when another agent of an offline run computed it on the
     very same inputs (an equal mission, whose arrays these are, and the arrays' bytes, NaN rows of
     unseen robots included); its arrays are then read-only, as they are shared."""
     metric = mission.metric
     if shared is None:
-        return structure_step(arrays, metric, pose_world, seen, excluded, judged_apart, elapsed_s, dt_s, reference)
+        return structure_step(arrays, metric, pose_world, seen, excluded, judged_apart, elapsed_s, dt_s, impl)
     key = (mission, pose_world.tobytes(), seen.tobytes(), excluded.tobytes(), judged_apart.tobytes(),
-           elapsed_s, dt_s, reference)
+           elapsed_s, dt_s, impl.name)
     if key in shared:
         return shared[key]
-    s = structure_step(arrays, metric, pose_world, seen, excluded, judged_apart, elapsed_s, dt_s, reference)
+    s = structure_step(arrays, metric, pose_world, seen, excluded, judged_apart, elapsed_s, dt_s, impl)
     if s is not None:
         for a in (s.used, s.points_now, s.points_next, s.deviations_m):
             a.flags.writeable = False
@@ -322,10 +194,9 @@ def _shared_structure_step(shared: dict | None, mission: Mission, arrays: Missio
 
 
 def expected_steps_m(pose_world: np.ndarray, wheels_m_s: np.ndarray, dt_s: float,
-                     wheel_base_m: np.ndarray, reference: bool = False) -> np.ndarray:
+                     wheel_base_m: np.ndarray, impl: Impl = core_impl) -> np.ndarray:
     """Displacement (n, 2) [m; world] each robot makes in dt_s at its command (paper eqs 17-18)."""
-    arcs = integrate_arcs_reference if reference else integrate_arcs
-    return arcs(pose_world, wheels_m_s, dt_s, wheel_base_m)[:, :2] - pose_world[:, :2]
+    return impl.integrate_arcs(pose_world, wheels_m_s, dt_s, wheel_base_m)[:, :2] - pose_world[:, :2]
 
 
 # ---------------------------------------------------------------- the agent step
@@ -361,6 +232,11 @@ class StepConfig:
     # the numpy reference implementations (fit, advance, controller, kinematics, failure rule) instead
     # of the compiled core: the readable reference the core is tested against (tests/test_core_step.py)
     reference: bool = False
+    # the implementation reference selects (vsfleet.impl), chosen once here: the step calls impl.<name>
+    impl: Impl = field(default=core_impl, init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "impl", choose_impl(self.reference))
 
     @property
     def age_s(self) -> float:
@@ -513,13 +389,13 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
     hold = policy.mode == "hold"
     judged_apart = failure.failed & ~failure.dropped if hold else np.zeros(n, dtype=bool)
     s = _shared_structure_step(config.shared_structures, mission, arrays, pose, seen, failure.dropped,
-                               judged_apart, frame.t - mission.effective_t, config.dt_s, config.reference)
+                               judged_apart, frame.t - mission.effective_t, config.dt_s, config.impl)
     if s is None:
         return state, StepOutput(notes=tuple(notes))
     # every robot's command, as its own agent computes it: seen, and not dropped (rejoin: driven on)
     active = seen & (~failure.dropped if policy.mode != "rejoin" else True)
     pose_seen = np.where(seen[:, None], pose, 0.0)   # unseen rows zeroed: the controller, kinematics, failure rule
-    ctrl, wheels = (controller.reference if config.reference else controller)(ctrl, ControlInput(
+    ctrl, wheels = config.impl.control(controller, ctrl, ControlInput(
         pose_world=pose_seen, point_now_world=s.points_now,
         point_next_world=s.points_next, wheels_prev_m_s=wheels_prev, dt_s=config.dt_s, age_s=config.age_s,
         envelopes=arrays.envelopes, active=active))
@@ -543,11 +419,11 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
     # time would disagree on the frame of a decision
     moved = fresh & active
     expected = np.where(moved[:, None], expected_steps_m(pose_seen, wheels, config.dt_s,
-                                                         arrays.envelopes.wheel_base_m, config.reference), 0.0)
-    failure, decisions = (failure_step_reference if config.reference else failure_step)(policy, failure, arrays.ids, frame.t, seen=seen, fresh=fresh,
-                                      xy_world=pose_seen[:, :2],
-                                      deviations_m=s.deviations_m, expected_step_m=expected,
-                                      step_s=config.dt_s, max_gap_s=config.ttl_s)
+                                                         arrays.envelopes.wheel_base_m, config.impl), 0.0)
+    failure, decisions = config.impl.failure_step(policy, failure, arrays.ids, frame.t, seen=seen, fresh=fresh,
+                                                  xy_world=pose_seen[:, :2],
+                                                  deviations_m=s.deviations_m, expected_step_m=expected,
+                                                  step_s=config.dt_s, max_gap_s=config.ttl_s)
     health = _health(failure, arrays.ids)
     health_msg = HealthMsg(t=frame.t, seq=frame.seq, mission=mission.version, failed=tuple(sorted(health.failed)),
                            dropped=tuple(sorted(health.dropped)), since=tuple(sorted(health.since_t.items())))
@@ -634,12 +510,11 @@ def _safe_wheels(arrays: MissionArrays, pose: np.ndarray, seen: np.ndarray, acti
     if rows.size == 0:
         return wheels
     env = arrays.envelopes
-    filt = safety_filter_reference if config.reference else safety_filter
-    safe, _info = filt(np.ascontiguousarray(pose[rows]), arrays.radii[rows], np.ascontiguousarray(wheels[rows]),
-                       wheel_base_m=env.wheel_base_m[rows], wheel_speed_max_m_s=env.wheel_speed_max_m_s[rows],
-                       obstacles=arrays.obstacles, active=active[rows],
-                       wheel_accel_max_m_s2=env.wheel_accel_max_m_s2[rows],
-                       wheels_prev_m_s=np.ascontiguousarray(wheels_prev[rows]), params=_safety_params(config.dt_s))
+    safe, _info = config.impl.safety_filter(
+        np.ascontiguousarray(pose[rows]), arrays.radii[rows], np.ascontiguousarray(wheels[rows]),
+        wheel_base_m=env.wheel_base_m[rows], wheel_speed_max_m_s=env.wheel_speed_max_m_s[rows],
+        obstacles=arrays.obstacles, active=active[rows], wheel_accel_max_m_s2=env.wheel_accel_max_m_s2[rows],
+        wheels_prev_m_s=np.ascontiguousarray(wheels_prev[rows]), params=_safety_params(config.dt_s))
     out = wheels.copy()
     out[rows] = safe
     return out

@@ -1,0 +1,144 @@
+"""The structure at one frame: fit, advance and judged fit (the part of the agent step every agent computes alike).
+
+:func:`structure_step_core` runs it in the compiled core (one call), :func:`structure_step_reference` in numpy
+(the readable reference); vsfleet.impl chooses between them and vsfleet.step.structure_step calls the one
+chosen. :func:`room_field` builds (and memoises) a room's navigation function, PLAN_MARGIN_M is its clearance.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from . import _core
+from .advance import Goal, GoalPath, GoalPose, GoalTwist, Twist2, advance_structure_reference
+from .field import Field, build_field, build_field_reference, follow_field_reference
+from .fit import fit_structure_reference
+from .geometry import Pose2, wrap_angle
+
+#: clearance [m] the structure's planned way keeps between every robot body and every obstacle: beyond the
+#: safety filter's own margin (15 mm), so that on the plan the filter stays idle (docs/planning.md); the
+#: field's states keep this plus its inflation (>= 21 mm), its edges this
+PLAN_MARGIN_M = 0.02
+
+
+
+_FIELDS: dict[tuple, Field] = {}
+
+
+def room_field(template: np.ndarray, radii, obstacles: np.ndarray, goal: Goal,
+               build: Callable = build_field) -> Field | None:
+    """The room's navigation function for a mission (None without obstacles or with a twist goal), memoised by
+    what it depends on: missions that differ only in speed, version or metric (and the agents of one offline
+    run, each with its own decoded mission) share one field. build: the core's build_field, or the reference's."""
+    if len(obstacles) == 0 or isinstance(goal, GoalTwist):
+        return None
+    target = goal.pose if isinstance(goal, GoalPose) else goal.waypoints[-1]
+    tpl = np.ascontiguousarray(template, dtype=float)
+    rad = np.ascontiguousarray(np.broadcast_to(np.asarray(radii, dtype=float), (len(tpl),)))
+    obs = np.ascontiguousarray(obstacles, dtype=float).reshape(-1, 3)
+    key = (tpl.tobytes(), rad.tobytes(), obs.tobytes(), target.as_tuple(), PLAN_MARGIN_M, build)
+    hit = _FIELDS.get(key)
+    if hit is not None:
+        return hit
+    field = build(tpl, rad, PLAN_MARGIN_M, obs, target)
+    if len(_FIELDS) >= 4:  # a few rooms at a time: each field holds its lattice (up to 8 MB)
+        _FIELDS.clear()
+    _FIELDS[key] = field
+    return field
+
+
+@dataclass(frozen=True)
+class Structure:
+    """The structure at one frame. fit_pose / goal_pose [m, rad; world]: fitted and advanced;
+    points_now / points_next (n, 2) [m; world]: every robot's point on them; deviations_m (n,):
+    each robot's distance to the point it is judged on (inf when unseen); cost [m]: the fit's."""
+
+    fit_pose: Pose2
+    goal_pose: Pose2
+    twist: Twist2
+    cost: float
+    at_goal: bool
+    used: np.ndarray
+    points_now: np.ndarray
+    points_next: np.ndarray
+    deviations_m: np.ndarray
+    blocked: bool = False   # obstacles: no path to the goal; the structure stops at the closest safe pose
+    left_m: float = 0.0     # obstacles, blocked: how far [m] that pose is from the goal
+
+
+
+def structure_step_reference(arrays, metric: str, pose_world: np.ndarray, seen: np.ndarray, excluded: np.ndarray,
+                             judged_apart: np.ndarray, elapsed_s: float, dt_s: float) -> Structure | None:
+    """Fit the structure to the robots seen and not excluded, advance it one dt_s toward the goal: the
+    readable reference (numpy) of :func:`structure_step_core`. arrays: the mission's (vsfleet.step.MissionArrays).
+
+    Robots absent or excluded are left out of the fit but still bound the advance. The
+    deviations are measured on the structure fitted without the ``judged_apart`` robots (when two
+    or more others remain): under hold a failed robot bends the structure the robots follow, and
+    the healthy robots it bends must not look non-compliant for it. None if no robot is usable.
+    """
+    used = seen & ~excluded
+    if not used.any():
+        return None
+    fit_fn, advance_fn = fit_structure_reference, advance_structure_reference
+    xy = pose_world[:, :2]
+    fit = fit_fn(arrays.template[used], xy[used], metric=metric)
+    now_pts = fit.pose.apply(arrays.template)
+    dist = np.hypot(xy[:, 0] - now_pts[:, 0], xy[:, 1] - now_pts[:, 1])
+    goal, blocked, left_m = arrays.goal, False, 0.0
+    if arrays.field is not None:  # the room: follow the field's descent from the fitted pose
+        way, blocked, left_m = follow_field_reference(_reference_field(arrays), fit.pose)
+        goal = GoalPath(tuple(Pose2(*w) for w in way), synced=True)
+    adv = advance_fn(fit.pose, goal, dt_s, arrays.limits, arrays.template, arrays.envelopes,
+                     elapsed_s=elapsed_s, headings_rad=np.where(used, pose_world[:, 2], np.nan),
+                     deviations_m=np.where(used, dist, np.nan))
+    judges = used & ~judged_apart
+    if 2 <= int(judges.sum()) < int(used.sum()):  # a rigid fit needs two points to fix the heading
+        judged = fit_fn(arrays.template[judges], xy[judges], metric=metric).pose.apply(arrays.template)
+        dist = np.hypot(xy[:, 0] - judged[:, 0], xy[:, 1] - judged[:, 1])
+    return Structure(fit_pose=fit.pose, goal_pose=adv.pose, twist=adv.twist, cost=float(fit.cost),
+                     at_goal=adv.at_goal and not blocked, used=used, points_now=now_pts,
+                     points_next=adv.pose.apply(arrays.template), deviations_m=np.where(seen, dist, np.inf),
+                     blocked=blocked, left_m=left_m)
+
+
+
+def _reference_field(arrays) -> Field:
+    """The reference build of a mission's field (memoised by room_field)."""
+    return room_field(arrays.template, arrays.radii, arrays.obstacles, arrays.goal, build_field_reference)
+
+
+
+def structure_step_core(arrays, metric: str, pose_world: np.ndarray, seen: np.ndarray, excluded: np.ndarray,
+                        judged_apart: np.ndarray, elapsed_s: float, dt_s: float) -> Structure | None:
+    """The structure step in the compiled core (vs_structure_step): one call for the fit, the advance and the
+    judged fit. arrays: the mission's (vsfleet.step.MissionArrays), whose ``core`` holds the mission packed for
+    the core, its metric among it."""
+    n = len(arrays.ids)
+    used, now, nxt, dev = np.empty(n, dtype=bool), np.empty((n, 2)), np.empty((n, 2)), np.empty(n)
+    c = arrays.core
+    r = _core.structure_step(*c[:8], np.ascontiguousarray(pose_world, dtype=float),
+                             np.ascontiguousarray(seen, dtype=bool), np.ascontiguousarray(excluded, dtype=bool),
+                             np.ascontiguousarray(judged_apart, dtype=bool), float(elapsed_s), float(dt_s),
+                             used, now, nxt, dev, *c[8:])
+    if r is None:
+        return None
+    fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m = r
+    # the frozen dataclasses filled without their __init__s (as advance._result and _evolve do), every field given
+    # as __init__ would set it (Pose2: x and y as floats, th wrapped by wrap_angle): 2 Pose2, a Twist2 and the
+    # Structure cost about 6 us through their __init__s at n = 10
+    fit, goal, twist, out = _new(Pose2), _new(Pose2), _new(Twist2), _new(Structure)
+    _set(fit, "__dict__", {"x": float(fx), "y": float(fy), "th": wrap_angle(fth)})
+    _set(goal, "__dict__", {"x": float(gx), "y": float(gy), "th": wrap_angle(gth)})
+    _set(twist, "__dict__", {"vx_m_s": vx, "vy_m_s": vy, "w_rad_s": w})
+    _set(out, "__dict__", {"fit_pose": fit, "goal_pose": goal, "twist": twist, "cost": cost, "at_goal": at_goal,
+                           "used": used, "points_now": now, "points_next": nxt, "deviations_m": dev,
+                           "blocked": blocked, "left_m": left_m})
+    return out
+
+
+_new, _set = object.__new__, object.__setattr__
+
