@@ -1,9 +1,11 @@
 """Missions in a room as real processes (`vsfleet run`: router, simfleet, tracker and one agent per robot
 over loopback zenoh): the paper triangle around a pillar on its straight path, three robots started
 in a row 2 cm apart forming the triangle, issue 28's pillar with a vertex facing it (bodies of 0.09 m: the
-old enclosing-disc planner deadlocked there) and a thin wall with a 0.70 m gap, narrower than the
-structure's enclosing disc; each reaches the goal and no body touches another or an obstacle
-(simfleet's truth, recorded from the key space)."""
+old enclosing-disc planner deadlocked there), a thin wall with a 0.70 m gap, narrower than the
+structure's enclosing disc, a thin wall with a 0.56 m gap, narrower than the triangle with its bodies
+(the way threads the wall between the robots), and a crowded start of 10 robots packed 2 cm apart that
+spread into a line, reordering as they go (issue 28's multi-process cases); each reaches the goal and no
+body touches another or an obstacle (simfleet's truth, recorded from the key space)."""
 
 from __future__ import annotations
 
@@ -18,7 +20,8 @@ pytestmark = pytest.mark.integration
 ROOT = Path(__file__).resolve().parent.parent.parent
 
 
-@pytest.mark.parametrize("name", ["paper-triangle-obstacle", "tight-row", "room-pillar-facing", "room-wall-gap"])
+@pytest.mark.parametrize("name", ["paper-triangle-obstacle", "tight-row", "room-pillar-facing", "room-wall-gap",
+                                  "room-wall-thread", "crowd-10"])
 def test_the_fleet_reaches_its_goal_in_a_room_untouched_and_its_agents_agree(name, tmp_path):
     summary, _ = run(str(ROOT / "scenarios" / f"{name}.toml"), out_dir=str(tmp_path), progress=False)
     print(summary.table())
