@@ -375,146 +375,168 @@ def prepare_mission(mission: Mission) -> threading.Thread:
     return thread
 
 
+class AgentWiring:
+    """One agent's zenoh side: its publishers, subscribers and queryables, and the loop that runs it.
+
+    One thread at a time works on the agent (its inbox, slot, merger and step), holding ``work``. A frame
+    runs in the zenoh thread that delivered it whenever that thread can have the agent at once and no
+    mission or reply is waiting: no hand-off to the main loop, no second thread woken, which was most of an
+    agent's CPU beyond the step. Otherwise the main loop runs it. An error a frame raises in a zenoh thread
+    ends the agent as it would in the main loop (``crashed`` holds it for the main loop to raise), and no
+    frame runs once the stop command is out (``stopped``). Events are reliable (blocking) puts: the main
+    loop publishes them, never a zenoh thread.
+    """
+
+    def __init__(self, session: zenoh.Session, robot: str, keys: Keys, dt_s: float, ttl_s: float,
+                 deadline_s: float | None) -> None:
+        self.session, self.robot, self.keys = session, robot, keys
+        self.inbox: queue.Queue = queue.Queue(maxsize=INBOX_MAX)
+        self.overflow = 0
+        self.work = threading.Lock()
+        self.crashed: list[BaseException] = []
+        self.stopped = False
+        self.events_out: queue.SimpleQueue = queue.SimpleQueue()
+        self.cmd_pub = session.declare_publisher(keys.cmd(robot), **COMMAND_QOS)
+        self.state_pub = session.declare_publisher(keys.state(robot), **TELEMETRY_QOS)
+        self.event_pub = session.declare_publisher(keys.event(robot), **RELIABLE_QOS)
+        self.agent = Agent(robot, keys, self.cmd_pub.put, self.state_pub.put, dt_s=dt_s, ttl_s=ttl_s,
+                           deadline_s=deadline_s, put_event=self.queue_event, prepare=prepare_mission)
+        self.token = session.liveliness().declare_token(keys.alive("agent", robot))  # keep referenced
+        self.own_mission, self.own_health = keys.peer_mission(robot), keys.peer_health(robot)
+        self.mission_sub = session.declare_subscriber(keys.mission, self.on_mission_sample)
+        self.frame_sub = session.declare_subscriber(keys.frame(), self.on_frame_sample)
+        self.queryables = [session.declare_queryable(self.own_mission, self.answer_mission, complete=False),
+                           session.declare_queryable(self.own_health, self.answer_health, complete=False)]
+        self.fetcher: threading.Thread | None = None
+        self.next_fetch = 0.0
+        self.asked_health = False  # in this JOINING or RESYNCING phase
+
+    # ---------------------------------------------------------------- zenoh threads
+    def on_mission_sample(self, sample: zenoh.Sample) -> None:
+        """A mission put: into the inbox for the main loop (a full inbox is a counted rejection)."""
+        try:
+            self.inbox.put_nowait(("mission", str(sample.key_expr), sample.payload.to_bytes()))
+        except queue.Full:
+            self.overflow += 1
+            self.agent.rejections.reject(str(sample.key_expr), "inbox full (flood)")
+        self.agent.wake.set()
+
+    def on_frame_sample(self, sample: zenoh.Sample) -> None:
+        """A frame: run here if the agent is free and nothing waits in the inbox, else left in the slot."""
+        agent = self.agent
+        key, payload = str(sample.key_expr), sample.payload.to_bytes()
+        if self.inbox.empty() and self.work.acquire(blocking=False):
+            try:
+                if self.stopped or self.crashed:
+                    return
+                agent.on_frame(key, payload, wake=False)
+                agent.poll()
+                if agent.merger.time_to_deadline(agent.clock()) is not None:
+                    agent.wake.set()  # a frame waits for other sources: the main loop keeps its deadline
+            except Exception as exc:  # noqa: BLE001 - handed to the main loop, which ends the agent
+                self.crashed.append(exc)
+                agent.wake.set()
+            finally:
+                self.work.release()
+        elif not self.stopped:
+            agent.on_frame(key, payload)
+
+    def answer_mission(self, query: zenoh.Query) -> None:
+        payload = self.agent.mission_payload  # a bytes object swapped in by the main thread
+        if payload is not None:
+            query.reply(self.own_mission, payload)
+
+    def answer_health(self, query: zenoh.Query) -> None:
+        payload = self.agent.health_payload  # likewise
+        if payload is not None:
+            query.reply(self.own_health, payload)
+
+    def queue_event(self, payload: bytes) -> None:
+        self.events_out.put(payload)
+        self.agent.wake.set()
+
+    # ---------------------------------------------------------------- the main loop
+    def flush_events(self) -> None:
+        while True:
+            try:
+                self.event_pub.put(self.events_out.get_nowait())
+            except queue.Empty:
+                return
+
+    def ask_peers(self, now: float) -> None:
+        """Without a mission, ask the operator and every peer for it (every FETCH_PERIOD_S); with one, a
+        (re)started or resynced agent asks its peers' failure-policy state, once per such phase."""
+        agent, keys = self.agent, self.keys
+        idle = not (self.fetcher and self.fetcher.is_alive())
+        if agent.state.phase is SyncPhase.SYNCED:
+            self.asked_health = False
+        if agent.missions.latest() is None and now >= self.next_fetch and idle:
+            self.fetcher = threading.Thread(target=fetch, args=(
+                self.session, (keys.mission, keys.peer_mission()), "mission", self.inbox, 1.0, agent.wake),
+                daemon=True)
+            self.fetcher.start()
+            self.next_fetch = now + FETCH_PERIOD_S
+        elif agent.missions.latest() is not None and not self.asked_health and idle and \
+                agent.state.phase is not SyncPhase.SYNCED:
+            self.asked_health = True
+            self.fetcher = threading.Thread(target=fetch, args=(
+                self.session, (keys.peer_health(),), "health", self.inbox, 1.0, agent.wake), daemon=True)
+            self.fetcher.start()
+
+    def run_once(self) -> None:
+        """Wait for a wake-up or the merger's deadline, then run what came: missions and replies first (a
+        frame may need the mission just arrived), then the frame due."""
+        agent = self.agent
+        now = agent.clock()
+        self.ask_peers(now)
+        with self.work:  # the merger's deadline is the agent's state too
+            wait = agent.merger.time_to_deadline(now)
+        agent.wake.wait(0.05 if wait is None else max(wait, 1e-4))
+        with self.work:
+            if self.crashed:
+                raise self.crashed[0]
+            while True:
+                try:
+                    kind, key, payload = self.inbox.get_nowait()
+                except queue.Empty:
+                    break
+                agent.on_message(kind, key, payload)
+            agent.poll()
+        self.flush_events()
+
+    def close(self) -> None:
+        """Stop frames, publish the zero command (no frame runs after it), log the counts, undeclare."""
+        agent = self.agent
+        self.frame_sub.undeclare()
+        with self.work:  # no frame runs after the stop command, even in a callback undeclare did not wait for
+            self.stopped = True
+            self.cmd_pub.put(agent.stop_command())
+        self.flush_events()
+        log.info("agent %s stopping after %d ticks, %d rejected (%d on overflow), %d frames replaced "
+                 "before they ran, %d stale frames", self.robot, agent.ticks, agent.rejections.count,
+                 self.overflow, agent.frames_replaced, agent.state.stale)
+        self.mission_sub.undeclare()
+        for q in self.queryables:
+            q.undeclare()
+        self.token.undeclare()
+        if self.fetcher is not None:
+            self.fetcher.join(timeout=2.0)
+
+
 def run_agent(conf: zenoh.Config, robot: str, fleet: str = "demo", stop: StopFlag | None = None,
               dt_s: float = DEFAULT_DT_S, ttl_s: float = DEFAULT_TTL_S,
               deadline_s: float | None = None) -> Agent:
     """Run one agent until ``stop`` is set; always ends with a zero command."""
     stop = stop or StopFlag()
-    keys = Keys(fleet)
-    inbox: queue.Queue = queue.Queue(maxsize=INBOX_MAX)
-    overflow = [0]
-
-    def enqueue(kind: str):
-        def cb(sample: zenoh.Sample) -> None:
-            try:
-                inbox.put_nowait((kind, str(sample.key_expr), sample.payload.to_bytes()))
-            except queue.Full:
-                overflow[0] += 1
-                agent.rejections.reject(str(sample.key_expr), "inbox full (flood)")
-            agent.wake.set()
-        return cb
-
     with open_session(conf) as session:
-        cmd_pub = session.declare_publisher(keys.cmd(robot), **COMMAND_QOS)
-        state_pub = session.declare_publisher(keys.state(robot), **TELEMETRY_QOS)
-        event_pub = session.declare_publisher(keys.event(robot), **RELIABLE_QOS)
-        # events are reliable (blocking) puts: published by the main loop, never from a zenoh thread
-        events_out: queue.SimpleQueue = queue.SimpleQueue()
-
-        def queue_event(payload: bytes) -> None:
-            events_out.put(payload)
-            agent.wake.set()
-
-        def flush_events() -> None:
-            while True:
-                try:
-                    event_pub.put(events_out.get_nowait())
-                except queue.Empty:
-                    return
-
-        agent = Agent(robot, keys, cmd_pub.put, state_pub.put, dt_s=dt_s, ttl_s=ttl_s,
-                      deadline_s=deadline_s, put_event=queue_event, prepare=prepare_mission)
-        token = session.liveliness().declare_token(keys.alive("agent", robot))  # keep referenced
-
-        own_mission, own_health = keys.peer_mission(robot), keys.peer_health(robot)
-
-        def answer_mission(query: zenoh.Query) -> None:
-            payload = agent.mission_payload  # a bytes object swapped in by the main thread
-            if payload is not None:
-                query.reply(own_mission, payload)
-
-        def answer_health(query: zenoh.Query) -> None:
-            payload = agent.health_payload  # likewise
-            if payload is not None:
-                query.reply(own_health, payload)
-
-        # One thread at a time works on the agent (its inbox, slot, merger and step). A frame runs in
-        # the zenoh thread that delivered it whenever that thread can have the agent at once and no
-        # mission or reply is waiting: no hand-off to the main loop, no second thread woken, which
-        # was most of an agent's CPU beyond the step. Otherwise the main loop runs it.
-        # An error a frame raises in a zenoh thread ends the agent as it would in the main loop (crashed
-        # holds it for the main loop to raise), and no frame runs once the stop command is out (stopped).
-        work = threading.Lock()
-        crashed: list[BaseException] = []
-        stopped = [False]
-
-        def on_frame(sample: zenoh.Sample) -> None:
-            key, payload = str(sample.key_expr), sample.payload.to_bytes()
-            if inbox.empty() and work.acquire(blocking=False):
-                try:
-                    if stopped[0] or crashed:
-                        return
-                    agent.on_frame(key, payload, wake=False)
-                    agent.poll()
-                    if agent.merger.time_to_deadline(agent.clock()) is not None:
-                        agent.wake.set()  # a frame waits for other sources: the main loop keeps its deadline
-                except Exception as exc:  # noqa: BLE001 - handed to the main loop, which ends the agent
-                    crashed.append(exc)
-                    agent.wake.set()
-                finally:
-                    work.release()
-            elif not stopped[0]:
-                agent.on_frame(key, payload)
-
-        subs = [
-            session.declare_subscriber(keys.mission, enqueue("mission")),
-            session.declare_subscriber(keys.frame(), on_frame),
-        ]
-        queryables = [session.declare_queryable(own_mission, answer_mission, complete=False),
-                      session.declare_queryable(own_health, answer_health, complete=False)]
+        wiring = AgentWiring(session, robot, Keys(fleet), dt_s, ttl_s, deadline_s)
         log.info("agent %s up (fleet %s)", robot, fleet)
-        next_fetch = 0.0
-        fetcher: threading.Thread | None = None
-        asked_health = False  # in this JOINING or RESYNCING phase
         try:
             while not stop.is_set():
-                now = agent.clock()
-                idle = not (fetcher and fetcher.is_alive())
-                if agent.state.phase is SyncPhase.SYNCED:
-                    asked_health = False
-                if agent.missions.latest() is None and now >= next_fetch and idle:
-                    # the operator's answer, if its tool is up, and every peer's
-                    fetcher = threading.Thread(target=fetch, args=(
-                        session, (keys.mission, keys.peer_mission()), "mission", inbox, 1.0, agent.wake),
-                        daemon=True)
-                    fetcher.start()
-                    next_fetch = now + FETCH_PERIOD_S
-                elif agent.missions.latest() is not None and not asked_health and idle and \
-                        agent.state.phase is not SyncPhase.SYNCED:
-                    asked_health = True  # a (re)started or resynced agent takes its peers' state
-                    fetcher = threading.Thread(target=fetch, args=(
-                        session, (keys.peer_health(),), "health", inbox, 1.0, agent.wake), daemon=True)
-                    fetcher.start()
-                with work:  # the merger's deadline is the agent's state too
-                    wait = agent.merger.time_to_deadline(now)
-                agent.wake.wait(0.05 if wait is None else max(wait, 1e-4))
-                with work:
-                    if crashed:
-                        raise crashed[0]
-                    while True:  # missions and replies first: a frame may need the mission just arrived
-                        try:
-                            kind, key, payload = inbox.get_nowait()
-                        except queue.Empty:
-                            break
-                        agent.on_message(kind, key, payload)
-                    agent.poll()
-                flush_events()
+                wiring.run_once()
         finally:
-            subs[1].undeclare()
-            with work:  # no frame runs after the stop command, even in a callback undeclare did not wait for
-                stopped[0] = True
-                cmd_pub.put(agent.stop_command())
-            flush_events()
-            log.info("agent %s stopping after %d ticks, %d rejected (%d on overflow), %d frames replaced "
-                     "before they ran, %d stale frames", robot, agent.ticks, agent.rejections.count,
-                     overflow[0], agent.frames_replaced, agent.state.stale)
-            subs[0].undeclare()
-            for q in queryables:
-                q.undeclare()
-            token.undeclare()
-            if fetcher is not None:
-                fetcher.join(timeout=2.0)
-    return agent
+            wiring.close()
+    return wiring.agent
 
 
 def build_parser() -> argparse.ArgumentParser:
