@@ -18,13 +18,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from vsfleet import _core
-from vsfleet.coreconst import METRIC_CODES as CODES, METRICS
+from vsfleet.coreconst import FIT_MAX_ROUNDS as MAX_ROUNDS, METRIC_CODES as CODES, METRICS
 from vsfleet.errors import NonFiniteError, ShapeError, UnknownMetricError, VsfleetValueError, WeightError
 from vsfleet.fit import (CERT_TOL, fit_structure, fit_structure_reference, structure_cost,
                          structure_cost_reference)
 from vsfleet.geometry import Pose2
 
-MAX_ROUNDS = 60  # vs_fit.h VS_FIT_MAX_ROUNDS
 EPS = np.finfo(float).eps
 SETTINGS = dict(deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import ast
 import dataclasses
+import math
 import re
 from pathlib import Path
 
@@ -51,6 +52,16 @@ def struct_members(name: str) -> tuple[str, ...]:
 DEFINES = defines()
 
 
+def define_value(name: str):
+    """A #define's value as Python reads it: other VS_ names replaced by theirs, C's u suffix dropped."""
+    text = re.sub(r"\b(0[xX][0-9A-Fa-f]+|\d+)[uU]\b", r"\1", DEFINES[name])
+    text = re.sub(r"\bVS_\w+\b", lambda m: f"({define_value(m.group())!r})", text)
+    return eval(text, {"__builtins__": {}})  # noqa: S307 - the core's own headers
+
+
+NUMBERS = {k: v for k, v in vars(coreconst).items() if k.isupper() and type(v) in (int, float)}
+
+
 def test_the_codes_python_reads_are_the_headers_defines():
     for kind in ("POSE", "PATH", "TWIST", "PLAN"):
         assert getattr(coreconst, f"GOAL_{kind}") == int(DEFINES[f"VS_GOAL_{kind}"])
@@ -63,6 +74,13 @@ def test_the_codes_python_reads_are_the_headers_defines():
     assert coreconst.PRECISION_HISTORY == int(DEFINES["VS_PRECISION_HISTORY"])
     assert coreconst.FAILURE_NM_PER_M == float(DEFINES["VS_FAILURE_NM_PER_M"])
     assert coreconst.FAILURE_SETTLED_RATIO == float(DEFINES["VS_FAILURE_SETTLED_RATIO"])
+
+
+@pytest.mark.parametrize("name", sorted(NUMBERS))
+def test_every_number_python_reads_is_its_define(name):
+    """coreconst.X is the headers' VS_X, the same type and the same bits."""
+    want = define_value(f"VS_{name}")
+    assert NUMBERS[name] == want and type(NUMBERS[name]) is type(want), name
 
 
 def test_the_field_orders_python_reads_are_the_structs_and_name_the_dataclasses_fields():
@@ -90,6 +108,10 @@ DEFINED = {"METRICS": coreconst.METRICS, "FAILURE_MODES": coreconst.FAILURE_MODE
 CODED = set(coreconst.METRICS) | set(coreconst.DECISION_KINDS) | set(coreconst.FAILURE_MODES)
 CODE_NAME = re.compile(r"^_?(GOAL_(POSE|PATH|TWIST|PLAN)|METRIC_(L1|L2|LINF)|DECISION_[A-Z]+|(PRECISION_)?HISTORY"
                        r"|FAILURE_(HOLD|DROP|REJOIN)|(FAILURE_)?NM_PER_M|(FAILURE_)?SETTLED_RATIO)$", re.I)
+# a module-level name that is a constant of the core's under its own name (the core's, or without its area:
+# field.py's WALL for FIELD_WALL), with the same value, is a copy. wire's MAX_OBSTACLES (a mission's
+# obstacles) is not the planner's, though it equals it.
+NOT_COPIES = {("vsfleet/wire.py", "MAX_OBSTACLES")}
 SOURCES = sorted(p for d in ("vsfleet", "tests") for p in (ROOT / d).rglob("*.py")
                  if p.name not in ("coreconst.py", "test_coreconst.py"))
 
@@ -108,11 +130,48 @@ def _numbers(node) -> bool:
     return isinstance(node, ast.Constant) and type(node.value) in (int, float)
 
 
-def copies(text: str) -> list[str]:
+AREAS = {"GOAL", "METRIC", "FAILURE", "DECISION", "PRECISION", "FIELD", "STEP", "PLAN", "FIT", "L1", "LINF", "WIRE"}
+
+
+def _unprefixed(name: str) -> str:
+    area, _, rest = name.partition("_")
+    return rest if area in AREAS else name
+
+
+def _literal(node):
+    """The value of a number written out (literals, math.pi, arithmetic of them), else None."""
+    if not all(isinstance(n, (ast.Constant, ast.BinOp, ast.UnaryOp, ast.operator, ast.unaryop, ast.Attribute,
+                              ast.Name, ast.Load)) for n in ast.walk(node)):
+        return None
+    if any(isinstance(n, ast.Attribute) and ast.unparse(n) != "math.pi" for n in ast.walk(node)) or \
+            any(isinstance(n, ast.Name) and n.id != "math" for n in ast.walk(node)):
+        return None
+    try:
+        v = eval(compile(ast.Expression(node), "<copy>", "eval"), {"__builtins__": {}, "math": math})  # noqa: S307
+    except Exception:
+        return None
+    return v if type(v) in (int, float) else None
+
+
+def copies(text: str, where: str = "") -> list[str]:
     """What in this Python text writes one of the core's constants again."""
     tree = ast.parse(text)
     found = []
     top = set(map(id, tree.body))
+    for node in tree.body:
+        if isinstance(node, (ast.Assign, ast.AnnAssign)) and node.value is not None:
+            targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+            pairs = [(t, v) for tg in targets for t, v in (
+                zip(tg.elts, node.value.elts) if isinstance(tg, ast.Tuple) and isinstance(node.value, ast.Tuple)
+                else [(tg, node.value)])]
+            for t, v in pairs:
+                if not isinstance(t, ast.Name) or (where, t.id) in NOT_COPIES:
+                    continue
+                value, short = _literal(v), t.id.lstrip("_")
+                hits = [k for k, c in NUMBERS.items() if short in (k, _unprefixed(k)) and c == value
+                        and value is not None]
+                if hits:
+                    found.append(f"line {node.lineno}: {t.id} = {value!r} is {hits[0]}")
     for node in ast.walk(tree):
         seq = _strings(node)
         for name, order in ORDERS.items():
@@ -139,7 +198,7 @@ def copies(text: str) -> list[str]:
 
 @pytest.mark.parametrize("path", SOURCES, ids=lambda p: str(p.relative_to(ROOT)))
 def test_no_python_file_writes_a_constant_of_the_core_again(path):
-    found = copies(path.read_text())
+    found = copies(path.read_text(), str(path.relative_to(ROOT)))
     assert not found, f"{path.relative_to(ROOT)}: import it from vsfleet.coreconst instead: {found}"
 
 
@@ -155,6 +214,10 @@ def test_the_check_catches_the_copies_it_replaced():
         "nm": "_NM_PER_M = 1e9\n",
         "factor": "known = t - first >= 0.8 * policy.fail_after_s\n",
         "records": 'METRICS = ("l1", "l2", "linf")\n',
+        "field": "WALL = 0xFFFFFFFF\nW_AXIS, W_DIAG = 10, 14\n",
+        "plan": "ARC_STEP_RAD = math.pi / 12.0\n",
+        "fit": "CERT_TOL = 1e-10\n_MAX_ROUNDS = 60\n",
+        "wire": "MAX_FRAME_BYTES = 1 << 16\n",
     }
     for what, text in old.items():
         assert copies(text), what

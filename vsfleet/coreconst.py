@@ -36,3 +36,45 @@ PRECISION_HISTORY: int = _core.PRECISION_HISTORY
 #: vsfleet.control.Precision's and Tracking's gains in vs_precision_gains' / vs_tracking_gains' order
 PRECISION_GAIN_FIELDS: tuple[str, ...] = _core.PRECISION_GAIN_FIELDS
 TRACKING_GAIN_FIELDS: tuple[str, ...] = _core.TRACKING_GAIN_FIELDS
+
+# the room's navigation function (vs_field.h VS_FIELD_*): a state's cost word, the comfort band [m], the cell's
+# growth, the edge weights and the search for a free state around a pose
+FIELD_WALL: int = _core.FIELD_WALL
+FIELD_BLOCKED_BIT: int = _core.FIELD_BLOCKED_BIT
+FIELD_TIGHT_BIT: int = _core.FIELD_TIGHT_BIT
+FIELD_COST_MASK: int = _core.FIELD_COST_MASK
+FIELD_COMFORT_M: float = _core.FIELD_COMFORT_M
+FIELD_GROW: float = _core.FIELD_GROW
+FIELD_W_AXIS: int = _core.FIELD_W_AXIS
+FIELD_W_DIAG: int = _core.FIELD_W_DIAG
+FIELD_SEARCH_CELLS: int = _core.FIELD_SEARCH_CELLS
+#: the field's descent handed to the advance each frame [m], and its waypoints at most (vs_step.h)
+STEP_PATH_M: float = _core.STEP_PATH_M
+STEP_PATH_CAP: int = _core.STEP_PATH_CAP
+
+# the structure's planner (vs_plan.h VS_PLAN_*)
+PLAN_OK: int = _core.PLAN_OK
+PLAN_BLOCKED: int = _core.PLAN_BLOCKED
+PLAN_MAX_OBSTACLES: int = _core.PLAN_MAX_OBSTACLES
+PLAN_MAX_ABS_M: float = _core.PLAN_MAX_ABS_M
+PLAN_SLACK: float = _core.PLAN_SLACK
+PLAN_ARC_STEP_RAD: float = _core.PLAN_ARC_STEP_RAD
+PLAN_SIDE_BIAS: float = _core.PLAN_SIDE_BIAS
+PLAN_GOAL_TIE_M: float = _core.PLAN_GOAL_TIE_M
+
+# the fit (vs_fit.h, vs_fit_l1.h, vs_fit_linf.h): the certified gap, the search's rounds, the largest magnitude,
+# from which n l1 starts at Newton's rotation, linf's end points per cell
+FIT_CERT_TOL: float = _core.FIT_CERT_TOL
+FIT_MAX_ROUNDS: int = _core.FIT_MAX_ROUNDS
+FIT_MAX_ABS: float = _core.FIT_MAX_ABS
+L1_NEWTON_N: int = _core.L1_NEWTON_N
+LINF_SPLIT: int = _core.LINF_SPLIT
+
+#: sinc's series below this |x| (vs_kin.h VS_SINC_SERIES_BELOW)
+SINC_SERIES_BELOW: float = _core.SINC_SERIES_BELOW
+
+# a frame's limits, as the core's decoder checks them (vs_wire.h VS_WIRE_*)
+WIRE_MAX_FRAME_BYTES: int = _core.WIRE_MAX_FRAME_BYTES
+WIRE_MAX_ROBOTS: int = _core.WIRE_MAX_ROBOTS
+WIRE_MAX_ABS: float = _core.WIRE_MAX_ABS
+WIRE_MAX_ABS_T: float = _core.WIRE_MAX_ABS_T

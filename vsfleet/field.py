@@ -19,25 +19,29 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import _core
+from .coreconst import (  # the core's (vs_field.h, vs_step.h), under the names this module has always used
+    FIELD_BLOCKED_BIT as BLOCKED_BIT,
+    FIELD_COMFORT_M as COMFORT_M,
+    FIELD_COST_MASK as COST_MASK,
+    FIELD_GROW as GROW,
+    FIELD_SEARCH_CELLS as SEARCH_CELLS,
+    FIELD_TIGHT_BIT as TIGHT_BIT,
+    FIELD_W_AXIS as W_AXIS,
+    FIELD_W_DIAG as W_DIAG,
+    FIELD_WALL as WALL,
+    STEP_PATH_CAP as PATH_CAP,
+    STEP_PATH_M as PATH_M,
+)
 from .errors import VsfleetValueError
 from .geometry import Pose2
 
-WALL = 0xFFFFFFFF
-BLOCKED_BIT = 0x80000000
-TIGHT_BIT = 0x40000000
-COST_MASK = 0x3FFFFFFF
-COMFORT_M = 0.10         # [m] beyond the margin: edges near obstacles cost twice (the safety filter stays idle)
-GROW = 1.25
-W_AXIS, W_DIAG = 10, 14
-SEARCH_CELLS = 4
+# COMFORT_M [m]: beyond the margin, edges near obstacles cost twice (the safety filter stays idle)
 
 #: the lattice the agents use: 3 cm cells, 48 headings (7.5 degrees), at most 2 million states
 CELL_M = 0.03
 HEADINGS = 48
 MAX_STATES = 2_000_000
-#: the descent handed to the advance each frame [m], and its waypoints at most (vs_step.h)
-PATH_M = 2.0
-PATH_CAP = 160
+# PATH_M, PATH_CAP: the descent handed to the advance each frame [m], and its waypoints at most (vs_step.h)
 
 _DX = (1, -1, 0, 0, 1, -1, 1, -1)
 _DY = (0, 0, 1, -1, 1, 1, -1, -1)

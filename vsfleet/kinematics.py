@@ -17,12 +17,12 @@ import math
 import numpy as np
 
 from . import _core
+from .coreconst import SINC_SERIES_BELOW as _SINC_SERIES_BELOW  # vs_kin.h's
 from .envelope import Envelope
 from .errors import NonFiniteError, ShapeError, VsfleetValueError
 from .geometry import Pose2
 
 # Below this |x| the series of sin(x)/x is used; its error there is < 1e-24.
-_SINC_SERIES_BELOW = 1e-4
 
 
 class TimeStepError(VsfleetValueError):

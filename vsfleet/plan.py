@@ -33,17 +33,19 @@ from typing import Sequence
 import numpy as np
 
 from . import _core
+from .coreconst import (  # the core's (vs_plan.h), under the names this module has always used
+    PLAN_ARC_STEP_RAD as ARC_STEP_RAD,
+    PLAN_BLOCKED,
+    PLAN_GOAL_TIE_M as GOAL_TIE_M,
+    PLAN_MAX_ABS_M as MAX_ABS_M,
+    PLAN_MAX_OBSTACLES as MAX_OBSTACLES,
+    PLAN_OK,
+    PLAN_SIDE_BIAS as SIDE_BIAS,
+    PLAN_SLACK as SLACK,
+)
 from .errors import NonFiniteError, ShapeError, VsfleetValueError
 from .geometry import Pose2, wrap_angle
 
-PLAN_OK = 0
-PLAN_BLOCKED = 1
-MAX_OBSTACLES = 256
-MAX_ABS_M = 1e6
-SLACK = 0.01
-ARC_STEP_RAD = math.pi / 12.0
-SIDE_BIAS = 0.05
-GOAL_TIE_M = 1e-9
 _TWO_PI = 2.0 * math.pi
 _CAP = 256      # waypoints room for the first core call (it says when it needs more)
 _NO_OBSTACLES = np.zeros((0, 3))

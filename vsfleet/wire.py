@@ -27,7 +27,8 @@ import numpy as np
 
 from . import _core
 from .control import CONTROLLERS
-from .coreconst import DECISION_KINDS, FAILURE_MODES
+from .coreconst import (DECISION_KINDS, FAILURE_MODES, WIRE_MAX_ABS as MAX_ABS, WIRE_MAX_ABS_T as MAX_ABS_T,
+                        WIRE_MAX_FRAME_BYTES as MAX_FRAME_BYTES, WIRE_MAX_ROBOTS as MAX_ROBOTS)
 from .errors import VsfleetValueError
 from .failure import FailurePolicy
 from .fit import METRICS  # noqa: F401 (a mission's metric: one of the fit's; re-exported)
@@ -35,10 +36,10 @@ from .fit import METRICS  # noqa: F401 (a mission's metric: one of the fit's; re
 NAME_RE = re.compile(r"^[A-Za-z0-9_-]+\Z")  # \Z, not $: $ also matches before a final newline ("cam1\n")
 MAX_PAYLOAD_BYTES = 4096          # pose, cmd, state, truth, fault, event
 MAX_MISSION_BYTES = 1 << 20       # a mission lists every robot
-MAX_FRAME_BYTES = 1 << 16         # a frame lists every robot a tracker sees (1000 robots fit)
-MAX_ROBOTS = 1000
+# MAX_FRAME_BYTES (64 KiB), MAX_ROBOTS (1000), MAX_ABS (1e6) and MAX_ABS_T (1e11) are the core's decoder's
+# (vs_wire.h): a frame lists every robot a tracker sees (1000 robots fit); any number field: |v| <= MAX_ABS
+# (metres, seconds apart from t, m/s, rad), a time |t| <= MAX_ABS_T
 MAX_OBSTACLES = 256     # a mission's round obstacles
-MAX_ABS = 1e6           # any number field: |v| <= 1e6 (metres, seconds apart from t, m/s, rad)
 MAX_TTL_S = 5.0         # a command may keep a robot moving for at most this long
 CONTROLLER_NAMES = tuple(sorted(CONTROLLERS))  # a mission's controller: one of vsfleet.control's
 FAULT_KINDS = ("none", "stop", "slow", "stall", "wheel")
@@ -158,7 +159,7 @@ def _num(m: Mapping[str, Any], name: str) -> float:
     v = float(v)
     if not math.isfinite(v):
         raise WireError(f"field {name!r} must be finite, got {v}")
-    if abs(v) > (1e11 if name in ("t", "effective_t", "why_t", "expired_t") else MAX_ABS):
+    if abs(v) > (MAX_ABS_T if name in ("t", "effective_t", "why_t", "expired_t") else MAX_ABS):
         raise WireError(f"field {name!r} out of range: {v}")
     return v
 

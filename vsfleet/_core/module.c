@@ -12,7 +12,15 @@
 #include "vs_advance.h"
 #include "vs_control.h"
 #include "vs_failure.h"
+#include "vs_field.h"
 #include "vs_fit.h"
+#include "vs_fit_l1.h"
+#include "vs_fit_linf.h"
+#include "vs_kin.h"
+#include "vs_math.h"
+#include "vs_plan.h"
+#include "vs_step.h"
+#include "vs_wire.h"
 
 extern PyMethodDef vs_py_math_methods[];
 extern PyMethodDef vs_py_fit_methods[];
@@ -48,10 +56,22 @@ static const int_const ints[] = {
     {"DECISION_FAIL", VS_DECISION_FAIL}, {"DECISION_DROP", VS_DECISION_DROP},
     {"DECISION_REJOIN", VS_DECISION_REJOIN}, {"DECISION_RECOVER", VS_DECISION_RECOVER},
     {"PRECISION_HISTORY", VS_PRECISION_HISTORY},
+    {"FIELD_WALL", VS_FIELD_WALL}, {"FIELD_BLOCKED_BIT", VS_FIELD_BLOCKED_BIT},
+    {"FIELD_TIGHT_BIT", VS_FIELD_TIGHT_BIT}, {"FIELD_COST_MASK", VS_FIELD_COST_MASK},
+    {"FIELD_W_AXIS", VS_FIELD_W_AXIS}, {"FIELD_W_DIAG", VS_FIELD_W_DIAG}, {"FIELD_SEARCH_CELLS", VS_FIELD_SEARCH_CELLS},
+    {"STEP_PATH_CAP", VS_STEP_PATH_CAP},
+    {"PLAN_OK", VS_PLAN_OK}, {"PLAN_BLOCKED", VS_PLAN_BLOCKED}, {"PLAN_MAX_OBSTACLES", VS_PLAN_MAX_OBSTACLES},
+    {"FIT_MAX_ROUNDS", VS_FIT_MAX_ROUNDS}, {"L1_NEWTON_N", VS_L1_NEWTON_N}, {"LINF_SPLIT", VS_LINF_SPLIT},
+    {"WIRE_MAX_FRAME_BYTES", VS_WIRE_MAX_FRAME_BYTES}, {"WIRE_MAX_ROBOTS", VS_WIRE_MAX_ROBOTS},
 };
 
 static const double_const doubles[] = {
     {"FAILURE_NM_PER_M", VS_FAILURE_NM_PER_M}, {"FAILURE_SETTLED_RATIO", VS_FAILURE_SETTLED_RATIO},
+    {"FIELD_COMFORT_M", VS_FIELD_COMFORT_M}, {"FIELD_GROW", VS_FIELD_GROW}, {"STEP_PATH_M", VS_STEP_PATH_M},
+    {"PLAN_MAX_ABS_M", VS_PLAN_MAX_ABS_M}, {"PLAN_SLACK", VS_PLAN_SLACK}, {"PLAN_ARC_STEP_RAD", VS_PLAN_ARC_STEP_RAD},
+    {"PLAN_SIDE_BIAS", VS_PLAN_SIDE_BIAS}, {"PLAN_GOAL_TIE_M", VS_PLAN_GOAL_TIE_M},
+    {"FIT_CERT_TOL", VS_FIT_CERT_TOL}, {"FIT_MAX_ABS", VS_FIT_MAX_ABS}, {"SINC_SERIES_BELOW", VS_SINC_SERIES_BELOW},
+    {"WIRE_MAX_ABS", VS_WIRE_MAX_ABS}, {"WIRE_MAX_ABS_T", VS_WIRE_MAX_ABS_T},
 };
 
 /* the names Python gives the codes: a tuple indexed by code */

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import _core
-from ..coreconst import METRIC_CODES as _CODES, METRICS
+from ..coreconst import FIT_MAX_ABS as MAX_ABS, METRIC_CODES as _CODES, METRICS
 from ..errors import NonFiniteError, ShapeError, UnknownMetricError, WeightError
 from ..geometry import Pose2, wrap_angle
 from . import certify, median, minimax, procrustes
@@ -28,8 +28,7 @@ __all__ = ["CERT_TOL", "METRICS", "FitResult", "fit_structure", "fit_structure_r
            "structure_cost_reference"]
 
 _EVALUATORS = {"l1": median.evaluate, "linf": minimax.evaluate}
-#: Largest accepted |coordinate| [m] and weight: beyond it squares overflow (vs_fit.h VS_FIT_MAX_ABS).
-MAX_ABS = 1e150
+# MAX_ABS: the largest accepted |coordinate| [m] and weight: beyond it squares overflow (vs_fit.h VS_FIT_MAX_ABS).
 
 
 @dataclass(frozen=True, eq=False)

@@ -12,17 +12,16 @@ from functools import cached_property
 
 import numpy as np
 
+from ..coreconst import FIT_CERT_TOL as CERT_TOL, FIT_MAX_ROUNDS as _MAX_ROUNDS  # vs_fit.h's
 from ..geometry import Pose2, wrap_angle
 
 #: Certification tolerance of the l1 and linf searches [weighted m].
-CERT_TOL = 1e-10
 EPS = float(np.finfo(float).eps)
 _GRID = 8  # initial uniform grid of rotations
 _STENCIL = tuple(4.0 ** -k for k in range(1, 9))  # offsets around a cell's centre [x distance to its ends]
 _LOCAL = (1e-6, 1e-3, 4e-3, 1.6e-2, 6.4e-2)  # first batch: th0 and th0 +- these [rad]
 _LEAN = (4, (1e-6, 1e-4, 1e-3, 1e-2), 300)  # the same when th0 is a converged local optimum: grid,
 # offsets, and the n from which only the first and last offsets are kept (every angle costs n)
-_MAX_ROUNDS = 60
 _LADDER = 6  # first batch: each guess g and g +- 1e-9 32^k, k < _LADDER (certifies a smooth minimum at once)
 
 

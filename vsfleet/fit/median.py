@@ -6,11 +6,12 @@ import math
 
 import numpy as np
 
+from ..coreconst import L1_NEWTON_N as NEWTON_N  # vs_fit_l1.h's: from this n the search starts at newton()'s rotation
 from .certify import EPS
 
 _ITERS = 40  # inner iterations (Newton converges in a handful from a warm start)
 _ROUGH_ITERS = 1  # a first-pass solve: a valid but looser minorant
-NEWTON_N = 20  # from this n the search starts at newton()'s rotation (smaller fits often sit on a robot)
+# NEWTON_N: from this n the search starts at newton()'s rotation (smaller fits often sit on a robot)
 
 
 def _duals(dx, dy, w, tie: float):

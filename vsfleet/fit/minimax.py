@@ -8,11 +8,12 @@ from itertools import combinations
 
 import numpy as np
 
+from ..coreconst import LINF_SPLIT as SPLIT  # vs_fit_linf.h's
 from .certify import EPS
 
 _WS = 6  # working-set size: the circle is solved exactly on these, then checked on every robot
 _NEXT = np.array([1, 2, 0])  # a basis member's successor (cross products of the radii)
-SPLIT = 9  # search: end points in every uncertified cell (9 // n per end: 3 at n = 3, none from n = 10)
+# SPLIT: search end points in every uncertified cell (9 // n per end: 3 at n = 3, none from n = 10)
 
 
 @lru_cache(maxsize=8)
