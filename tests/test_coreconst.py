@@ -14,12 +14,17 @@ import math
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from vsfleet import _core, coreconst
-from vsfleet.advance import StructureLimits
-from vsfleet.control import Precision, Tracking
+from vsfleet.advance import GoalPose, StructureLimits
+from vsfleet.control import ControlInput, Precision, PrecisionState, Tracking, _input_args
+from vsfleet.envelope import Envelope, Envelopes
 from vsfleet.failure import FailurePolicy
+from vsfleet.geometry import Pose2
+from vsfleet.step import PLAN_MARGIN_M, core_mission
+from vsfleet.structure import MISSION_ARGS
 from vsfleet.wire import EVENT_KINDS, ON_FAILURE
 
 ROOT = Path(__file__).parent.parent
@@ -98,6 +103,25 @@ def test_the_python_modules_take_the_cores_constants():
     assert coreconst.METRICS is _core.METRICS
     for mode in coreconst.FAILURE_MODES:
         FailurePolicy(mode)
+
+
+def test_the_bindings_argument_layouts_are_the_ones_python_packs():
+    """control's input arguments, Precision's state arrays and the structure step's mission arguments, by name."""
+    env = Envelopes.of([Envelope(0.12, 0.3, 0.8)] * 2)
+    z = np.zeros((2, 2))
+    inp = ControlInput(np.zeros((2, 3)), z, z + 1.0, z + 2.0, 0.1, 0.05, env, np.ones(2, bool))
+    named = [getattr(env if hasattr(env, a) else inp, a) for a in coreconst.CONTROL_INPUT_ARGS]
+    assert len(_input_args(inp)) == len(named) and all(x is y for x, y in zip(_input_args(inp), named))
+    assert coreconst.PRECISION_STATE_ARGS == tuple(f.name for f in dataclasses.fields(PrecisionState))
+    args = coreconst.STRUCTURE_STEP_ARGS
+    assert MISSION_ARGS == args[:args.index("pose_world")] + args[args.index("radius_m"):]
+    template = np.array([[0.3, 0.0], [-0.15, 0.26], [-0.15, -0.26]])
+    for metric in coreconst.METRICS:
+        c = dict(zip(MISSION_ARGS, core_mission(metric, template, Envelopes.of([Envelope(0.12, 0.3, 0.8)] * 3),
+                                                GoalPose(Pose2(1.0, 0.5, 0.0)), StructureLimits(0.08, 0.3))))
+        assert c["metric"] == coreconst.METRIC_CODES[metric] and c["goal_kind"] == coreconst.GOAL_POSE
+        assert c["margin_m"] == PLAN_MARGIN_M and c["field"] is None and c["template_xy"].tolist() == template.tolist()
+        assert c["limits"].tolist() == [getattr(StructureLimits(0.08, 0.3), f) for f in coreconst.LIMIT_FIELDS]
 
 
 # ---------------------------------------------------------------- no number of the interface written again

@@ -21,12 +21,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields
+from operator import attrgetter
 from typing import Callable
 
 import numpy as np
 
 from . import _core
-from .coreconst import PRECISION_GAIN_FIELDS, PRECISION_HISTORY as _HISTORY, TRACKING_GAIN_FIELDS
+from .coreconst import (CONTROL_INPUT_ARGS, PRECISION_GAIN_FIELDS, PRECISION_HISTORY as _HISTORY,
+                        PRECISION_STATE_ARGS, TRACKING_GAIN_FIELDS)
 from .envelope import Envelopes
 from .errors import ShapeError, VsfleetValueError
 from .kinematics import (
@@ -170,10 +172,12 @@ def _wheels(v: np.ndarray, w: np.ndarray, base: np.ndarray) -> np.ndarray:
 # Precision, a new state that would overflow. dt_s and age_s are checked by ControlInput.
 
 
-def _input_args(inp: ControlInput) -> tuple:
-    env = inp.envelopes
-    return (inp.pose_world, inp.point_now_world, inp.point_next_world, inp.wheels_prev_m_s, inp.dt_s, inp.age_s,
-            env.wheel_base_m, env.wheel_speed_max_m_s, env.wheel_accel_max_m_s2, inp.active)
+# a ControlInput's arguments in the core's order (CONTROL_INPUT_ARGS; the envelope's are its envelopes'), and
+# where the flags are: active among them, Precision's ready after its gains among its state's arrays
+_input_args = attrgetter(*(f"envelopes.{a}" if a in {f.name for f in fields(Envelopes)} else a
+                           for a in CONTROL_INPUT_ARGS))
+_ACTIVE = CONTROL_INPUT_ARGS.index("active")
+_READY = 1 + PRECISION_STATE_ARGS.index("ready")
 
 
 def _contiguous(a, flags: bool = False):
@@ -192,7 +196,7 @@ def _core_call(fn, head: tuple, inp: ControlInput, tail: tuple, head_flags: tupl
         fn(*head, *args, *tail)
     except TypeError:
         fn(*(_contiguous(a, i in head_flags) for i, a in enumerate(head)),
-           *(_contiguous(a, i == 9) for i, a in enumerate(args)), *tail)
+           *(_contiguous(a, i == _ACTIVE) for i, a in enumerate(args)), *tail)
 
 
 def _core_gains(obj, values) -> None:
@@ -416,7 +420,7 @@ class Precision:
         wheels = np.empty((n, 2))
         old = (state.pose_world, state.gains, state.history_m_s, state.target_world, state.feed_m_s,
                state.turn_rad_s, state.direction, state.ready)
-        _core_call(_core.control_precision, (self._core, *old), inp, (*new, wheels), head_flags=(8,))
+        _core_call(_core.control_precision, (self._core, *old), inp, (*new, wheels), head_flags=(_READY,))
         out = object.__new__(PrecisionState)   # the dataclass without its __init__ (1 us of 5 at n = 3)
         out.__dict__.update(zip(_STATE_FIELDS, new))
         return out, wheels

@@ -37,7 +37,7 @@ from .geometry import Pose2, angle_diff
 from .field import Field, build_field, follow_field
 from .impl import Impl, choose as choose_impl, core as core_impl
 from .safety import SafetyParams
-from .structure import PLAN_MARGIN_M, Structure, room_field  # noqa: F401 (re-exported: the step's names)
+from .structure import MISSION_ARGS, PLAN_MARGIN_M, Structure, room_field  # noqa: F401 (re-exported: the step's names)
 from .wire import CmdMsg, EventMsg, HealthMsg, Mission, StateMsg
 
 Controller = Callable  # vsfleet.control: controller(state, ControlInput) -> (state, wheels (n, 2))
@@ -91,20 +91,24 @@ class MissionArrays:
 
 def core_mission(metric: str, template: np.ndarray, envelopes: Envelopes, goal: Goal,
                  limits: StructureLimits, radii=None, obstacles=(), field: Field | None = None) -> tuple:
-    """The mission's constants as the compiled core takes them (vs_mission in vs_step.h), in
-    structure_step's argument order: the first eight, then (radius_m, obstacles, margin_m, field)."""
+    """The mission's constants as the compiled core takes them (vs_mission in vs_step.h), in structure_step's
+    argument order (vsfleet.structure.MISSION_ARGS: those before the frame's, then those after them)."""
     if isinstance(goal, GoalPose):
         kind, poses = GOAL_POSE, [goal.pose.as_tuple()]
     elif isinstance(goal, GoalPath):
         kind, poses = GOAL_PATH, [w.as_tuple() for w in goal.waypoints]
     else:
         kind, poses = GOAL_TWIST, [(goal.vx_m_s, goal.vy_m_s, goal.w_rad_s)]
-    return (np.ascontiguousarray(template, dtype=float), np.ascontiguousarray(envelopes.wheel_base_m),
-            np.ascontiguousarray(envelopes.wheel_speed_max_m_s), np.ascontiguousarray(envelopes.wheel_accel_max_m_s2),
-            METRIC_CODES[metric], kind, np.array(poses, dtype=float).ravel(),
-            np.array([getattr(limits, f) for f in LIMIT_FIELDS], dtype=float),
-            np.zeros(len(template)) if radii is None else np.array(radii, dtype=float),
-            np.array(obstacles, dtype=float).reshape(-1), PLAN_MARGIN_M, None if field is None else field.handle)
+    packed = {"template_xy": np.ascontiguousarray(template, dtype=float),
+              "wheel_base_m": np.ascontiguousarray(envelopes.wheel_base_m),
+              "wheel_speed_max_m_s": np.ascontiguousarray(envelopes.wheel_speed_max_m_s),
+              "wheel_accel_max_m_s2": np.ascontiguousarray(envelopes.wheel_accel_max_m_s2),
+              "metric": METRIC_CODES[metric], "goal_kind": kind, "goal": np.array(poses, dtype=float).ravel(),
+              "limits": np.array([getattr(limits, f) for f in LIMIT_FIELDS], dtype=float),
+              "radius_m": np.zeros(len(template)) if radii is None else np.array(radii, dtype=float),
+              "obstacles": np.array(obstacles, dtype=float).reshape(-1), "margin_m": PLAN_MARGIN_M,
+              "field": None if field is None else field.handle}
+    return tuple(packed[a] for a in MISSION_ARGS)   # in the core's order (vsfleet.structure.MISSION_ARGS)
 
 
 _ARRAYS: dict[int, tuple[Mission, MissionArrays]] = {}

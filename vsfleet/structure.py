@@ -13,6 +13,7 @@ from typing import Callable
 import numpy as np
 
 from . import _core
+from .coreconst import STRUCTURE_STEP_ARGS
 from .advance import Goal, GoalPath, GoalPose, GoalTwist, Twist2, advance_structure_reference
 from .field import Field, build_field, build_field_reference, follow_field_reference
 from .fit import fit_structure_reference
@@ -120,10 +121,10 @@ def structure_step_core(arrays, metric: str, pose_world: np.ndarray, seen: np.nd
     n = len(arrays.ids)
     used, now, nxt, dev = np.empty(n, dtype=bool), np.empty((n, 2)), np.empty((n, 2)), np.empty(n)
     c = arrays.core
-    r = _core.structure_step(*c[:8], np.ascontiguousarray(pose_world, dtype=float),
+    r = _core.structure_step(*c[:_FRAME], np.ascontiguousarray(pose_world, dtype=float),
                              np.ascontiguousarray(seen, dtype=bool), np.ascontiguousarray(excluded, dtype=bool),
                              np.ascontiguousarray(judged_apart, dtype=bool), float(elapsed_s), float(dt_s),
-                             used, now, nxt, dev, *c[8:])
+                             used, now, nxt, dev, *c[_FRAME:])
     if r is None:
         return None
     fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m = r
@@ -141,4 +142,9 @@ def structure_step_core(arrays, metric: str, pose_world: np.ndarray, seen: np.nd
 
 
 _new, _set = object.__new__, object.__setattr__
+
+# structure_step's arguments (STRUCTURE_STEP_ARGS): the mission's (core_mission packs them once, MISSION_ARGS)
+# come before the frame's (from pose_world) and after them (from radius_m)
+_FRAME, _AFTER = STRUCTURE_STEP_ARGS.index("pose_world"), STRUCTURE_STEP_ARGS.index("radius_m")
+MISSION_ARGS = STRUCTURE_STEP_ARGS[:_FRAME] + STRUCTURE_STEP_ARGS[_AFTER:]
 

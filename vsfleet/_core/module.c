@@ -136,6 +136,15 @@ static int add_members(PyObject *m, const char *attr, const member *f, size_t k,
     return k > COUNT(c) ? -1 : add_coded(m, attr, c, k);
 }
 
+/* m.<attr> = the tuple of the k names, in their order */
+static int add_names(PyObject *m, const char *attr, const char *const *names, size_t k)
+{
+    coded c[32];
+    if (k > COUNT(c)) return -1;
+    for (size_t i = 0; i < k; i++) c[i] = (coded){names[i], (int)i};
+    return add_coded(m, attr, c, k);
+}
+
 static int add_constants(PyObject *m)
 {
     for (size_t i = 0; i < COUNT(ints); i++)
@@ -153,6 +162,10 @@ static int add_constants(PyObject *m)
         return -1;
     if (add_members(m, "TRACKING_GAIN_FIELDS", tracking, COUNT(tracking), sizeof(vs_tracking_gains)) < 0)
         return -1;
+    /* the bindings' argument layouts (py_control.c, py_step.c) */
+    if (add_names(m, "CONTROL_INPUT_ARGS", vs_py_control_input_args, VS_PY_CONTROL_INPUTS) < 0) return -1;
+    if (add_names(m, "PRECISION_STATE_ARGS", vs_py_precision_state_args, VS_PY_PRECISION_STATES) < 0) return -1;
+    if (add_names(m, "STRUCTURE_STEP_ARGS", vs_py_structure_step_args, VS_PY_STRUCTURE_STEP_ARGS) < 0) return -1;
     return 0;
 }
 

@@ -133,22 +133,39 @@ static PyObject *py_limit_wheels(PyObject *m, PyObject *const *args, Py_ssize_t 
 
 /* ------------------------------------------------------------------ controllers */
 
-/* The 10 arguments of a ControlInput from args[0..9]: pose, now, next, prev, dt, age, base, vmax,
- * amax, active; n rows.  0 on success. */
+/* The arguments of a ControlInput, in the order every controller takes them (exported by name) */
+enum { IN_POSE, IN_NOW, IN_NEXT, IN_PREV, IN_DT, IN_AGE, IN_BASE, IN_VMAX, IN_AMAX, IN_ACTIVE, IN_COUNT };
+typedef char in_count_check[IN_COUNT == VS_PY_CONTROL_INPUTS ? 1 : -1];
+const char *const vs_py_control_input_args[VS_PY_CONTROL_INPUTS] = {
+    [IN_POSE] = "pose_world", [IN_NOW] = "point_now_world", [IN_NEXT] = "point_next_world",
+    [IN_PREV] = "wheels_prev_m_s", [IN_DT] = "dt_s", [IN_AGE] = "age_s", [IN_BASE] = "wheel_base_m",
+    [IN_VMAX] = "wheel_speed_max_m_s", [IN_AMAX] = "wheel_accel_max_m_s2", [IN_ACTIVE] = "active",
+};
+
+/* The arguments of a ControlInput from args (in that order); n rows.  0 on success. */
 static int read_input(bufs *b, PyObject *const *args, Py_ssize_t n, vs_control_input *in)
 {
+    const char *const *name = vs_py_control_input_args;
     in->n = (size_t)n;
-    if (get_double(args[4], &in->dt_s) < 0 || get_double(args[5], &in->age_s) < 0) return -1;
-    if ((in->pose_world = dbl(b, args[0], 3 * n, 0, "pose_world")) == NULL) return -1;
-    if ((in->point_now_world = dbl(b, args[1], 2 * n, 0, "point_now_world")) == NULL) return -1;
-    if ((in->point_next_world = dbl(b, args[2], 2 * n, 0, "point_next_world")) == NULL) return -1;
-    if ((in->wheels_prev_m_s = dbl(b, args[3], 2 * n, 0, "wheels_prev_m_s")) == NULL) return -1;
-    if ((in->wheel_base_m = dbl(b, args[6], n, 0, "wheel_base_m")) == NULL) return -1;
-    if ((in->wheel_speed_max_m_s = dbl(b, args[7], n, 0, "wheel_speed_max_m_s")) == NULL) return -1;
-    if ((in->wheel_accel_max_m_s2 = dbl(b, args[8], n, 0, "wheel_accel_max_m_s2")) == NULL) return -1;
-    if ((in->active = flags(b, args[9], n, 0, "active")) == NULL) return -1;
+    if (get_double(args[IN_DT], &in->dt_s) < 0 || get_double(args[IN_AGE], &in->age_s) < 0) return -1;
+    if ((in->pose_world = dbl(b, args[IN_POSE], 3 * n, 0, name[IN_POSE])) == NULL) return -1;
+    if ((in->point_now_world = dbl(b, args[IN_NOW], 2 * n, 0, name[IN_NOW])) == NULL) return -1;
+    if ((in->point_next_world = dbl(b, args[IN_NEXT], 2 * n, 0, name[IN_NEXT])) == NULL) return -1;
+    if ((in->wheels_prev_m_s = dbl(b, args[IN_PREV], 2 * n, 0, name[IN_PREV])) == NULL) return -1;
+    if ((in->wheel_base_m = dbl(b, args[IN_BASE], n, 0, name[IN_BASE])) == NULL) return -1;
+    if ((in->wheel_speed_max_m_s = dbl(b, args[IN_VMAX], n, 0, name[IN_VMAX])) == NULL) return -1;
+    if ((in->wheel_accel_max_m_s2 = dbl(b, args[IN_AMAX], n, 0, name[IN_AMAX])) == NULL) return -1;
+    if ((in->active = flags(b, args[IN_ACTIVE], n, 0, name[IN_ACTIVE])) == NULL) return -1;
     return 0;
 }
+
+/* Precision's state arrays, in the order control_precision takes them (exported by name) */
+enum { ST_POSE, ST_GAINS, ST_HISTORY, ST_TARGET, ST_FEED, ST_TURN, ST_DIRECTION, ST_READY, ST_COUNT };
+typedef char st_count_check[ST_COUNT == VS_PY_PRECISION_STATES ? 1 : -1];
+const char *const vs_py_precision_state_args[VS_PY_PRECISION_STATES] = {
+    [ST_POSE] = "pose_world", [ST_GAINS] = "gains", [ST_HISTORY] = "history_m_s", [ST_TARGET] = "target_world",
+    [ST_FEED] = "feed_m_s", [ST_TURN] = "turn_rad_s", [ST_DIRECTION] = "direction", [ST_READY] = "ready",
+};
 
 #define INPUT_SIG "pose, now, next, prev, dt_s, age_s, wheel_base, speed_max, accel_max, active"
 static const char *const CONTROL_ERR = "control input: every array must be finite, dt_s > 0 and age_s >= 0";
@@ -158,32 +175,37 @@ static const char *const CONTROL_ERR = "control input: every array must be finit
 static PyObject *py_control_precision(PyObject *m, PyObject *const *args, Py_ssize_t nargs)
 {
     (void)m;
-    if (nargs_is(nargs, 1 + 8 + 10 + 8 + 1, "(gains, state..., " INPUT_SIG ", out_state..., wheels_out)") < 0)
+    enum { STATE = 1, INPUT = STATE + ST_COUNT, OUT = INPUT + IN_COUNT, WHEELS = OUT + ST_COUNT };
+    if (nargs_is(nargs, WHEELS + 1, "(gains, state..., " INPUT_SIG ", out_state..., wheels_out)") < 0)
         return NULL;
     bufs b = {.k = 0};
-    double *wheels = dbl(&b, args[27], -1, 1, "wheels_out");
+    double *wheels = dbl(&b, args[WHEELS], -1, 1, "wheels_out");
     if (wheels == NULL) return NULL;
     Py_ssize_t n = b.v[0].len / 16;
     const double *gv = dbl(&b, args[0], 13, 0, "gains");
     if (gv == NULL) goto fail;
     vs_precision_gains g = {gv[0], gv[1], gv[2], gv[3], gv[4], gv[5], gv[6], gv[7], gv[8], gv[9], gv[10], gv[11], gv[12]};
     vs_precision_state st, out;
-    PyObject *const *s = args + 1, *const *o = args + 19;
-    static const char *const names[8] = {"state.pose_world", "state.gains", "state.history_m_s", "state.target_world",
-                                         "state.feed_m_s", "state.turn_rad_s", "state.direction", "state.ready"};
-    const Py_ssize_t sizes[7] = {3 * n, 2 * n, 2 * VS_PRECISION_HISTORY * n, 2 * n, 2 * n, n, n};
-    double **sp[7] = {&st.pose_world, &st.gains, &st.history_m_s, &st.target_world, &st.feed_m_s, &st.turn_rad_s,
-                      &st.direction};
-    double **op[7] = {&out.pose_world, &out.gains, &out.history_m_s, &out.target_world, &out.feed_m_s, &out.turn_rad_s,
-                      &out.direction};
-    for (int k = 0; k < 7; k++) {
+    PyObject *const *s = args + STATE, *const *o = args + OUT;
+    const char *const *names = vs_py_precision_state_args;
+    const Py_ssize_t sizes[ST_READY] = {[ST_POSE] = 3 * n, [ST_GAINS] = 2 * n,
+                                        [ST_HISTORY] = 2 * VS_PRECISION_HISTORY * n, [ST_TARGET] = 2 * n,
+                                        [ST_FEED] = 2 * n, [ST_TURN] = n, [ST_DIRECTION] = n};
+    double **sp[ST_READY] = {[ST_POSE] = &st.pose_world, [ST_GAINS] = &st.gains, [ST_HISTORY] = &st.history_m_s,
+                             [ST_TARGET] = &st.target_world, [ST_FEED] = &st.feed_m_s, [ST_TURN] = &st.turn_rad_s,
+                             [ST_DIRECTION] = &st.direction};
+    double **op[ST_READY] = {[ST_POSE] = &out.pose_world, [ST_GAINS] = &out.gains,
+                             [ST_HISTORY] = &out.history_m_s,
+                             [ST_TARGET] = &out.target_world, [ST_FEED] = &out.feed_m_s, [ST_TURN] = &out.turn_rad_s,
+                             [ST_DIRECTION] = &out.direction};
+    for (int k = 0; k < ST_READY; k++) {
         if ((*sp[k] = dbl(&b, s[k], sizes[k], 0, names[k])) == NULL) goto fail;
         if ((*op[k] = dbl(&b, o[k], sizes[k], 1, names[k])) == NULL) goto fail;
     }
-    if ((st.ready = flags(&b, s[7], n, 0, names[7])) == NULL) goto fail;
-    if ((out.ready = flags(&b, o[7], n, 1, names[7])) == NULL) goto fail;
+    if ((st.ready = flags(&b, s[ST_READY], n, 0, names[ST_READY])) == NULL) goto fail;
+    if ((out.ready = flags(&b, o[ST_READY], n, 1, names[ST_READY])) == NULL) goto fail;
     vs_control_input in;
-    if (read_input(&b, args + 9, n, &in) < 0) goto fail;
+    if (read_input(&b, args + INPUT, n, &in) < 0) goto fail;
     return done(&b, vs_control_precision(&g, &st, &in, &out, wheels),
                 "precision: input and state must be finite (and so the new state), dt_s > 0, age_s >= 0");
 fail:

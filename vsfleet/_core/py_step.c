@@ -10,54 +10,70 @@ const vs_field *vs_py_field(PyObject *obj);   /* py_field.c: NULL for None (or w
  *                used_out, points_now_out, points_next_out, deviations_out, radius_m, obstacles, margin_m, field)
  * field: a capsule of field_build (the room's navigation function) or None.
  * -> None (no robot usable) or (fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m). */
+enum { A_TEMPLATE, A_BASE, A_VMAX, A_AMAX, A_METRIC, A_KIND, A_GOAL, A_LIMITS, A_POSE, A_SEEN, A_EXCLUDED, A_JUDGED,
+       A_ELAPSED, A_DT, A_USED, A_NOW, A_NEXT, A_DEV, A_RADIUS, A_OBSTACLES, A_MARGIN, A_FIELD, A_COUNT };
+typedef char step_args_check[A_COUNT == VS_PY_STRUCTURE_STEP_ARGS ? 1 : -1];
+/* the arguments by name (exported: STRUCTURE_STEP_ARGS); the mission's are the ones before pose_world and
+ * from radius_m on, the frame's between */
+const char *const vs_py_structure_step_args[VS_PY_STRUCTURE_STEP_ARGS] = {
+    [A_TEMPLATE] = "template_xy", [A_BASE] = "wheel_base_m", [A_VMAX] = "wheel_speed_max_m_s",
+    [A_AMAX] = "wheel_accel_max_m_s2", [A_METRIC] = "metric", [A_KIND] = "goal_kind", [A_GOAL] = "goal",
+    [A_LIMITS] = "limits", [A_POSE] = "pose_world", [A_SEEN] = "seen", [A_EXCLUDED] = "excluded",
+    [A_JUDGED] = "judged_apart", [A_ELAPSED] = "elapsed_s", [A_DT] = "dt_s", [A_USED] = "used_out",
+    [A_NOW] = "points_now_out", [A_NEXT] = "points_next_out", [A_DEV] = "deviations_out", [A_RADIUS] = "radius_m",
+    [A_OBSTACLES] = "obstacles", [A_MARGIN] = "margin_m", [A_FIELD] = "field",
+};
+
 static PyObject *py_structure_step(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
 {
     (void)mod;
-    if (nargs != 22) { PyErr_SetString(PyExc_TypeError, "structure_step takes 22 arguments"); return NULL; }
-    const vs_field *field = vs_py_field(a[21]);
+    if (nargs != A_COUNT) { PyErr_SetString(PyExc_TypeError, "structure_step takes 22 arguments"); return NULL; }
+    const char *const *name = vs_py_structure_step_args;
+    const vs_field *field = vs_py_field(a[A_FIELD]);
     if (field == NULL && PyErr_Occurred()) return NULL;
     Py_buffer b[18];
     int got = 0;
     PyObject *result = NULL;
-    long metric = PyLong_AsLong(a[4]), kind = PyLong_AsLong(a[5]);
-    double elapsed = PyFloat_AsDouble(a[12]), dt = PyFloat_AsDouble(a[13]), margin = PyFloat_AsDouble(a[20]);
+    long metric = PyLong_AsLong(a[A_METRIC]), kind = PyLong_AsLong(a[A_KIND]);
+    double elapsed = PyFloat_AsDouble(a[A_ELAPSED]), dt = PyFloat_AsDouble(a[A_DT]);
+    double margin = PyFloat_AsDouble(a[A_MARGIN]);
     if (PyErr_Occurred()) return NULL;
-    if (vs_py_doubles(a[0], &b[got], -1, 0, "template_xy") < 0) goto out;
+    if (vs_py_doubles(a[A_TEMPLATE], &b[got], -1, 0, name[A_TEMPLATE]) < 0) goto out;
     got++;
     Py_ssize_t n2 = b[0].len / 8;
     if (n2 % 2 || n2 == 0) { PyErr_SetString(vs_ValueError, "template_xy must be (n, 2) with n >= 1"); goto out; }
     Py_ssize_t n = n2 / 2;
-    if (vs_py_doubles(a[1], &b[got], n, 0, "wheel_base_m") < 0) goto out;
+    if (vs_py_doubles(a[A_BASE], &b[got], n, 0, name[A_BASE]) < 0) goto out;
     got++;
-    if (vs_py_doubles(a[2], &b[got], n, 0, "wheel_speed_max_m_s") < 0) goto out;
+    if (vs_py_doubles(a[A_VMAX], &b[got], n, 0, name[A_VMAX]) < 0) goto out;
     got++;
-    if (vs_py_doubles(a[3], &b[got], n, 0, "wheel_accel_max_m_s2") < 0) goto out;
+    if (vs_py_doubles(a[A_AMAX], &b[got], n, 0, name[A_AMAX]) < 0) goto out;
     got++;
-    if (vs_py_doubles(a[6], &b[got], -1, 0, "goal") < 0) goto out;
+    if (vs_py_doubles(a[A_GOAL], &b[got], -1, 0, name[A_GOAL]) < 0) goto out;
     got++;
     Py_ssize_t n_goal = b[4].len / 8;
     if (n_goal == 0 || n_goal % 3) { PyErr_SetString(vs_ValueError, "goal must hold 3 k doubles, k >= 1"); goto out; }
-    if (vs_py_doubles(a[7], &b[got], 9, 0, "limits") < 0) goto out;
+    if (vs_py_doubles(a[A_LIMITS], &b[got], 9, 0, name[A_LIMITS]) < 0) goto out;
     got++;
-    if (vs_py_doubles(a[8], &b[got], 3 * n, 0, "pose_world") < 0) goto out;
+    if (vs_py_doubles(a[A_POSE], &b[got], 3 * n, 0, name[A_POSE]) < 0) goto out;
     got++;
-    if (vs_py_flags(a[9], &b[got], n, 0, "seen") < 0) goto out;
+    if (vs_py_flags(a[A_SEEN], &b[got], n, 0, name[A_SEEN]) < 0) goto out;
     got++;
-    if (vs_py_flags(a[10], &b[got], n, 0, "excluded") < 0) goto out;
+    if (vs_py_flags(a[A_EXCLUDED], &b[got], n, 0, name[A_EXCLUDED]) < 0) goto out;
     got++;
-    if (vs_py_flags(a[11], &b[got], n, 0, "judged_apart") < 0) goto out;
+    if (vs_py_flags(a[A_JUDGED], &b[got], n, 0, name[A_JUDGED]) < 0) goto out;
     got++;
-    if (vs_py_flags(a[14], &b[got], n, 1, "used_out") < 0) goto out;
+    if (vs_py_flags(a[A_USED], &b[got], n, 1, name[A_USED]) < 0) goto out;
     got++;
-    if (vs_py_doubles(a[15], &b[got], 2 * n, 1, "points_now_out") < 0) goto out;
+    if (vs_py_doubles(a[A_NOW], &b[got], 2 * n, 1, name[A_NOW]) < 0) goto out;
     got++;
-    if (vs_py_doubles(a[16], &b[got], 2 * n, 1, "points_next_out") < 0) goto out;
+    if (vs_py_doubles(a[A_NEXT], &b[got], 2 * n, 1, name[A_NEXT]) < 0) goto out;
     got++;
-    if (vs_py_doubles(a[17], &b[got], n, 1, "deviations_out") < 0) goto out;
+    if (vs_py_doubles(a[A_DEV], &b[got], n, 1, name[A_DEV]) < 0) goto out;
     got++;
-    if (vs_py_doubles(a[18], &b[got], n, 0, "radius_m") < 0) goto out;
+    if (vs_py_doubles(a[A_RADIUS], &b[got], n, 0, name[A_RADIUS]) < 0) goto out;
     got++;
-    if (vs_py_doubles(a[19], &b[got], -1, 0, "obstacles") < 0) goto out;
+    if (vs_py_doubles(a[A_OBSTACLES], &b[got], -1, 0, name[A_OBSTACLES]) < 0) goto out;
     got++;
     if ((b[15].len / 8) % 3) { PyErr_SetString(vs_ValueError, "obstacles must hold 3 k doubles"); goto out; }
     const double *lim = b[5].buf;
