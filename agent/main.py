@@ -53,8 +53,6 @@ from vsfleet.wire import (
     Keys,
     WireError,
     check_name,
-    decode_frame,
-    decode_frame_core,
     decode_health,
     decode_mission,
     encode,
@@ -156,14 +154,10 @@ class Agent:
         one not yet run (counted in frames_replaced); an invalid one is rejected (counted, logged).
         wake: wake the main loop for it (False: the caller runs poll itself)."""
         try:
-            if self.config.reference:  # the readable decoder, as the rest of a reference agent
-                msg = decode_frame(payload)
-                if key != self.keys.frame(msg.src):
-                    raise WireError(f"src {msg.src!r} is not the key's last chunk")
-            else:  # the compiled core's: it also checks that src is the key's last chunk
-                if not key.startswith(self._frame_head):
-                    raise WireError(f"key {key!r} is not under {self._frame_head}")
-                msg = decode_frame_core(payload, key[len(self._frame_head):])
+            if not key.startswith(self._frame_head):
+                raise WireError(f"key {key!r} is not under {self._frame_head}")
+            # the core's decoder (a reference agent: the readable one); either checks that src is the key's last chunk
+            msg = self.config.impl.decode_frame(payload, key[len(self._frame_head):])
         except (WireError, UnicodeEncodeError) as exc:  # UnicodeEncodeError: a key that is not UTF-8
             self.rejections.reject(key, str(exc))
             return

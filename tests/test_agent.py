@@ -7,6 +7,7 @@ import msgpack
 import pytest
 
 import vsfleet.agent.main as agent_main
+import vsfleet.impl as impl_module
 import vsfleet.step as step_mod
 from vsfleet.agent.main import Agent
 from vsfleet.control import DEFAULT_CONTROLLER, make_controller
@@ -103,13 +104,14 @@ def test_a_frame_is_decoded_by_the_core_or_by_the_readable_decoder_to_the_same_m
     """The agent decodes frames with the compiled core (vsfleet._core.decode_frame, the key's src checked there),
     and with StepConfig.reference with vsfleet.wire.decode_frame: the same message, the same refusals."""
     used = []
-    for name in ("decode_frame", "decode_frame_core"):
-        real = getattr(agent_main, name)
-        monkeypatch.setattr(agent_main, name, lambda *a, real=real, name=name: used.append(name) or real(*a))
+    for name in ("core", "reference"):   # StepConfig takes its namespace from vsfleet.impl when it is made
+        ns = getattr(impl_module, name)
+        monkeypatch.setattr(impl_module, name, dataclasses.replace(
+            ns, decode_frame=lambda *a, real=ns.decode_frame, name=name: used.append(name) or real(*a)))
     agent = Agent("r1", KEYS, lambda b: None, lambda b: None, clock=Clock(100.0), reference=reference)
     msg = FrameMsg(100.0, 1, "cam-1", {"r1": (0.1, -0.0, 3.0), "r2": (1e6, -1e6, 5e-324)})
     agent.on_frame(KEYS.frame("cam-1"), encode_frame(msg), wake=False)
-    assert agent._slot == {"cam-1": msg} and used == ["decode_frame" if reference else "decode_frame_core"]
+    assert agent._slot == {"cam-1": msg} and used == ["reference" if reference else "core"]
     assert [struct.pack("<3d", *p) for p in agent._slot["cam-1"].poses.values()] == \
         [struct.pack("<3d", *p) for p in msg.poses.values()]
     bad = [(KEYS.frame("cam-2"), msg), (Keys("other").frame("cam-1"), msg), (KEYS.frame("cam-1") + "/x", msg),

@@ -18,6 +18,7 @@ from .fit import fit_structure, fit_structure_reference
 from .kinematics import integrate_arcs, integrate_arcs_reference
 from .safety import safety_filter, safety_filter_reference
 from .structure import structure_step_core, structure_step_reference
+from .wire import FrameMsg, WireError, decode_frame, decode_frame_core
 
 
 @dataclass(frozen=True)
@@ -34,6 +35,7 @@ class Impl:
     integrate_arcs: Callable      # vsfleet.kinematics
     build_field: Callable         # vsfleet.field
     follow_field: Callable        # vsfleet.field
+    decode_frame: Callable        # (payload, src the key names) -> FrameMsg: vsfleet.wire
 
 
 def _control_core(controller, state, inp):
@@ -46,16 +48,24 @@ def _control_reference(controller, state, inp):
     return controller.reference(state, inp)
 
 
+def _decode_frame_reference(payload: bytes, src: str | None = None) -> FrameMsg:
+    """wire.decode_frame, with the frame's src checked against the key's (as decode_frame_core checks it)."""
+    msg = decode_frame(payload)
+    if src is not None and msg.src != src:
+        raise WireError(f"src {msg.src!r} is not the key's last chunk")
+    return msg
+
+
 core = Impl("core", structure_step=structure_step_core, fit_structure=fit_structure,
             advance_structure=advance_structure, control=_control_core, safety_filter=safety_filter,
             failure_step=failure_step, integrate_arcs=integrate_arcs, build_field=build_field,
-            follow_field=follow_field)
+            follow_field=follow_field, decode_frame=decode_frame_core)
 
 reference = Impl("reference", structure_step=structure_step_reference, fit_structure=fit_structure_reference,
                  advance_structure=advance_structure_reference, control=_control_reference,
                  safety_filter=safety_filter_reference, failure_step=failure_step_reference,
                  integrate_arcs=integrate_arcs_reference, build_field=build_field_reference,
-                 follow_field=follow_field_reference)
+                 follow_field=follow_field_reference, decode_frame=_decode_frame_reference)
 
 
 def choose(use_reference: bool) -> Impl:
