@@ -97,8 +97,10 @@ double vs_hypot_cr(double x, double y)
     y = vs_fabs(y);
     double mx = x > y ? x : y;
     if (mx == 0.0) return mx;
-    int e = (int)((bits(mx) >> 52) & 0x7ff) - 1022;     /* frexp's exponent of a normal mx */
-    if (e < -1000 || e > 1000) return vs_hypot_libm(x, y);   /* out of the physical range */
+    uint64_t biased = (bits(mx) >> 52) & 0x7ff;
+    if (biased == 0) return vs_hypot_libm(x, y);        /* subnormal: far below the physical range */
+    int e = (int)biased - 1022;                         /* frexp's exponent of a normal mx */
+    if (e > 1000) return vs_hypot_libm(x, y);           /* far out of the physical range */
     double scale = from_bits((uint64_t)(1023 - e) << 52);   /* ldexp(1.0, -e), exact */
     double csum = 1.0, frac1 = 0.0, frac2 = 0.0, v[2] = {x, y};
     dl pr, sm;
