@@ -48,13 +48,16 @@ def decoded(recs, prefix: str, decode):
     return out
 
 
-def test_vsfleet_run_with_the_camera_tracker_reaches_the_goal_in_formation(tmp_path):
+def run_camera_triangle(tmp_path: Path, *flags: str) -> tuple[str, Path, dict, str]:
+    """`vsfleet run scenarios/camera-triangle.toml FLAGS` on a fleet name of its own, to its end (at most 180 s:
+    the scenario lasts at most 40 s; a busy host is slower), every child killed after; (fleet, its run
+    directory, summary.json, the output). Asserts it exited 0 and reached its goal with every child well."""
     fleet = "t" + uuid.uuid4().hex[:8]
-    proc = subprocess.Popen([sys.executable, "-m", "vsfleet.fleetctl.cli", "run", str(SCENARIO), "--tracker", "camera",
+    proc = subprocess.Popen([sys.executable, "-m", "vsfleet.fleetctl.cli", "run", str(SCENARIO), *flags,
                              "--fleet", fleet, "--out", str(tmp_path)],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, stdin=subprocess.DEVNULL)
     try:
-        out, _ = proc.communicate(timeout=180)  # the scenario lasts at most 40 s; a busy host is slower
+        out, _ = proc.communicate(timeout=180)
     except subprocess.TimeoutExpired:
         proc.send_signal(signal.SIGINT)
         out, _ = proc.communicate(timeout=30)
@@ -68,6 +71,11 @@ def test_vsfleet_run_with_the_camera_tracker_reaches_the_goal_in_formation(tmp_p
     (run_dir,) = tmp_path.glob("*/camera-triangle")
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["children_ok"] and summary["reached_goal"], out
+    return fleet, run_dir, summary, out
+
+
+def test_vsfleet_run_with_the_camera_tracker_reaches_the_goal_in_formation(tmp_path):
+    fleet, run_dir, summary, _out = run_camera_triangle(tmp_path, "--tracker", "camera")
     assert summary["goal_distance_end_m"] <= GOAL_TOL_M
     assert {d["robot"] for d in summary["deviation"]} == {"r1", "r2", "r3"}
     assert all(d["max_m"] < MAX_DEVIATION_M for d in summary["deviation"]), summary["deviation"]

@@ -13,17 +13,11 @@
 
 from __future__ import annotations
 
-import json
 import math
-import os
 import re
 import signal
-import subprocess
-import sys
 import threading
 import time
-import uuid
-from pathlib import Path
 
 import msgpack
 import pytest
@@ -32,7 +26,7 @@ from vsfleet.wire import DECODERS, CmdMsg, WireError, decode_contact, encode
 from vsfleet.zglue.zconf import RELIABLE_QOS
 
 from .conftest import E2E, ROBOTS, LoopbackFleet, closing, start_fleet
-from .test_run import fleet_pids
+from .test_camera_run import run_camera_triangle
 
 pytestmark = pytest.mark.integration
 
@@ -206,30 +200,9 @@ def test_the_agents_traffic_is_the_same_with_either_engine(tmp_path):
     assert kinematic[1] == mujoco_[1]  # the same processes alive
 
 
-CAMERA_SCENARIO = Path(__file__).parent.parent.parent / "scenarios" / "camera-triangle.toml"
-
-
 def test_the_camera_loop_on_mujocos_truth_reaches_the_goal_in_formation(tmp_path):
     pytest.importorskip("cv2")
-    fleet = "t" + uuid.uuid4().hex[:8]
-    proc = subprocess.Popen([sys.executable, "-m", "vsfleet.fleetctl.cli", "run", str(CAMERA_SCENARIO), "--engine",
-                             "mujoco", "--fleet", fleet, "--out", str(tmp_path)],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, stdin=subprocess.DEVNULL)
-    try:
-        out, _ = proc.communicate(timeout=180)  # it settles in about 12 s (bench/engine.py); a busy host is slower
-    except subprocess.TimeoutExpired:
-        proc.send_signal(signal.SIGINT)
-        out, _ = proc.communicate(timeout=30)
-        pytest.fail("vsfleet run did not end\n" + out)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-        for pid in fleet_pids(fleet).values():
-            os.kill(pid, signal.SIGKILL)
-    assert proc.returncode == 0, out
-    (run_dir,) = tmp_path.glob("*/camera-triangle")
-    summary = json.loads((run_dir / "summary.json").read_text())
-    assert summary["children_ok"] and summary["reached_goal"], out
+    _fleet, run_dir, summary, _out = run_camera_triangle(tmp_path, "--engine", "mujoco")
     assert summary["goal_distance_end_m"] <= 0.01  # vsfleet run's goal
     # the paper's real robots' bound (2.5 cm, as the kinematic camera loop's test); measured here 0.29 cm, at the start
     assert {d["robot"] for d in summary["deviation"]} == {"r1", "r2", "r3"}
