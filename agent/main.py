@@ -8,13 +8,17 @@ late joiners and restarted agents get the mission and the failure-policy state
 from their peers), and ask for both with a get. An answer is taken only if a
 strict majority of the peers that replied gave it (vsfleet.quorum); the
 operator's mission (its put, or its answer on ``vs/<fleet>/mission``) is taken
-as it is. Frames land in a latest-frame slot per source: a newer frame replaces
+as it is. Joining costs a bounded number of messages, not one per peer: once the
+operator has answered (or the agent holds a mission) it asks only the
+PEERS_ASKED robots after its own in the mission's sorted ids (peers_to_ask), so
+a fleet of N agents starting together exchanges O(N) queries, not N^2. Frames land in a latest-frame slot per source: a newer frame replaces
 one not yet run (counted). On any exit it publishes a zero command.
 """
 
 from __future__ import annotations
 
 import argparse
+import bisect
 import collections
 import logging
 import queue
@@ -68,6 +72,21 @@ FETCH_PERIOD_S = 1.0  # without a mission, ask again this often
 DEFAULT_DT_S = 1.0 / 30.0
 INBOX_MAX = 256       # missions and query replies (frames go to the latest-frame slot)
 DECISIONS_KEPT = 1000  # the newest failure-policy decisions an agent keeps (Agent.decisions)
+# How many peers a joining agent asks, once it knows the mission's robots (peers_to_ask): a bounded number, so a
+# fleet's start costs O(N) queries. Asking every peer made it N^2: at N = 100, 2 x 9,900 queries, each one a Python
+# callback in the agent that received it (bench/loop.py's start-up, docs/benchmarks.md, issue 29).
+PEERS_ASKED = 5
+
+
+def peers_to_ask(robot_ids, robot: str, k: int = PEERS_ASKED) -> tuple[str, ...]:
+    """The ``k`` robots after ``robot`` in sorted id order, wrapping round (``robot`` itself left out): whom a
+    joining agent asks. Each robot is asked by the ``k`` before it, so no agent answers more than ``k`` joiners
+    of one fleet start, and every agent that holds the same mission asks the same peers whatever it heard."""
+    ids = sorted(set(robot_ids) - {robot})
+    if not ids:
+        return ()
+    start = bisect.bisect_right(ids, robot)
+    return tuple(ids[(start + i) % len(ids)] for i in range(min(k, len(ids))))
 
 
 class Agent:
@@ -333,10 +352,8 @@ class Agent:
         return encode(stop_command(self.state, self.clock(), self.config.ttl_s))
 
 
-def fetch(session: zenoh.Session, selectors: tuple[str, ...], kind: str, inbox: queue.Queue,
-          timeout_s: float, wake: threading.Event | None = None) -> None:
-    """Ask ``selectors`` (for the mission or the peers' health) and collect every reply, unconsolidated,
-    until the gets end; then the whole list goes to the agent's inbox as one item."""
+def ask(session: zenoh.Session, selectors: tuple[str, ...], timeout_s: float) -> list[tuple[str, bytes]]:
+    """Get ``selectors`` at once and collect every reply, unconsolidated, until the gets end: (key, payload)."""
     gets = [session.get(s, timeout=timeout_s, target=zenoh.QueryTarget.ALL,
                         consolidation=zenoh.ConsolidationMode.NONE, allowed_destination=zenoh.Locality.REMOTE)
             for s in selectors]
@@ -345,6 +362,36 @@ def fetch(session: zenoh.Session, selectors: tuple[str, ...], kind: str, inbox: 
         for reply in handler:
             if reply.ok is not None:
                 replies.append((str(reply.ok.key_expr), reply.ok.payload.to_bytes()))
+    return replies
+
+
+def mission_followup(keys: Keys, robot: str) -> Callable[[list[tuple[str, bytes]]], tuple[str, ...]]:
+    """What a mission query asks after the operator's key: the PEERS_ASKED peers after ``robot`` in the operator's
+    mission (peers may run a newer version than the operator's answer), or, if the operator gave no mission,
+    every peer (``peer/*/mission``: only then does one join cost a query per peer)."""
+    def then(replies: list[tuple[str, bytes]]) -> tuple[str, ...]:
+        for key, payload in replies:
+            if key == keys.mission:
+                try:
+                    ids = decode_mission(payload).robot_ids
+                except WireError:
+                    continue  # rejected (and counted) when the agent takes the replies
+                return tuple(keys.peer_mission(p) for p in peers_to_ask(ids, robot))
+        return (keys.peer_mission(),)
+    return then
+
+
+def fetch(session: zenoh.Session, selectors: tuple[str, ...], kind: str, inbox: queue.Queue,
+          timeout_s: float, wake: threading.Event | None = None,
+          then: Callable[[list[tuple[str, bytes]]], tuple[str, ...]] | None = None) -> None:
+    """Ask ``selectors`` (for the mission or the peers' health), then, if ``then`` is given, what
+    ``then(replies)`` names; collect every reply, unconsolidated, until the gets end; then the whole list goes
+    to the agent's inbox as one item."""
+    replies = ask(session, selectors, timeout_s)
+    if then is not None:
+        more = then(replies)
+        replies += ask(session, more, timeout_s)
+        selectors = (*selectors, *more)
     try:
         inbox.put((f"{kind}-replies", "|".join(selectors), replies), timeout=timeout_s)
     except queue.Full:
@@ -399,8 +446,12 @@ class AgentWiring:
         self.own_mission, self.own_health = keys.peer_mission(robot), keys.peer_health(robot)
         self.mission_sub = session.declare_subscriber(keys.mission, self.on_mission_sample)
         self.frame_sub = session.declare_subscriber(keys.frame(), self.on_frame_sample)
-        self.queryables = [session.declare_queryable(self.own_mission, self.answer_mission, complete=False),
-                           session.declare_queryable(self.own_health, self.answer_health, complete=False)]
+        # the mission queryable is declared once the agent holds a mission (declare_mission_queryable): until then
+        # a peer's ``peer/*/mission`` reaches only agents that can answer it, so a fleet waiting for its mission
+        # costs no query per pair of agents each second
+        self.queryables = [session.declare_queryable(self.own_health, self.answer_health, complete=False)]
+        self.mission_queryable = None
+        self.answered = collections.Counter()  # queries this agent was asked, by kind (logged at the end)
         self.fetcher: threading.Thread | None = None
         self.next_fetch = 0.0
         self.asked_health = False  # in this JOINING or RESYNCING phase
@@ -436,11 +487,13 @@ class AgentWiring:
             agent.on_frame(key, payload)
 
     def answer_mission(self, query: zenoh.Query) -> None:
+        self.answered["mission"] += 1
         payload = self.agent.mission_payload  # a bytes object swapped in by the main thread
         if payload is not None:
             query.reply(self.own_mission, payload)
 
     def answer_health(self, query: zenoh.Query) -> None:
+        self.answered["health"] += 1
         payload = self.agent.health_payload  # likewise
         if payload is not None:
             query.reply(self.own_health, payload)
@@ -458,23 +511,26 @@ class AgentWiring:
                 return
 
     def ask_peers(self, now: float) -> None:
-        """Without a mission, ask the operator and every peer for it (every FETCH_PERIOD_S); with one, a
-        (re)started or resynced agent asks its peers' failure-policy state, once per such phase."""
+        """Without a mission, ask the operator for it, then PEERS_ASKED peers (every peer if the operator gave
+        none; mission_followup), every FETCH_PERIOD_S; with one, a (re)started or resynced agent asks the
+        PEERS_ASKED peers after it (peers_to_ask) for their failure-policy state, once per such phase."""
         agent, keys = self.agent, self.keys
         idle = not (self.fetcher and self.fetcher.is_alive())
         if agent.state.phase is SyncPhase.SYNCED:
             self.asked_health = False
-        if agent.missions.latest() is None and now >= self.next_fetch and idle:
+        latest = agent.missions.latest()
+        if latest is None and now >= self.next_fetch and idle:
             self.fetcher = threading.Thread(target=fetch, args=(
-                self.session, (keys.mission, keys.peer_mission()), "mission", self.inbox, 1.0, agent.wake),
-                daemon=True)
+                self.session, (keys.mission,), "mission", self.inbox, 1.0, agent.wake,
+                mission_followup(keys, self.robot)), daemon=True)
             self.fetcher.start()
             self.next_fetch = now + FETCH_PERIOD_S
-        elif agent.missions.latest() is not None and not self.asked_health and idle and \
+        elif latest is not None and not self.asked_health and idle and \
                 agent.state.phase is not SyncPhase.SYNCED:
             self.asked_health = True
+            selectors = tuple(keys.peer_health(p) for p in peers_to_ask(latest.robot_ids, self.robot))
             self.fetcher = threading.Thread(target=fetch, args=(
-                self.session, (keys.peer_health(),), "health", self.inbox, 1.0, agent.wake), daemon=True)
+                self.session, selectors, "health", self.inbox, 1.0, agent.wake), daemon=True)
             self.fetcher.start()
 
     def run_once(self) -> None:
@@ -495,8 +551,16 @@ class AgentWiring:
                 except queue.Empty:
                     break
                 agent.on_message(kind, key, payload)
+            self.declare_mission_queryable()
             agent.poll()
         self.flush_events()
+
+    def declare_mission_queryable(self) -> None:
+        """Answer ``peer/<robot>/mission`` from the first mission this agent holds on (the main loop)."""
+        if self.mission_queryable is None and self.agent.mission_payload is not None:
+            self.mission_queryable = self.session.declare_queryable(self.own_mission, self.answer_mission,
+                                                                    complete=False)
+            self.queryables.append(self.mission_queryable)
 
     def close(self) -> None:
         """Stop frames, publish the zero command (no frame runs after it), log the counts, undeclare."""
@@ -507,8 +571,9 @@ class AgentWiring:
             self.cmd_pub.put(agent.stop_command())
         self.flush_events()
         log.info("agent %s stopping after %d ticks, %d rejected (%d on overflow), %d frames replaced "
-                 "before they ran, %d stale frames", self.robot, agent.ticks, agent.rejections.count,
-                 self.overflow, agent.frames_replaced, agent.state.stale)
+                 "before they ran, %d stale frames; asked %d mission and %d health queries", self.robot,
+                 agent.ticks, agent.rejections.count, self.overflow, agent.frames_replaced, agent.state.stale,
+                 self.answered["mission"], self.answered["health"])
         self.mission_sub.undeclare()
         for q in self.queryables:
             q.undeclare()
