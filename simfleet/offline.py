@@ -15,6 +15,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 
+import msgpack
 import numpy as np
 
 from vsfleet.analysis import goal_distance
@@ -52,6 +53,8 @@ class OfflineRun:
     commands_m_s: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((0, 0, 2)))  # (frames, n, 2) sent
     engine: str = "kinematic"     # the physics engine under the robots (simfleet.engine)
     contacts: tuple[Contact, ...] = ()  # contacts between bodies that began, as the engine reported them
+    # reshape: robot -> [(frame seq, shape)], each change of the shape its agent's state reports (from 0, the template)
+    shapes: dict = dataclasses.field(default_factory=dict)
 
 
 def run_offline(scenario: Scenario, duration_s: float, controller: str | None = None,
@@ -98,13 +101,14 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
     # every decision (and blocked/unblocked event) each agent publishes, as the fleet's event/<robot> carries
     # it: the agent itself keeps only its newest ones
     decisions: dict[str, list[Decision]] = {r: [] for r in robots}
+    shapes: dict[str, list[tuple[int, int]]] = {r: [] for r in robots}
     # the agents share the structures they compute: an agent whose frame, mission and failure masks equal
     # another's takes that agent's structure (the same pure function of the same inputs) instead of
     # fitting again; everything else (controller, failure rule, state) each agent computes on its own
     shared: dict | None = {} if share_structures else None
     for r in robots:  # one agent per robot, each with its own state, as in the fleet
         agents[r] = Agent(r, keys, put_cmd=lambda b, r=r: sent.__setitem__(r, _wheels(b)),
-                          put_state=lambda b: None, put_event=lambda b, r=r: decisions[r].append(_decision(b)),
+                          put_state=lambda b, r=r: _note_shape(shapes[r], b), put_event=lambda b, r=r: decisions[r].append(_decision(b)),
                           dt_s=dt, clock=lambda: t - tracker_clock_ahead_s, controller=ctrl,
                           command_age_s=latency_frames * dt, shared_structures=shared, reference=reference)
         agents[r].on_mission(keys.mission, encode_mission(mission))
@@ -143,7 +147,15 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
                       final_poses={r: s.pose for r, s in states.items()},
                       decisions=decisions,
                       positions_m=np.array(positions), commands_m_s=np.array(sent_log, dtype=float),
-                      engine=engine, contacts=tuple(phys.contacts) if phys is not None else ())
+                      engine=engine, contacts=tuple(phys.contacts) if phys is not None else (), shapes=shapes)
+
+
+def _note_shape(changes: list[tuple[int, int]], payload: bytes) -> None:
+    """Note the shape an agent's state reports when it differs from the last noted (0, the template, at first)."""
+    m = msgpack.unpackb(payload)
+    shape = m.get("shape", 0)
+    if shape != (changes[-1][1] if changes else 0):
+        changes.append((m["seq"], shape))
 
 
 def _wheels(payload: bytes) -> tuple[float, float]:

@@ -280,10 +280,10 @@ def _descend(lat: Lattice, cost: np.ndarray, s: int):
     return best, best_w
 
 
-def follow_field_reference(field: Field, pose: Pose2, path_m: float = PATH_M, cap: int = PATH_CAP):
-    """vs_field_follow in Python: (waypoints (k, 3), blocked, left_m)."""
-    lat = field.lattice
-    cost = np.asarray(field.costs).ravel()
+def _start_state(lat: Lattice, cost: np.ndarray, pose: Pose2) -> tuple[int | None, bool]:
+    """Where a descent from ``pose`` starts (vs_field.c start_state): the nearest state, else the cheapest free
+    state of the nearest ring around it (SEARCH_CELLS cells, two headings); None if none; and whether the pose
+    lies outside the lattice."""
     plane = lat.nx * lat.ny
     c0, r0, k0, outside = _nearest(lat, pose.x, pose.y, pose.th)
     start, start_v = None, 0
@@ -305,6 +305,25 @@ def follow_field_reference(field: Field, pose: Pose2, path_m: float = PATH_M, ca
                         start, start_v = s, v
         if start is not None:
             break
+    return start, outside
+
+
+def field_open_reference(field: Field, pose: Pose2) -> tuple[bool, bool]:
+    """vs_field_open in Python: (the descent from the pose starts on a free state the goal can be reached from,
+    that state lies in the comfort band)."""
+    cost = np.asarray(field.costs).ravel()
+    start, _outside = _start_state(field.lattice, cost, pose)
+    if start is None:
+        return False, False
+    v = int(cost[start])
+    return not v & BLOCKED_BIT, bool(v & TIGHT_BIT)
+
+
+def follow_field_reference(field: Field, pose: Pose2, path_m: float = PATH_M, cap: int = PATH_CAP):
+    """vs_field_follow in Python: (waypoints (k, 3), blocked, left_m)."""
+    lat = field.lattice
+    cost = np.asarray(field.costs).ravel()
+    start, outside = _start_state(lat, cost, pose)
     way = [pose.as_tuple()]
     if start is None:
         return np.array(way), True, math.sqrt((lat.gx - pose.x) ** 2 + (lat.gy - pose.y) ** 2)

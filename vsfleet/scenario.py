@@ -22,6 +22,10 @@ Example::
     turn_rate_max = 0.3        # [rad/s]
     goal = { x = 1.6, y = 1.0, th = 0.3 }   # or path = [[x, y, th], ...] or twist = {vx, vy, w}
     obstacles = [[0.8, 0.5, 0.1]]           # optional: round obstacles [x, y, r] [m; world], at most 256
+    scale_min = 0.7            # optional, in a room: the template may shrink to this scale to pass a gap
+    shapes = [{ name = "row", points = { r1 = [0.0, 0.25] } }]
+                               # optional, in a room: alternative templates (every robot a point) taken, in
+                               # this order, where the template cannot pass (docs/planning.md, "Shapes")
     controller = "tracking"    # optional (default: vsfleet.control.DEFAULT_CONTROLLER)
     on_failure = "hold"        # hold | drop | rejoin
 
@@ -338,7 +342,7 @@ def scenario_from_dict(doc: Mapping[str, Any], name: str = "scenario") -> Scenar
 
     mission_t = dict(_table(doc, "mission"))
     _only(mission_t, {"metric", "speed_max", "turn_rate_max", "goal", "path", "twist", "controller",
-                      "on_failure", "obstacles"}, "mission")
+                      "on_failure", "obstacles", "scale_min", "shapes"}, "mission")
     if "obstacles" in mission_t:
         mission_t["obstacles"] = _obstacles(mission_t["obstacles"])
     mission_t.update(version=1, effective_t=0.0, robots=mission_robots)

@@ -67,6 +67,30 @@ def mission_template(mission: Mission) -> np.ndarray:
     return np.array([s.p for _, s in mission.robots], dtype=float)
 
 
+#: reshape: the template's smaller scales, SCALE_STEP apart at most, SCALE_COUNT of them at most (down to scale_min)
+SCALE_STEP = 0.1
+SCALE_COUNT = 4
+
+
+def mission_scales(scale_min: float | None) -> tuple[float, ...]:
+    """The scales below 1 the template may take, largest first, the last scale_min itself: () for None or 1."""
+    if scale_min is None or scale_min >= 1.0:
+        return ()
+    k = min(SCALE_COUNT, math.ceil((1.0 - scale_min) / SCALE_STEP - 1e-9))
+    return tuple(1.0 - (1.0 - scale_min) * j / k for j in range(1, k)) + (scale_min,)
+
+
+def mission_shapes(mission: Mission) -> tuple[tuple[str, np.ndarray], ...]:
+    """The shapes the structure may take beyond its template, in the order they are tried (docs/planning.md,
+    "Shapes"): the template at each of its smaller scales (named "scale 0.8"), then the alternative templates;
+    each (name, points (n, 2) [m; structure frame]); () in a mission without obstacles."""
+    if not mission.obstacles:
+        return ()
+    template = mission_template(mission)
+    return (tuple((f"scale {s:g}", template * s) for s in mission_scales(mission.scale_min))
+            + tuple((name, np.array(pts, dtype=float)) for name, pts in mission.shapes))
+
+
 @dataclass(frozen=True)
 class MissionArrays:
     """What a mission fixes for every frame, as arrays over its robots (sorted id order)."""
@@ -82,6 +106,10 @@ class MissionArrays:
     obstacles: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (k, 3) (x, y, r) [m; world]
     core: tuple = ()
     field: Field | None = None     # the room's navigation function (vsfleet.field), built once per mission
+    # reshape: the shapes beyond the template, in the order tried ((name, points (n, 2)), mission_shapes), and
+    # each one's field (built once per mission; none without the template's field)
+    shapes: tuple = ()
+    shape_fields: tuple = ()
 
     @cached_property
     def room(self) -> bool:
@@ -90,7 +118,8 @@ class MissionArrays:
 
 
 def core_mission(metric: str, template: np.ndarray, envelopes: Envelopes, goal: Goal,
-                 limits: StructureLimits, radii=None, obstacles=(), field: Field | None = None) -> tuple:
+                 limits: StructureLimits, radii=None, obstacles=(), field: Field | None = None,
+                 shapes: tuple = (), shape_fields: tuple = ()) -> tuple:
     """The mission's constants as the compiled core takes them (vs_mission in vs_step.h), in structure_step's
     argument order (vsfleet.structure.MISSION_ARGS: those before the frame's, then those after them)."""
     if isinstance(goal, GoalPose):
@@ -107,7 +136,9 @@ def core_mission(metric: str, template: np.ndarray, envelopes: Envelopes, goal: 
               "limits": np.array([getattr(limits, f) for f in LIMIT_FIELDS], dtype=float),
               "radius_m": np.zeros(len(template)) if radii is None else np.array(radii, dtype=float),
               "obstacles": np.array(obstacles, dtype=float).reshape(-1), "margin_m": PLAN_MARGIN_M,
-              "field": None if field is None else field.handle}
+              "field": None if field is None else field.handle,
+              "shapes_xy": np.ascontiguousarray(np.array([p for _, p in shapes], dtype=float).reshape(-1)),
+              "shape_fields": tuple(f.handle for f in shape_fields)}
     return tuple(packed[a] for a in MISSION_ARGS)   # in the core's order (vsfleet.structure.MISSION_ARGS)
 
 
@@ -124,11 +155,14 @@ def mission_arrays(mission: Mission) -> MissionArrays:
     limits = StructureLimits(speed_max_m_s=mission.speed_max, turn_rate_max_rad_s=mission.turn_rate_max)
     obstacles = np.array(mission.obstacles, dtype=float).reshape(-1, 3)
     field = room_field(template, mission.radii, obstacles, goal, build_field)   # the core's build
+    shapes = mission_shapes(mission) if field is not None else ()
+    shape_fields = tuple(room_field(p, mission.radii, obstacles, goal, build_field) for _, p in shapes)
     arrays = MissionArrays(ids=ids, index={r: i for i, r in enumerate(ids)}, template=template,
                            envelopes=envelopes, goal=goal, limits=limits, policy=mission_policy(mission),
                            radii=np.array(mission.radii, dtype=float), obstacles=obstacles,
                            core=core_mission(mission.metric, template, envelopes, goal, limits, mission.radii,
-                                             mission.obstacles, field), field=field)
+                                             mission.obstacles, field, shapes, shape_fields), field=field,
+                           shapes=shapes, shape_fields=shape_fields)
     if len(_ARRAYS) >= 16:
         _ARRAYS.clear()
     _ARRAYS[id(mission)] = (mission, arrays)
@@ -278,6 +312,7 @@ class AgentState:
     stall_since_t: float = math.nan
     stall_pose: tuple | None = None   # (x, y, th [m, rad; world] where the watch began, filter seen since)
     stalled: bool = False
+    shape: int = 0   # reshape: the shape the structure took at the last frame (0: the template; noted on change)
 
     @property
     def predicted_m_s(self) -> dict[str, tuple[float, float]]:
@@ -417,7 +452,7 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
         err = float(math.hypot(pose[own, 0] - s.points_now[own, 0], pose[own, 1] - s.points_now[own, 1]))
         state_msg = StateMsg(t=frame.t, seq=frame.seq, x=f.x, y=f.y, th=f.th, gx=g.x, gy=g.y, gth=g.th,
                              cost=s.cost, err=err, used=_used_ids(arrays.ids, s.used),
-                             rejected=0, complete=frame.complete, mission=mission.version)
+                             rejected=0, complete=frame.complete, mission=mission.version, shape=s.shape)
     # the motion test takes only poses of this very frame: a pose held over from an earlier frame
     # would count as "did not move" here and double next frame, and agents that got that pose in
     # time would disagree on the frame of a decision
@@ -446,13 +481,20 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
                                      "the safety filter has held robots back and the structure has not moved (a "
                                      "passage tighter than the plan allowed for)") if now else
                      Note("info", f"frame {frame.seq}: the structure is on its way to the goal again"))
+    if s.shape != state.shape:   # reshape: every agent at the same frame (a function of the frame)
+        notes.append(Note("info", f"frame {frame.seq}: the structure takes {shape_name(arrays, s.shape)}"))
     notes.extend(Note("warning", f"frame {frame.seq}: robot {d.robot} {d.kind} (deviation {d.deviation_m:.3f} m, "
                                  f"on_failure={mission.on_failure})") for d in decisions)
     state = _evolve(state, wheels_m_s=wheels, ctrl=ctrl, failure=failure, health=health, last_seq=frame.seq,
                     blocked=s.blocked, stall_since_t=stall_since, stall_pose=stall_pose, stalled=stalled,
-                    last_cmd_t=frame.t, ticks=state.ticks + 1)
+                    shape=s.shape, last_cmd_t=frame.t, ticks=state.ticks + 1)
     return state, StepOutput(cmd=cmd, state=state_msg, health=health_msg, events=events, notes=tuple(notes),
                              structure=s, wheels_m_s=wheels)
+
+
+def shape_name(arrays: MissionArrays, shape: int) -> str:
+    """A shape's name for a log line: "the template", or the mission's reshape by name ("scale 0.8", "column")."""
+    return "the template" if shape == 0 else f"shape {shape} ({arrays.shapes[shape - 1][0]})"
 
 
 #: the stall watch (stall_state): stuck after STALL_S [s] of the safety filter changing commands while the

@@ -15,7 +15,7 @@ import numpy as np
 from . import _core
 from .coreconst import STRUCTURE_STEP_ARGS
 from .advance import Goal, GoalPath, GoalPose, GoalTwist, Twist2, advance_structure_reference
-from .field import Field, build_field, build_field_reference, follow_field_reference
+from .field import Field, build_field, build_field_reference, field_open_reference, follow_field_reference
 from .fit import fit_structure_reference
 from .geometry import Pose2, wrap_angle
 
@@ -45,7 +45,7 @@ def room_field(template: np.ndarray, radii, obstacles: np.ndarray, goal: Goal,
     if hit is not None:
         return hit
     field = build(tpl, rad, PLAN_MARGIN_M, obs, target)
-    if len(_FIELDS) >= 4:  # a few rooms at a time: each field holds its lattice (up to 8 MB)
+    if len(_FIELDS) >= 12:  # a few rooms (and their shapes) at a time: each field holds its lattice (up to 8 MB)
         _FIELDS.clear()
     _FIELDS[key] = field
     return field
@@ -68,6 +68,7 @@ class Structure:
     deviations_m: np.ndarray
     blocked: bool = False   # obstacles: no path to the goal; the structure stops at the closest safe pose
     left_m: float = 0.0     # obstacles, blocked: how far [m] that pose is from the goal
+    shape: int = 0          # reshape: the shape taken (0: the template; k: the mission's k-th, MissionArrays.shapes)
 
 
 
@@ -86,30 +87,46 @@ def structure_step_reference(arrays, metric: str, pose_world: np.ndarray, seen: 
         return None
     fit_fn, advance_fn = fit_structure_reference, advance_structure_reference
     xy = pose_world[:, :2]
-    fit = fit_fn(arrays.template[used], xy[used], metric=metric)
-    now_pts = fit.pose.apply(arrays.template)
+    template, field, shape = arrays.template, None, 0
+    fit = fit_fn(template[used], xy[used], metric=metric)
+    if arrays.field is not None:
+        field = _reference_field(arrays, template)
+        if arrays.shapes:   # reshape (vs_step.h): which shape the robots are in, which can take its way
+            options = [(template, field, fit)]
+            for _name, points in arrays.shapes:
+                options.append((points, _reference_field(arrays, points), fit_fn(points[used], xy[used], metric=metric)))
+            now_in = 0
+            for j, (_t, _f, fj) in enumerate(options):
+                if fj.cost < options[now_in][2].cost:
+                    now_in = j
+            state = [field_open_reference(fld, fj.pose) for _t, fld, fj in options]
+            pick = next((j for j, (op, tight) in enumerate(state) if op and (j == now_in or not tight)),
+                        next((j for j, (op, _tight) in enumerate(state) if op), 0))
+            template, field, fit = options[pick]
+            shape = pick
+    now_pts = fit.pose.apply(template)
     dist = np.hypot(xy[:, 0] - now_pts[:, 0], xy[:, 1] - now_pts[:, 1])
     goal, blocked, left_m = arrays.goal, False, 0.0
-    if arrays.field is not None:  # the room: follow the field's descent from the fitted pose
-        way, blocked, left_m = follow_field_reference(_reference_field(arrays), fit.pose)
+    if field is not None:  # the room: follow the field's descent from the fitted pose
+        way, blocked, left_m = follow_field_reference(field, fit.pose)
         goal = GoalPath(tuple(Pose2(*w) for w in way), synced=True)
-    adv = advance_fn(fit.pose, goal, dt_s, arrays.limits, arrays.template, arrays.envelopes,
+    adv = advance_fn(fit.pose, goal, dt_s, arrays.limits, template, arrays.envelopes,
                      elapsed_s=elapsed_s, headings_rad=np.where(used, pose_world[:, 2], np.nan),
                      deviations_m=np.where(used, dist, np.nan))
     judges = used & ~judged_apart
     if 2 <= int(judges.sum()) < int(used.sum()):  # a rigid fit needs two points to fix the heading
-        judged = fit_fn(arrays.template[judges], xy[judges], metric=metric).pose.apply(arrays.template)
+        judged = fit_fn(template[judges], xy[judges], metric=metric).pose.apply(template)
         dist = np.hypot(xy[:, 0] - judged[:, 0], xy[:, 1] - judged[:, 1])
     return Structure(fit_pose=fit.pose, goal_pose=adv.pose, twist=adv.twist, cost=float(fit.cost),
                      at_goal=adv.at_goal and not blocked, used=used, points_now=now_pts,
-                     points_next=adv.pose.apply(arrays.template), deviations_m=np.where(seen, dist, np.inf),
-                     blocked=blocked, left_m=left_m)
+                     points_next=adv.pose.apply(template), deviations_m=np.where(seen, dist, np.inf),
+                     blocked=blocked, left_m=left_m, shape=shape)
 
 
 
-def _reference_field(arrays) -> Field:
-    """The reference build of a mission's field (memoised by room_field)."""
-    return room_field(arrays.template, arrays.radii, arrays.obstacles, arrays.goal, build_field_reference)
+def _reference_field(arrays, template: np.ndarray) -> Field:
+    """The reference build of the field of a mission's template or one of its shapes (memoised by room_field)."""
+    return room_field(template, arrays.radii, arrays.obstacles, arrays.goal, build_field_reference)
 
 
 
@@ -127,7 +144,7 @@ def structure_step_core(arrays, metric: str, pose_world: np.ndarray, seen: np.nd
                              used, now, nxt, dev, *c[_FRAME:])
     if r is None:
         return None
-    fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m = r
+    fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m, shape = r
     # the frozen dataclasses filled without their __init__s (as advance._result and _evolve do), every field given
     # as __init__ would set it (Pose2: x and y as floats, th wrapped by wrap_angle): 2 Pose2, a Twist2 and the
     # Structure cost about 6 us through their __init__s at n = 10
@@ -137,7 +154,7 @@ def structure_step_core(arrays, metric: str, pose_world: np.ndarray, seen: np.nd
     _set(twist, "__dict__", {"vx_m_s": vx, "vy_m_s": vy, "w_rad_s": w})
     _set(out, "__dict__", {"fit_pose": fit, "goal_pose": goal, "twist": twist, "cost": cost, "at_goal": at_goal,
                            "used": used, "points_now": now, "points_next": nxt, "deviations_m": dev,
-                           "blocked": blocked, "left_m": left_m})
+                           "blocked": blocked, "left_m": left_m, "shape": shape})
     return out
 
 

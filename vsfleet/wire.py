@@ -40,6 +40,7 @@ MAX_MISSION_BYTES = 1 << 20       # a mission lists every robot
 # (vs_wire.h): a frame lists every robot a tracker sees (1000 robots fit); any number field: |v| <= MAX_ABS
 # (metres, seconds apart from t, m/s, rad), a time |t| <= MAX_ABS_T
 MAX_OBSTACLES = 256     # a mission's round obstacles
+MAX_SHAPES = 4          # a mission's alternative templates (reshape, docs/planning.md)
 MAX_TTL_S = 5.0         # a command may keep a robot moving for at most this long
 CONTROLLER_NAMES = tuple(sorted(CONTROLLERS))  # a mission's controller: one of vsfleet.control's
 FAULT_KINDS = ("none", "stop", "slow", "stall", "wheel")
@@ -321,6 +322,7 @@ class StateMsg:
     rejected: int
     complete: bool = True  # optional field: False when the frame ran on its deadline
     mission: int = -1      # optional field: version of the mission used (-1 = not sent)
+    shape: int = 0         # optional field: the structure's shape (0: the template; k: the mission's k-th reshape)
     v: int = PROTOCOL_V    # telemetry: the protocol version followed
 
 
@@ -606,7 +608,8 @@ def decode_state(payload: bytes) -> StateMsg:
                     th=_num(m, "th"), gx=_num(m, "gx"), gy=_num(m, "gy"), gth=_num(m, "gth"),
                     cost=_pos(m, "cost", allow_zero=True), err=_pos(m, "err", allow_zero=True),
                     used=tuple(used), rejected=_int(m, "rejected"),
-                    complete=_opt_bool(m, "complete", True), mission=_opt_int(m, "mission", -1), v=v)
+                    complete=_opt_bool(m, "complete", True), mission=_opt_int(m, "mission", -1),
+                    shape=_opt_int(m, "shape", 0), v=v)
 
 
 def decode_truth(payload: bytes) -> TruthMsg:
@@ -678,6 +681,11 @@ class Mission:
     failure: tuple[tuple[str, float], ...] = ()
     controller_gains: tuple[tuple[str, float], ...] = ()
     obstacles: tuple[tuple[float, float, float], ...] = ()
+    # reshape (docs/planning.md, "Shapes"), used in a room only: the smallest scale (0, 1] the template may
+    # shrink to (None: it may not), and alternative templates as (name, points (x, y) [m; structure frame] in
+    # the robots' sorted order), in the order they may be taken
+    scale_min: float | None = None
+    shapes: tuple[tuple[str, tuple[tuple[float, float], ...]], ...] = ()
 
     @cached_property
     def robot_ids(self) -> tuple[str, ...]:
@@ -716,6 +724,11 @@ class Mission:
             d["controller_gains"] = dict(self.controller_gains)
         if self.obstacles:  # left out when there are none: such a mission encodes as before
             d["obstacles"] = [list(o) for o in self.obstacles]
+        if self.scale_min is not None:   # the reshape fields, likewise left out when absent
+            d["scale_min"] = self.scale_min
+        if self.shapes:
+            d["shapes"] = [{"name": name, "points": {r: list(p) for (r, _), p in zip(self.robots, pts)}}
+                           for name, pts in self.shapes]
         return d
 
 
@@ -868,6 +881,64 @@ def check_clear_of_obstacles(robots: tuple[tuple[str, RobotSpec], ...],
                 f"less than {r + float(rad[i]):.4g} m")
 
 
+def _bodies_apart(robots: tuple[tuple[str, RobotSpec], ...], points, what: str) -> None:
+    """WireError when two robots' bodies overlap with their points at ``points`` (n, 2) [m] (sorted order)."""
+    for i in range(len(robots)):
+        for j in range(i + 1, len(robots)):
+            (ri, si), (rj, sj) = robots[i], robots[j]
+            reach = (si.radius or 0.0) + (sj.radius or 0.0)
+            d = math.hypot(points[i][0] - points[j][0], points[i][1] - points[j][1])
+            if d <= reach or d == 0.0:
+                raise WireError(f"{what}: the bodies of robots {ri!r} and {rj!r} overlap ({d:.4g} m apart, "
+                                f"radii {si.radius or 0.0:g} and {sj.radius or 0.0:g} m)")
+
+
+def _scale_min(v: Any, robots: tuple[tuple[str, RobotSpec], ...]) -> float:
+    """A mission's ``scale_min``: a number in (0, 1] at which no two robots' bodies overlap."""
+    s = _num({"scale_min": v}, "scale_min")
+    if not 0.0 < s <= 1.0:
+        raise WireError(f"field 'scale_min' must be in (0, 1], got {s}")
+    _bodies_apart(robots, [(sp.p[0] * s, sp.p[1] * s) for _, sp in robots], f"field 'scale_min' {s:g}")
+    return s
+
+
+def shapes_from_list(v: Any, robots: tuple[tuple[str, RobotSpec], ...]) -> tuple:
+    """A mission's ``shapes`` [{name, points: {robot: [x, y]}}] as ((name, points in sorted robot order), ...):
+    at most MAX_SHAPES, names distinct, every robot of the mission given a point and no other, the bodies
+    apart."""
+    if not isinstance(v, (list, tuple)) or not v:
+        raise WireError("field 'shapes' must be a non-empty list of {name, points}")
+    if len(v) > MAX_SHAPES:
+        raise WireError(f"{len(v)} shapes exceed the limit of {MAX_SHAPES}")
+    ids = [r for r, _ in robots]
+    out, names = [], set()
+    for i, sh in enumerate(v):
+        if not isinstance(sh, Mapping):
+            raise WireError(f"shapes[{i}] must be a map {{name, points}}")
+        check_known(sh, ("name", "points"), f"shapes[{i}]")
+        name = _str(sh, "name")
+        check_name(name, f"shapes[{i}] name")
+        if name in names:
+            raise WireError(f"shapes[{i}]: the name {name!r} is taken twice")
+        names.add(name)
+        pts = sh.get("points")
+        if not isinstance(pts, Mapping):
+            raise WireError(f"shape {name!r}: 'points' must be a map of robot id -> [x, y]")
+        if set(pts) != set(ids):
+            missing, extra = sorted(set(ids) - set(pts)), sorted(set(pts) - set(ids), key=str)
+            raise WireError(f"shape {name!r} must give every robot of the mission a point and no other "
+                            f"(missing {missing}, unknown {extra})")
+        xy = []
+        for r in ids:
+            p = pts[r]
+            if not isinstance(p, (list, tuple)) or len(p) != 2:
+                raise WireError(f"shape {name!r}: robot {r!r}'s point must be [x, y]")
+            xy.append((_num({"p": p[0]}, "p"), _num({"p": p[1]}, "p")))
+        _bodies_apart(robots, xy, f"shape {name!r}")
+        out.append((name, tuple(xy)))
+    return tuple(out)
+
+
 def mission_from_dict(m: Mapping[str, Any]) -> Mission:
     """Validate a mission map (from msgpack or a scenario file) into a Mission."""
     if not isinstance(m, Mapping):
@@ -937,6 +1008,8 @@ def mission_from_dict(m: Mapping[str, Any]) -> Mission:
              if m.get("controller_gains") is not None else ())
     obstacles = obstacles_from_list(m["obstacles"]) if m.get("obstacles") is not None else ()
     robots = tuple(robots)
+    scale_min = _scale_min(m["scale_min"], robots) if m.get("scale_min") is not None else None
+    shapes = shapes_from_list(m["shapes"], robots) if m.get("shapes") is not None else ()
     if goal is not None:
         check_clear_of_obstacles(robots, obstacles, (goal,), lambda w: "the goal")
     elif path is not None:  # every waypoint: the structure rests at none of them inside an obstacle
@@ -946,7 +1019,7 @@ def mission_from_dict(m: Mapping[str, Any]) -> Mission:
                    turn_rate_max=_pos(m, "turn_rate_max", allow_zero=True),
                    effective_t=_num(m, "effective_t"), goal=goal, path=path, twist=twist,
                    controller=controller, on_failure=on_failure, failure=failure, controller_gains=gains,
-                   obstacles=obstacles)
+                   obstacles=obstacles, scale_min=scale_min, shapes=shapes)
 
 
 def encode_mission(mission: Mission) -> bytes:

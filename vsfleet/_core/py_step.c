@@ -7,11 +7,14 @@ const vs_field *vs_py_field(PyObject *obj);   /* py_field.c: NULL for None (or w
 
 /* structure_step(template, wheel_base, speed_max, accel_max, metric, goal_kind, goal, limits,
  *                pose_world, seen, excluded, judged_apart, elapsed_s, dt_s,
- *                used_out, points_now_out, points_next_out, deviations_out, radius_m, obstacles, margin_m, field)
- * field: a capsule of field_build (the room's navigation function) or None.
- * -> None (no robot usable) or (fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m). */
+ *                used_out, points_now_out, points_next_out, deviations_out, radius_m, obstacles, margin_m, field,
+ *                shapes_xy, shape_fields)
+ * field: a capsule of field_build (the room's navigation function) or None.  shapes_xy: (k, n, 2) doubles (k = 0:
+ * none), shape_fields: a tuple of k such capsules (reshape: vs_step.h).
+ * -> None (no robot usable) or (fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m, shape). */
 enum { A_TEMPLATE, A_BASE, A_VMAX, A_AMAX, A_METRIC, A_KIND, A_GOAL, A_LIMITS, A_POSE, A_SEEN, A_EXCLUDED, A_JUDGED,
-       A_ELAPSED, A_DT, A_USED, A_NOW, A_NEXT, A_DEV, A_RADIUS, A_OBSTACLES, A_MARGIN, A_FIELD, A_COUNT };
+       A_ELAPSED, A_DT, A_USED, A_NOW, A_NEXT, A_DEV, A_RADIUS, A_OBSTACLES, A_MARGIN, A_FIELD, A_SHAPES,
+       A_SHAPE_FIELDS, A_COUNT };
 typedef char step_args_check[A_COUNT == VS_PY_STRUCTURE_STEP_ARGS ? 1 : -1];
 /* the arguments by name (exported: STRUCTURE_STEP_ARGS); the mission's are the ones before pose_world and
  * from radius_m on, the frame's between */
@@ -22,16 +25,30 @@ const char *const vs_py_structure_step_args[VS_PY_STRUCTURE_STEP_ARGS] = {
     [A_JUDGED] = "judged_apart", [A_ELAPSED] = "elapsed_s", [A_DT] = "dt_s", [A_USED] = "used_out",
     [A_NOW] = "points_now_out", [A_NEXT] = "points_next_out", [A_DEV] = "deviations_out", [A_RADIUS] = "radius_m",
     [A_OBSTACLES] = "obstacles", [A_MARGIN] = "margin_m", [A_FIELD] = "field",
+    [A_SHAPES] = "shapes_xy", [A_SHAPE_FIELDS] = "shape_fields",
 };
 
 static PyObject *py_structure_step(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
 {
     (void)mod;
-    if (nargs != A_COUNT) { PyErr_SetString(PyExc_TypeError, "structure_step takes 22 arguments"); return NULL; }
+    if (nargs != A_COUNT) { PyErr_SetString(PyExc_TypeError, "structure_step takes 24 arguments"); return NULL; }
     const char *const *name = vs_py_structure_step_args;
     const vs_field *field = vs_py_field(a[A_FIELD]);
     if (field == NULL && PyErr_Occurred()) return NULL;
-    Py_buffer b[18];
+    Py_buffer b[19];
+    const vs_field *shape_fields[VS_STEP_MAX_SHAPES];
+    if (!PyTuple_Check(a[A_SHAPE_FIELDS]) || PyTuple_GET_SIZE(a[A_SHAPE_FIELDS]) > VS_STEP_MAX_SHAPES) {
+        PyErr_SetString(PyExc_TypeError, "shape_fields must be a tuple of at most VS_STEP_MAX_SHAPES fields");
+        return NULL;
+    }
+    Py_ssize_t n_shapes = PyTuple_GET_SIZE(a[A_SHAPE_FIELDS]);
+    for (Py_ssize_t j = 0; j < n_shapes; j++) {
+        shape_fields[j] = vs_py_field(PyTuple_GET_ITEM(a[A_SHAPE_FIELDS], j));
+        if (shape_fields[j] == NULL) {
+            if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "shape_fields must hold fields, not None");
+            return NULL;
+        }
+    }
     int got = 0;
     PyObject *result = NULL;
     long metric = PyLong_AsLong(a[A_METRIC]), kind = PyLong_AsLong(a[A_KIND]);
@@ -76,11 +93,14 @@ static PyObject *py_structure_step(PyObject *mod, PyObject *const *a, Py_ssize_t
     if (vs_py_doubles(a[A_OBSTACLES], &b[got], -1, 0, name[A_OBSTACLES]) < 0) goto out;
     got++;
     if ((b[15].len / 8) % 3) { PyErr_SetString(vs_ValueError, "obstacles must hold 3 k doubles"); goto out; }
+    if (vs_py_doubles(a[A_SHAPES], &b[got], 2 * n * n_shapes, 0, name[A_SHAPES]) < 0) goto out;
+    got++;
     const double *lim = b[5].buf;
     vs_mission m = {(size_t)n, b[0].buf, b[1].buf, b[2].buf, b[3].buf, (int)metric,
                     {(int)kind, b[4].buf, (size_t)(n_goal / 3)},
                     {lim[0], lim[1], lim[2], lim[3], lim[4], lim[5], lim[6], lim[7], lim[8]},
-                    b[14].buf, b[15].buf, (size_t)(b[15].len / 24), margin, field};
+                    b[14].buf, b[15].buf, (size_t)(b[15].len / 24), margin, field,
+                    (size_t)n_shapes, b[16].buf, shape_fields};
     vs_structure s;
     int rc;
     Py_BEGIN_ALLOW_THREADS
@@ -89,9 +109,9 @@ static PyObject *py_structure_step(PyObject *mod, PyObject *const *a, Py_ssize_t
     Py_END_ALLOW_THREADS
     if (rc != VS_OK) { vs_py_error(rc, "structure_step refused its inputs"); goto out; }
     if (!s.any_used) { result = Py_NewRef(Py_None); goto out; }
-    result = Py_BuildValue("(ddddddddddOOd)", s.fit_x, s.fit_y, s.fit_th, s.goal_x, s.goal_y, s.goal_th, s.vx_m_s,
+    result = Py_BuildValue("(ddddddddddOOdi)", s.fit_x, s.fit_y, s.fit_th, s.goal_x, s.goal_y, s.goal_th, s.vx_m_s,
                            s.vy_m_s, s.w_rad_s, s.cost, s.at_goal ? Py_True : Py_False,
-                           s.blocked ? Py_True : Py_False, s.left_m);
+                           s.blocked ? Py_True : Py_False, s.left_m, s.shape);
 out:
     for (int i = 0; i < got; i++) PyBuffer_Release(&b[i]);
     return result;

@@ -16,7 +16,7 @@ PyObject *vs_py_error(int code, const char *what);
  * PRECISION_STATE_ARGS, STRUCTURE_STEP_ARGS; Python finds its positions there). */
 #define VS_PY_CONTROL_INPUTS 10
 #define VS_PY_PRECISION_STATES 8
-#define VS_PY_STRUCTURE_STEP_ARGS 22
+#define VS_PY_STRUCTURE_STEP_ARGS 24
 extern const char *const vs_py_control_input_args[VS_PY_CONTROL_INPUTS];
 extern const char *const vs_py_precision_state_args[VS_PY_PRECISION_STATES];
 extern const char *const vs_py_structure_step_args[VS_PY_STRUCTURE_STEP_ARGS];

@@ -397,18 +397,16 @@ static int segment_clear(const vs_field *f, const double *a, const double *b, ui
     return 1;
 }
 
-int vs_field_follow(const vs_field *f, const double pose[3], double path_m, double *waypoints, size_t cap,
-                    size_t *n_waypoints, int *blocked, double *left_m)
+/* the state a descent from pose starts at: the nearest state, else the cheapest free state of the nearest ring
+ * around it (within VS_FIELD_SEARCH_CELLS cells and two headings); -1 if none.  *outside: the pose lies outside
+ * the lattice. */
+static long start_state(const vs_field *f, const double pose[3], int *outside)
 {
-    if (f == NULL || f->cost == NULL || cap < 2) return VS_EVALUE;
-    if (!finite3(pose, 3) || !vs_isfinite(path_m)) return VS_ENONFINITE;
     size_t plane = f->nx * f->ny;
     size_t c0, r0, k0;
-    int outside;
-    nearest(f, pose, &c0, &r0, &k0, &outside);
+    nearest(f, pose, &c0, &r0, &k0, outside);
     long start = -1;
     uint32_t start_v = 0;
-    /* the nearest state, else the cheapest usable state of the nearest ring around it (two headings) */
     static const int DK[5] = {0, 1, -1, 2, -2};
     for (int d = 0; d <= VS_FIELD_SEARCH_CELLS && start < 0; d++) {
         for (int a = 0; a < 5; a++) {
@@ -426,6 +424,25 @@ int vs_field_follow(const vs_field *f, const double pose[3], double path_m, doub
             }
         }
     }
+    return start;
+}
+
+int vs_field_open(const vs_field *f, const double pose[3], int *tight)
+{
+    int outside;
+    long start = start_state(f, pose, &outside);
+    *tight = start >= 0 && (f->cost[start] & VS_FIELD_TIGHT_BIT) != 0;
+    return start >= 0 && !(f->cost[start] & VS_FIELD_BLOCKED_BIT);
+}
+
+int vs_field_follow(const vs_field *f, const double pose[3], double path_m, double *waypoints, size_t cap,
+                    size_t *n_waypoints, int *blocked, double *left_m)
+{
+    if (f == NULL || f->cost == NULL || cap < 2) return VS_EVALUE;
+    if (!finite3(pose, 3) || !vs_isfinite(path_m)) return VS_ENONFINITE;
+    size_t plane = f->nx * f->ny;
+    int outside;
+    long start = start_state(f, pose, &outside);
     waypoints[0] = pose[0];
     waypoints[1] = pose[1];
     waypoints[2] = pose[2];

@@ -78,6 +78,12 @@ void vs_field_nearest(const vs_field *f, const double pose[3], size_t *col, size
  * waypoints are the pose alone and *blocked = 1.  *blocked: the goal cannot be reached from here (the
  * descent ends at the closest safe pose); *left_m [m]: then, how far that pose is from the goal (0 when not
  * blocked).  cap >= 2.  No allocation; O(path_m / h) per call (plus the target's descent when blocked). */
+/* 1 when the descent from the pose (vs_field_follow) starts on a free state from which the goal can be reached,
+ * else 0 (no free state near, or a component the goal cannot reach): whether a shape can take its way from
+ * this pose (vs_step.c chooses among a mission's shapes).  *tight: that start state lies in the comfort band
+ * (VS_FIELD_TIGHT_BIT; 0 when there is none).  pose finite; no allocation. */
+int vs_field_open(const vs_field *f, const double pose[3], int *tight);
+
 int vs_field_follow(const vs_field *f, const double pose[3], double path_m, double *waypoints, size_t cap,
                     size_t *n_waypoints, int *blocked, double *left_m);
 

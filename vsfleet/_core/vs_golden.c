@@ -89,7 +89,7 @@ static long g_structure_step(const double *in, long n_in, double *out, long cap)
     }
     vs_mission m = {(size_t)n, tpl, wb, vmax, amax, (int)metric, {(int)kind, goal, (size_t)k},
                     {lim[0], lim[1], lim[2], lim[3], lim[4], lim[5], lim[6], lim[7], lim[8]},
-                    radii, obstacles, (size_t)m_obs, margin, have_field ? &field : NULL};
+                    radii, obstacles, (size_t)m_obs, margin, have_field ? &field : NULL, 0, NULL, NULL};
     vs_structure s;
     unsigned char used[4096];
     double *now = out + 14 + n, *next = now + 2 * n, *dev = next + 2 * n;

@@ -16,15 +16,15 @@ void vs_apply_pose(double x, double y, double th, const double *p, size_t n, dou
 }
 
 /* The fit on the rows where mask is set, gathered into scratch (4 k doubles). */
-static int fit_rows(const vs_mission *m, const double *pose_world, const unsigned char *mask, size_t k,
-                    double *scratch, vs_fit_result *fit)
+static int fit_rows(const vs_mission *m, const double *template_xy, const double *pose_world,
+                    const unsigned char *mask, size_t k, double *scratch, vs_fit_result *fit)
 {
     double *tpl = scratch, *xy = scratch + 2 * k;
     size_t j = 0;
     for (size_t i = 0; i < m->n; i++) {
         if (!mask[i]) continue;
-        tpl[2 * j] = m->template_xy[2 * i];
-        tpl[2 * j + 1] = m->template_xy[2 * i + 1];
+        tpl[2 * j] = template_xy[2 * i];
+        tpl[2 * j + 1] = template_xy[2 * i + 1];
         xy[2 * j] = pose_world[3 * i];
         xy[2 * j + 1] = pose_world[3 * i + 1];
         j++;
@@ -49,6 +49,8 @@ int vs_structure_step(const vs_mission *m, const double *pose_world, const unsig
     if (n == 0) return VS_EVALUE;
     if (!vs_isfinite(elapsed_s) || !vs_isfinite(dt_s)) return VS_ENONFINITE;
     if (!(dt_s > 0.0)) return VS_EVALUE;
+    if (m->n_shapes > VS_STEP_MAX_SHAPES || (m->n_shapes > 0 && (m->shapes_xy == NULL || m->shape_fields == NULL)))
+        return VS_EVALUE;
     for (size_t i = 0; i < n; i++) {
         if (seen[i] && !(vs_isfinite(pose_world[3 * i]) && vs_isfinite(pose_world[3 * i + 1])
                          && vs_isfinite(pose_world[3 * i + 2])))
@@ -70,9 +72,45 @@ int vs_structure_step(const vs_mission *m, const double *pose_world, const unsig
 
     vs_fit_result fit;
     vs_advance_result adv;
-    int rc = fit_rows(m, pose_world, mask, n_used, scratch, &fit);
+    const double *tpl = m->template_xy;
+    const vs_field *field = m->field;
+    vs_goal goal = m->goal;
+    int shape = 0;
+    int rc = fit_rows(m, tpl, pose_world, mask, n_used, scratch, &fit);
     if (rc != VS_OK) goto done;
-    vs_apply_pose(fit.x, fit.y, fit.th, m->template_xy, n, points_now);
+    if (field != NULL && m->n_shapes > 0 && goal.kind != VS_GOAL_TWIST && goal.n_poses > 0) {
+        /* reshape (vs_step.h): every shape fitted; the robots are in the shape that fits them best (the least
+         * cost, ties to the first); the first open shape that is that one or stands clear of the comfort band
+         * (room to change shape) is taken, else the first open one, else the template */
+        vs_fit_result fits[VS_STEP_MAX_SHAPES + 1];
+        int open[VS_STEP_MAX_SHAPES + 1], tight[VS_STEP_MAX_SHAPES + 1];
+        size_t k_all = m->n_shapes + 1, now_in = 0, pick = 0;
+        fits[0] = fit;
+        for (size_t j = 0; j < k_all; j++) {
+            const double *t = j == 0 ? tpl : m->shapes_xy + 2 * n * (j - 1);
+            const vs_field *fj = j == 0 ? field : m->shape_fields[j - 1];
+            if (j > 0) {
+                rc = fit_rows(m, t, pose_world, mask, n_used, scratch, &fits[j]);
+                if (rc != VS_OK) goto done;
+            }
+            double p[3] = {fits[j].x, fits[j].y, fits[j].th};
+            tight[j] = 0;
+            open[j] = fj != NULL && vs_field_open(fj, p, &tight[j]);
+            if (fits[j].cost < fits[now_in].cost) now_in = j;
+        }
+        int found = 0;
+        for (size_t j = 0; j < k_all && !found; j++)
+            if (open[j] && (j == now_in || !tight[j])) { pick = j; found = 1; }
+        for (size_t j = 0; j < k_all && !found; j++)
+            if (open[j]) { pick = j; found = 1; }
+        if (pick > 0) {
+            tpl = m->shapes_xy + 2 * n * (pick - 1);
+            field = m->shape_fields[pick - 1];
+            fit = fits[pick];
+            shape = (int)pick;
+        }
+    }
+    vs_apply_pose(fit.x, fit.y, fit.th, tpl, n, points_now);
     distances(pose_world, points_now, n, dist);
     const double nan = 0.0 / 0.0;
     for (size_t i = 0; i < n; i++) {
@@ -80,34 +118,33 @@ int vs_structure_step(const vs_mission *m, const double *pose_world, const unsig
         devs[i] = mask[i] ? dist[i] : nan;
     }
     double pose_fit[3] = {fit.x, fit.y, fit.th};
-    vs_goal goal = m->goal;
     int blocked = 0;
     double left_m = 0.0;
     double plan[3 * VS_STEP_PATH_CAP];
-    if (m->field != NULL && goal.kind != VS_GOAL_TWIST && goal.n_poses > 0) {
+    if (field != NULL && goal.kind != VS_GOAL_TWIST && goal.n_poses > 0) {
         size_t n_way = 0;
-        rc = vs_field_follow(m->field, pose_fit, VS_STEP_PATH_M, plan, VS_STEP_PATH_CAP, &n_way, &blocked, &left_m);
+        rc = vs_field_follow(field, pose_fit, VS_STEP_PATH_M, plan, VS_STEP_PATH_CAP, &n_way, &blocked, &left_m);
         if (rc != VS_OK) goto done;
         goal.kind = VS_GOAL_PLAN;   /* turn in step with the move: keep to the plan in SE(2) */
         goal.poses = plan;
         goal.n_poses = n_way;
     }
-    rc = vs_advance(pose_fit, &goal, dt_s, &m->limits, m->template_xy, m->wheel_base_m,
+    rc = vs_advance(pose_fit, &goal, dt_s, &m->limits, tpl, m->wheel_base_m,
                     m->wheel_speed_max_m_s, m->wheel_accel_max_m_s2, n, NULL, &elapsed_s, head, devs, &adv);
     if (rc != VS_OK) goto done;
     if (n_judges >= 2 && n_judges < n_used) {   /* a rigid fit needs two points to fix the heading */
         for (size_t i = 0; i < n; i++) mask[i] = (unsigned char)(mask[i] && !judged_apart[i]);
         vs_fit_result jf;
-        rc = fit_rows(m, pose_world, mask, n_judges, scratch, &jf);
+        rc = fit_rows(m, tpl, pose_world, mask, n_judges, scratch, &jf);
         if (rc != VS_OK) goto done;
-        vs_apply_pose(jf.x, jf.y, jf.th, m->template_xy, n, judged);
+        vs_apply_pose(jf.x, jf.y, jf.th, tpl, n, judged);
         distances(pose_world, judged, n, dist);
     }
     for (size_t i = 0; i < n; i++) {
         used[i] = (unsigned char)(seen[i] && !excluded[i]);
         deviations_m[i] = seen[i] ? dist[i] : 1.0 / 0.0;
     }
-    vs_apply_pose(adv.x, adv.y, adv.th, m->template_xy, n, points_next);
+    vs_apply_pose(adv.x, adv.y, adv.th, tpl, n, points_next);
     out->any_used = 1;
     out->fit_x = fit.x; out->fit_y = fit.y; out->fit_th = fit.th;
     out->goal_x = adv.x; out->goal_y = adv.y; out->goal_th = adv.th;
@@ -116,6 +153,7 @@ int vs_structure_step(const vs_mission *m, const double *pose_world, const unsig
     out->at_goal = adv.at_goal && !blocked;
     out->blocked = blocked;
     out->left_m = left_m;
+    out->shape = shape;
 done:
     free(scratch);
     free(mask);

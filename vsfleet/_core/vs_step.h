@@ -34,7 +34,14 @@ typedef struct {
     double margin_m;                    /* [m] clearance kept beyond the bodies (tracker noise, the carrot) */
     const vs_field *field;              /* the room's navigation function (vs_field_build, once per mission);
                                            NULL: none, and the structure goes straight for its goal */
+    /* reshape (issue 28): shapes the structure may take where the template cannot pass, tried in order after
+     * the template (the mission's smaller scales, then its alternative templates); n_shapes == 0: none */
+    size_t n_shapes;                    /* <= VS_STEP_MAX_SHAPES */
+    const double *shapes_xy;            /* (n_shapes, n, 2) [m; structure frame]: row k's point of robot i */
+    const vs_field *const *shape_fields; /* (n_shapes) each shape's field, built once per mission as field */
 } vs_mission;
+
+#define VS_STEP_MAX_SHAPES 8            /* a mission's shapes beyond its template, at most */
 
 #define VS_STEP_PATH_M 2.0              /* [m] of the field's descent handed to the advance each frame */
 #define VS_STEP_PATH_CAP 160            /* waypoints at most (2 m of 3 cm cells, and rotations) */
@@ -49,10 +56,17 @@ typedef struct {
     int blocked;                        /* obstacles: no path to the goal; the structure heads for the
                                            closest safe pose (the plan's last waypoint) and stops there */
     double left_m;                      /* obstacles: distance [m] from the plan's end to the goal */
+    int shape;                          /* the shape taken: 0 the template, k >= 1 shapes_xy's row k - 1 */
 } vs_structure;
 
 /* With a field (a room) and a pose or path goal, the advance follows the field's descent from the fitted
  * pose (vs_field_follow, VS_STEP_PATH_M of it): the same pure function of the frame on every agent.
+ * Shapes (n_shapes > 0, with a field): every shape (the template, then shapes_xy's rows in order) is fitted
+ * to the robots; the robots are taken to be in the shape whose fit costs least (ties: the first).  The
+ * structure takes the first shape whose field is open (vs_field_open) at its own fit and that is either the
+ * shape the robots are in or clear of the comfort band (room to change shape); else the first open shape;
+ * none open: the template (blocked).  Points, advance and deviations are then that shape's; out->shape says
+ * which.  No state is kept: the shape is a function of the frame, so every agent switches at the same frame.
  * pose_world (n, 3) [m, m, rad; world], read on seen rows only; seen, excluded, judged_apart
  * (n) 0/1; elapsed_s [s] since the mission took effect; dt_s [s] > 0.  Outputs (n each, or
  * (n, 2)): used (seen & !excluded), points_now / points_next [m; world] (every robot's point
