@@ -99,11 +99,11 @@ def agreement(states: Iterable[tuple[str, StateMsg]], min_agents: int = 2,
         if len(group) < min_agents or (complete_only and not all(m.complete for m in group.values())):
             continue
         frames += 1
-        vals = [(m.x, m.y, m.th, m.gx, m.gy, m.gth) for m in group.values()]
+        vals = [(m.x, m.y, m.th, m.gx, m.gy, m.gth, m.shape) for m in group.values()]   # the shape taken too
         if all(v == vals[0] for v in vals):
             identical += 1
             continue
-        for part in ([v[:3] for v in vals], [v[3:] for v in vals]):  # fitted, then advanced pose
+        for part in ([v[:3] for v in vals], [v[3:6] for v in vals]):  # fitted, then advanced pose
             pos, th = pose_spread(part)
             max_pos, max_th = max(max_pos, pos), max(max_th, th)
     return Agreement(frames, identical, max_pos, max_th)

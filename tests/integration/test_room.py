@@ -5,7 +5,9 @@ old enclosing-disc planner deadlocked there), a thin wall with a 0.70 m gap, nar
 structure's enclosing disc, a thin wall with a 0.56 m gap, narrower than the triangle with its bodies
 (the way threads the wall between the robots), and a crowded start of 10 robots packed 2 cm apart that
 spread into a line, reordering as they go (issue 28's multi-process cases); each reaches the goal and no
-body touches another or an obstacle (simfleet's truth, recorded from the key space)."""
+body touches another or an obstacle (simfleet's truth, recorded from the key space). And a column switch:
+a gap narrower than the triangle in a thick wall, passed as a column of the same robots (the mission's
+`shapes`), every agent switching at the same frame (their states on the key space)."""
 
 from __future__ import annotations
 
@@ -13,7 +15,9 @@ from pathlib import Path
 
 import pytest
 
+from vsfleet.fleetctl.record import RAW, read_log
 from vsfleet.fleetctl.run import run
+from vsfleet.wire import decode_state
 
 pytestmark = pytest.mark.integration
 
@@ -30,3 +34,25 @@ def test_the_fleet_reaches_its_goal_in_a_room_untouched_and_its_agents_agree(nam
     assert summary.min_gap_m > 0.0, summary.table()
     a = summary.agreement
     assert a["frames"] > 100 and a["identical"] == a["frames"], summary.table()
+
+
+def test_the_fleet_passes_a_gap_narrower_than_the_triangle_as_a_column_every_agent_switching_at_one_frame(tmp_path):
+    summary, run_dir = run(str(ROOT / "scenarios" / "room-column-switch.toml"), out_dir=str(tmp_path),
+                           progress=False)
+    print(summary.table())
+    assert summary.children_ok
+    assert summary.reached_goal, summary.table()
+    assert summary.min_gap_m > 0.0, summary.table()
+    a = summary.agreement   # the shape taken is part of what must agree
+    assert a["frames"] > 100 and a["identical"] == a["frames"], summary.table()
+    changes: dict[str, list[tuple[int, int]]] = {}
+    for r in read_log(run_dir / "run.mcap"):
+        if r.role == RAW and r.key.startswith("vs/demo/state/"):
+            msg = decode_state(r.payload)
+            seen = changes.setdefault(r.key.rsplit("/", 1)[1], [])
+            if msg.shape != (seen[-1][1] if seen else 0):
+                seen.append((msg.seq, msg.shape))
+    assert sorted(changes) == ["r1", "r2", "r3"]
+    # the column, then the triangle again (frame by frame the agents agree on it: the agreement above)
+    for c in changes.values():
+        assert c[0][1] == 1 and c[-1][1] == 0 and {shape for _, shape in c} == {0, 1}, changes
