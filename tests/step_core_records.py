@@ -4,12 +4,16 @@ The recorded frames of the agent step's golden vectors (tests/data/golden-step.j
 scenario, noise, a robot missing now and then) packed as vs_golden.c's ``structure_step`` entry, for
 each metric: every 4th frame, all robots used, and the same frames with r2 excluded and judged apart;
 then the linf mission in a room (a pillar on its straight path, bodies of 0.05 m, and a wall that
-blocks it), every 8th frame: the field's descent and the blocked stop.
+blocks it), every 8th frame: the field's descent and the blocked stop. And ``structure_step_shapes``
+(shape_records): scenarios/room-column-switch.toml with scale_min 0.7 (three scales and a column), the
+robots as the triangle, the column or between them, before, in and after the wall's gap.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
+from pathlib import Path
 
 import numpy as np
 
@@ -35,7 +39,8 @@ def step_records() -> list[tuple[str, list[float]]]:
         n = len(arrays.ids)
         radii = [0.0] * n if radius is None else [radius] * n
         (tpl, wb, vmax, amax, code, kind, goal, limits, _radii, _obs,
-         margin, _field) = core_mission(metric, arrays.template, arrays.envelopes, arrays.goal, arrays.limits)
+         margin, _field, *_shapes) = core_mission(metric, arrays.template, arrays.envelopes, arrays.goal,
+                                                 arrays.limits)
         head = [float(n), float(code), float(kind), float(len(goal) // 3), *goal, *limits, *tpl.ravel(), *wb,
                 *vmax, *amax]
         room = [margin, *FIELD, float(len(obstacles)), *radii, *(v for o in obstacles for v in o)]
@@ -48,4 +53,34 @@ def step_records() -> list[tuple[str, list[float]]]:
                                      (np.zeros(n), np.array([0.0, 1.0, 0.0]))):
                 out.append(("structure_step", [*head, *pose.ravel(), *seen.astype(float), *excluded, *judged,
                                                frame.t - m.effective_t, config.dt_s, *room]))
+    return out
+
+
+def shape_records(seed: int = 23, count: int = 48) -> list[tuple[str, list[float]]]:
+    from vsfleet.wire import mission_from_dict
+    from vsfleet.zglue.scenario_file import load_scenario
+    scenario = load_scenario(Path(__file__).resolve().parent.parent / "scenarios" / "room-column-switch.toml")
+    m = mission_from_dict({**scenario.mission.to_dict(), "scale_min": 0.7})
+    arrays = mission_arrays(m)
+    n = len(arrays.ids)
+    (tpl, wb, vmax, amax, code, kind, goal, limits, radii, obstacles,
+     margin, _field, shapes_xy, _fields) = core_mission(m.metric, arrays.template, arrays.envelopes, arrays.goal,
+                                                        arrays.limits, m.radii, m.obstacles, None, arrays.shapes,
+                                                        ())
+    head = [float(n), float(code), float(kind), float(len(goal) // 3), *goal, *limits, *tpl.ravel(), *wb, *vmax,
+            *amax]
+    room = [margin, *FIELD, float(len(m.obstacles)), *radii, *obstacles, float(len(arrays.shapes)), *shapes_xy]
+    rng = np.random.default_rng(seed)
+    col = arrays.shapes[-1][1]
+    out = []
+    for k in range(count):
+        mix = rng.choice([0.0, 1.0, rng.uniform()])
+        pts = (1 - mix) * arrays.template + mix * col
+        th = rng.uniform(-math.pi, math.pi) if k % 3 else rng.choice([0.0, math.pi])
+        x, y = [(0.0, 0.0), (0.6, 1.25), (1.0, 1.25), (1.3, 1.25), (1.9, 1.4), (0.5, 0.5)][k % 6]
+        c, s = math.cos(th), math.sin(th)
+        xy = np.stack([c * pts[:, 0] - s * pts[:, 1] + x, s * pts[:, 0] + c * pts[:, 1] + y], axis=1)
+        pose = np.column_stack([xy + rng.normal(0, 0.01, xy.shape), rng.uniform(-3, 3, n)])
+        out.append(("structure_step_shapes", [*head, *pose.ravel(), *np.ones(n), *np.zeros(n), *np.zeros(n),
+                                              0.1 * k, 1.0 / 30.0, *room]))
     return out

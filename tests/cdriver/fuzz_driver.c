@@ -420,6 +420,16 @@ int main(int argc, char **argv)
             if (it % 50 == 0) n = 0;
             for (long i = 0; i < n; i++) in[i] = hostile(in, i, in, i);
             if (strcmp(all[e].name, "structure_step") == 0 && it % 10) n = structure_step_input(in);
+            if (strcmp(all[e].name, "structure_step_shapes") == 0 && it % 10) {   /* then shapes: s, 2 n s points */
+                n = structure_step_input(in);
+                long robots = (long)in[0], shapes = (long)(next() % 4);
+                double v = (next() % 16) ? (double)shapes : hostile(in, n, in, n);
+                in[n++] = v;
+                for (long i = 0; i < 2 * robots * shapes; i++, n++) {
+                    v = (next() % 8) ? uniform() - 0.5 : hostile(in, n, in, n);
+                    in[n] = v;
+                }
+            }
             if (strcmp(all[e].name, "safety_filter") == 0 && it % 10) n = safety_filter_input(in);
             if (strcmp(all[e].name, "field_build") == 0 && it % 10) n = field_build_input(in);
             if (strcmp(all[e].name, "field_follow") == 0 && it % 10) {   /* a room, then a pose and a length */

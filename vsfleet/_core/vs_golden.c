@@ -52,7 +52,7 @@ static long count_of(double v, long lo, long hi)
  * cell, headings, max states (the room's field, built from these when m > 0), m obstacles, n radii, 3m obstacles
  * -> any_used, then (if any) fit 3, goal 3, twist 3, cost, at_goal, blocked, left, n used, 2n now,
  * 2n next, n deviations */
-static long g_structure_step(const double *in, long n_in, double *out, long cap)
+static long structure_step_of(const double *in, long n_in, double *out, long cap, int with_shapes)
 {
     if (n_in < 4) return -1;
     long n = count_of(in[0], 1, 100000), metric = count_of(in[1], 0, 2), kind = count_of(in[2], 0, 2),
@@ -62,8 +62,15 @@ static long g_structure_step(const double *in, long n_in, double *out, long cap)
     if (n_in < base + 5) return -1;
     long m_obs = count_of(in[base + 4], 0, 256), heads = count_of(in[base + 2], 4, 1024),
          max_states = count_of(in[base + 3], 1024, 100000000);
-    if (m_obs < 0 || heads < 0 || max_states < 0 || n_in != base + 5 + n + 3 * m_obs || cap < 1 + 13 + 6 * n)
-        return -1;
+    if (m_obs < 0 || heads < 0 || max_states < 0) return -1;
+    long end = base + 5 + n + 3 * m_obs, n_shapes = 0;
+    if (with_shapes) {   /* then: the count of shapes, and each shape's 2n points */
+        if (n_in < end + 1) return -1;
+        n_shapes = count_of(in[end], 0, VS_STEP_MAX_SHAPES);
+        if (n_shapes < 0) return -1;
+        end += 1 + 2 * n * n_shapes;
+    }
+    if (n_in != end || cap < 1 + 14 + 6 * n) return -1;
     const double *p = in + 4, *goal = p;
     p += 3 * k;
     const double *lim = p; p += 9;
@@ -87,13 +94,28 @@ static long g_structure_step(const double *in, long n_in, double *out, long cap)
             return -1;
         have_field = 1;
     }
-    vs_mission m = {(size_t)n, tpl, wb, vmax, amax, (int)metric, {(int)kind, goal, (size_t)k},
-                    {lim[0], lim[1], lim[2], lim[3], lim[4], lim[5], lim[6], lim[7], lim[8]},
-                    radii, obstacles, (size_t)m_obs, margin, have_field ? &field : NULL, 0, NULL, NULL};
+    const double *shapes = obstacles + 3 * m_obs + 1;
+    vs_field shape_field[VS_STEP_MAX_SHAPES];
+    const vs_field *shape_ptr[VS_STEP_MAX_SHAPES];
+    long built = 0;
+    for (; have_field && built < n_shapes; built++) {
+        if (vs_field_build(shapes + 2 * n * built, radii, (size_t)n, margin, obstacles, (size_t)m_obs,
+                           goal + 3 * (k - 1), cell, (size_t)heads, (size_t)max_states, &shape_field[built]) != VS_OK)
+            break;
+        shape_ptr[built] = &shape_field[built];
+    }
+    int rc = VS_EVALUE;
     vs_structure s;
     unsigned char used[4096];
     double *now = out + 14 + n, *next = now + 2 * n, *dev = next + 2 * n;
-    int rc = vs_structure_step(&m, pose, flags[0], flags[1], flags[2], elapsed, dt, &s, used, now, next, dev);
+    if (built == (have_field ? n_shapes : 0)) {
+        vs_mission m = {(size_t)n, tpl, wb, vmax, amax, (int)metric, {(int)kind, goal, (size_t)k},
+                        {lim[0], lim[1], lim[2], lim[3], lim[4], lim[5], lim[6], lim[7], lim[8]},
+                        radii, obstacles, (size_t)m_obs, margin, have_field ? &field : NULL,
+                        (size_t)built, shapes, shape_ptr};
+        rc = vs_structure_step(&m, pose, flags[0], flags[1], flags[2], elapsed, dt, &s, used, now, next, dev);
+    }
+    for (long j = 0; j < built; j++) vs_field_free(&shape_field[j]);
     if (have_field) vs_field_free(&field);
     if (rc != VS_OK) return -1;
     out[0] = s.any_used;
@@ -102,7 +124,21 @@ static long g_structure_step(const double *in, long n_in, double *out, long cap)
                        s.cost, (double)s.at_goal, (double)s.blocked, s.left_m};
     memcpy(out + 1, head, sizeof head);
     for (long i = 0; i < n; i++) out[14 + i] = used[i];
-    return 14 + 6 * n;
+    if (!with_shapes) return 14 + 6 * n;
+    out[14 + 6 * n] = (double)s.shape;
+    return 15 + 6 * n;
+}
+
+static long g_structure_step(const double *in, long n_in, double *out, long cap)
+{
+    return structure_step_of(in, n_in, out, cap, 0);
+}
+
+/* structure_step_shapes: structure_step's inputs, then the count of shapes s (<= VS_STEP_MAX_SHAPES) and their
+ * 2n s points (each built into its own field as the template's is) -> structure_step's outputs, then the shape */
+static long g_structure_step_shapes(const double *in, long n_in, double *out, long cap)
+{
+    return structure_step_of(in, n_in, out, cap, 1);
 }
 
 /* safety_filter: n, k obstacles, margin, gamma, offset, dt, 3n poses, n radii, n active, n wheel base,
@@ -194,6 +230,7 @@ static const golden_entry entries[] = {
     {"field_follow", g_field_follow},
     {"safety_filter", g_safety_filter},
     {"structure_step", g_structure_step},
+    {"structure_step_shapes", g_structure_step_shapes},
     {"sin", g_sin},
     {"cos", g_cos},
     {"atan2", g_atan2},
