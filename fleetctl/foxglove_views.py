@@ -30,7 +30,7 @@ from typing import Any, Callable, Iterable, NamedTuple
 import foxglove.messages as fm
 
 from vsfleet.geometry import Pose2
-from vsfleet.step import planned_way
+from vsfleet.step import mission_arrays, planned_way
 from vsfleet.wire import (
     MAX_ROBOTS,
     FrameMsg,
@@ -120,10 +120,17 @@ def poses_in_frame(t_ns: int, poses: Iterable[tuple[float, float, float]]) -> fm
     return fm.PosesInFrame(timestamp=fox_time(t_ns), frame_id=FRAME_ID, poses=[fox_pose(*p) for p in poses])
 
 
-def structure_points(mission: Mission, x: float, y: float, th: float) -> list[tuple[float, float, float]]:
-    """Each robot's point of the structure at pose (x, y, th) [m, rad; world], heading th, in mission order."""
+def structure_points(mission: Mission, x: float, y: float, th: float,
+                     shape: int = 0) -> list[tuple[float, float, float]]:
+    """Each robot's point of the structure at pose (x, y, th) [m, rad; world], heading th, in mission order;
+    shape: the structure's (a state's ``shape``: 0 the template, k the mission's k-th reshape)."""
     c, s = math.cos(th), math.sin(th)
-    return [(x + c * sp.p[0] - s * sp.p[1], y + s * sp.p[0] + c * sp.p[1], th) for _, sp in mission.robots]
+    points = [sp.p for _, sp in mission.robots]
+    if shape > 0:
+        shapes = mission_arrays(mission).shapes
+        if shape <= len(shapes):
+            points = [tuple(p) for p in shapes[shape - 1][1].tolist()]
+    return [(x + c * px - s * py, y + s * px + c * py, th) for px, py in points]
 
 
 def _p3(x: float, y: float, z: float = 0.0) -> fm.Point3:
@@ -145,10 +152,10 @@ def _entity(t_ns: int, ident: str, meta: dict[str, str], **prims) -> fm.SceneEnt
 
 
 def structure_entity(t_ns: int, ident: str, mission: Mission, pose: tuple[float, float, float],
-                     color: fm.Color, meta: dict[str, str]) -> fm.SceneEntity:
-    """The structure at ``pose`` [m, rad; world]: an arrow, its template points (spheres, mission order),
+                     color: fm.Color, meta: dict[str, str], shape: int = 0) -> fm.SceneEntity:
+    """The structure at ``pose`` [m, rad; world] in ``shape``: an arrow, its points (spheres, mission order),
     and an outline through them."""
-    pts = structure_points(mission, *pose)
+    pts = structure_points(mission, *pose, shape=shape)
     lines = [fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineLoop, thickness=0.005, color=color,
                               points=[_p3(px, py) for px, py, _ in pts])] if len(pts) > 1 else []
     return _entity(t_ns, ident, meta, arrows=[_arrow(*pose, 0.1, color)],
@@ -190,10 +197,12 @@ PLAN_SWEEP_M = 0.3          # the plan's swept bodies: one set every this far al
 PLAN_MAX_DISCS = 2000       # ... at most this many discs in all (a long way for a large fleet: fewer sets)
 
 
-def plan_entity(t_ns: int, mission: Mission, pose: tuple[float, float, float], meta: dict[str, str]) -> fm.SceneEntity | None:
-    """The room's plan from a fitted structure pose (vsfleet.step.planned_way: the field's whole descent), a
-    line, and the robots' bodies swept along it (thin discs of their radius); None without a room's field."""
-    planned = planned_way(mission, Pose2(*pose))
+def plan_entity(t_ns: int, mission: Mission, pose: tuple[float, float, float], meta: dict[str, str],
+                shape: int = 0) -> fm.SceneEntity | None:
+    """The room's plan from a fitted structure pose (vsfleet.step.planned_way: the field's whole descent of the
+    structure's shape), a line, and the robots' bodies swept along it (thin discs of their radius); None
+    without a room's field."""
+    planned = planned_way(mission, Pose2(*pose), shape=shape)
     if planned is None:
         return None
     way, blocked = planned
@@ -211,7 +220,8 @@ def plan_entity(t_ns: int, mission: Mission, pose: tuple[float, float, float], m
     if bodies:
         sets = sets[:: max(1, math.ceil(len(sets) * len(bodies) / PLAN_MAX_DISCS))]
     swept = [_disc(px, py, r, 0.002, PLAN_SWEPT_BLOCKED if blocked else PLAN_SWEPT)
-             for x, y, th in sets for (px, py, _), r in zip(structure_points(mission, x, y, th), mission.radii) if r > 0.0]
+             for x, y, th in sets for (px, py, _), r in zip(structure_points(mission, x, y, th, shape), mission.radii)
+             if r > 0.0]
     return _entity(t_ns, "plan", {**meta, "blocked": str(blocked).lower()}, lines=[line], cylinders=swept)
 
 
@@ -354,9 +364,9 @@ class FleetViews:
         if mission is not None and m.seq > f.structure_seq and self.wanted(f"{base}/scene"):
             f.structure_seq = m.seq
             meta = {"seq": str(m.seq), "by": agent, "cost_m": repr(m.cost), "mission": str(m.mission)}
-            fitted = structure_entity(t, "fitted", mission, (m.x, m.y, m.th), GREEN, meta)
-            advanced = structure_entity(t, "advanced", mission, (m.gx, m.gy, m.gth), ORANGE, meta)
-            targets = structure_points(mission, m.gx, m.gy, m.gth)
+            fitted = structure_entity(t, "fitted", mission, (m.x, m.y, m.th), GREEN, meta, m.shape)
+            advanced = structure_entity(t, "advanced", mission, (m.gx, m.gy, m.gth), ORANGE, meta, m.shape)
+            targets = structure_points(mission, m.gx, m.gy, m.gth, m.shape)
             pts = []
             for (robot, _), (tx, ty, _) in zip(mission.robots, targets):
                 if robot in f.poses:
@@ -367,7 +377,7 @@ class FleetViews:
             entities = [fitted, advanced, _entity(t, "targets", meta, lines=lines)]
             if t - f.mission_drawn_ns >= MISSION_REDRAW_NS:
                 entities.append(mission_entity(t, mission))
-                plan = plan_entity(t, mission, (m.x, m.y, m.th), meta)   # what the agents follow from here
+                plan = plan_entity(t, mission, (m.x, m.y, m.th), meta, m.shape)   # what the agents follow from here
                 if plan is not None:
                     entities.append(plan)
                 f.mission_drawn_ns = t

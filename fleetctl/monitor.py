@@ -31,7 +31,7 @@ import zenoh
 
 from vsfleet.analysis import pose_spread
 from vsfleet.geometry import Pose2
-from vsfleet.step import planned_way
+from vsfleet.step import mission_arrays, planned_way, shape_name
 from vsfleet.wire import (
     Mission,
     WireError,
@@ -95,6 +95,7 @@ class FleetView:
     # the room's plan from the structure pose above (vsfleet.step.planned_way): its length [m], whether it is
     # blocked (it ends at the closest safe pose), and its end (x, y, th); None without a room
     plan: tuple[float, bool, tuple[float, float, float]] | None = None
+    shape: str | None = None   # in a room with reshapes: the shape the newest state reports (vsfleet.step.shape_name)
 
 
 @dataclass
@@ -108,6 +109,7 @@ class _Robot:
     rejected: int | None = None
     state_seq: int | None = None
     mission: int | None = None
+    shape: int = 0                                            # the shape its newest state reports (0: the template)
     frames: OrderedDict = field(default_factory=OrderedDict)  # seq -> (x, y, th)
     whole: set = field(default_factory=set)                   # seqs of frames the agent ran complete
 
@@ -179,6 +181,7 @@ class FleetModel:
                 r = self._robot(check_name(rid, "robot"))
                 r.state_t_recv_s, r.err_m, r.rejected, r.state_seq = t_recv_s, m.err, m.rejected, m.seq
                 r.mission = m.mission if m.mission >= 0 else None
+                r.shape = m.shape
                 r.frames[m.seq] = (m.x, m.y, m.th)
                 if m.complete:
                     r.whole.add(m.seq)
@@ -271,18 +274,28 @@ class FleetModel:
         elif newest is not None:
             structure_seq, structure = newest.state_seq, newest.frames[newest.state_seq]
         version = newest.mission if newest is not None and newest.mission is not None else self.mission_version
+        shape = newest.shape if newest is not None else 0
         return FleetView(now_s=now, fleet=self.fleet, robots=rows, structure=structure,
                          structure_seq=structure_seq, mission_version=version, agreement_seq=seq,
                          agreement_complete=complete,
                          agreement_pos_m=pos, agreement_th_rad=th, agents_compared=n,
                          events=list(self.events), bad_messages=self.bad, obstacles=self.obstacles,
-                         plan=self._plan(structure))
+                         plan=self._plan(structure, shape), shape=self._shape_name(shape))
 
-    def _plan(self, structure: tuple[float, float, float] | None):
+    def _shape_name(self, shape: int) -> str | None:
+        """The shape's name, in a mission that allows reshapes; None otherwise (or for an unknown index)."""
+        if self.mission is None:
+            return None
+        arrays = mission_arrays(self.mission)
+        if not arrays.shapes or shape > len(arrays.shapes):
+            return None
+        return shape_name(arrays, shape)
+
+    def _plan(self, structure: tuple[float, float, float] | None, shape: int = 0):
         """The room's plan from the structure pose: (length [m], blocked, end pose), or None."""
         if structure is None or self.mission is None:
             return None
-        planned = planned_way(self.mission, Pose2(*structure))
+        planned = planned_way(self.mission, Pose2(*structure), shape=shape)
         if planned is None:
             return None
         way, blocked = planned
@@ -336,6 +349,8 @@ def render(view: FleetView):
         lines.append(f"obstacles ({len(view.obstacles)}, x y r [m]): " + ", ".join(
             f"{i}: ({x:+.3f}, {y:+.3f}, {r:.3f})" for i, (x, y, r) in enumerate(view.obstacles[:8]))
             + (f", ... {len(view.obstacles) - 8} more" if len(view.obstacles) > 8 else ""))
+    if view.shape is not None:
+        lines.append(f"shape: {view.shape}")
     if view.plan is not None:
         length, blocked, (ex, ey, eth) = view.plan
         lines.append(f"plan: {length:.2f} m to " + ("the closest safe pose (BLOCKED: no way to the goal)" if blocked

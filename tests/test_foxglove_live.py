@@ -222,3 +222,23 @@ def test_in_a_room_the_scene_shows_the_plan_from_the_fitted_pose_and_the_bodies_
     assert (way[-1][0], way[-1][1]) == (1.0, 0.5)
     swept = plan["cylinders"]
     assert swept and all(c["size"]["x"] == 0.1 for c in swept)         # r1's body only: r2 is a point robot
+
+
+def test_in_a_room_with_reshapes_the_scene_draws_the_structure_and_plan_in_the_shape_the_agents_take():
+    import dataclasses
+
+    from vsfleet.fleetctl.foxglove_views import FleetViews
+    from vsfleet.geometry import Pose2
+    from vsfleet.step import planned_way
+
+    shaped = dataclasses.replace(ROOM, shapes=(("wide", ((0.5, 0.0), (-0.5, 0.0))),))
+    views = FleetViews()
+    views.on_message("vs/lab/mission", encode_mission(shaped), seconds_to_ns(T0))
+    state = StateMsg(t=T0 + 1.0, seq=5, x=-0.2, y=-0.1, th=0.0, gx=-0.2, gy=-0.1, gth=0.0, cost=0.0, err=0.0,
+                     used=("r1", "r2"), rejected=0, shape=1)
+    entities = {e["id"]: e for e in scene_of(views.on_message("vs/lab/state/r1", encode(state), 0))["entities"]}
+    assert sorted(xy(s) for s in entities["fitted"]["spheres"]) == [(-0.7, -0.1), (0.3, -0.1)]   # the wide shape
+    way, _blocked = planned_way(shaped, Pose2(-0.2, -0.1, 0.0), shape=1)
+    assert [(p["x"], p["y"]) for p in entities["plan"]["lines"][0]["points"]] == [(x, y) for x, y, _ in way]
+    assert structure_points(shaped, 0.0, 0.0, 0.0, shape=1)[0][:2] == (0.5, 0.0)
+    assert structure_points(shaped, 0.0, 0.0, 0.0)[0][:2] == structure_points(ROOM, 0.0, 0.0, 0.0)[0][:2]

@@ -235,3 +235,27 @@ def test_in_a_room_the_monitor_shows_the_plans_length_and_end_from_the_structure
     assert blocked and math.hypot(end[0] - 2.0, end[1]) > 0.6
     assert "BLOCKED" in _text(m.view())
     assert fed().view().plan is None                                     # no room, no plan
+
+
+def test_in_a_room_with_reshapes_the_monitor_names_the_shape_the_agents_take_and_plans_for_it():
+    from vsfleet.wire import FrameMsg, Mission, RobotSpec, encode_frame, encode_mission
+
+    robots = (("r1", RobotSpec((0.3, 0.0), 0.12, 0.3, 0.8, radius=0.05)),
+              ("r2", RobotSpec((-0.3, 0.0), 0.12, 0.3, 0.8, radius=0.05)))
+    mission = Mission(6, "l2", robots, 0.08, 0.3, 0.0, goal=(2.0, 0.0, 0.0), obstacles=((1.0, 0.0, 0.2),),
+                      shapes=(("wide", ((0.5, 0.0), (-0.5, 0.0))),))
+    m = FleetModel("demo")
+    m.ingest(T0, "vs/demo/mission", encode_mission(mission))
+    m.ingest(T0, "vs/demo/frame/sim", encode_frame(FrameMsg(T0, 1, "sim", {"r1": (0.3, 0.0, 0.0)})))
+
+    def state_of(seq, shape):
+        return encode(StateMsg(t=T0 + seq / 30, seq=seq, x=0.0, y=0.0, th=0.0, gx=0.0, gy=0.0, gth=0.0, cost=0.0,
+                               err=0.0, used=("r1", "r2"), rejected=0, mission=6, shape=shape))
+
+    m.ingest(T0 + 0.004, "vs/demo/state/r1", state_of(1, 0))
+    assert m.view().shape == "the template" and "shape: the template" in _text(m.view())
+    template_plan = m.view().plan
+    m.ingest(T0 + 0.04, "vs/demo/state/r1", state_of(2, 1))
+    assert m.view().shape == "shape 1 (wide)" and "shape: shape 1 (wide)" in _text(m.view())
+    assert m.view().plan != template_plan   # the wide shape's own field: another way round the pillar
+    assert fed().view().shape is None       # no reshapes, no shape line

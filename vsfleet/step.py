@@ -197,11 +197,16 @@ def structure_step(arrays: MissionArrays, metric: str, pose_world: np.ndarray, s
     """
     return impl.structure_step(arrays, metric, pose_world, seen, excluded, judged_apart, elapsed_s, dt_s)
 
-def planned_way(mission: Mission, pose: Pose2, cap: int = 100_000) -> tuple[np.ndarray, bool] | None:
+def planned_way(mission: Mission, pose: Pose2, cap: int = 100_000,
+                shape: int = 0) -> tuple[np.ndarray, bool] | None:
     """The whole way the room's field gives from a structure pose [m, rad; world] to the goal (or the closest
     safe pose: blocked True), as (k, 3) poses; None without a field (no obstacles, or a twist goal). For tools
-    that draw the plan (vsfleet plot, the Foxglove scene); agents follow 2 m of it a frame."""
-    field = mission_arrays(mission).field
+    that draw the plan (vsfleet plot, the Foxglove scene); agents follow 2 m of it a frame. shape: the
+    structure's (a state's ``shape``: 0 the template, k the mission's k-th reshape), whose field it follows."""
+    arrays = mission_arrays(mission)
+    field = arrays.field
+    if 0 < shape <= len(arrays.shape_fields):
+        field = arrays.shape_fields[shape - 1]
     if field is None:
         return None
     way, blocked, _left = follow_field(field, pose, path_m=1e9, cap=cap)
