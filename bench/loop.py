@@ -28,7 +28,6 @@ import argparse
 import math
 import os
 import shutil
-import subprocess
 import sys
 import tempfile
 import threading
@@ -42,7 +41,7 @@ import zenoh
 
 from vsfleet.fleetctl.mission_cmd import stamp
 from vsfleet.fleetctl.router import free_loopback_port, open_loopback_router, wait_listening
-from vsfleet.fleetctl.run import Children, child_command
+from vsfleet.fleetctl.run import SPAWN_MODES, Children, child_command
 from vsfleet.zglue.zconf import RELIABLE_QOS, STREAM_QOS, add_zenoh_args, zenoh_config, zenoh_flags
 from vsfleet.geometry import Pose2
 from vsfleet.kinematics import integrate_arc
@@ -158,6 +157,10 @@ class LoopRun:
     wall_s: float
     startup_s: float = math.nan        # from starting the agents to every agent's first command
     agent_kind: str = "vsfleet"
+    # start-up's parts: from starting the agents to every agent's liveliness token (processes up: interpreter,
+    # imports, session), and the agents' CPU time [s] from their start to every agent's first command, per agent
+    alive_s: float = math.nan
+    startup_cpu_s_per_agent: float = math.nan
 
     @property
     def period_s(self) -> float:
@@ -231,32 +234,57 @@ def _router_child(children: Children) -> str:
     return f"tcp/127.0.0.1:{port}"
 
 
+TRIVIAL_EXPRESS = {"trivial": "agent", "trivial-express": "on", "trivial-batched": "off"}
+
+
+def agent_args(kind: str, robot: str, fleet: str, period_s: float, endpoint: str,
+               deadline_s: float | None = None) -> list[str]:
+    """The arguments of one agent of the bench fleet (``vsfleet agent ARGS``, or bench/trivial_agent.py's)."""
+    if kind in TRIVIAL_EXPRESS:  # trivial-express / -batched: the commands' and states' QoS forced (fan-in runs)
+        return ["--robot", robot, "--fleet", fleet, "--express", TRIVIAL_EXPRESS[kind], *zenoh_flags(endpoint)]
+    if kind != "vsfleet":
+        raise ValueError(f"agent kind must be 'vsfleet' or 'trivial[-express|-batched]', got {kind!r}")
+    return ["--robot", robot, "--fleet", fleet, "--dt", repr(period_s),
+            *(["--deadline", repr(deadline_s)] if deadline_s else []), *zenoh_flags(endpoint)]
+
+
 def agent_command(kind: str, robot: str, fleet: str, period_s: float, endpoint: str,
                   deadline_s: float | None = None) -> list[str]:
     """The command line of one agent of the bench fleet: ``vsfleet`` (the real agent) or ``trivial``
     (bench/trivial_agent.py: decode the frame, answer a command and a state; the floor)."""
-    express = {"trivial": "agent", "trivial-express": "on", "trivial-batched": "off"}
-    if kind in express:  # trivial-express / -batched: the commands' and states' QoS forced (fan-in runs)
-        return [sys.executable, "-m", "bench.trivial_agent", "--robot", robot, "--fleet", fleet,
-                "--express", express[kind], *zenoh_flags(endpoint)]
-    if kind != "vsfleet":
-        raise ValueError(f"agent kind must be 'vsfleet' or 'trivial[-express|-batched]', got {kind!r}")
-    return child_command("agent", "--robot", robot, "--fleet", fleet, "--dt", repr(period_s),
-                         *(["--deadline", repr(deadline_s)] if deadline_s else []), *zenoh_flags(endpoint))
+    args = agent_args(kind, robot, fleet, period_s, endpoint, deadline_s)
+    if kind in TRIVIAL_EXPRESS:
+        return [sys.executable, "-m", "bench.trivial_agent", *args]
+    return child_command("agent", *args)
+
+
+def start_agent(children: Children, kind: str, robot: str, fleet: str, period_s: float, endpoint: str,
+                deadline_s: float | None = None, spawn: str = "fork"):
+    """Start one agent of the bench fleet as ``vsfleet run`` does (spawn "fork": forked from the fleet's fork
+    server, fleetctl.run.ForkServer), or as its own python (spawn "exec")."""
+    name, args = f"agent-{robot}", agent_args(kind, robot, fleet, period_s, endpoint, deadline_s)
+    if kind not in TRIVIAL_EXPRESS:
+        return children.start_agent(name, args, spawn=spawn, cwd=ROOT)
+    if spawn == "exec":
+        return children.start(name, agent_command(kind, robot, fleet, period_s, endpoint, deadline_s), cwd=ROOT)
+    return children.start_forked(name, "bench.trivial_agent", args, ["bench.trivial_agent"], cwd=ROOT,
+                                 title=[sys.executable, "-m", "bench.trivial_agent", *args])
 
 
 def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2.0, seed: int = 0,
              label: str = "loop", router_process: bool = True, deadline_s: float | None = None,
-             agent_kind: str = "vsfleet") -> LoopRun:
+             agent_kind: str = "vsfleet", spawn: str = "fork") -> LoopRun:
     """Start n agents (``agent_kind``: see agent_command), warm up, then measure `frames` frames at rate_hz.
 
     The router is its own `vsfleet router` process, as on a deployment (or, with router_process=False,
-    embedded in this process's session, whose Python callbacks then share zenoh's threads with routing)."""
+    embedded in this process's session, whose Python callbacks then share zenoh's threads with routing).
+    spawn: how the agents start (fleetctl.run.SPAWN_MODES): forked from a fork server that imported them once,
+    as `vsfleet run` starts them, or each its own python."""
     fleet = "bench"
     keys = Keys(fleet)
     period = 1.0 / rate_hz
     rng = np.random.default_rng(seed)
-    procs: dict[str, subprocess.Popen] = {}  # the agents, by robot
+    procs: dict = {}  # the agents (subprocess.Popen or fleetctl.run.ForkedChild), by robot
     log_dir = Path(tempfile.mkdtemp(prefix=f"vsfleet-bench-{n}-"))
     children = Children(log_dir)
     if router_process:
@@ -286,12 +314,12 @@ def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2
         frame_pub = tracker_s.declare_publisher(keys.frame("bench"), **STREAM_QOS)
         t_spawn = time.monotonic()
         for r in ids:
-            procs[r] = children.start(f"agent-{r}", agent_command(agent_kind, r, fleet, period, endpoint,
-                                                                  deadline_s), cwd=ROOT)
+            procs[r] = start_agent(children, agent_kind, r, fleet, period, endpoint, deadline_s, spawn)
         t_start = time.monotonic()
         want = {keys.alive("agent", r) for r in ids}
         _wait(lambda: want <= alive or any(p.poll() is not None for p in procs.values()),
               60.0 + 4.0 * n, f"{n} agents alive")
+        alive_s = time.monotonic() - t_spawn
         dead = [r for r, p in procs.items() if p.poll() is not None]
         if dead:
             raise RuntimeError(f"agents exited at start: {dead}; logs in {log_dir}")
@@ -332,7 +360,11 @@ def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2
             if time.monotonic() > deadline:
                 raise TimeoutError(f"only {len(sink.wheels)}/{n} agents answered; logs in {log_dir}")
         startup_s = time.monotonic() - t_spawn
-        log(f"[{label}] every agent answered {startup_s:.1f} s after they were started")
+        forks = children.forks  # the fork server's own CPU (its imports, its forks) is the agents' too
+        startup_cpu = (sum(proc_cpu_s(p.pid) for p in procs.values())
+                       + (proc_cpu_s(forks.proc.pid) if forks is not None else 0.0)) / n
+        log(f"[{label}] every agent answered {startup_s:.1f} s after they were started (all alive at {alive_s:.1f} s; "
+            f"{1e3 * startup_cpu:.0f} ms CPU per agent so far; load {os.getloadavg()[0]:.2f})")
         for _ in range(int(warmup_s * rate_hz)):
             next_t = frame(next_t)
 
@@ -415,7 +447,7 @@ def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2
         agent_cpu_s_per_answer=np.array([(cpu1[r] - cpu0[r]) / max(1, per_robot[r]) for r in procs]),
         agent_rss_mib=rss, bench_cpu_s_per_frame=bench_cpu / measured,
         others_cores=max(0.0, (busy1 - busy0) - own) / max(wall_cores, 1e-9), wall_s=wall,
-        startup_s=startup_s, agent_kind=agent_kind)
+        startup_s=startup_s, agent_kind=agent_kind, alive_s=alive_s, startup_cpu_s_per_agent=startup_cpu)
 
 
 # ---------------------------------------------------------------- the zenoh floor
@@ -500,7 +532,8 @@ def run_floor(plans: list[tuple[str, float | None, int]], log=print, router_proc
     return out
 
 
-def compare(sizes: list[int], rate_hz: float, frames: int, out: Path | None = None, log=print) -> list[dict]:
+def compare(sizes: list[int], rate_hz: float, frames: int, out: Path | None = None, log=print,
+            spawn: str = "fork") -> list[dict]:
     """For each N, the trivial fleet then vsfleet's, back to back through the same kind of router: missed
     pairs, latency p50/p99/max and their ratio to the trivial fleet's, CPU per agent tick, agreement,
     start-up, total RSS. With ``out``: a JSON of the rows and a plot of latency against N beside it."""
@@ -508,21 +541,25 @@ def compare(sizes: list[int], rate_hz: float, frames: int, out: Path | None = No
 
     rows = []
     for n in sizes:
-        runs = {kind: run_loop(n, rate_hz, frames, log=log, label=f"{kind} N={n}", agent_kind=kind)
+        runs = {kind: run_loop(n, rate_hz, frames, log=log, label=f"{kind} N={n}", agent_kind=kind, spawn=spawn)
                 for kind in ("trivial", "vsfleet")}
-        row = {"n": n}
+        row = {"n": n, "spawn": spawn}
         for kind, r in runs.items():
             p = percentiles_s(r.latency_s) if r.latency_s.size else {"p50": math.nan, "p99": math.nan, "max": math.nan}
             row[kind] = {"missed": r.missed, "pairs": r.frames * n, "p50_ms": 1e3 * p["p50"], "p99_ms": 1e3 * p["p99"],
                          "max_ms": 1e3 * p["max"], "cpu_ms_per_tick": 1e3 * float(r.agent_cpu_s_per_tick.mean()),
                          "agreed": r.agreed_frames, "all_ran": r.all_ran_frames, "startup_s": r.startup_s,
+                         "alive_s": r.alive_s, "startup_cpu_ms_per_agent": 1e3 * r.startup_cpu_s_per_agent,
+                         "load_1min": os.getloadavg()[0],
                          "rss_mib_total": float(r.agent_rss_mib.sum()), "others_cores": r.others_cores}
         t, v = row["trivial"], row["vsfleet"]
         row["ratio_p50"], row["ratio_p99"] = v["p50_ms"] / t["p50_ms"], v["p99_ms"] / t["p99_ms"]
         log(f"[compare] N={n}: vsfleet missed {v['missed']}/{v['pairs']}, p50 {v['p50_ms']:.1f} ms "
             f"({row['ratio_p50']:.2f}x the trivial fleet's {t['p50_ms']:.1f}), p99 {v['p99_ms']:.1f} ms "
             f"({row['ratio_p99']:.2f}x {t['p99_ms']:.1f}), cpu/tick {v['cpu_ms_per_tick']:.2f} vs "
-            f"{t['cpu_ms_per_tick']:.2f} ms, agree {v['agreed']}/{v['all_ran']}, start-up {v['startup_s']:.1f} s")
+            f"{t['cpu_ms_per_tick']:.2f} ms, agree {v['agreed']}/{v['all_ran']}, start-up {v['startup_s']:.1f} s "
+            f"(trivial {t['startup_s']:.1f} s; all alive at {v['alive_s']:.1f} / {t['alive_s']:.1f} s; CPU per agent "
+            f"until every one answered {v['startup_cpu_ms_per_agent']:.0f} / {t['startup_cpu_ms_per_agent']:.0f} ms)")
         rows.append(row)
     if out is not None:
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -558,19 +595,23 @@ def main(argv: list[str] | None = None) -> int:
     add_output_flags(p, "loop", DOCS / "bench", f"--compare's {VS_TRIVIAL}.json and {VS_TRIVIAL}.png")
     p.add_argument("--agent", choices=("vsfleet", "trivial", "trivial-express", "trivial-batched"), default="vsfleet",
                    help="the agents: vsfleet's own, or the trivial floor (bench/trivial_agent.py)")
+    p.add_argument("--spawn", choices=SPAWN_MODES, default="fork",
+                   help="how the agents start: forked from a fork server that imported them once, as `vsfleet run` "
+                        "starts them (default), or each its own python (exec)")
     a = p.parse_args(argv)
     if a.compare:
-        compare([int(x) for x in a.compare.split(",")], a.rate, a.frames, a.out / VS_TRIVIAL)
+        compare([int(x) for x in a.compare.split(",")], a.rate, a.frames, a.out / VS_TRIVIAL, spawn=a.spawn)
         return 0
     if a.floor:
         for f in run_floor([("back to back", None, 2000), ("30 Hz", 30.0, 300)]):
             print(f.label, {k: round(v * 1e3, 3) for k, v in percentiles_s(f.rtt_s).items()}, "lost", f.lost)
-    r = run_loop(a.robots, a.rate, a.frames, agent_kind=a.agent)
+    r = run_loop(a.robots, a.rate, a.frames, agent_kind=a.agent, spawn=a.spawn)
     print(a.agent, {k: round(v * 1e3, 3) for k, v in percentiles_s(r.latency_s).items()}, "ms; missed", r.missed,
           "late", r.late, "incomplete", r.incomplete, "/", r.states, "cpu/tick ms",
           round(1e3 * float(r.agent_cpu_s_per_tick.mean()), 3), "rss MiB", round(float(r.agent_rss_mib.mean()), 1),
           "bench cpu/frame ms", round(1e3 * r.bench_cpu_s_per_frame, 3), "others cores", round(r.others_cores, 2),
-          "agree", f"{r.agreed_frames}/{r.all_ran_frames} of {r.frames}", "holds", r.holds, "startup s", round(r.startup_s, 1))
+          "agree", f"{r.agreed_frames}/{r.all_ran_frames} of {r.frames}", "holds", r.holds, "startup s", round(r.startup_s, 1),
+          "all alive s", round(r.alive_s, 1), "startup CPU ms/agent", round(1e3 * r.startup_cpu_s_per_agent))
     return 0
 
 

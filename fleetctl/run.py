@@ -2,13 +2,15 @@
 
 Starts an embedded zenoh router (router-mode session on a free loopback port,
 multicast off), then simfleet, the tracker and one agent process per robot, all
-as clients of that router. The tracker is the simulated one, or with ``--tracker
+as clients of that router. The agents are forked from one fork server that
+imported the agent once (``--spawn exec``: each its own python), so a hundred of
+them start in seconds on two cores. The tracker is the simulated one, or with ``--tracker
 camera`` (or the scenario's ``[tracker] kind = "camera"``) the camera loop:
 `vsfleet tracker camera --source render` draws the fleet's truth through a
 synthetic camera (calibrated on its rendered references first), detects the
 ArUco markers and publishes the frames the agents follow. Publishes the mission and, as the
 operator, answers mission queries on ``vs/<fleet>/mission`` (agents that start
-after the put ask there as well as their peers). Shows progress, stops everything cleanly (also on Ctrl-C or
+after the put ask there first). Shows progress, stops everything cleanly (also on Ctrl-C or
 when a child dies), prints a summary and writes the run to runs/<timestamp>/:
 ``run.mcap`` (every message and liveliness token, as ``vsfleet record`` writes
 it), ``log.msgpack``, ``summary.json``, the scenario and the plots of
@@ -52,10 +54,10 @@ from vsfleet.wire import Keys, Mission, WireError, decode_state, decode_truth, e
 from vsfleet.zglue.lifecycle import StopFlag, wall_clock
 from vsfleet.zglue.program import common_flags, program, refusing
 from .mission_cmd import stamp
-from .plot import plot_file
 from .record import LiveRecorder
 from .router import open_loopback_router
 from vsfleet.zglue.scenario_file import load_scenario
+from vsfleet.zglue.forks import ForkedChild, ForkServer
 from vsfleet.zglue.zconf import RELIABLE_QOS, zenoh_flags
 
 log = logging.getLogger("vsfleet.run")
@@ -154,12 +156,41 @@ def summarise(scenario: Scenario, mission: Mission, records, elapsed_s: float, c
                       children_ok=children_ok, min_gap_m=min_gap_m(mission, frames))
 
 
+#: how `vsfleet run` and bench/loop.py start the agents: "fork" (from a fork server, vsfleet.zglue.forks) or
+#: "exec" (one python each)
+SPAWN_MODES = ("fork", "exec")
+
+
 class Children:
     """The fleet's processes; stopped with SIGTERM, then SIGKILL after a grace period."""
 
     def __init__(self, log_dir: Path) -> None:
-        self.procs: dict[str, subprocess.Popen] = {}
+        self.procs: dict[str, subprocess.Popen | ForkedChild] = {}
         self.log_dir = log_dir
+        self.forks: ForkServer | None = None
+
+    def start_forked(self, name: str, module: str, argv: list[str], preload: list[str],
+                     cwd: Path | None = None, title: list[str] | None = None) -> ForkedChild:
+        """Start child ``name`` running ``module.main(argv)`` forked from this fleet's fork server
+        (vsfleet.zglue.forks, started on first use, importing ``preload``); its output goes to
+        <log_dir>/<name>.log as with start, and it shows ``title`` as its command line."""
+        if self.forks is None:
+            self.forks = ForkServer(preload, self.log_dir / "fork-server.log", cwd=cwd)
+        log_path = self.log_dir / f"{name}.log"
+        log_path.write_bytes(b"")
+        proc = self.forks.start(module, argv, log_path, cwd=cwd, title=title)
+        self.procs[name] = proc
+        return proc
+
+    def start_agent(self, name: str, args: list[str], spawn: str = "fork", cwd: Path | None = None):
+        """`vsfleet agent ARGS` as child ``name``: forked from the fork server, or its own python (exec)."""
+        if spawn == "exec":
+            return self.start(name, child_command("agent", *args), cwd=cwd)
+        if spawn != "fork":
+            raise ValueError(f"spawn must be one of {SPAWN_MODES}, got {spawn!r}")
+        return self.start_forked(name, "vsfleet.fleetctl.cli", ["agent", *args],
+                                 ["vsfleet.fleetctl.cli", "vsfleet.agent.main"], cwd=cwd,
+                                 title=child_command("agent", *args))
 
     def start(self, name: str, cmd: list[str], cwd: Path | None = None) -> subprocess.Popen:
         env = dict(os.environ, PYTHONUNBUFFERED="1")
@@ -194,6 +225,9 @@ class Children:
                 p.wait()
                 ok = False
             ok = ok and p.returncode in STOPPED_CODES
+        if self.forks is not None and all(p.poll() is not None for p in self.procs.values()):
+            self.forks.close()  # every child has ended: the fork server ends too
+            self.forks = None
         return ok
 
 
@@ -252,7 +286,7 @@ def tracker_args(scenario: Scenario, scenario_path: str, kind: str | None, camer
 def run(scenario_path: str, duration_s: float | None = None, out_dir: str = "runs",
         fleet: str | None = None, stop: StopFlag | None = None, until_goal: bool = True,
         progress: bool = True, tracker: str | None = None, camera: str | None = None,
-        foxglove_port: int | None = None, engine: str | None = None) -> tuple[RunSummary, Path]:
+        foxglove_port: int | None = None, engine: str | None = None, spawn: str = "fork") -> tuple[RunSummary, Path]:
     scenario = load_scenario(scenario_path, fleet=fleet)
     duration = scenario.duration_s if duration_s is None else duration_s
     keys = Keys(scenario.fleet)
@@ -280,9 +314,9 @@ def run(scenario_path: str, duration_s: float | None = None, out_dir: str = "run
                                             *(("--engine", engine) if engine else ()), *flags))
         children.start("tracker", child_command("tracker", *tracker_cmd, *flags))
         agents = [f"agent-{r}" for r in mission.robot_ids]
-        for r in mission.robot_ids:
-            children.start(f"agent-{r}", child_command(
-                "agent", "--robot", r, "--fleet", scenario.fleet, "--dt", str(1.0 / tr.rate_hz), *flags))
+        for r in mission.robot_ids:  # forked from one fork server (spawn "fork"): no interpreter and imports each
+            children.start_agent(f"agent-{r}", ["--robot", r, "--fleet", scenario.fleet, "--dt", str(1.0 / tr.rate_hz),
+                                                *flags], spawn=spawn)
         if foxglove_port is not None:  # the live view beside the fleet (fleetctl.foxglove_live)
             children.start("foxglove", child_command("foxglove", "--fleet", scenario.fleet,
                                                      "--port", str(foxglove_port), *flags))
@@ -327,6 +361,7 @@ def run(scenario_path: str, duration_s: float | None = None, out_dir: str = "run
     recorder.write(run_dir / "log.msgpack")
     (run_dir / "summary.json").write_text(json.dumps(asdict(summary), indent=2))
     (run_dir / "scenario.toml").write_bytes(Path(scenario_path).read_bytes())
+    from .plot import plot_file  # noqa: PLC0415 - matplotlib (~1 s of imports) only once the run is over
     try:
         plots = plot_file(run_dir / "run.mcap", run_dir, fleet=scenario.fleet, timeline=scenario.faults)
         for note in plots.notes:
@@ -365,6 +400,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also serve the fleet live to Foxglove on ws://127.0.0.1:PORT (default 8765)")
     p.add_argument("--engine", choices=ENGINES, default=None,
                    help="the simulated fleet's physics engine (default: the scenario's [sim] engine)")
+    p.add_argument("--spawn", choices=SPAWN_MODES, default="fork",
+                   help="how the agents start: forked from one process that imported the agent once (default; "
+                        "100 agents on two cores start in seconds), or each its own python (exec)")
     return common_flags(p, zenoh=False)  # run starts its own router; the children get their flags
 
 
@@ -373,7 +411,7 @@ def main(args: argparse.Namespace) -> int:
     with refusing(OSError, ValueError):
         summary, run_dir = run(args.scenario, args.duration, args.out, args.fleet,
                                until_goal=not args.no_stop_at_goal, tracker=args.tracker, camera=args.camera,
-                               foxglove_port=args.foxglove, engine=args.engine)
+                               foxglove_port=args.foxglove, engine=args.engine, spawn=args.spawn)
     print(summary.table())
     print(f"run written to {run_dir}")
     return 0 if summary.children_ok else 1

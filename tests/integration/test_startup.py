@@ -82,3 +82,53 @@ def test_agents_start_and_join_and_each_is_asked_a_bounded_number_of_queries(fle
     # each agent asked by the PEERS_ASKED before it, once per kind (a resync after a gap asks health again)
     assert max(reached.values(), default=0) <= 3 * PEERS_ASKED, reached
     assert len(gets) <= 3 * PEERS_ASKED * N < 2 * N * (N - 1)
+
+
+@pytest.mark.parametrize("spawn", ["fork", "exec"])
+def test_thirty_agents_started_as_vsfleet_run_starts_them_all_join_and_agree(spawn):
+    """bench/loop.py's fleet of 30 real agents through a `vsfleet router` child, started as `vsfleet run` starts
+    them: forked from the fleet's fork server (fleetctl.run.ForkServer), or each its own python. Every agent
+    answers (run_loop raises otherwise), none misses a measured frame's command by more than a few, and the copies
+    of every frame all ran agree bit for bit. The start-up's speed is bench/loop.py's to measure, not asserted."""
+    import sys
+
+    root = str(Path(__file__).resolve().parents[2])
+    if root not in sys.path:
+        sys.path.insert(0, root)
+    from bench.loop import run_loop
+
+    r = run_loop(30, 30.0, 60, log=print, warmup_s=0.5, label=f"startup {spawn}", spawn=spawn)
+    print(f"spawn {spawn}: start-up {r.startup_s:.1f} s (all alive {r.alive_s:.1f} s), "
+          f"{1e3 * r.startup_cpu_s_per_agent:.0f} ms CPU per agent; missed {r.missed}/{r.frames * r.robots}; "
+          f"agree {r.agreed_frames}/{r.all_ran_frames}")
+    assert r.robots == 30 and r.startup_cpu_s_per_agent > 0
+    assert r.all_ran_frames > 0 and r.agreed_frames == r.all_ran_frames
+
+
+@pytest.mark.provokes_errors(r"vsfleet\.agent ERROR robot must match")
+def test_a_forked_agent_is_its_own_process_with_its_command_line_log_session_and_exit_code(tmp_path):
+    """fleetctl.run.Children.start_agent (spawn "fork", vsfleet.zglue.forks): what an exec'd `vsfleet agent` would
+    be, seen from outside: the command line in /proc, a session of its own, its output in its log, its exit code,
+    SIGTERM handled by the agent; the fork server ends with the last child."""
+    import os
+    import signal
+
+    from vsfleet.fleetctl.router import free_loopback_port
+    from vsfleet.fleetctl.run import STOPPED_CODES, Children, child_command
+
+    children = Children(tmp_path)
+    bad = children.start_agent("agent-bad", ["--robot", "bad/id"])
+    assert bad.wait(timeout=30) == 2
+    assert "robot must match" in children.last_line("agent-bad")
+    # an agent waiting for a router that is not there, until it is told to stop
+    args = ["--robot", "r1", "--fleet", "forked", "--mode", "client", "--connect",
+            f"tcp/127.0.0.1:{free_loopback_port()}", "--no-multicast-scouting", "--wait"]
+    waiting = children.start_agent("agent-r1", args)
+    cmdline = [a.decode() for a in Path(f"/proc/{waiting.pid}/cmdline").read_bytes().split(b"\0") if a]
+    assert cmdline == child_command("agent", *args)
+    assert os.getsid(waiting.pid) == waiting.pid and waiting.poll() is None
+    server = children.forks.proc
+    waiting.send_signal(signal.SIGTERM)
+    assert waiting.wait(timeout=30) in STOPPED_CODES
+    assert children.stop(["agent-r1"])  # every child has ended: so does the fork server
+    assert children.forks is None and server.wait(timeout=10) == 0
