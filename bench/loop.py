@@ -4,7 +4,8 @@ This process plays the tracker and simfleet's receiving side: it starts a
 `vsfleet router` process on a free loopback port (as on a deployment), connects
 client sessions to it (a "tracker" that publishes one message per frame on
 vs/<fleet>/frame/bench and a "sim" that subscribes to vs/<fleet>/cmd/** and state/**), and starts N real
-agent processes (fleetctl.run.child_command) as clients of that router. So a
+agent processes as clients of that router, as `vsfleet run` starts them (fleetctl.run.Children.start_agent:
+forked from a fork server that imported the agent once; ``--spawn exec``: each its own python). So a
 frame goes tracker client -> router -> N agents -> router -> sim client, the
 same path as in `vsfleet run`.
 
@@ -261,7 +262,7 @@ def agent_command(kind: str, robot: str, fleet: str, period_s: float, endpoint: 
 def start_agent(children: Children, kind: str, robot: str, fleet: str, period_s: float, endpoint: str,
                 deadline_s: float | None = None, spawn: str = "fork"):
     """Start one agent of the bench fleet as ``vsfleet run`` does (spawn "fork": forked from the fleet's fork
-    server, fleetctl.run.ForkServer), or as its own python (spawn "exec")."""
+    server, vsfleet.zglue.forks.ForkServer), or as its own python (spawn "exec")."""
     name, args = f"agent-{robot}", agent_args(kind, robot, fleet, period_s, endpoint, deadline_s)
     if kind not in TRIVIAL_EXPRESS:
         return children.start_agent(name, args, spawn=spawn, cwd=ROOT)
