@@ -86,6 +86,14 @@ SAMPLE_S = 5.0
 PROGRESS_S = 30.0
 FAULT_KINDS = ("agent_kill", "blackout", "router")
 RSS_TARGET_MIB = 2.0
+# An agent's RSS rises by 2-4 MiB in its first minute or two (the allocator's and zenoh's buffers reaching their
+# working size), then stays nearly flat: in the 30-minute soak of 2026-12-04 18:08 the agent instances grew up to
+# +4.19 MiB from their first reading (30 s) but at most +1.96 MiB from 120 s after their start. So the report
+# gives, beside the raw growth from the first reading (the target's figure), the growth after this warm-up: from
+# the first reading >= RSS_WARMUP_S after the process started to its last, for an instance that ran at least
+# RSS_AFTER_MIN_S past the warm-up (others have no such figure).
+RSS_WARMUP_S = 120.0
+RSS_AFTER_MIN_S = 60.0
 AGREE_TARGET = 0.999
 
 # e2e-triangle's fleet (tests/data/e2e-triangle.toml), with bodies and on_failure rejoin; the goal is set per mission
@@ -268,6 +276,7 @@ def rss_rows(instances: list[dict]) -> list[dict]:
         insts = sorted(by_name[name], key=lambda i: i["index"])
         newest = insts[-1]
         growth = [i["last_rss"] - i["first_rss"] for i in insts]
+        warm = [w for i in insts if (w := after_warmup(i)) is not None]
         count = max(i["index"] for i in insts)
         label = ("the original, the whole soak" if count == 1 else
                  f"instance {newest['index']} of {count}, from {_mmss(newest['started'])}")
@@ -282,8 +291,28 @@ def rss_rows(instances: list[dict]) -> list[dict]:
                                                  if (d := _diff(i.get("last_anon"), i.get("first_anon"))) is not None),
                                                 default=None),
                      "last_shmem_mib": newest.get("last_shmem"), "shm_segments": newest.get("last_shm_segments"),
-                     "holds": max(growth) <= RSS_TARGET_MIB})
+                     "holds": max(growth) <= RSS_TARGET_MIB,
+                     # after the warm-up (RSS_WARMUP_S): the newest instance's, and the largest of those long enough
+                     "warm_growth_mib": (w := after_warmup(newest)) and w["rss"],
+                     "warm_anon_growth_mib": w and w["anon"],
+                     "max_warm_growth_mib": max((x["rss"] for x in warm), default=None),
+                     "max_warm_anon_growth_mib": max((x["anon"] for x in warm if x["anon"] is not None), default=None),
+                     "warm_instances": len(warm),
+                     "warm_holds": bool(warm) and max(x["rss"] for x in warm) <= RSS_TARGET_MIB})
     return rows
+
+
+def after_warmup(inst: dict) -> dict | None:
+    """An instance's growth after the warm-up: from its first reading (series: (t, VmRSS, RssAnon, RssShmem)
+    every 5 s) >= RSS_WARMUP_S after it started to its last reading; None if it ran less than RSS_AFTER_MIN_S
+    past that reading. {"from": t, "to": t, "rss": MiB, "anon": MiB or None}."""
+    after = [p for p in inst.get("series") or [] if p[0] >= inst["started"] + RSS_WARMUP_S]
+    if not after or inst.get("last_at") is None or inst["last_at"] - after[0][0] < RSS_AFTER_MIN_S:
+        return None
+    start = after[0]
+    anon0 = start[2] if len(start) > 2 else None
+    return {"from": start[0], "to": inst["last_at"], "rss": inst["last_rss"] - start[1],
+            "anon": _diff(inst.get("last_anon"), anon0)}
 
 
 def _diff(a, b):
@@ -381,7 +410,20 @@ def targets(rep: dict) -> list[dict]:
         {"target": f">= {100 * AGREE_TARGET:g}% of frames bit-identical outside injected faults",
          "value": f"{100 * frac:.3f}% ({ag['identical']}/{ag['frames']})",
          "holds": bool(ag["frames"]) and frac >= AGREE_TARGET},
-    ]
+    ] + _warm_target(rss)
+
+
+def _warm_target(rss: list[dict]) -> list[dict]:
+    """The RSS target again, on the growth after the warm-up (RSS_WARMUP_S): a second row, never instead of the raw one."""
+    warm = [r for r in rss if r.get("max_warm_growth_mib") is not None]
+    if not warm:
+        return []
+    worst = max(warm, key=lambda r: r["max_warm_growth_mib"])
+    n = sum(r.get("warm_instances", 0) for r in rss)
+    return [{"target": f"(the same, after a {RSS_WARMUP_S:g} s warm-up)",
+             "value": f"largest {worst['max_warm_growth_mib']:+.2f} MiB ({worst['process']}; {n} instances that ran "
+                      f">= {RSS_WARMUP_S + RSS_AFTER_MIN_S:g} s)",
+             "holds": all(r["max_warm_growth_mib"] <= RSS_TARGET_MIB for r in warm)}]
 
 
 def markdown(rep: dict) -> str:
@@ -404,12 +446,18 @@ def markdown(rep: dict) -> str:
              "| target | measured | holds |", "|---|---|---|"]
     lines += [f"| {t['target']} | {t['value']} | {'yes' if t['holds'] else '**NO**'} |" for t in targets(rep)]
     lines += ["", "### Memory (VmRSS, MiB)", "",
-              "First reading: 30 s after the process started (the warm-up); last: at the end of the soak. A "
-              "restarted process is shown by its newest instance; *largest growth* is over all its instances.", "",
-              "| process | instance shown | first | last | growth | largest growth (any instance) |",
-              "|---|---|---|---|---|---|"]
+              "First reading: 30 s after the process started; last: at the end of the soak (or its kill). A "
+              "restarted process is shown by its newest instance; *largest growth* is over all its instances. "
+              f"*After warm-up*: the same growth from the first reading {RSS_WARMUP_S:g} s after the process started "
+              f"(an agent's RSS rises for its first minute or two, then stays nearly flat), for instances that ran "
+              f"at least {RSS_AFTER_MIN_S:g} s past it (- for one that did not); the raw growth stays the target's figure.",
+              "",
+              "| process | instance shown | first | last | growth | largest growth (any instance) | "
+              "growth after warm-up | largest after warm-up (instances long enough) |",
+              "|---|---|---|---|---|---|---|---|"]
     lines += [f"| {r['process']} | {r['instance']} | {r['first_mib']:.1f} | {r['last_mib']:.1f} | "
-              f"{r['growth_mib']:+.2f} | {r['max_growth_mib']:+.2f} |" for r in rep["rss"]]
+              f"{r['growth_mib']:+.2f} | {r['max_growth_mib']:+.2f} | {_mib(r.get('warm_growth_mib'), none='-')} | "
+              f"{_mib(r.get('max_warm_growth_mib'), none='-')}{_of(r)} |" for r in rep["rss"]]
     if any(r.get("anon_growth_mib") is not None for r in rep["rss"]):
         lines += ["", "VmRSS is RssAnon (heap, stacks) + RssFile + RssShmem (shared memory mapped in: zenoh's SHM "
                   "segments, /dev/shm/*.zenoh). The same instances:", "",
@@ -474,8 +522,13 @@ def markdown(rep: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _mib(v, sign: bool = True) -> str:
-    return "?" if v is None else (f"{v:+.2f}" if sign else f"{v:.1f}")
+def _of(r: dict) -> str:
+    """How many of a process's instances have a growth after the warm-up: " (k of n)"."""
+    return "" if r.get("warm_instances") is None else f" ({r['warm_instances']} of {r['instances']})"
+
+
+def _mib(v, sign: bool = True, none: str = "?") -> str:
+    return none if v is None else (f"{v:+.2f}" if sign else f"{v:.1f}")
 
 
 def _counts(c: dict) -> str:
@@ -1152,6 +1205,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.render:
         rep = json.loads(args.render.read_text())
+        rep["rss"] = rss_rows(rep["instances"])   # again, from the stored readings: with the growth after the warm-up
     else:
         work = args.work
         work.mkdir(parents=True, exist_ok=True)
