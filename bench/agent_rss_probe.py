@@ -1,7 +1,7 @@
 """What grows an agent's memory (issue 30, RSS): the soak's fleet offline, one Agent per robot in this process,
 with the soak's mission changes (accelerated), its RssAnon over frames.
 
-The e2e triangle of bench/soak.py (its scenario, written to --work), the agents fed counted frames as in
+The e2e triangle of bench/soak.py (its scenario), the agents fed counted frames as in
 simfleet.offline (through on_frame/poll, physics by step_fleet), a new mission (the next version, the goal
 alternating between the soak's two goals, effective 1.5 s later) every --mission-every frames, each new
 mission prepared as `vsfleet agent` does: --prepare thread (agent.main.prepare_mission: its arrays built on a
@@ -9,7 +9,7 @@ thread of its own), inline (built by the first frame that needs it) or none. --d
 goal (never seen before) instead of two alternating ones. --fuzz N: N invalid frames and N invalid missions
 per frame (the fuzzer's payloads, vsfleet.fleetctl.fuzz.bad_payload) through the same entry points.
 
-Prints one JSON line per --every frames (frame, missions so far, RssAnon, threads) and a summary.
+Prints one JSON line per --every frames (frame, missions so far, RssAnon, threads) and a summary; writes no file.
 Run: .venv/bin/python -m bench.agent_rss_probe --frames 20000 --mission-every 900 --prepare thread
 """
 
@@ -20,7 +20,7 @@ import dataclasses
 import json
 import random
 import sys
-import tempfile
+import tomllib
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -49,16 +49,15 @@ def main(argv=None) -> int:
     import numpy as np
     from bench.soak import SCENARIO, goals
     from vsfleet.wire import FrameMsg, Keys, encode_frame, encode_mission
-    from vsfleet.zglue.scenario_file import load_scenario
+    from vsfleet.scenario import scenario_from_dict
     from vsfleet.agent.main import Agent, prepare_mission
     from vsfleet.simfleet.physics import Fault, RobotState, step_fleet
     from vsfleet.geometry import Pose2
     from vsfleet.control import make_controller, DEFAULT_CONTROLLER
 
     g = goals(5.5)
-    path = Path(tempfile.mkdtemp()) / "soak.toml"
-    path.write_text(SCENARIO.format(fleet="probe", duration_s=3600, gx=g[0][0], gy=g[0][1], gth=g[0][2]))
-    sc = load_scenario(path)
+    sc = scenario_from_dict(tomllib.loads(SCENARIO.format(fleet="probe", duration_s=3600, gx=g[0][0], gy=g[0][1],
+                                                          gth=g[0][2])), name="soak")
     mission0 = dataclasses.replace(sc.mission, version=1, effective_t=0.0)
     robots = {r.robot: r for r in sc.robots}
     states = {r.robot: RobotState(Pose2(*r.start)) for r in sc.robots}

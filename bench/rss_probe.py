@@ -14,10 +14,10 @@ tracker-like publisher (30 Hz, one key; the fleet's steady traffic). Then one in
 - fuzzlong: one `vsfleet fuzz` for the whole run (the same traffic, no new session).
 
 The router's RssAnon and VmRSS (/proc/<pid>/status) every 2 s, with the count of injections done so far, go to
---out (JSON lines); the summary (stdout): RssAnon at 30 s, at the middle and at the end, and the growth per
-injection over the second half. --env KEY=VALUE is set in the router's environment (e.g. MALLOC_ARENA_MAX=1).
+stdout (JSON lines), then the summary (one line): RssAnon at 30 s, at the middle and at the end, and the growth
+per injection over the second half. It writes no file (the children's output is discarded). --env KEY=VALUE is set in the router's environment (e.g. MALLOC_ARENA_MAX=1).
 
-Run: .venv/bin/python -m bench.rss_probe --mode kill --every 3 --minutes 5 --out /tmp/probe-kill.jsonl
+Run: .venv/bin/python -m bench.rss_probe --mode kill --every 3 --minutes 5 > /tmp/probe-kill.jsonl
 """
 
 from __future__ import annotations
@@ -89,7 +89,6 @@ def main(argv=None) -> int:
                     help="also a `vsfleet agent --robot r1 --fleet probe` (no mission: it rejects what the fuzzer sends "
                          "it), sampled as the router (a_* fields); --agent-env KEY=VALUE in its environment")
     ap.add_argument("--agent-env", action="append", default=[])
-    ap.add_argument("--out", type=Path, required=True)
     args = ap.parse_args(argv)
 
     import zenoh
@@ -98,19 +97,16 @@ def main(argv=None) -> int:
     port = free_loopback_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     env = dict(os.environ, **dict(e.split("=", 1) for e in args.env))
-    logdir = args.out.with_suffix(".logs")
-    logdir.mkdir(parents=True, exist_ok=True)
+    quiet = dict(stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL)
     router = subprocess.Popen(child_command("router", "--listen", endpoint, "--no-multicast-scouting"), env=env,
-                              stdout=open(logdir / "router.log", "wb"), stderr=subprocess.STDOUT,
-                              stdin=subprocess.DEVNULL, start_new_session=True)
+                              start_new_session=True, **quiet)
     wait_listening(port, 20.0)
     agent = None
     if args.agent:
         from vsfleet.zglue.zconf import zenoh_flags
         aenv = dict(os.environ, **dict(e.split("=", 1) for e in args.agent_env))
-        agent = subprocess.Popen(child_command("agent", "--robot", "r1", "--fleet", "probe", *zenoh_flags(endpoint)),
-                                 env=aenv, stdout=open(logdir / "agent.log", "wb"), stderr=subprocess.STDOUT,
-                                 stdin=subprocess.DEVNULL, start_new_session=True)
+        agent_cmd = child_command("agent", "--robot", "r1", "--fleet", "probe", *zenoh_flags(endpoint))
+        agent = subprocess.Popen(agent_cmd, env=aenv, start_new_session=True, **quiet)
     t0 = time.time()
     sink = zenoh.open(client_conf(endpoint))
     got = [0]
@@ -133,42 +129,38 @@ def main(argv=None) -> int:
         "--no-multicast-scouting")
     long_fuzz = None
     if args.mode == "fuzzlong":
-        long_fuzz = subprocess.Popen(fuzz_cmd(args.minutes * 60.0, 1), stdout=open(logdir / "fuzz.log", "wb"),
-                                     stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+        long_fuzz = subprocess.Popen(fuzz_cmd(args.minutes * 60.0, 1), **quiet)
     end = t0 + args.minutes * 60.0
     done, n = 0, 0
     next_inj, next_sample = t0 + 10.0, t0
     rows = []
     running: subprocess.Popen | None = None
-    with args.out.open("w") as out:
-        while time.time() < end:
-            now = time.time()
-            if now >= next_sample:
-                m = mem(router.pid)
-                row = {"t": round(now - t0, 1), "done": done, "got": got[0], **{k: round(v, 3) for k, v in m.items()},
-                       "load": Path("/proc/loadavg").read_text().split()[0]}
-                if agent is not None and agent.poll() is None:
-                    row.update({f"a_{k}": round(v, 3) for k, v in mem(agent.pid).items()})
-                rows.append(row)
-                out.write(json.dumps(row) + "\n")
-                out.flush()
-                next_sample += 2.0
-            if args.mode in ("kill", "close", "fuzz") and now >= next_inj and running is None:
-                n += 1
-                if args.mode == "fuzz":
-                    running = subprocess.Popen(fuzz_cmd(args.fuzz_s, n), stdout=open(logdir / "fuzz.log", "ab"),
-                                               stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
-                else:
-                    running = subprocess.Popen([sys.executable, "-c", CHILD, str(n), endpoint],
-                                               stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
-                                               stdin=subprocess.DEVNULL)
-                    running.stdout.readline()  # "up": its session is open and declared
-                    time.sleep(1.0)
-                    running.send_signal(signal.SIGKILL if args.mode == "kill" else signal.SIGTERM)
-                next_inj = now + args.every
-            if running is not None and running.poll() is not None:
-                running, done = None, done + 1
-            time.sleep(0.05)
+    while time.time() < end:
+        now = time.time()
+        if now >= next_sample:
+            m = mem(router.pid)
+            row = {"t": round(now - t0, 1), "done": done, "got": got[0], **{k: round(v, 3) for k, v in m.items()},
+                   "load": Path("/proc/loadavg").read_text().split()[0]}
+            if agent is not None and agent.poll() is None:
+                row.update({f"a_{k}": round(v, 3) for k, v in mem(agent.pid).items()})
+            rows.append(row)
+            print(json.dumps(row), flush=True)
+            next_sample += 2.0
+        if args.mode in ("kill", "close", "fuzz") and now >= next_inj and running is None:
+            n += 1
+            if args.mode == "fuzz":
+                running = subprocess.Popen(fuzz_cmd(args.fuzz_s, n), **quiet)
+            else:
+                running = subprocess.Popen([sys.executable, "-c", CHILD, str(n), endpoint],
+                                           stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                                           stdin=subprocess.DEVNULL)
+                running.stdout.readline()  # "up": its session is open and declared
+                time.sleep(1.0)
+                running.send_signal(signal.SIGKILL if args.mode == "kill" else signal.SIGTERM)
+            next_inj = now + args.every
+        if running is not None and running.poll() is not None:
+            running, done = None, done + 1
+        time.sleep(0.05)
     stop.set()
     for p in (running, long_fuzz, agent):
         if p is not None and p.poll() is None:
