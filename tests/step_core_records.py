@@ -61,6 +61,16 @@ def shape_records(seed: int = 23, count: int = 48) -> list[tuple[str, list[float
     from vsfleet.zglue.scenario_file import load_scenario
     scenario = load_scenario(Path(__file__).resolve().parent.parent / "scenarios" / "room-column-switch.toml")
     m = mission_from_dict({**scenario.mission.to_dict(), "scale_min": 0.7})
+    out = _shape_records(m, seed, count)
+    # a structure 2.2 times the triangle (reach 0.64 m: the carrot runs 0.3 of it ahead, vs_step.h) round a pillar
+    d = scenario.mission.to_dict()
+    for spec in d["robots"].values():
+        spec["p"] = [2.2 * v for v in spec["p"]]
+    big = mission_from_dict({**d, "shapes": None, "obstacles": [[1.0, 0.4, 0.15]]})
+    return out + _shape_records(big, seed + 1, count // 2)
+
+
+def _shape_records(m, seed: int, count: int) -> list[tuple[str, list[float]]]:
     arrays = mission_arrays(m)
     n = len(arrays.ids)
     (tpl, wb, vmax, amax, code, kind, goal, limits, radii, obstacles,
@@ -71,7 +81,7 @@ def shape_records(seed: int = 23, count: int = 48) -> list[tuple[str, list[float
             *amax]
     room = [margin, *FIELD, float(len(m.obstacles)), *radii, *obstacles, float(len(arrays.shapes)), *shapes_xy]
     rng = np.random.default_rng(seed)
-    col = arrays.shapes[-1][1]
+    col = arrays.shapes[-1][1] if arrays.shapes else arrays.template
     out = []
     for k in range(count):
         mix = rng.choice([0.0, 1.0, rng.uniform()])

@@ -195,3 +195,28 @@ def test_a_smaller_scale_passes_a_gap_the_full_triangle_cannot_and_grows_back_af
     assert all(not [d for d in ds if d.kind != "unblocked"] for ds in run.decisions.values())
     assert obstacle_gap_m(scenario, run) > 0.015
     assert assembled_m(scenario, run) < 0.01
+
+
+def test_a_large_structure_follows_its_plan_with_a_carrot_a_third_of_its_reach_ahead(monkeypatch):
+    import vsfleet.structure as structure_module
+
+    d = scenario_with(shapes=None).mission.to_dict()
+    for spec in d["robots"].values():
+        spec["p"] = [2.2 * v for v in spec["p"]]   # reach 0.64 m: the carrot 0.19 m ahead, not 0.15 m
+    mission = mission_from_dict({**d, "obstacles": [[1.0, 0.4, 0.15]]})
+    arrays = mission_arrays(mission)
+    reach = float(np.sqrt(np.max((arrays.template ** 2).sum(axis=1))))
+    assert 0.3 * reach > arrays.limits.path_lookahead_m
+    rng = np.random.default_rng(3)
+    differ = 0
+    for k in range(12):
+        xy = arrays.template + np.array([0.2 * k, 0.1 * k]) + rng.normal(0, 0.005, arrays.template.shape)
+        pose = np.column_stack([xy, np.zeros(3)])
+        args = (arrays, mission.metric, pose, np.ones(3, bool), np.zeros(3, bool), np.zeros(3, bool), 5.0, 1 / 30)
+        core, ref = structure_step(*args), structure_step_reference(*args)
+        assert core.goal_pose.as_tuple() == ref.goal_pose.as_tuple(), k   # the core and the reference alike
+        with monkeypatch.context() as mp:
+            mp.setattr(structure_module, "STEP_LOOKAHEAD_PER_REACH", 0.0)
+            short = structure_step_reference(*args)
+        differ += short.goal_pose.as_tuple() != ref.goal_pose.as_tuple()
+    assert differ > 0   # where the way turns, the longer carrot changes where the structure heads (3 of 12 here)

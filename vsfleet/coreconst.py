@@ -51,6 +51,8 @@ FIELD_SEARCH_CELLS: int = _core.FIELD_SEARCH_CELLS
 #: the field's descent handed to the advance each frame [m], and its waypoints at most (vs_step.h)
 STEP_PATH_M: float = _core.STEP_PATH_M
 STEP_PATH_CAP: int = _core.STEP_PATH_CAP
+#: following a field, the carrot runs at least this times the shape's reach ahead (vs_step.h)
+STEP_LOOKAHEAD_PER_REACH: float = _core.STEP_LOOKAHEAD_PER_REACH
 
 # the structure's planner (vs_plan.h VS_PLAN_*)
 PLAN_OK: int = _core.PLAN_OK

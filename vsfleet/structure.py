@@ -7,13 +7,14 @@ chosen. :func:`room_field` builds (and memoises) a room's navigation function, P
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
 
 from . import _core
-from .coreconst import STRUCTURE_STEP_ARGS
+from .coreconst import STEP_LOOKAHEAD_PER_REACH, STRUCTURE_STEP_ARGS
 from .advance import Goal, GoalPath, GoalPose, GoalTwist, Twist2, advance_structure_reference
 from .field import Field, build_field, build_field_reference, field_open_reference, follow_field_reference
 from .fit import fit_structure_reference
@@ -106,11 +107,16 @@ def structure_step_reference(arrays, metric: str, pose_world: np.ndarray, seen: 
             shape = pick
     now_pts = fit.pose.apply(template)
     dist = np.hypot(xy[:, 0] - now_pts[:, 0], xy[:, 1] - now_pts[:, 1])
-    goal, blocked, left_m = arrays.goal, False, 0.0
+    goal, blocked, left_m, limits = arrays.goal, False, 0.0, arrays.limits
     if field is not None:  # the room: follow the field's descent from the fitted pose
         way, blocked, left_m = follow_field_reference(field, fit.pose)
         goal = GoalPath(tuple(Pose2(*w) for w in way), synced=True)
-    adv = advance_fn(fit.pose, goal, dt_s, arrays.limits, template, arrays.envelopes,
+        # the carrot at least STEP_LOOKAHEAD_PER_REACH times the shape's reach ahead (vs_step.h)
+        ahead = STEP_LOOKAHEAD_PER_REACH * math.sqrt(float(np.max(template[:, 0] * template[:, 0]
+                                                                  + template[:, 1] * template[:, 1])))
+        if ahead > limits.path_lookahead_m:
+            limits = replace(limits, path_lookahead_m=ahead)
+    adv = advance_fn(fit.pose, goal, dt_s, limits, template, arrays.envelopes,
                      elapsed_s=elapsed_s, headings_rad=np.where(used, pose_world[:, 2], np.nan),
                      deviations_m=np.where(used, dist, np.nan))
     judges = used & ~judged_apart

@@ -120,6 +120,7 @@ int vs_structure_step(const vs_mission *m, const double *pose_world, const unsig
     double pose_fit[3] = {fit.x, fit.y, fit.th};
     int blocked = 0;
     double left_m = 0.0;
+    vs_limits limits = m->limits;
     double plan[3 * VS_STEP_PATH_CAP];
     if (field != NULL && goal.kind != VS_GOAL_TWIST && goal.n_poses > 0) {
         size_t n_way = 0;
@@ -128,8 +129,15 @@ int vs_structure_step(const vs_mission *m, const double *pose_world, const unsig
         goal.kind = VS_GOAL_PLAN;   /* turn in step with the move: keep to the plan in SE(2) */
         goal.poses = plan;
         goal.n_poses = n_way;
+        double reach2 = 0.0;
+        for (size_t i = 0; i < n; i++) {
+            double r2 = tpl[2 * i] * tpl[2 * i] + tpl[2 * i + 1] * tpl[2 * i + 1];
+            if (r2 > reach2) reach2 = r2;
+        }
+        double ahead = VS_STEP_LOOKAHEAD_PER_REACH * sqrt(reach2);
+        if (ahead > limits.path_lookahead_m) limits.path_lookahead_m = ahead;
     }
-    rc = vs_advance(pose_fit, &goal, dt_s, &m->limits, tpl, m->wheel_base_m,
+    rc = vs_advance(pose_fit, &goal, dt_s, &limits, tpl, m->wheel_base_m,
                     m->wheel_speed_max_m_s, m->wheel_accel_max_m_s2, n, NULL, &elapsed_s, head, devs, &adv);
     if (rc != VS_OK) goto done;
     if (n_judges >= 2 && n_judges < n_used) {   /* a rigid fit needs two points to fix the heading */
