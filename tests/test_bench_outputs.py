@@ -21,6 +21,7 @@ WRITERS = {"bench.faults": DOCS / "img", "bench.precision": DOCS / "img", "bench
 # benches that write only where they are told
 WHERE_TOLD = {
     "bench.report": "run_all's plots and sections, into the directory run_all was given",
+    "bench.slowed": "every run as JSON lines, only with --jsonl PATH",
 }
 WRITES = re.compile(r"savefig\(|\.write_(text|bytes)\(|json\.dump\(|open\([^)]*[\"'][wa]")
 

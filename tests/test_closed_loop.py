@@ -229,6 +229,43 @@ def test_a_robot_slowed_to_half_stays_within_1_cm_is_not_flagged_and_after_recov
     assert run.t_goal_s is not None
 
 
+# issue 30: an independent fleet (these conditions) measured a robot slowed to 50% bending the structure by
+# 1.05 cm. Over seeds 1-40, each robot slowed for good at 3, 8, 13 and 18 s, the worst four were 1.03, 1.00,
+# 0.98 and 0.98 cm (below), before the wheel-gain estimator adapted faster for a robot off its point
+# (vsfleet.control.Precision, gain_boost_*): the gain estimate caught up too slowly. (seed, robot slowed, at [s],
+# for [s]; 0 = for good.) Not yet within 1 cm: a robot slowed for 8 s that comes back to speed while its gains
+# are estimated at half (up to 1.25 cm, was 1.31 cm; docs/benchmarks.md, faults).
+SLOWED_WORST = [(5, "r3", 3.0, 0.0), (6, "r3", 3.0, 0.0), (25, "r1", 8.0, 0.0), (32, "r3", 18.0, 0.0)]
+
+
+def faulted_run(seed, robot, at_s, kind, factor, for_s, seconds):
+    """The issue's conditions for ``seed``, ``robot`` faulted at at_s; (formation error, times) from the fault on."""
+    from bench.conditions import issue_scenario
+    from bench.faults import formation_errors
+
+    sc = issue_scenario(seed)
+    sc = dataclasses.replace(sc, faults=(FaultEvent(robot, at_s, kind, factor, for_s),))
+    run = run_offline(sc, seconds, seed=seed, stop_at_goal=False)
+    err, ts = formation_errors(run, sc.mission), np.array([t for t, _ in run.trace])
+    return err[ts >= at_s], run
+
+
+@pytest.mark.parametrize("seed, robot, at_s, for_s", SLOWED_WORST)
+def test_a_robot_slowed_to_half_bends_the_structure_by_at_most_1_cm_on_the_worst_seeds_found(seed, robot, at_s, for_s):
+    # to 4 s after the slowing, or after the robot is back to speed (the worst comes within 0.7 s of either)
+    err, run = faulted_run(seed, robot, at_s, "slow", 0.5, for_s, at_s + for_s + 4.0)
+    print(f"seed {seed}, {robot} slowed at {at_s} s for {for_s or 'good'}: worst {100 * err.max():.3f} cm")
+    assert err.max() <= 0.010
+    assert all(v == [] for v in run.decisions.values())             # nobody flagged
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_stopped_robot_under_hold_bends_the_structure_by_at_most_1_5_cm(seed):
+    err, run = faulted_run(seed, "r2", 8.0, "stop", 0.0, 0.0, 16.0)   # the worst comes within 1 s
+    print(f"seed {seed}, r2 stopped at 8 s: worst {100 * err.max():.3f} cm")
+    assert err.max() <= 0.015
+
+
 @pytest.mark.parametrize("mode", ["drop", "rejoin"])
 def test_a_stopped_robot_is_dropped_by_every_agent_on_the_same_frame_though_the_structure_waited_for_it(mode):
     sc, run = issue_run(3, fault=("stop", 0.0, 0.0), mode=mode, seconds=14.0, stop_at_goal=False)

@@ -95,7 +95,8 @@ static const member precision[] = {
     MEMBER(vs_precision_gains, turn_gain_ratio), MEMBER(vs_precision_gains, reverse_cos_ratio),
     MEMBER(vs_precision_gains, gain_rate_ratio), MEMBER(vs_precision_gains, gain_min_ratio),
     MEMBER(vs_precision_gains, gain_max_ratio), MEMBER(vs_precision_gains, moving_speed_m_s),
-    MEMBER(vs_precision_gains, travel_floor_m),
+    MEMBER(vs_precision_gains, travel_floor_m), MEMBER(vs_precision_gains, gain_boost_from_m),
+    MEMBER(vs_precision_gains, gain_boost_per_m), MEMBER(vs_precision_gains, gain_boost_max_ratio),
 };
 static const member tracking[] = {
     MEMBER(vs_tracking_gains, along_gain_per_s), MEMBER(vs_tracking_gains, lateral_gain_per_m2),

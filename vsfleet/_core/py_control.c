@@ -170,7 +170,7 @@ const char *const vs_py_precision_state_args[VS_PY_PRECISION_STATES] = {
 #define INPUT_SIG "pose, now, next, prev, dt_s, age_s, wheel_base, speed_max, accel_max, active"
 static const char *const CONTROL_ERR = "control input: every array must be finite, dt_s > 0 and age_s >= 0";
 
-/* control_precision(gains (13,), state: pose, gains, history, target, feed, turn, direction, ready,
+/* control_precision(gains (16,), state: pose, gains, history, target, feed, turn, direction, ready,
  *                   <the 10 input arguments>, out state: the same 8, wheels_out) */
 static PyObject *py_control_precision(PyObject *m, PyObject *const *args, Py_ssize_t nargs)
 {
@@ -182,9 +182,10 @@ static PyObject *py_control_precision(PyObject *m, PyObject *const *args, Py_ssi
     double *wheels = dbl(&b, args[WHEELS], -1, 1, "wheels_out");
     if (wheels == NULL) return NULL;
     Py_ssize_t n = b.v[0].len / 16;
-    const double *gv = dbl(&b, args[0], 13, 0, "gains");
+    const double *gv = dbl(&b, args[0], 16, 0, "gains");
     if (gv == NULL) goto fail;
-    vs_precision_gains g = {gv[0], gv[1], gv[2], gv[3], gv[4], gv[5], gv[6], gv[7], gv[8], gv[9], gv[10], gv[11], gv[12]};
+    vs_precision_gains g = {gv[0], gv[1], gv[2], gv[3], gv[4], gv[5], gv[6], gv[7], gv[8], gv[9], gv[10], gv[11], gv[12],
+                            gv[13], gv[14], gv[15]};
     vs_precision_state st, out;
     PyObject *const *s = args + STATE, *const *o = args + OUT;
     const char *const *names = vs_py_precision_state_args;
@@ -286,7 +287,7 @@ PyMethodDef vs_py_control_methods[] = {
     {"limit_wheels", FC(py_limit_wheels),
      "limit_wheels(u (n,2), prev (n,2), dt_s, speed_max (n,), accel_max (n,), out (n,2)): the envelope."},
     {"control_precision", FC(py_control_precision),
-     "control_precision(gains (13,), 8 state arrays, " INPUT_SIG ", 8 out state arrays, wheels_out (n,2))."},
+     "control_precision(gains (16,), 8 state arrays, " INPUT_SIG ", 8 out state arrays, wheels_out (n,2))."},
     {"control_turn_then_go", FC(py_control_turn_then_go), "control_turn_then_go(gains (5,), " INPUT_SIG ", wheels_out)."},
     {"control_arc", FC(py_control_arc), "control_arc(horizon_s, " INPUT_SIG ", wheels_out)."},
     {"control_tracking", FC(py_control_tracking), "control_tracking(gains (6,), " INPUT_SIG ", wheels_out)."},

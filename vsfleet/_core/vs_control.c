@@ -88,11 +88,11 @@ int vs_control_precision(const vs_precision_gains *g, const vs_precision_state *
 {
     int rc = check_input(in);
     if (rc != VS_OK) return rc;
-    const double gv[13] = {g->position_gain_per_s, g->offset_m, g->pose_gain_ratio, g->heading_gain_ratio,
+    const double gv[16] = {g->position_gain_per_s, g->offset_m, g->pose_gain_ratio, g->heading_gain_ratio,
                            g->target_gain_ratio, g->feed_gain_ratio, g->turn_gain_ratio, g->reverse_cos_ratio,
                            g->gain_rate_ratio, g->gain_min_ratio, g->gain_max_ratio, g->moving_speed_m_s,
-                           g->travel_floor_m};
-    if (!vs_all_finite(gv, 13)) return VS_ENONFINITE;
+                           g->travel_floor_m, g->gain_boost_from_m, g->gain_boost_per_m, g->gain_boost_max_ratio};
+    if (!vs_all_finite(gv, 16)) return VS_ENONFINITE;
     size_t n = in->n;
     if (!vs_all_finite(state->pose_world, 3 * n) || !vs_all_finite(state->gains, 2 * n)
         || !vs_all_finite(state->history_m_s, 2 * H * n) || !vs_all_finite(state->target_world, 2 * n)
@@ -152,9 +152,16 @@ int vs_control_precision(const vs_precision_gains *g, const vs_precision_state *
         vs_sincos(pred[2], &s, &c);
         double along = c * nx + s * ny;
         double d_wheel[2] = {along - 0.5 * base * nth, along + 0.5 * base * nth};
+        /* a robot measurably off its point (a wheel-gain change shows there first, e.g. a robot slowed or
+         * back to speed) adapts its gains faster: the rate times 1 + min(max, per_m (distance - from)) */
+        const double *pn = in->point_now_world + 2 * i;
+        double ox = z[0] - pn[0], oy = z[1] - pn[1];
+        double off = sqrt(ox * ox + oy * oy);
+        double boost = 1.0 + mind(g->gain_boost_max_ratio, g->gain_boost_per_m * maxd(off - g->gain_boost_from_m, 0.0));
         double gn[2], est[3];
         for (int k = 0; k < 2; k++) {
-            double x = sg[k] + g->gain_rate_ratio * d_wheel[k] * travel[k] / (travel[k] * travel[k] + floor2) * sg[k];
+            double x = sg[k] + g->gain_rate_ratio * boost * d_wheel[k] * travel[k] / (travel[k] * travel[k] + floor2)
+                       * sg[k];
             gn[k] = mind(maxd(x, g->gain_min_ratio), g->gain_max_ratio);
         }
         est[0] = pred[0] + g->pose_gain_ratio * nx;

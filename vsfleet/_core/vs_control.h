@@ -52,6 +52,9 @@ typedef struct {
     double gain_max_ratio;
     double moving_speed_m_s;      /* [m/s] below which the point counts as resting */
     double travel_floor_m;        /* [m] regulariser of the estimator */
+    double gain_boost_from_m;     /* [m] a robot farther than this from its point adapts its gains faster: */
+    double gain_boost_per_m;      /* [1/m] rate x (1 + min(max_ratio, per_m (distance - from_m))), >= 0 */
+    double gain_boost_max_ratio;  /* the most extra rate, >= 0 */
 } vs_precision_gains;
 
 #define VS_PRECISION_HISTORY 5   /* commands kept besides the last one sent */
