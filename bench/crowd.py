@@ -27,7 +27,7 @@ import time
 import numpy as np
 
 from vsfleet.scenario import scenario_from_dict
-from simfleet.offline import run_offline
+from vsfleet.simfleet.offline import run_offline
 
 from .room import min_gaps_m
 
