@@ -405,10 +405,12 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
         envelopes=arrays.envelopes, active=active))
     wheels = np.where(active[:, None], wheels, 0.0)
     filtered = False
+    held = None      # the robots whose command the safety filter cut: on their way (the failure rule)
     if arrays.room:  # bodies or obstacles: every robot's command through the fleet-wide safety filter
         nominal = wheels
         wheels = _safe_wheels(arrays, pose, seen, active, wheels, wheels_prev, config)
-        filtered = bool(np.any(wheels != nominal))
+        held = np.any(wheels != nominal, axis=1)
+        filtered = bool(np.any(held))
     vl, vr = float(wheels[own, 0]), float(wheels[own, 1])
     cmd = CmdMsg(t=frame.t, seq=frame.seq, vl=vl, vr=vr, ttl=config.ttl_s)
     state_msg = None
@@ -427,7 +429,7 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
     failure, decisions = config.impl.failure_step(policy, failure, arrays.ids, frame.t, seen=seen, fresh=fresh,
                                                   xy_world=pose_seen[:, :2],
                                                   deviations_m=s.deviations_m, expected_step_m=expected,
-                                                  step_s=config.dt_s, max_gap_s=config.ttl_s)
+                                                  step_s=config.dt_s, max_gap_s=config.ttl_s, held=held)
     health = _health(failure, arrays.ids)
     health_msg = HealthMsg(t=frame.t, seq=frame.seq, mission=mission.version, failed=tuple(sorted(health.failed)),
                            dropped=tuple(sorted(health.dropped)), since=tuple(sorted(health.since_t.items())))
