@@ -11,7 +11,8 @@ failure rule on_failure = hold with its default thresholds.
 Per seed: t_assembled_s, the first frame at which every robot is within ASSEMBLED_M of its point on the
 structure fitted to the true positions (None: not within duration_s); the smallest gap between two bodies
 over the run and the frames in which two bodies overlap (contacts); the failure decisions (robot, t, kind)
-of agent r01 (every agent decides the same); the largest deviation at the end.
+of agent r01 (every agent decides the same); the largest deviation at the end and how many robots are
+within ASSEMBLED_M of their points then.
 
     PYTHONPATH=. .venv/bin/python -m bench.crowd --n 10 --seeds 1,2,3 --duration 60
 """
@@ -85,7 +86,8 @@ def measure(n: int, seed: int, duration_s: float, goal=GOAL) -> dict:
     still = sorted(set(r for r, _, k in decisions if k == "fail") - set(r for r, _, k in decisions if k == "recover"))
     return {"n": n, "seed": seed, "duration_s": duration_s,
             "t_assembled_s": round(float((within[0] + 1) * dt_s), 2) if within.size else None,
-            "final_worst_m": round(float(worst[-1]), 4), "min_gap_m": round(gap_m, 4),
+            "final_worst_m": round(float(worst[-1]), 4),
+            "placed_at_end": int((run.deviations_m[-1] < ASSEMBLED_M).sum()), "min_gap_m": round(gap_m, 4),
             "contact_frames": contact_frames,
             "fails": sum(1 for _, _, k in decisions if k == "fail"),
             "first_fail_s": min((t for _, t, k in decisions if k == "fail"), default=None),
@@ -106,7 +108,7 @@ def main(argv=None) -> int:
             print(json.dumps(rec), flush=True)
         else:
             print(f"n={rec['n']} seed={seed}: assembled {rec['t_assembled_s']} s, end worst {rec['final_worst_m']} m, "
-                  f"min gap {rec['min_gap_m']} m, contact frames {rec['contact_frames']}, fails {rec['fails']} "
+                  f"placed at the end {rec['placed_at_end']}/{rec['n']}, min gap {rec['min_gap_m']} m, contact frames {rec['contact_frames']}, fails {rec['fails']} "
                   f"(first {rec['first_fail_s']} s, failed at end {len(rec['failed_at_end'])}), "
                   f"wall {rec['wall_s']} s", flush=True)
     return 0
