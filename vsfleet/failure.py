@@ -24,19 +24,22 @@ same frame. The rule is:
   - it approaches its point: over a window spanning at least 80% of
     ``fail_after_s`` (the progress test's), its deviation shrank by more than
     ``min_approach_m`` (from the window's oldest frame to this one); or
-  - it is held back: the fleet-wide safety filter cut its command in this frame
-    (``vsfleet.step`` passes ``held``; every agent runs the same filter on the same
-    frame, so all of them agree). A robot waiting its turn in a crowd does what
-    it is told, which is to wait.
+  - it is held back: the fleet-wide safety filter cut its command in this frame,
+    or the assembly tie-break sent it round another robot
+    (``vsfleet.step.assembly_targets``); ``vsfleet.step`` passes ``held``, and every
+    agent runs the same filter and tie-break on the same frame, so all of them
+    agree. A robot waiting its turn in a crowd does what it is told, which is to
+    wait.
   A halted robot, or one with a dead wheel, still fails the progress test when its
   command would move it (within ``fail_after_s``, held or not); a
   robot still and off its point that nothing holds still fails the deviation
   test; an unseen robot is never on its way. A deadlock (robots held against
   each other for good) is then no failure: the stall watch reports it
   (``vsfleet.step.stall_state``). Measured (bench/crowd.py, 10 robots packed 2 cm
-  apart in a shuffled order, seeds 1-6, 60 s, 2026-12-04): fail decisions
-  7-11 per run (seeds 2-6; 2 robots still failed at the end) before; 0-2, all
-  recovered within 3 s, after.
+  apart in a shuffled order, seeds 1-6, 60 s, 2026-12-04, shared 2-core host):
+  fail decisions 7-11 per run (seeds 2-6; 2 robots still failed at the end)
+  before; 0-2, all recovered within 3 s, after; with the tie-break as well
+  (seeds 1-12, 90 s), 0-1 per run, none standing at the end.
 - A robot that has been non-compliant in every frame for ``fail_after_s`` of
   tracker time (measured from the first such frame) has **failed**. A frame in
   which the robot is missing counts as non-compliant.
