@@ -529,11 +529,12 @@ def assembly_targets(radii_m: np.ndarray, pose_world: np.ndarray, seen: np.ndarr
     robot barred by one that does not bar it passes it on the side it is already on (on the right when dead
     ahead). Passing j means heading for the waypoint c = width + DETOUR_CLEAR_M to that side of the line from
     i to j and c short of j along it: never towards j while they touch, and round j as i goes. Every
-    agent computes the same targets from the same frame (a pure function of it)."""
+    agent computes the same targets from the same frame (a pure function of it, in + - * / and sqrt, which
+    IEEE 754 rounds alike everywhere: no libm function whose last bit could differ between hosts)."""
     n = len(pose_world)
     xy = pose_world[:, :2]
     to = points_now - xy
-    dist = np.hypot(to[:, 0], to[:, 1])
+    dist = np.sqrt(to[:, 0] * to[:, 0] + to[:, 1] * to[:, 1])   # + * / sqrt only: the same bits on every platform
     on_way = seen & (dist > ASSEMBLING_M)
     detoured = np.zeros(n, dtype=bool)
     if n < 2 or not on_way.any():
@@ -554,7 +555,7 @@ def assembly_targets(radii_m: np.ndarray, pose_world: np.ndarray, seen: np.ndarr
         if mutual and j > i:
             continue                         # head on, and i has the lower row: i keeps its way
         left = 1.0 if (not mutual and lateral[i, j] < 0.0) else -1.0     # j on i's right: pass on its left
-        gap = math.hypot(rel[i, j, 0], rel[i, j, 1])
+        gap = math.sqrt(rel[i, j, 0] * rel[i, j, 0] + rel[i, j, 1] * rel[i, j, 1])
         u = rel[i, j] / gap                                              # towards j
         normal = np.array([-u[1], u[0]]) * left
         clear = width[i, j] + DETOUR_CLEAR_M      # round j: as far beside the line to j, and that much short of j
