@@ -18,6 +18,28 @@ same frame. The rule is:
     this test. It fails it even when the structure has stopped for it, which the
     deviation test cannot see under ``linf``, where the residuals even out. A
     robot slowed to 50% passes.
+- **The assembly phase** (issue 28): a robot on its way to its point is not a
+  failed robot, so the deviation test does not judge a seen robot that is on its
+  way in the frame (the progress test still does). On its way means either:
+  - it approaches its point: over a window spanning at least 80% of
+    ``fail_after_s`` (the progress test's), its deviation shrank by more than
+    ``min_approach_m`` (from the window's oldest frame to this one); or
+  - it is held back: the fleet-wide safety filter cut its command in this frame,
+    or the assembly tie-break sent it round another robot
+    (``vsfleet.step.assembly_targets``); ``vsfleet.step`` passes ``held``, and every
+    agent runs the same filter and tie-break on the same frame, so all of them
+    agree. A robot waiting its turn in a crowd does what it is told, which is to
+    wait.
+  A halted robot, or one with a dead wheel, still fails the progress test when its
+  command would move it (within ``fail_after_s``, held or not); a
+  robot still and off its point that nothing holds still fails the deviation
+  test; an unseen robot is never on its way. A deadlock (robots held against
+  each other for good) is then no failure: the stall watch reports it
+  (``vsfleet.step.stall_state``). Measured (bench/crowd.py, 10 robots packed 2 cm
+  apart in a shuffled order, seeds 1-6, 60 s, 2026-12-04, shared 2-core host):
+  fail decisions 7-11 per run (seeds 2-6; 2 robots still failed at the end)
+  before; 0-2, all recovered within 3 s, after; with the tie-break as well
+  (seeds 1-12, 90 s), 0-1 per run, none standing at the end.
 - A robot that has been non-compliant in every frame for ``fail_after_s`` of
   tracker time (measured from the first such frame) has **failed**. A frame in
   which the robot is missing counts as non-compliant.
@@ -65,9 +87,11 @@ class Motion:
 
 def update_motion(policy: FailurePolicy, motion: Motion, poses: Mapping[str, tuple[float, float, float]],
                   expected_next_m: Mapping[str, tuple[float, float]], t: float,
-                  step_s: float | None = None, max_gap_s: float = math.inf
-                  ) -> tuple[Motion, dict[str, float]]:
-    """Record this frame's observed motion; return each robot's progress ratio where known.
+                  step_s: float | None = None, max_gap_s: float = math.inf,
+                  deviations_m: Mapping[str, float] | None = None
+                  ) -> tuple[Motion, dict[str, float], set[str]]:
+    """Record this frame's observed motion; return each robot's progress ratio where known, and the
+    robots that approach their points (the assembly phase).
 
     poses: robot -> (x, y, th) [m, rad] in this frame; expected_next_m: robot -> the
     displacement [m; world] its predicted command should produce by the next frame.
@@ -80,8 +104,13 @@ def update_motion(policy: FailurePolicy, motion: Motion, poses: Mapping[str, tup
     the time that actually passed to the next frame, capped at max_gap_s (a command's
     ttl: after it the robot halts). An agent that missed a frame then sums nearly the
     same expectation as one that saw it, so their decisions fall on the same frame.
+
+    deviations_m: each robot's deviation [m] in this frame, kept with its window item; a robot
+    approaches when, over a window spanning 80% of fail_after_s, its deviation shrank by more than
+    min_approach_m (from the window's oldest item to this frame).
     """
-    last, window, ratios = dict(motion.last), dict(motion.window), {}
+    deviations_m = deviations_m or {}
+    last, window, ratios, approaching = dict(motion.last), dict(motion.window), {}, set()
     for r, (x, y, _th) in poses.items():
         if r in last:
             t0, x0, y0, ex, ey = last[r]
@@ -89,30 +118,38 @@ def update_motion(policy: FailurePolicy, motion: Motion, poses: Mapping[str, tup
                 scale = min(t - t0, max_gap_s) / step_s
                 ex, ey = ex * scale, ey * scale
             w = tuple(item for item in window.get(r, ()) if item[0] > t - policy.fail_after_s)
-            w += ((t, ex, ey, x - x0, y - y0),)
+            d = deviations_m.get(r, math.inf)
+            w += ((t, ex, ey, x - x0, y - y0, d),)
             window[r] = w
             sx = math.fsum(item[1] for item in w)
             sy = math.fsum(item[2] for item in w)
             e2 = sx * sx + sy * sy
-            if t - w[0][0] >= FAILURE_SETTLED_RATIO * policy.fail_after_s and e2 >= policy.min_expected_m ** 2:
+            settled = t - w[0][0] >= FAILURE_SETTLED_RATIO * policy.fail_after_s
+            if settled and math.isfinite(d) and w[0][5] - d > policy.min_approach_m:
+                approaching.add(r)
+            if settled and e2 >= policy.min_expected_m ** 2:
                 ox = math.fsum(item[3] for item in w)
                 oy = math.fsum(item[4] for item in w)
                 ratios[r] = (ox * sx + oy * sy) / e2
         ex, ey = expected_next_m.get(r, (0.0, 0.0))
         last[r] = (t, x, y, ex, ey)
-    return Motion(last, window), ratios
+    return Motion(last, window), ratios, approaching
 
 
 def update_health(policy: FailurePolicy, health: Health, deviations_m: Mapping[str, float],
                   robots: tuple[str, ...], t: float,
-                  progress: Mapping[str, float] | None = None) -> tuple[Health, list[Decision]]:
+                  progress: Mapping[str, float] | None = None,
+                  on_way: set[str] | None = None) -> tuple[Health, list[Decision]]:
     """Advance the failure state by one frame at tracker time t [s].
 
     deviations_m: each seen robot's distance [m] to its structure point; robots of
     ``robots`` absent from it were not seen in this frame. progress: each robot's
-    progress ratio from :func:`update_motion`, where known.
+    progress ratio from :func:`update_motion`, where known. on_way: the seen robots in the assembly
+    phase (approaching, from :func:`update_motion`, or held back by the safety filter): the deviation
+    test does not judge them.
     """
     progress = progress or {}
+    on_way = on_way or set()
     since = dict(health.since_t)
     failed, dropped = set(health.failed), set(health.dropped)
     decisions: list[Decision] = []
@@ -134,7 +171,9 @@ def update_health(policy: FailurePolicy, health: Health, deviations_m: Mapping[s
                 since.pop(r, None)
             continue
         stuck = progress.get(r, 1.0) < policy.min_progress_ratio
-        complies = not ((d > policy.fail_deviation_m and not (structure_off and math.isfinite(d))) or stuck)
+        off = (d > policy.fail_deviation_m and not (structure_off and math.isfinite(d))
+               and not (r in on_way and math.isfinite(d)))
+        complies = not (off or stuck)
         if r in failed:  # hold: healthy again once it has complied for recover_after_s
             if not complies:
                 since.pop(r, None)

@@ -14,7 +14,7 @@ from vsfleet.failure import (FailurePolicy, FailureState, Health, failure_step, 
                              restart_timers, with_health)
 
 FIELDS = ("since_t", "failed", "dropped", "last_t", "last_xy", "last_expected", "window_t", "window_nm", "head",
-          "in_window", "sums_nm")
+          "in_window", "sums_nm", "window_dev_m")
 TOL = 1e-9
 # the reference divides 0 by 0 where min_expected_m = 0 lets an all-zero window be judged (a NaN ratio: not stuck)
 pytestmark = pytest.mark.filterwarnings("ignore:invalid value encountered in divide:RuntimeWarning")
@@ -63,7 +63,8 @@ def scenarios(draw):
         rejoin_after_s=draw(st.sampled_from((0.0, 0.3, 1.0)) | st.floats(0.0, 1.0)),
         recover_after_s=draw(st.sampled_from((0.0, 0.5)) | st.floats(0.0, 1.0)),
         min_progress_ratio=draw(st.sampled_from((0.0, 0.3, 1.0)) | st.floats(0.0, 1.0)),
-        min_expected_m=draw(st.sampled_from((0.0, 0.005, 0.02, 0.05)) | st.floats(0.0, 0.1)))
+        min_expected_m=draw(st.sampled_from((0.0, 0.005, 0.02, 0.05)) | st.floats(0.0, 0.1)),
+        min_approach_m=draw(st.sampled_from((0.0, 0.02, 1.0)) | st.floats(0.0, 0.1)))
     return dict(policy=policy, step_s=step_s, n=draw(st.integers(1, 6)), frames=draw(st.integers(50, 300)),
                 seed=draw(st.integers(0, 2 ** 32 - 1)),
                 frame_dt=draw(st.sampled_from((1.0, 0.5, 1.7))),       # < 1: the ring overwrites its oldest
@@ -126,10 +127,13 @@ def test_the_core_keeps_the_same_state_and_decides_the_same_as_the_reference_on_
                                                    if rng.random() < 0.5}, failed=failed, dropped=dropped), robots)
     core = ref = state
     kw = dict(step_s=step_s if sc["scaled"] else None, max_gap_s=sc["max_gap_s"])
+    held_rng = np.random.default_rng(sc["seed"] + 2)   # the safety filter's holds (None: no filter)
+    held_share = held_rng.choice([0.0, 0.1, 0.5])
     for k, (t, seen, fresh, xy, dev, expected) in enumerate(frames_of(sc)):
         if k == sc["frames"] // 2 and sc["seed"] % 5 == 0:
             core, ref = restart_timers(core), restart_timers(ref)
-        core, ref, _ = both(policy, core, ref, robots, t, seen, fresh, xy, dev, expected, **kw)
+        held = (held_rng.random(n) < held_share) if held_share else None
+        core, ref, _ = both(policy, core, ref, robots, t, seen, fresh, xy, dev, expected, held=held, **kw)
 
 
 def test_every_mode_makes_decisions_in_the_random_sequences():
@@ -276,8 +280,11 @@ def test_the_binding_refuses_arrays_of_the_wrong_kind():
     policy = FailurePolicy("hold")
     s = FailureState.initial(1, policy, 0.1)
     args = [policy, 1.0, np.ones(1, bool), np.ones(1, bool), np.zeros((1, 2)), np.zeros(1), np.zeros((1, 2)), 0.1,
-            math.inf] + [getattr(s, f).copy() for f in FIELDS]
+            math.inf] + [getattr(s, f).copy() for f in FIELDS] + [None]
     assert _core.failure_step(*args) == ()
+    assert _core.failure_step(*args[:-1], np.ones(1, bool)) == ()   # held: bool (n) or None
+    with pytest.raises(TypeError):
+        _core.failure_step(*args[:-1], np.ones(1, np.int64))
     bad = list(args)
     bad[2] = np.ones(1, dtype=np.int64)                # seen as int64, not bool
     with pytest.raises(TypeError):

@@ -144,14 +144,17 @@ def test_the_array_form_decides_as_the_per_robot_reference_on_random_frames():
             seen = rng.random(len(robots)) < 0.97
             fresh = seen & (rng.random(len(robots)) < 0.95)
             dev = np.where(rng.random(len(robots)) < 0.05, 0.2, rng.uniform(0, 0.03, len(robots)))
+            held = rng.random(len(robots)) < 0.1       # the safety filter cut these robots' commands
             state, made = failure_step(policy, state, robots, t, seen, fresh, xy, np.where(seen, dev, np.inf),
-                                       expected, dt, 0.3)
+                                       expected, dt, 0.3, held=held)
             mine += [(d.t, d.robot, d.kind) for d in made]
             poses = {r: (xy[i, 0], xy[i, 1], 0.0) for i, r in enumerate(robots) if fresh[i]}
-            motion, ratios = ref.update_motion(policy, motion, poses, {r: tuple(expected[i]) for i, r in
-                                                                      enumerate(robots) if fresh[i]}, t, dt, 0.3)
+            motion, ratios, approaching = ref.update_motion(
+                policy, motion, poses, {r: tuple(expected[i]) for i, r in enumerate(robots) if fresh[i]}, t, dt, 0.3,
+                deviations_m={r: dev[i] for i, r in enumerate(robots) if seen[i]})
             health, made = ref.update_health(policy, health, {r: dev[i] for i, r in enumerate(robots) if seen[i]},
-                                             robots, t, ratios)
+                                             robots, t, ratios,
+                                             on_way=approaching | {r for i, r in enumerate(robots) if held[i]})
             theirs += [(d.t, d.robot, d.kind) for d in made]
         assert mine == theirs and len(mine) > 3, mode
         mine_h = to_health(state, robots)
@@ -201,3 +204,69 @@ def test_under_hold_a_failed_robot_recovers_only_after_complying_for_recover_aft
 def test_recover_after_s_must_be_finite_and_not_negative():
     with pytest.raises(ValueError, match="recover_after_s"):
         FailurePolicy("hold", recover_after_s=-1.0)
+
+
+# ---------------------------------------------------------------- the assembly phase (issue 28, Crowds)
+
+def assembly_run(policy, speed_m_s, commanded_m_s, held=False, seconds=8.0, start_m=0.4):
+    """r1 and r3 on their points; r2 starts start_m from its point (along -x) and moves at speed_m_s
+    [m/s] towards it while its predicted command is commanded_m_s [m/s] (the same direction);
+    held: the safety filter cuts r2's command in every frame. Returns the decisions as (t, robot, kind)."""
+    dt = 1.0 / 30.0
+    state, out, x = FailureState.initial(3, policy, dt), [], -start_m
+    for k in range(int(seconds / dt)):
+        t = 50.0 + k * dt
+        x = min(x + speed_m_s * dt, 0.0)
+        xy = np.array([[1.0, 0.0], [x, 0.5], [2.0, 0.0]])
+        expected = np.array([[0.0, 0.0], [commanded_m_s * dt if x < 0.0 else 0.0, 0.0], [0.0, 0.0]])
+        state, made = failure_step(policy, state, ROBOTS, t, np.ones(3, bool), np.ones(3, bool), xy,
+                                   np.array([0.003, -x, 0.004]), expected, dt, 0.3,
+                                   held=np.array([False, held, False]))
+        out += [(round(d.t - 50.0, 3), d.robot, d.kind) for d in made]
+    return out
+
+
+def test_a_robot_on_its_way_to_its_point_is_not_judged_failed_by_the_deviation_test():
+    # 0.4 m at 0.03 m/s: more than 13 s off by more than fail_deviation_m while the others are on their points
+    assert assembly_run(FailurePolicy("drop"), 0.03, 0.03, seconds=16.0) == []
+
+
+def test_a_robot_held_back_by_the_safety_filter_is_on_its_way():
+    # still, told to stay still (its command cut to zero by the safety filter), 0.4 m off its point
+    assert assembly_run(FailurePolicy("drop"), 0.0, 0.0, held=True) == []
+
+
+def test_a_still_robot_off_its_point_and_not_held_still_fails_by_the_deviation_test():
+    assert [(r, kind) for _, r, kind in assembly_run(FailurePolicy("drop"), 0.0, 0.0)] == [("r2", "fail"),
+                                                                                         ("r2", "drop")]
+
+
+def test_a_robot_that_approaches_too_slowly_to_count_still_fails():
+    # 0.5 cm/s: it shrinks its deviation by 0.8 cm over the 1.6 s a window must span, not more than 2 cm
+    made = assembly_run(FailurePolicy("drop"), 0.005, 0.005)
+    assert [(r, kind) for _, r, kind in made] == [("r2", "fail"), ("r2", "drop")]
+    assert made[0][0] == pytest.approx(2.0, abs=0.05)
+
+
+def test_a_halted_robot_fails_the_progress_test_whether_or_not_it_is_held():
+    # told to move at 0.1 m/s (through the filter or not), it does not move at all
+    for held in (False, True):
+        made = assembly_run(FailurePolicy("drop"), 0.0, 0.1, held=held)
+        assert [(r, kind) for _, r, kind in made] == [("r2", "fail"), ("r2", "drop")], held
+        assert made[0][0] <= 2.0 + 1e-9, held    # held: as soon as the window has settled (1.6 s)
+
+
+def test_a_robot_slowed_to_a_fifth_fails_the_progress_test_though_its_deviation_shrinks():
+    made = assembly_run(FailurePolicy("drop"), 0.02, 0.1)
+    assert [(r, kind) for _, r, kind in made] == [("r2", "fail"), ("r2", "drop")]
+
+
+def test_an_unseen_robot_is_never_on_its_way():
+    policy = FailurePolicy("drop")
+    state, made = FailureState.initial(3, policy, 0.1), []
+    for k in range(40):
+        state, m = failure_step(policy, state, ROBOTS, k * 0.1, np.array([True, False, True]), np.ones(3, bool),
+                                np.zeros((3, 2)), np.array([0.0, np.inf, 0.0]), np.zeros((3, 2)), 0.1, 0.3,
+                                held=np.ones(3, bool))
+        made += [(d.robot, d.kind) for d in m]
+    assert made == [("r2", "fail"), ("r2", "drop")]

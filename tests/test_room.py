@@ -195,3 +195,55 @@ def test_a_wall_gap_the_fleet_passes_raises_no_stall():
     run = run_offline(triangle_in_a_room(thin_wall(0.62)), 45.0, seed=1)
     assert run.t_goal_s is not None
     assert all(not ds for ds in run.decisions.values())
+
+
+# ------------------------------------------------------------------ issue 28: crowded starts (assembly)
+
+def test_a_shuffled_crowd_assembles_without_any_robot_judged_failed_or_two_bodies_touching():
+    """bench/crowd.py's shuffled crowd of 10 (seed 3): packed 2 cm apart, random headings, their points on a 2 x 5
+    grid at 0.3 m in a shuffled order. Robots on their way to their points, or held back by the safety filter,
+    are in the assembly phase: before it, the deviation test judged 9 of them failed at 6.4 s. Robots barred on
+    their way go round (vsfleet.step.assembly_targets): before, two of them stayed locked head on for good."""
+    from bench.crowd import ASSEMBLED_M, crowd_doc
+    from vsfleet.scenario import scenario_from_dict
+
+    scenario = scenario_from_dict(crowd_doc(10, 3, 20.0), name="crowd-10-shuffled")
+    run = run_offline(scenario, 20.0, seed=3, stop_at_goal=False)
+    assert [d for decisions in run.decisions.values() for d in decisions if d.kind == "fail"] == []
+    assert gap_of(scenario, run) > 0.005
+    assert np.any(run.deviations_m.max(axis=1) < ASSEMBLED_M)    # every robot within 1 cm of its point at once
+
+
+def test_of_two_robots_head_on_the_later_id_goes_round_on_its_right_and_the_other_keeps_its_way():
+    from vsfleet.step import assembly_targets
+    radii = np.array([0.05, 0.05])
+    pose = np.array([[0.0, 0.0, 0.0], [0.12, 0.0, math.pi]])     # face to face, 2 cm apart
+    points = np.array([[0.5, 0.0], [-0.4, 0.0]])                  # each one's point behind the other
+    now, nxt, detoured = assembly_targets(radii, pose, np.ones(2, bool), points, points, 0.015)
+    assert detoured.tolist() == [False, True]
+    assert now[0].tolist() == [0.5, 0.0] and np.array_equal(nxt, now)
+    # r2 heads -x: its right is +y; its waypoint does not bring it closer to r1 (they touch within the margin)
+    assert now[1, 1] > 0.1 and now[1, 0] >= 0.12 - 1e-12
+    # the rows, not the poses, decide: swapped, the other robot gives way
+    now_s, _, detoured_s = assembly_targets(radii, pose[::-1], np.ones(2, bool), points[::-1], points[::-1], 0.015)
+    assert detoured_s.tolist() == [False, True]
+
+
+def test_a_robot_barred_by_one_on_its_point_goes_round_it_on_the_side_it_is_on():
+    from vsfleet.step import assembly_targets
+    radii = np.full(2, 0.05)
+    pose = np.array([[0.0, 0.0, 0.0], [0.2, -0.03, 0.0]])          # r2 on its point, a little right of r1's way
+    points = np.array([[0.6, 0.0], [0.2, -0.03]])
+    now, _, detoured = assembly_targets(radii, pose, np.ones(2, bool), points, points, 0.015)
+    assert detoured.tolist() == [True, False]
+    assert now[0, 1] > 0.1                                          # round it on the left, the side r1 is on
+    assert now[1].tolist() == [0.2, -0.03]
+
+
+def test_robots_near_their_points_or_with_a_free_way_keep_their_targets():
+    from vsfleet.step import assembly_targets
+    radii = np.full(3, 0.05)
+    pose = np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0], [1.0, 1.0, 0.0]])
+    points = np.array([[0.02, 0.0], [0.3, 0.3], [1.0, 1.5]])   # near it; a free way; a free way
+    now, nxt, detoured = assembly_targets(radii, pose, np.ones(3, bool), points, points + 0.001, 0.015)
+    assert not detoured.any() and np.array_equal(now, points) and np.array_equal(nxt, points + 0.001)

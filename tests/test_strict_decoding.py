@@ -204,7 +204,7 @@ def test_a_mission_without_thresholds_or_gains_encodes_as_before():
 
 def test_failure_names_are_the_failure_policys_thresholds_and_carry_units():
     assert set(failure_names()) == {"fail_deviation_m", "fail_after_s", "rejoin_deviation_m", "rejoin_after_s",
-                                    "recover_after_s", "min_progress_ratio", "min_expected_m"}
+                                    "recover_after_s", "min_progress_ratio", "min_expected_m", "min_approach_m"}
     assert all(n.endswith(("_m", "_s", "_ratio")) for n in failure_names())
 
 

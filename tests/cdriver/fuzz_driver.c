@@ -7,6 +7,11 @@
  * either refuse (-1) or return outputs; the sanitizers abort on any out-of-bounds access,
  * use of uninitialised memory they can see, overflow or leak.  Deterministic (own PRNG).
  *
+ * Then the failure rule (vs_failure.h) on random states and frames: n robots, W ring slots, a
+ * policy (sometimes hostile), a random state (heads, flags, timers), frames of hostile or
+ * ordinary positions, deviations, expected steps and held flags (or none); each array sits in a
+ * buffer of exactly its size.
+ *
  * Then the frame decoder (vs_wire.h) with hostile bytes: frames written in random msgpack forms,
  * then truncated, bit-flipped, overwritten with header bytes, given huge lengths, spliced, or
  * plain random bytes; each payload sits in a buffer of exactly its size (ASan sees a read past
@@ -22,6 +27,7 @@
 #include "vscore.h"
 #include "vs_golden.h"
 #include "vs_wire.h"
+#include "vs_failure.h"
 
 static uint64_t state = 0x9e3779b97f4a7c15ULL;
 static uint64_t next(void)
@@ -405,6 +411,69 @@ static int fuzz_wire(long iters)
     return 0;
 }
 
+/* a value of an ordinary frame most of the time, a hostile one sometimes */
+static double mostly(double ordinary) { return (next() % 8) ? ordinary : hostile(NULL, 0, NULL, 0); }
+
+static int fuzz_failure(long iters)
+{
+    long ran = 0, refused = 0, decided = 0;
+    for (long it = 0; it < iters; it++) {
+        size_t n = (size_t)(next() % 9), W = (size_t)(next() % 12);
+        vs_failure_policy p = {(int)(next() % 4), mostly(0.05), mostly(0.5 * uniform()), mostly(0.02), mostly(0.3),
+                               mostly(0.2), mostly(0.3), mostly(0.0004), mostly(0.02 * uniform())};
+        double *since = malloc(sizeof(double) * (n + 1)), *last_t = malloc(sizeof(double) * (n + 1));
+        double *last_xy = malloc(sizeof(double) * (2 * n + 1)), *last_exp = malloc(sizeof(double) * (2 * n + 1));
+        double *wt = malloc(sizeof(double) * (n * W + 1)), *wdev = malloc(sizeof(double) * (n * W + 1));
+        int64_t *nm = malloc(sizeof(int64_t) * (4 * n * W + 1)), *head = malloc(sizeof(int64_t) * (n + 1));
+        int64_t *sums = malloc(sizeof(int64_t) * (4 * n + 1));
+        unsigned char *failed = malloc(n + 1), *dropped = malloc(n + 1), *inw = malloc(n * W + 1);
+        unsigned char *seen = malloc(n + 1), *fresh = malloc(n + 1), *held = malloc(n + 1);
+        double *xy = malloc(sizeof(double) * (2 * n + 1)), *dev = malloc(sizeof(double) * (n + 1));
+        double *exp_m = malloc(sizeof(double) * (2 * n + 1));
+        vs_failure_decision *out = malloc(sizeof *out * (2 * n + 1));
+        if (!since || !last_t || !last_xy || !last_exp || !wt || !wdev || !nm || !head || !sums || !failed || !dropped
+            || !inw || !seen || !fresh || !held || !xy || !dev || !exp_m || !out)
+            return 2;
+        for (size_t i = 0; i < n; i++) {
+            since[i] = (next() % 2) ? 0.0 / 0.0 : mostly(uniform());
+            last_t[i] = (next() % 3) ? 0.0 / 0.0 : mostly(uniform());
+            last_xy[2 * i] = mostly(uniform()); last_xy[2 * i + 1] = mostly(uniform());
+            last_exp[2 * i] = mostly(0.003); last_exp[2 * i + 1] = mostly(0.0);
+            head[i] = (next() % 10) ? (int64_t)(next() % 1000) : -(int64_t)(next() % 3);
+            failed[i] = (unsigned char)(next() % 2); dropped[i] = (unsigned char)(next() % 2);
+            for (int k = 0; k < 4; k++) sums[4 * i + k] = (int64_t)(next() % 2000000) - 1000000;
+        }
+        for (size_t j = 0; j < n * W; j++) {
+            wt[j] = (next() % 2) ? 0.0 / 0.0 : mostly(uniform());
+            wdev[j] = mostly(uniform());
+            inw[j] = (unsigned char)(next() % 2);
+            for (int k = 0; k < 4; k++) nm[4 * j + k] = (int64_t)(next() % 200000) - 100000;
+        }
+        vs_failure_state st = {n, W, since, failed, dropped, last_t, last_xy, last_exp, wt, nm, head, inw, sums, wdev};
+        double t = uniform();
+        for (int frame = 0; frame < 40; frame++) {
+            t += (next() % 20) ? 1.0 / 30.0 : mostly(0.1);
+            for (size_t i = 0; i < n; i++) {
+                seen[i] = (unsigned char)(next() % 8 != 0); fresh[i] = (unsigned char)(next() % 6 != 0);
+                held[i] = (unsigned char)(next() % 3 == 0);
+                xy[2 * i] = mostly(0.01 * frame); xy[2 * i + 1] = mostly(0.0);
+                dev[i] = mostly(0.2 * uniform()); exp_m[2 * i] = mostly(0.003); exp_m[2 * i + 1] = mostly(0.0);
+            }
+            vs_failure_input in = {mostly(t), seen, fresh, xy, dev, exp_m, (next() % 4) ? 1.0 / 30.0 : mostly(0.0),
+                                   (next() % 2) ? 0.3 : mostly(1.0 / 0.0), (next() % 3) ? held : NULL};
+            size_t count = 0;
+            int rc = vs_failure_step(&p, &st, &in, out, (next() % 20) ? 2 * n : n, &count);
+            if (rc == VS_OK) { ran++; decided += (long)count; if (count > 2 * n) return 3; } else refused++;
+        }
+        free(since); free(last_t); free(last_xy); free(last_exp); free(wt); free(wdev); free(nm); free(head);
+        free(sums); free(failed); free(dropped); free(inw); free(seen); free(fresh); free(held); free(xy); free(dev);
+        free(exp_m); free(out);
+    }
+    printf("fuzz %-14s %ld calls: %ld ran (%ld decisions), %ld refused\n", "failure_step", iters * 40, ran, decided,
+           refused);
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     long iters = argc > 1 ? atol(argv[1]) : 2000;
@@ -445,5 +514,7 @@ int main(int argc, char **argv)
         printf("fuzz %-14s %ld calls: %ld ran, %ld refused\n", all[e].name, iters, ran, refused);
     }
     free(in); free(out);
+    int rc = fuzz_failure(iters / 4 + 1);
+    if (rc != 0) return rc;
     return fuzz_wire(iters * 5);
 }

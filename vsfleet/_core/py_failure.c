@@ -69,7 +69,8 @@ static int read_policy(PyObject *policy, vs_failure_policy *p)
         || policy_double(policy, "rejoin_deviation_m", &p->rejoin_deviation_m) < 0
         || policy_double(policy, "rejoin_after_s", &p->rejoin_after_s) < 0
         || policy_double(policy, "recover_after_s", &p->recover_after_s) < 0
-        || policy_double(policy, "min_progress_ratio", &p->min_progress_ratio) < 0)
+        || policy_double(policy, "min_progress_ratio", &p->min_progress_ratio) < 0
+        || policy_double(policy, "min_approach_m", &p->min_approach_m) < 0)
         return -1;
     PyObject *m = PyObject_GetAttrString(policy, "min_expected_m");
     if (m == NULL) return -1;
@@ -83,13 +84,14 @@ static int read_policy(PyObject *policy, vs_failure_policy *p)
     return (p->min_expected_m2 == -1.0 && PyErr_Occurred()) ? -1 : 0;
 }
 
-#define N_BUF 16
-#define N_ARGS 20
+#define N_BUF 17
+#define N_ARGS 22
 
 /* failure_step(policy, t, seen, fresh, xy_world, deviations_m, expected_step_m, step_s, max_gap_s,
  *              since_t, failed, dropped, last_t, last_xy, last_expected, window_t, window_nm, head,
- *              in_window, sums_nm) -> tuple of (row, kind code, deviation_m)
- * The state arrays (the last 11) are updated in place; step_s None = not scaled. */
+ *              in_window, sums_nm, window_dev_m, held) -> tuple of (row, kind code, deviation_m)
+ * The state arrays (since_t .. window_dev_m, 12) are updated in place; step_s None = not scaled;
+ * held (n) bool or None (none). */
 static PyObject *py_failure_step(PyObject *mod, PyObject *const *args, Py_ssize_t nargs)
 {
     (void)mod;
@@ -131,20 +133,27 @@ static PyObject *py_failure_step(PyObject *mod, PyObject *const *args, Py_ssize_
         {9, BUF_F64, 1, 1, "since_t"}, {10, BUF_BOOL, 1, 1, "failed"}, {11, BUF_BOOL, 1, 1, "dropped"},
         {12, BUF_F64, 1, 1, "last_t"}, {13, BUF_F64, 2, 1, "last_xy"}, {14, BUF_F64, 2, 1, "last_expected"},
         {15, BUF_F64, -1, 1, "window_t"}, {16, BUF_I64, -4, 1, "window_nm"}, {17, BUF_I64, 1, 1, "head"},
-        {18, BUF_BOOL, -1, 1, "in_window"}, {19, BUF_I64, 4, 1, "sums_nm"},
+        {18, BUF_BOOL, -1, 1, "in_window"}, {19, BUF_I64, 4, 1, "sums_nm"}, {20, BUF_F64, -1, 1, "window_dev_m"},
     };
+    Py_buffer held;
+    int has_held = 0;
     for (; got < N_BUF; got++) {
         Py_ssize_t per = spec[got].per_row < 0 ? -spec[got].per_row * W : spec[got].per_row;
         if (get_buf(args[spec[got].arg], &views[got], spec[got].kind, n * per, spec[got].writable,
                     spec[got].name) < 0)
             goto done;
     }
+    if (args[21] != Py_None) {
+        if (get_buf(args[21], &held, BUF_BOOL, n, 0, "held") < 0) goto done;
+        has_held = 1;
+    }
     vs_failure_state s = {
         (size_t)n, (size_t)W, views[5].buf, views[6].buf, views[7].buf, views[8].buf, views[9].buf,
         views[10].buf, views[11].buf, views[12].buf, views[13].buf, views[14].buf, views[15].buf,
+        views[16].buf,
     };
     vs_failure_input in = {t, views[0].buf, views[1].buf, views[2].buf, views[3].buf, views[4].buf, step_s,
-                           max_gap_s};
+                           max_gap_s, has_held ? held.buf : NULL};
     size_t cap = 2 * (size_t)n, count = 0;
     dec = PyMem_Malloc((cap ? cap : 1) * sizeof *dec);
     if (dec == NULL) { PyErr_NoMemory(); goto done; }
@@ -166,6 +175,7 @@ static PyObject *py_failure_step(PyObject *mod, PyObject *const *args, Py_ssize_
 done:
     PyMem_Free(dec);
     for (int k = 0; k < got; k++) PyBuffer_Release(&views[k]);
+    if (has_held) PyBuffer_Release(&held);
     return result;
 }
 
@@ -173,7 +183,7 @@ PyMethodDef vs_py_failure_methods[] = {
     {"failure_step", (PyCFunction)(void (*)(void))py_failure_step, METH_FASTCALL,
      "failure_step(policy, t, seen, fresh, xy_world, deviations_m, expected_step_m, step_s, max_gap_s, "
      "since_t, failed, dropped, last_t, last_xy, last_expected, window_t, window_nm, head, in_window, "
-     "sums_nm) -> ((row, kind code, deviation_m), ...): one frame of the failure rule (vs_failure.h); the "
-     "eleven state arrays are updated in place. Kind codes in vsfleet.wire.EVENT_KINDS order."},
+     "sums_nm, window_dev_m, held) -> ((row, kind code, deviation_m), ...): one frame of the failure rule "
+     "(vs_failure.h); the twelve state arrays are updated in place (held: bool (n) or None). Kind codes in vsfleet.wire.EVENT_KINDS order."},
     {NULL, NULL, 0, NULL},
 };

@@ -54,9 +54,9 @@ static int validate(const vs_failure_policy *p, const vs_failure_state *s, const
     if (p == NULL || s == NULL || in == NULL) return VS_EVALUE;
     if (p->mode != VS_FAILURE_HOLD && p->mode != VS_FAILURE_DROP && p->mode != VS_FAILURE_REJOIN)
         return VS_EVALUE;
-    const double th[7] = {p->fail_deviation_m, p->fail_after_s, p->rejoin_deviation_m, p->rejoin_after_s,
-                          p->recover_after_s, p->min_progress_ratio, p->min_expected_m2};
-    for (int k = 0; k < 7; k++)
+    const double th[8] = {p->fail_deviation_m, p->fail_after_s, p->rejoin_deviation_m, p->rejoin_after_s,
+                          p->recover_after_s, p->min_progress_ratio, p->min_expected_m2, p->min_approach_m};
+    for (int k = 0; k < 8; k++)
         if ((rc = check_threshold(th[k])) != VS_OK) return rc;
     if (s->slots < 1) return VS_EVALUE;
     if (!vs_isfinite(in->t) || !vs_isfinite(in->step_s) || vs_isnan(in->max_gap_s)) return VS_ENONFINITE;
@@ -88,15 +88,18 @@ static int validate(const vs_failure_policy *p, const vs_failure_state *s, const
     return VS_OK;
 }
 
-/* The motion test of row i (fresh & seen): updates its window and returns whether it is stuck. */
+/* The motion test of row i (fresh & seen): updates its window and returns whether it is stuck;
+ * *approach: its deviation (dev, this frame's) shrank by more than min_approach_m over a settled
+ * window, from the oldest item's frame (the first slot of the earliest time, as numpy's argmin). */
 static int motion_step(const vs_failure_policy *p, vs_failure_state *s, const vs_failure_input *in, size_t i,
-                       int fresh)
+                       int fresh, double dev, int *approach)
 {
     const size_t W = s->slots;
     double *wt = s->window_t + i * W;
     int64_t *nm = s->window_nm + i * W * 4;
     unsigned char *inw = s->in_window + i * W;
     int64_t *sums = s->sums_nm + i * 4;
+    double *wdev = s->window_dev_m + i * W;
     const double t = in->t;
     const double expire_before = t - p->fail_after_s;
     const int had = fresh && vs_isfinite(s->last_t[i]);
@@ -114,10 +117,12 @@ static int motion_step(const vs_failure_policy *p, vs_failure_state *s, const vs
         }
     }
     int stuck = 0;
+    *approach = 0;
     if (had) {
         double item[4];
         motion_item(s, in, i, item);
         wt[at] = t;
+        wdev[at] = dev;
         for (int k = 0; k < 4; k++) {
             int64_t q = (int64_t)rint_even(item[k] * VS_FAILURE_NM_PER_M);
             nm[4 * at + k] = q;
@@ -129,10 +134,17 @@ static int motion_step(const vs_failure_policy *p, vs_failure_state *s, const vs
         double sx = (double)sums[0] / VS_FAILURE_NM_PER_M, sy = (double)sums[1] / VS_FAILURE_NM_PER_M;
         double ox = (double)sums[2] / VS_FAILURE_NM_PER_M, oy = (double)sums[3] / VS_FAILURE_NM_PER_M;
         double e2 = sx * sx + sy * sy;
-        int known = (t - first_t >= VS_FAILURE_SETTLED_RATIO * p->fail_after_s) && (e2 >= p->min_expected_m2);
+        const int settled = t - first_t >= VS_FAILURE_SETTLED_RATIO * p->fail_after_s;
+        int known = settled && (e2 >= p->min_expected_m2);
         if (known && e2 != 0.0) {                  /* e2 == 0: the ratio is not finite */
             double ratio = (ox * sx + oy * sy) / e2;
             stuck = vs_isfinite(ratio) && ratio < p->min_progress_ratio;
+        }
+        if (settled && vs_isfinite(dev)) {
+            size_t first = W;                      /* the first slot of the earliest time in the window */
+            for (size_t j = 0; j < W; j++)
+                if (inw[j] && (first == W || wt[j] < wt[first])) first = j;
+            *approach = wdev[first] - dev > p->min_approach_m;
         }
     }
     if (fresh) {
@@ -169,9 +181,14 @@ int vs_failure_step(const vs_failure_policy *policy, vs_failure_state *state, co
     size_t m = 0;
     for (size_t i = 0; i < n; i++) {
         const int seen = in->seen[i] != 0;
-        const int stuck = motion_step(p, s, in, i, seen && in->fresh[i]);
         const double dev = seen ? in->deviations_m[i] : inf;
-        const int off = dev > p->fail_deviation_m && !(structure_off && vs_isfinite(dev));
+        int approach;
+        const int stuck = motion_step(p, s, in, i, seen && in->fresh[i], dev, &approach);
+        /* the assembly phase: a seen robot that approaches its point, or that the safety filter holds
+         * back, is on its way: the deviation test does not judge it (the progress test still does) */
+        const int held = seen && in->held != NULL && in->held[i];
+        const int on_way = vs_isfinite(dev) && (approach || held);
+        const int off = dev > p->fail_deviation_m && !(structure_off && vs_isfinite(dev)) && !on_way;
         const int complies = !(off || stuck);
         double since = s->since_t[i];
         int back = 0, recover = 0, fail = 0;

@@ -56,6 +56,8 @@ typedef struct {
                                    length reaches this: min_expected_m squared, computed as the
                                    reference does (Python's min_expected_m ** 2, i.e. libm pow,
                                    which is not always min_expected_m * min_expected_m) */
+    double min_approach_m;      /* [m] the assembly phase: a robot whose deviation shrank by more than this
+                                   over a settled window is on its way (the deviation test spares it) */
 } vs_failure_policy;
 
 /* vsfleet.failure.FailureState over n robots and W ring slots per robot (W >= 1), updated in
@@ -74,6 +76,7 @@ typedef struct {
     int64_t *head;              /* (n) the next slot to write is head % W; >= 0 */
     unsigned char *in_window;   /* (n, W) bool: the item counts in sums_nm */
     int64_t *sums_nm;           /* (n, 4) [nm] the sum of the items in the window */
+    double *window_dev_m;       /* (n, W) [m] the robot's deviation in each item's frame */
 } vs_failure_state;
 
 /* One frame's inputs. */
@@ -91,6 +94,8 @@ typedef struct {
     double step_s;                    /* [s] > 0: a missed robot's expected step is scaled to the
                                          time that passed; 0: not scaled (Python: None) */
     double max_gap_s;                 /* [s] >= 0, +inf allowed: the cap on that time */
+    const unsigned char *held;        /* (n) bool or NULL (none): the safety filter cut the robot's
+                                         command in this frame (the assembly phase) */
 } vs_failure_input;
 
 /* A change of a robot's status at frame time t. */
