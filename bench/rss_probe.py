@@ -7,7 +7,8 @@ tracker-like publisher (30 Hz, one key; the fleet's steady traffic). Then one in
 
 - none:  nothing more (the baseline: steady traffic only);
 - kill:  a child process opens a client session as an agent does (liveliness token vs/probe/alive/<n>,
-         a subscriber, a queryable, a few puts) and is SIGKILLed 1 s later (the soak's agent kill);
+         a subscriber, a queryable, a few puts; --decl chooses which) and is SIGKILLed 1 s later (the soak's
+         agent kill);
 - close: the same child, closing its session cleanly instead (SIGTERM, handled);
 - fuzz:  `vsfleet fuzz --fleet probe --duration --fuzz-s` (two new sessions, a subscriber on a new key
          vsfuzz/<zid>/barrier, invalid messages on the fleet's keys; the soak's fuzz segments);
@@ -37,16 +38,20 @@ sys.path.insert(0, str(ROOT))
 
 CHILD = r"""
 import signal, sys, time, zenoh
-n, endpoint = sys.argv[1], sys.argv[2]
+n, endpoint, decl = sys.argv[1], sys.argv[2], sys.argv[3].split(",")
 conf = zenoh.Config()
 conf.insert_json5("mode", '"client"')
 conf.insert_json5("connect/endpoints", f'["{endpoint}"]')
 conf.insert_json5("scouting/multicast/enabled", "false")
 conf.insert_json5("transport/shared_memory/enabled", "false")
 s = zenoh.open(conf)
-tok = s.liveliness().declare_token(f"vs/probe/alive/a{n}")
-sub = s.declare_subscriber("vs/probe/frame/**", lambda _s: None)
-q = s.declare_queryable(f"vs/probe/peer/a{n}/health", lambda q: q.reply(q.key_expr, b"ok"))
+ents = []
+if "token" in decl:
+    ents.append(s.liveliness().declare_token(f"vs/probe/alive/a{n}"))
+if "sub" in decl:
+    ents.append(s.declare_subscriber("vs/probe/frame/**", lambda _s: None))
+if "queryable" in decl:
+    ents.append(s.declare_queryable(f"vs/probe/peer/a{n}/health", lambda q: q.reply(q.key_expr, b"ok")))
 for i in range(30):
     s.put(f"vs/probe/state/a{n}", b"x" * 200)
 stop = []
@@ -54,7 +59,9 @@ signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
 print("up", flush=True)
 while not stop:
     time.sleep(0.05)
-tok.undeclare(); sub.undeclare(); q.undeclare(); s.close()
+for e in ents:
+    e.undeclare()
+s.close()
 """
 
 
@@ -82,6 +89,8 @@ def main(argv=None) -> int:
     ap.add_argument("--mode", choices=["none", "kill", "close", "fuzz", "fuzzlong"], required=True)
     ap.add_argument("--every", type=float, default=3.0)
     ap.add_argument("--minutes", type=float, default=5.0)
+    ap.add_argument("--decl", default="token,sub,queryable",
+                    help="what the kill/close child declares: any of token,sub,queryable, or none")
     ap.add_argument("--fuzz-s", type=float, default=5.0)
     ap.add_argument("--fuzz-rate", type=float, default=30.0)
     ap.add_argument("--env", action="append", default=[], help="KEY=VALUE in the router's environment")
@@ -151,7 +160,7 @@ def main(argv=None) -> int:
             if args.mode == "fuzz":
                 running = subprocess.Popen(fuzz_cmd(args.fuzz_s, n), **quiet)
             else:
-                running = subprocess.Popen([sys.executable, "-c", CHILD, str(n), endpoint],
+                running = subprocess.Popen([sys.executable, "-c", CHILD, str(n), endpoint, args.decl],
                                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                                            stdin=subprocess.DEVNULL)
                 running.stdout.readline()  # "up": its session is open and declared
@@ -180,7 +189,7 @@ def main(argv=None) -> int:
         return min(rows, key=lambda r: abs(r["t"] - t))
     a, mid, z = at(30.0), at(args.minutes * 30.0), rows[-1]
     per = (z["RssAnon"] - mid["RssAnon"]) / (z["done"] - mid["done"]) if z["done"] > mid["done"] else None
-    print(json.dumps({"mode": args.mode, "every": args.every, "env": args.env, "minutes": args.minutes,
+    print(json.dumps({"mode": args.mode, "decl": args.decl, "every": args.every, "env": args.env, "minutes": args.minutes,
                       "injections": z["done"], "anon_30s": a["RssAnon"], "anon_mid": mid["RssAnon"],
                       "anon_end": z["RssAnon"], "rss_30s": a["VmRSS"], "rss_end": z["VmRSS"],
                       "anon_growth_2nd_half": round(z["RssAnon"] - mid["RssAnon"], 3),
