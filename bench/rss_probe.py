@@ -50,6 +50,8 @@ if "token" in decl:
     ents.append(s.liveliness().declare_token(f"vs/probe/alive/a{n}"))
 if "sub" in decl:
     ents.append(s.declare_subscriber("vs/probe/frame/**", lambda _s: None))
+if "usub" in decl:   # a subscriber on a new key each time, as the fuzzer's barrier (vsfuzz/<zid>/barrier)
+    ents.append(s.declare_subscriber(f"vsfuzz/{s.zid()}/barrier", lambda _s: None))
 if "queryable" in decl:
     ents.append(s.declare_queryable(f"vs/probe/peer/a{n}/health", lambda q: q.reply(q.key_expr, b"ok")))
 for i in range(30):
@@ -90,7 +92,7 @@ def main(argv=None) -> int:
     ap.add_argument("--every", type=float, default=3.0)
     ap.add_argument("--minutes", type=float, default=5.0)
     ap.add_argument("--decl", default="token,sub,queryable",
-                    help="what the kill/close child declares: any of token,sub,queryable, or none")
+                    help="what the kill/close child declares: any of token,sub,usub (a new key each time),queryable, or none")
     ap.add_argument("--fuzz-s", type=float, default=5.0)
     ap.add_argument("--fuzz-rate", type=float, default=30.0)
     ap.add_argument("--env", action="append", default=[], help="KEY=VALUE in the router's environment")
