@@ -1,9 +1,10 @@
 """vsfleet agent: one identical process per robot; fits, advances, commands its own wheels.
 
 The process is an adapter around the pure step (vsfleet.step.agent_step):
-decode -> step -> publish and log. Startup: declare the liveliness token,
-subscribe to mission updates and to frames (``vs/<fleet>/frame/*``), answer
-mission and health queries under its own key ``vs/<fleet>/peer/<robot>/`` (so
+decode -> step -> publish and log. Startup: subscribe to mission updates and
+to frames (``vs/<fleet>/frame/*``), then declare the liveliness token (alive
+means listening), answer mission and health queries under its own key
+``vs/<fleet>/peer/<robot>/`` (so
 late joiners and restarted agents get the mission and the failure-policy state
 from their peers), and ask for both with a get. An answer is taken only if a
 strict majority of the peers that replied gave it (vsfleet.quorum); the
@@ -442,7 +443,6 @@ class AgentWiring:
         self.event_pub = session.declare_publisher(keys.event(robot), **RELIABLE_QOS)
         self.agent = Agent(robot, keys, self.cmd_pub.put, self.state_pub.put, dt_s=dt_s, ttl_s=ttl_s,
                            deadline_s=deadline_s, put_event=self.queue_event, prepare=prepare_mission)
-        self.token = session.liveliness().declare_token(keys.alive("agent", robot))  # keep referenced
         self.own_mission, self.own_health = keys.peer_mission(robot), keys.peer_health(robot)
         self.mission_sub = session.declare_subscriber(keys.mission, self.on_mission_sample)
         self.frame_sub = session.declare_subscriber(keys.frame(), self.on_frame_sample)
@@ -450,6 +450,12 @@ class AgentWiring:
         # a peer's ``peer/*/mission`` reaches only agents that can answer it, so a fleet waiting for its mission
         # costs no query per pair of agents each second
         self.queryables = [session.declare_queryable(self.own_health, self.answer_health, complete=False)]
+        # alive only once it listens: an operator (or a test) that puts the mission when it sees the token must
+        # not find the subscriber still undeclared. Declared first, the token let a loaded host's agent miss that
+        # put and take the mission by its once-a-second get, 1 s late, while its peers judged its still robot
+        # failed (tests/integration/test_engine_mujoco.py, CI rehearsal 2026-12-04: r2 fail at frame 53, recover
+        # at frame 71)
+        self.token = session.liveliness().declare_token(keys.alive("agent", robot))  # keep referenced
         self.mission_queryable = None
         self.answered = collections.Counter()  # queries this agent was asked, by kind (logged at the end)
         self.fetcher: threading.Thread | None = None

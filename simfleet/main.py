@@ -215,7 +215,6 @@ def run_sim(conf: zenoh.Config, scenario: Scenario, stop: StopFlag | None = None
     truth_every = max(1, round(scenario.sim.rate_hz / scenario.sim.truth_rate_hz))
     with open_session(conf) as session:
         pubs = {r: session.declare_publisher(keys.truth(r), **TRUTH_QOS) for r in fleet.robots}
-        token = session.liveliness().declare_token(keys.alive("sim", "simfleet"))
         fleet.start_at(clock())  # the engine built, the session open: simulated time starts now (before any input)
         subs = [
             session.declare_subscriber(keys.cmd(), lambda s: fleet.on_cmd(
@@ -223,6 +222,8 @@ def run_sim(conf: zenoh.Config, scenario: Scenario, stop: StopFlag | None = None
             session.declare_subscriber(keys.fault(), lambda s: fleet.on_fault(
                 str(s.key_expr), s.payload.to_bytes(), fleet.t)),
         ]
+        # alive only once it listens (as the agent): a fault or command sent on seeing the token is not missed
+        token = session.liveliness().declare_token(keys.alive("sim", "simfleet"))
         log.info("simfleet up: %d robots at %.0f Hz, engine %s", len(fleet.robots), scenario.sim.rate_hz,
                  fleet.engine.name)
         late = 0

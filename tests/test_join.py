@@ -234,3 +234,23 @@ def test_peers_holding_a_newer_mission_than_the_operators_answer_are_still_heard
     finally:
         for w in fleet:
             w.close()
+
+
+def test_an_agent_is_alive_only_once_it_listens_for_the_mission_and_the_frames():
+    """The token comes after the subscribers: an operator that puts the mission on seeing an agent alive must not
+    find its subscriber still undeclared (a CI rehearsal under load: the put missed, the mission taken 1 s late by
+    the agent's get, its robot judged failed by its peers meanwhile)."""
+    order: list[str] = []
+
+    class Recording(FakeSession):
+        def declare_subscriber(self, key, handler):
+            order.append(f"sub {key}")
+            return super().declare_subscriber(key, handler)
+
+        def declare_token(self, key):
+            order.append(f"token {key}")
+            return super().declare_token(key)
+
+    AgentWiring(Recording(FakeRouter()), "r001", KEYS, 1 / 30, 0.3, None)
+    token = next(i for i, o in enumerate(order) if o.startswith("token"))
+    assert {o for o in order[:token]} >= {f"sub {KEYS.mission}", f"sub {KEYS.frame()}"}, order
