@@ -444,6 +444,14 @@ class AgentWiring:
         self.agent = Agent(robot, keys, self.cmd_pub.put, self.state_pub.put, dt_s=dt_s, ttl_s=ttl_s,
                            deadline_s=deadline_s, put_event=self.queue_event, prepare=prepare_mission)
         self.own_mission, self.own_health = keys.peer_mission(robot), keys.peer_health(robot)
+        # every attribute a callback reads is set before the first subscriber or queryable is declared: zenoh may
+        # call one at once, from its own thread (a peer's health query found no `answered` once, CI rehearsal
+        # 2026-12-04, when the token's declaration came between the queryable and these lines)
+        self.mission_queryable = None
+        self.answered = collections.Counter()  # queries this agent was asked, by kind (logged at the end)
+        self.fetcher: threading.Thread | None = None
+        self.next_fetch = 0.0
+        self.asked_health = False  # in this JOINING or RESYNCING phase
         self.mission_sub = session.declare_subscriber(keys.mission, self.on_mission_sample)
         self.frame_sub = session.declare_subscriber(keys.frame(), self.on_frame_sample)
         # the mission queryable is declared once the agent holds a mission (declare_mission_queryable): until then
@@ -456,11 +464,6 @@ class AgentWiring:
         # failed (tests/integration/test_engine_mujoco.py, CI rehearsal 2026-12-04: r2 fail at frame 53, recover
         # at frame 71)
         self.token = session.liveliness().declare_token(keys.alive("agent", robot))  # keep referenced
-        self.mission_queryable = None
-        self.answered = collections.Counter()  # queries this agent was asked, by kind (logged at the end)
-        self.fetcher: threading.Thread | None = None
-        self.next_fetch = 0.0
-        self.asked_health = False  # in this JOINING or RESYNCING phase
 
     # ---------------------------------------------------------------- zenoh threads
     def on_mission_sample(self, sample: zenoh.Sample) -> None:

@@ -254,3 +254,19 @@ def test_an_agent_is_alive_only_once_it_listens_for_the_mission_and_the_frames()
     AgentWiring(Recording(FakeRouter()), "r001", KEYS, 1 / 30, 0.3, None)
     token = next(i for i, o in enumerate(order) if o.startswith("token"))
     assert {o for o in order[:token]} >= {f"sub {KEYS.mission}", f"sub {KEYS.frame()}"}, order
+
+
+def test_a_query_that_arrives_while_the_agent_declares_its_queryables_is_answered():
+    """zenoh may call a queryable from its own thread as soon as it is declared: every attribute the agent's
+    callbacks read is set before (a peer's health query once found no ``answered``, CI rehearsal 2026-12-04)."""
+    answered: list[int] = []
+
+    class Eager(FakeSession):
+        def declare_queryable(self, key, handler, complete=False):
+            q = _Query()
+            handler(q)   # a query at once, before the constructor goes on
+            answered.append(len(q.replies))
+            return super().declare_queryable(key, handler, complete)
+
+    w = AgentWiring(Eager(FakeRouter()), "r001", KEYS, 1 / 30, 0.3, None)
+    assert answered and w.answered["health"] == 1
