@@ -1,65 +1,7 @@
 """Per-robot dict reference of the failure rule (the code vsfleet.failure's arrays replaced); tests only.
 
-Every agent runs the same rule on the same frames, so all of them decide on the
-same frame. The rule is:
-
-- A robot is **non-compliant** in a frame when either:
-  - its distance to its structure point exceeds ``fail_deviation_m`` (for a robot
-    already dropped from the fit, its point on the structure fitted to the
-    others), while at least one other robot in the fit is within it. When every
-    robot in the fit is off by more, the structure is off, not one robot (under
-    ``linf`` the residuals even out), and the test says nothing; or
-  - it does not move as commanded. Every agent predicts every robot's command
-    (the same deterministic function its own agent runs) and so the
-    displacement each command should produce in one frame. Over the last
-    ``fail_after_s``, the robot's net observed displacement along the net
-    predicted one must be at least ``min_progress_ratio`` of it, once the net
-    prediction reaches ``min_expected_m``. A halted robot, or one with a dead wheel, fails
-    this test. It fails it even when the structure has stopped for it, which the
-    deviation test cannot see under ``linf``, where the residuals even out. A
-    robot slowed to 50% passes.
-- **The assembly phase** (issue 28): a robot on its way to its point is not a
-  failed robot, so the deviation test does not judge a seen robot that is on its
-  way in the frame (the progress test still does). On its way means either:
-  - it approaches its point: over a window spanning at least 80% of
-    ``fail_after_s`` (the progress test's), its deviation shrank by more than
-    ``min_approach_m`` (from the window's oldest frame to this one); or
-  - it is held back: the fleet-wide safety filter cut its command in this frame,
-    or the assembly tie-break sent it round another robot
-    (``vsfleet.step.assembly_targets``); ``vsfleet.step`` passes ``held``, and every
-    agent runs the same filter and tie-break on the same frame, so all of them
-    agree. A robot waiting its turn in a crowd does what it is told, which is to
-    wait.
-  A halted robot, or one with a dead wheel, still fails the progress test when its
-  command would move it (within ``fail_after_s``, held or not); a
-  robot still and off its point that nothing holds still fails the deviation
-  test; an unseen robot is never on its way. A deadlock (robots held against
-  each other for good) is then no failure: the stall watch reports it
-  (``vsfleet.step.stall_state``). Measured (bench/crowd.py, 10 robots packed 2 cm
-  apart in a shuffled order, seeds 1-6, 60 s, 2026-12-04, shared 2-core host):
-  fail decisions 7-11 per run (seeds 2-6; 2 robots still failed at the end)
-  before; 0-2, all recovered within 3 s, after; with the tie-break as well
-  (seeds 1-12, 90 s), 0-1 per run, none standing at the end.
-- A robot that has been non-compliant in every frame for ``fail_after_s`` of
-  tracker time (measured from the first such frame) has **failed**. A frame in
-  which the robot is missing counts as non-compliant.
-- What follows depends on the mission's ``on_failure``:
-  - ``hold`` (the paper's behaviour): the failure is reported and the robot
-    stays in the fit, so the structure waits for it. From then on every robot's
-    deviation is measured on the structure fitted without the failed robots
-    (when two or more others remain; ``vsfleet.step.control_step(judged_apart=)``):
-    the healthy robots a failed robot bends are not flagged for it. A failed
-    robot that has complied for ``recover_after_s`` is healthy again
-    (``recover``); the wait keeps the flag from flapping at the threshold. With only
-    two robots left to judge by, a rigid fit gives both the same deviation (half
-    the error in their separation), so the deviation test cannot single out one
-    of them; the progress test still judges each.
-  - ``drop``: the robot is taken out of the fit and its own agent stops it.
-  - ``rejoin``: as ``drop``, but a dropped robot that has been within
-    ``rejoin_deviation_m`` of its point for ``rejoin_after_s`` is taken back.
-
-Agents that saw different frames can decide one frame apart. An agent that joins
-late starts from "all healthy".
+The rule itself, the assembly phase included, is stated once, in vsfleet.failure's docstring; this module
+implements the same rule robot by robot, so that tests can compare the two on random frames.
 """
 
 from __future__ import annotations
