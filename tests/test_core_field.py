@@ -89,6 +89,37 @@ def test_a_free_state_keeps_every_body_the_margin_and_the_inflation_from_every_o
     assert walls > 0 and frees > 0
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_every_pose_on_an_edge_between_two_free_states_keeps_the_margin(seed):
+    """Moves and turns out of free states into free states,
+    sampled every 1/20 of the edge (a turn as the rotation it is, about the structure's centre), keep every body
+    the margin from every obstacle (the inflation of vs_field.h is what the states keep beyond it)."""
+    rng = np.random.default_rng(200 + seed)
+    tpl, rad, obs, goal = random_room(rng)
+    obs = np.r_[obs, [[goal.x + 0.7, goal.y, 0.2]]]
+    f = build_field(tpl, rad, 0.02, obs, goal, **COARSE)
+    lat, costs = f.lattice, np.asarray(f.costs)
+    plane = lat.nx * lat.ny
+    moves = [(1, 0, 0), (0, 1, 0), (1, 1, 0), (1, -1, 0), (0, 0, 1)]
+    checked = 0
+    for s in rng.integers(0, costs.size, 800):
+        k, rem = divmod(int(s), plane)
+        row, col = divmod(rem, lat.nx)
+        if costs.flat[s] == WALL:
+            continue
+        for dc, dr, dk in moves:
+            c2, r2, k2 = col + dc, row + dr, (k + dk) % lat.n_headings
+            if not (0 <= c2 < lat.nx and 0 <= r2 < lat.ny) or costs.flat[(k2 * lat.ny + r2) * lat.nx + c2] == WALL:
+                continue
+            x0, y0 = lat.gx + (col + lat.ix_lo) * lat.cell_m, lat.gy + (row + lat.iy_lo) * lat.cell_m
+            th0 = lat.gth + k * lat.dth_rad
+            gaps = [clearance(tpl, rad, obs, x0 + t * dc * lat.cell_m, y0 + t * dr * lat.cell_m, th0 + t * dk * lat.dth_rad)
+                    for t in np.linspace(0.0, 1.0, 21)]
+            assert min(gaps) >= 0.02 - 1e-9
+            checked += 1
+    assert checked > 100
+
+
 def test_the_descent_from_anywhere_in_the_goals_component_ends_at_the_goal_pose_and_keeps_the_margin():
     rng = np.random.default_rng(7)
     tpl = np.array([[0.2887, 0.0], [-0.1443, 0.25], [-0.1443, -0.25]])
