@@ -56,8 +56,8 @@ def safety_records(seed: int = 5, count: int = 120) -> list[tuple[str, list[floa
 
 def records() -> list[tuple[str, list[float]]]:
     """Every recorded call: (entry, flat inputs)."""
-    from step_core_records import shape_records, step_records  # noqa: PLC0415 - the step's records (tests/)
-    return trig_records() + step_records() + safety_records() + field_records() + shape_records()
+    from step_core_records import assembly_records, shape_records, step_records  # noqa: PLC0415 - (tests/)
+    return trig_records() + step_records() + safety_records() + field_records() + shape_records() + assembly_records()
 
 
 def line(entry: str, inputs, outputs) -> str:

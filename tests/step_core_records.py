@@ -6,7 +6,8 @@ each metric: every 4th frame, all robots used, and the same frames with r2 exclu
 then the linf mission in a room (a pillar on its straight path, bodies of 0.05 m, and a wall that
 blocks it), every 8th frame: the field's descent and the blocked stop. And ``structure_step_shapes``
 (shape_records): scenarios/room-column-switch.toml with scale_min 0.7 (three scales and a column), the
-robots as the triangle, the column or between them, before, in and after the wall's gap.
+robots as the triangle, the column or between them, before, in and after the wall's gap. And
+``assembly_targets`` (assembly_records): the tie-break on random crowds.
 """
 
 from __future__ import annotations
@@ -93,4 +94,48 @@ def _shape_records(m, seed: int, count: int) -> list[tuple[str, list[float]]]:
         pose = np.column_stack([xy + rng.normal(0, 0.01, xy.shape), rng.uniform(-3, 3, n)])
         out.append(("structure_step_shapes", [*head, *pose.ravel(), *np.ones(n), *np.zeros(n), *np.zeros(n),
                                               0.1 * k, 1.0 / 30.0, *room]))
+    return out
+
+
+def assembly_records(seed: int = 29, count: int = 150) -> list[tuple[str, list[float]]]:
+    """The assembly tie-break (vs_golden.c's ``assembly_targets``) on crowds of 2-40 robots: blocks packed 1-5 cm
+    apart, collinear rows, head-on pairs, a 1/32 m grid with points along the axes (blockers tied in along), and
+    scattered robots at 1e-3 and 1e3 m scales; some robots near their points, some unseen (rows zeroed, as the
+    step leaves them)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for k in range(count):
+        n, kind = int(rng.integers(2, 41)), k % 5
+        radius = 0.05 if k % 3 else float(rng.uniform(0.0, 0.08))
+        gap = float(rng.uniform(0.01, 0.05))
+        pitch = 2.0 * radius + gap
+        if kind == 0:
+            xy = np.array([(pitch * (i % 5), pitch * (i // 5)) for i in range(n)]) + rng.normal(0.0, 0.002, (n, 2))
+        elif kind == 1:
+            th = 0.0 if k % 2 else float(rng.uniform(-math.pi, math.pi))
+            xy = np.c_[pitch * np.arange(n) * math.cos(th), pitch * np.arange(n) * math.sin(th)]
+        elif kind == 2:
+            xy = np.array([((i % 2) * pitch, 0.4 * (i // 2)) for i in range(n)])
+        elif kind == 3:
+            cells = rng.choice(64, size=n, replace=False)
+            xy = np.c_[cells % 8, cells // 8] / 32.0
+        else:
+            xy = rng.uniform(-0.3, 0.3, (n, 2)) * math.sqrt(n) * [1e-3, 1.0, 1e3][k % 3]
+        if kind == 2:
+            points = xy + np.c_[np.where(np.arange(n) % 2 == 0, 0.5, -0.5), np.zeros(n)]
+        elif kind == 3:
+            axis = np.array([(1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0)])[rng.integers(0, 4, n)]
+            points = xy + axis * rng.integers(1, 9, (n, 1)) / 8.0
+        else:
+            points = xy + rng.uniform(-0.6, 0.6, (n, 2)) * math.sqrt(n / 5.0) * ([1e-3, 1.0, 1e3][k % 3] if kind == 4
+                                                                                else 1.0)
+        near = rng.random(n) < 0.15
+        points[near] = xy[near] + rng.uniform(-0.03, 0.03, (int(near.sum()), 2))
+        seen = rng.random(n) < (1.0 if k % 4 == 0 else 0.85)
+        pose = np.where(seen[:, None], np.c_[xy, rng.uniform(-math.pi, math.pi, n)], 0.0)
+        nxt = points + (0.0 if k % 3 == 0 else rng.normal(0.0, 0.005, (n, 2)))
+        margin = 0.015 if k % 4 else float(rng.uniform(0.0, 0.03))
+        radii = np.full(n, radius) if k % 7 else rng.uniform(0.0, 0.08, n)
+        out.append(("assembly_targets", [float(n), margin, *radii, *pose.ravel(), *seen.astype(float),
+                                         *points.ravel(), *nxt.ravel()]))
     return out

@@ -53,6 +53,10 @@ STEP_PATH_M: float = _core.STEP_PATH_M
 STEP_PATH_CAP: int = _core.STEP_PATH_CAP
 #: following a field, the carrot runs at least this times the shape's reach ahead (vs_step.h)
 STEP_LOOKAHEAD_PER_REACH: float = _core.STEP_LOOKAHEAD_PER_REACH
+#: the assembly tie-break (vs_assembly.h): a seen robot farther than ASSEMBLING_M [m] from its point is on its way
+#: to it; a detour's waypoint lies DETOUR_CLEAR_M [m] beyond touching + margin beside the blocker, as far short of it
+ASSEMBLING_M: float = _core.ASSEMBLING_M
+DETOUR_CLEAR_M: float = _core.DETOUR_CLEAR_M
 
 # the structure's planner (vs_plan.h VS_PLAN_*)
 PLAN_OK: int = _core.PLAN_OK

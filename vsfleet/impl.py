@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 from .advance import advance_structure, advance_structure_reference
+from .assembly import assembly_targets, assembly_targets_reference
 from .failure import failure_step, failure_step_reference
 from .field import build_field, build_field_reference, follow_field, follow_field_reference
 from .fit import fit_structure, fit_structure_reference
@@ -36,6 +37,8 @@ class Impl:
     build_field: Callable         # vsfleet.field
     follow_field: Callable        # vsfleet.field
     decode_frame: Callable        # (payload, src the key names) -> FrameMsg: vsfleet.wire
+    assembly_targets: Callable    # (radii_m, pose_world, seen, points_now, points_next, margin_m)
+                                  # -> (points_now, points_next, detoured): vsfleet.assembly
 
 
 def _control_core(controller, state, inp):
@@ -59,13 +62,14 @@ def _decode_frame_reference(payload: bytes, src: str | None = None) -> FrameMsg:
 core = Impl("core", structure_step=structure_step_core, fit_structure=fit_structure,
             advance_structure=advance_structure, control=_control_core, safety_filter=safety_filter,
             failure_step=failure_step, integrate_arcs=integrate_arcs, build_field=build_field,
-            follow_field=follow_field, decode_frame=decode_frame_core)
+            follow_field=follow_field, decode_frame=decode_frame_core, assembly_targets=assembly_targets)
 
 reference = Impl("reference", structure_step=structure_step_reference, fit_structure=fit_structure_reference,
                  advance_structure=advance_structure_reference, control=_control_reference,
                  safety_filter=safety_filter_reference, failure_step=failure_step_reference,
                  integrate_arcs=integrate_arcs_reference, build_field=build_field_reference,
-                 follow_field=follow_field_reference, decode_frame=_decode_frame_reference)
+                 follow_field=follow_field_reference, decode_frame=_decode_frame_reference,
+                 assembly_targets=assembly_targets_reference)
 
 
 def choose(use_reference: bool) -> Impl:

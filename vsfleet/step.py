@@ -28,6 +28,7 @@ from typing import Callable, Mapping
 import numpy as np
 
 from .advance import Goal, GoalPath, GoalPose, GoalTwist, StructureLimits
+from .assembly import assembly_targets, assembly_targets_reference  # noqa: F401 (re-exported: the step's names)
 from .coreconst import GOAL_PATH, GOAL_POSE, GOAL_TWIST, LIMIT_FIELDS, METRIC_CODES
 from .control import DEFAULT_CONTROLLER, ControlInput, make_controller
 from .envelope import Envelope, Envelopes
@@ -441,8 +442,8 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
     pose_seen = np.where(seen[:, None], pose, 0.0)   # unseen rows zeroed: the controller, kinematics, failure rule
     points_now, points_next, detoured = s.points_now, s.points_next, None
     if arrays.radii.any():   # bodies: the assembly tie-break (robots barred on their way go round)
-        points_now, points_next, detoured = assembly_targets(arrays.radii, pose_seen, seen & active, s.points_now,
-                                                             s.points_next, _safety_params(config.dt_s).margin_m)
+        points_now, points_next, detoured = config.impl.assembly_targets(
+            arrays.radii, pose_seen, seen & active, s.points_now, s.points_next, _safety_params(config.dt_s).margin_m)
     ctrl, wheels = config.impl.control(controller, ctrl, ControlInput(
         pose_world=pose_seen, point_now_world=points_now,
         point_next_world=points_next, wheels_prev_m_s=wheels_prev, dt_s=config.dt_s, age_s=config.age_s,
@@ -557,60 +558,6 @@ def _goal_distance(arrays: MissionArrays, pose: Pose2) -> float:
 @lru_cache(maxsize=8)
 def _safety_params(dt_s: float) -> SafetyParams:
     return SafetyParams(dt_s=dt_s)
-
-
-#: assembly (issue 28, crowds): a robot farther than ASSEMBLING_M from its point is on its way to it; a robot whose
-#: straight way is barred by another goes round it, to a waypoint beside it DETOUR_CLEAR_M beyond touching + margin
-ASSEMBLING_M = 0.05
-DETOUR_CLEAR_M = 0.03
-
-
-def assembly_targets(radii_m: np.ndarray, pose_world: np.ndarray, seen: np.ndarray, points_now: np.ndarray,
-                     points_next: np.ndarray, margin_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The assembly tie-break: (points_now, points_next, detoured (n,) bool), every robot's target.
-
-    Robot i, seen and more than ASSEMBLING_M from its point, is barred by robot j (seen) when j's centre lies
-    ahead on i's straight way to its point (0 < along < distance + width) within width = r_i + r_j + margin
-    of that line; its first blocker is the nearest such j. Two robots that bar each other (head on): the one
-    of the higher row (the later id) gives way and passes the other on its right; the other keeps its way. A
-    robot barred by one that does not bar it passes it on the side it is already on (on the right when dead
-    ahead). Passing j means heading for the waypoint c = width + DETOUR_CLEAR_M to that side of the line from
-    i to j and c short of j along it: never towards j while they touch, and round j as i goes. Every
-    agent computes the same targets from the same frame (a pure function of it, in + - * / and sqrt, which
-    IEEE 754 rounds alike everywhere: no libm function whose last bit could differ between hosts)."""
-    n = len(pose_world)
-    xy = pose_world[:, :2]
-    to = points_now - xy
-    dist = np.sqrt(to[:, 0] * to[:, 0] + to[:, 1] * to[:, 1])   # + * / sqrt only: the same bits on every platform
-    on_way = seen & (dist > ASSEMBLING_M)
-    detoured = np.zeros(n, dtype=bool)
-    if n < 2 or not on_way.any():
-        return points_now, points_next, detoured
-    d = to / np.where(on_way, dist, 1.0)[:, None]
-    rel = xy[None, :, :] - xy[:, None, :]                              # rel[i, j] = p_j - p_i
-    along = rel[:, :, 0] * d[:, None, 0] + rel[:, :, 1] * d[:, None, 1]
-    lateral = d[:, None, 0] * rel[:, :, 1] - d[:, None, 1] * rel[:, :, 0]   # > 0: j left of i's way
-    width = radii_m[:, None] + radii_m[None, :] + margin_m
-    bars = (on_way[:, None] & seen[None, :] & ~np.eye(n, dtype=bool) & (along > 0.0)
-            & (along < dist[:, None] + width) & (np.abs(lateral) < width))
-    first = np.argmin(np.where(bars, along, np.inf), axis=1)
-    rows = np.flatnonzero(bars.any(axis=1))
-    now, nxt = points_now.copy(), points_next.copy()
-    for i in rows:
-        j = int(first[i])
-        mutual = bool(bars[j, i])
-        if mutual and j > i:
-            continue                         # head on, and i has the lower row: i keeps its way
-        left = 1.0 if (not mutual and lateral[i, j] < 0.0) else -1.0     # j on i's right: pass on its left
-        gap = math.sqrt(rel[i, j, 0] * rel[i, j, 0] + rel[i, j, 1] * rel[i, j, 1])
-        u = rel[i, j] / gap                                              # towards j
-        normal = np.array([-u[1], u[0]]) * left
-        clear = width[i, j] + DETOUR_CLEAR_M      # round j: as far beside the line to j, and that much short of j
-        way = xy[i] + normal * clear + u * (gap - clear)
-        now[i] = way
-        nxt[i] = way
-        detoured[i] = True
-    return now, nxt, detoured
 
 
 def _safe_wheels(arrays: MissionArrays, pose: np.ndarray, seen: np.ndarray, active: np.ndarray, wheels: np.ndarray,

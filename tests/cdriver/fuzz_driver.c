@@ -6,6 +6,8 @@
  * from NaN, +-inf, +-1e300, +-0, denormals, duplicates and ordinary numbers.  A call must
  * either refuse (-1) or return outputs; the sanitizers abort on any out-of-bounds access,
  * use of uninitialised memory they can see, overflow or leak.  Deterministic (own PRNG).
+ * assembly_targets' accepted calls must also keep its promises (assembly_kept: untouched rows
+ * copied bit for bit, one waypoint per detoured robot, never an unseen robot or one at its point).
  *
  * Then the failure rule (vs_failure.h) on random states and frames: n robots, W ring slots, a
  * policy (sometimes hostile), a random state (heads, flags, timers), frames of hostile or
@@ -28,6 +30,7 @@
 #include "vs_golden.h"
 #include "vs_wire.h"
 #include "vs_failure.h"
+#include "vs_assembly.h"
 
 static uint64_t state = 0x9e3779b97f4a7c15ULL;
 static uint64_t next(void)
@@ -134,6 +137,48 @@ static long safety_filter_input(double *in)
     for (long i = 0; i < 3 * k; i++, len++) in[len] = (i % 3 == 2 && next() % 8) ? 0.05 + uniform() : hostile(in, len, in, len);
     for (long i = 0; i < 2 * n; i++, len++) in[len] = (next() % 4) ? uniform() - 0.5 : hostile(in, len, in, len);
     return len;
+}
+
+/* assembly_targets (vs_golden.c's packing) with a valid header and hostile contents: n robots (sometimes
+ * thousands, past the entry's limit), packed 1-5 cm apart or hostile positions, radii, flags and points. */
+static long assembly_targets_input(double *in)
+{
+    long n = (next() % 16 == 0) ? (long)(next() % 6000) : (long)(next() % 41), len = 0;
+    double v, pitch = 0.1 + 0.04 * uniform();
+    in[len++] = (double)n;
+    v = (next() % 8) ? 0.015 : hostile(in, len, in, len);                                            /* margin */
+    in[len++] = v;
+    for (long i = 0; i < n; i++, len++) in[len] = (next() % 8) ? 0.05 : hostile(in, len, in, len);     /* radii */
+    for (long i = 0; i < 3 * n; i++, len++)                                                            /* poses */
+        in[len] = (next() % 8) ? pitch * (double)((i % 3 == 0) ? (i / 3) % 5 : (i / 3) / 5) : hostile(in, len, in, len);
+    for (long i = 0; i < n; i++, len++) in[len] = (next() % 16) ? (double)(next() & 1) : hostile(in, len, in, len);
+    for (long i = 0; i < 4 * n; i++, len++) in[len] = (next() % 8) ? uniform() - 0.5 : hostile(in, len, in, len);
+    return len;
+}
+
+/* assembly_targets' promises on an accepted call: 5 n + 1 outputs; a robot not detoured keeps its points bit for
+ * bit, a detoured one gets one waypoint for both; the flags are 0/1 and the count is theirs; unseen robots and
+ * robots within VS_ASSEMBLING_M of their points are never detoured. */
+static int assembly_kept(const double *in, const double *out, long got)
+{
+    long n = (long)in[0], count = 0;
+    const double *pose = in + 2 + n, *seen = pose + 3 * n, *now = seen + n, *next = now + 2 * n;
+    if (got != 5 * n + 1) return 0;
+    for (long i = 0; i < n; i++) {
+        double det = out[4 * n + i];
+        if (det != 0.0 && det != 1.0) return 0;
+        count += det == 1.0;
+        for (int c = 0; c < 2; c++) {
+            double a = out[2 * i + c], b = out[2 * n + 2 * i + c];
+            if (det == 0.0 && (memcmp(&a, &now[2 * i + c], 8) != 0 || memcmp(&b, &next[2 * i + c], 8) != 0)) return 0;
+            if (det == 1.0 && memcmp(&a, &b, 8) != 0) return 0;
+        }
+        if (det == 1.0) {
+            double tx = now[2 * i] - pose[3 * i], ty = now[2 * i + 1] - pose[3 * i + 1];
+            if (seen[i] == 0.0 || !(tx * tx + ty * ty > VS_ASSEMBLING_M * VS_ASSEMBLING_M * 0.999)) return 0;
+        }
+    }
+    return out[5 * n] == (double)count;
 }
 
 /* ---------------------------------------------------------------- the frame decoder */
@@ -483,7 +528,7 @@ int main(int argc, char **argv)
     double *in = malloc(sizeof(double) * CAP), *out = malloc(sizeof(double) * CAP);
     if (!in || !out) return 2;
     for (size_t e = 0; e < count; e++) {
-        long refused = 0, ran = 0;
+        long refused = 0, ran = 0, detoured = 0;
         for (long it = 0; it < iters; it++) {
             long n = (long)(next() % 301);
             if (it % 50 == 0) n = 0;
@@ -500,6 +545,7 @@ int main(int argc, char **argv)
                 }
             }
             if (strcmp(all[e].name, "safety_filter") == 0 && it % 10) n = safety_filter_input(in);
+            if (strcmp(all[e].name, "assembly_targets") == 0 && it % 10) n = assembly_targets_input(in);
             if (strcmp(all[e].name, "field_build") == 0 && it % 10) n = field_build_input(in);
             if (strcmp(all[e].name, "field_follow") == 0 && it % 10) {   /* a room, then a pose and a length */
                 n = field_build_input(in);
@@ -510,8 +556,17 @@ int main(int argc, char **argv)
             }
             long got = all[e].run(in, n, out, CAP);
             if (got < 0) refused++; else ran++;
+            if (got >= 0 && strcmp(all[e].name, "assembly_targets") == 0 && !assembly_kept(in, out, got)) {
+                fprintf(stderr, "fuzz assembly_targets: broken promise at iteration %ld\n", it);
+                return 1;
+            }
+            if (got >= 0 && strcmp(all[e].name, "assembly_targets") == 0) detoured += (long)out[got - 1];
         }
-        printf("fuzz %-14s %ld calls: %ld ran, %ld refused\n", all[e].name, iters, ran, refused);
+        if (strcmp(all[e].name, "assembly_targets") == 0)
+            printf("fuzz %-14s %ld calls: %ld ran (%ld robots detoured), %ld refused\n", all[e].name, iters, ran,
+                   detoured, refused);
+        else
+            printf("fuzz %-14s %ld calls: %ld ran, %ld refused\n", all[e].name, iters, ran, refused);
     }
     free(in); free(out);
     int rc = fuzz_failure(iters / 4 + 1);

@@ -10,6 +10,7 @@
 #include "py_util.h"
 #include "vscore.h"
 #include "vs_advance.h"
+#include "vs_assembly.h"
 #include "vs_control.h"
 #include "vs_failure.h"
 #include "vs_field.h"
@@ -69,6 +70,7 @@ static const double_const doubles[] = {
     {"FAILURE_NM_PER_M", VS_FAILURE_NM_PER_M}, {"FAILURE_SETTLED_RATIO", VS_FAILURE_SETTLED_RATIO},
     {"FIELD_COMFORT_M", VS_FIELD_COMFORT_M}, {"FIELD_GROW", VS_FIELD_GROW}, {"STEP_PATH_M", VS_STEP_PATH_M},
     {"STEP_LOOKAHEAD_PER_REACH", VS_STEP_LOOKAHEAD_PER_REACH},
+    {"ASSEMBLING_M", VS_ASSEMBLING_M}, {"DETOUR_CLEAR_M", VS_DETOUR_CLEAR_M},
     {"PLAN_MAX_ABS_M", VS_PLAN_MAX_ABS_M}, {"PLAN_SLACK", VS_PLAN_SLACK}, {"PLAN_ARC_STEP_RAD", VS_PLAN_ARC_STEP_RAD},
     {"PLAN_SIDE_BIAS", VS_PLAN_SIDE_BIAS}, {"PLAN_GOAL_TIE_M", VS_PLAN_GOAL_TIE_M},
     {"FIT_CERT_TOL", VS_FIT_CERT_TOL}, {"FIT_MAX_ABS", VS_FIT_MAX_ABS}, {"SINC_SERIES_BELOW", VS_SINC_SERIES_BELOW},

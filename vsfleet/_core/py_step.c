@@ -1,6 +1,10 @@
-/* py_step.c - binding of the structure step (vs_step.h): vsfleet._core.structure_step. */
+/* py_step.c - bindings of the step's parts: the structure step (vs_step.h), vsfleet._core.structure_step, and
+ * the assembly tie-break (vs_assembly.h), vsfleet._core.assembly_targets. */
+#include <stdint.h>
+
 #include "py_util.h"
 #include "vscore.h"
+#include "vs_assembly.h"
 #include "vs_step.h"
 
 const vs_field *vs_py_field(PyObject *obj);   /* py_field.c: NULL for None (or with an error set) */
@@ -117,8 +121,67 @@ out:
     return result;
 }
 
+/* assembly_targets(radius_m (n), pose_world (n*3), seen (n bool/uint8), points_now (n*2), points_next (n*2),
+ *                  margin_m, now_out (n*2, written), next_out (n*2, written), detoured_out (n bool/uint8, written))
+ * -> the count of robots detoured.  n is len(radius_m).  The outputs must not share memory with the inputs. */
+static PyObject *py_assembly_targets(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
+{
+    (void)mod;
+    if (nargs != 9) {
+        PyErr_Format(PyExc_TypeError, "assembly_targets expects 9 arguments, got %zd", nargs);
+        return NULL;
+    }
+    double margin = PyFloat_AsDouble(a[5]);
+    if (margin == -1.0 && PyErr_Occurred()) return NULL;
+    Py_buffer b[8];
+    int got = 0;
+    PyObject *result = NULL;
+    if (vs_py_doubles(a[0], &b[got], -1, 0, "radius_m") < 0) return NULL;
+    got = 1;
+    const Py_ssize_t n = b[0].len / 8;
+    /* arg, count per row, flags (1) or doubles (0), writable, name */
+    static const struct { int arg, per, flags, writable; const char *name; } spec[] = {
+        {1, 3, 0, 0, "pose_world"}, {2, 1, 1, 0, "seen"}, {3, 2, 0, 0, "points_now"}, {4, 2, 0, 0, "points_next"},
+        {6, 2, 0, 1, "now_out"}, {7, 2, 0, 1, "next_out"}, {8, 1, 1, 1, "detoured_out"},
+    };
+    for (int k = 0; k < 7; k++, got++) {
+        int (*take)(PyObject *, Py_buffer *, Py_ssize_t, int, const char *) = spec[k].flags ? vs_py_flags
+                                                                                             : vs_py_doubles;
+        if (take(a[spec[k].arg], &b[got], n * spec[k].per, spec[k].writable, spec[k].name) < 0) goto out;
+    }
+    for (int k = 5; k < 8; k++) {   /* no output may share memory with an input or another output */
+        uintptr_t lo = (uintptr_t)b[k].buf, hi = lo + (uintptr_t)b[k].len;
+        for (int j = 0; j < k; j++) {
+            uintptr_t jlo = (uintptr_t)b[j].buf, jhi = jlo + (uintptr_t)b[j].len;
+            if (b[k].len > 0 && b[j].len > 0 && lo < jhi && jlo < hi) {
+                PyErr_Format(vs_ValueError, "assembly_targets: %s shares memory with an input", spec[k - 1].name);
+                goto out;
+            }
+        }
+    }
+    size_t count = 0;
+    int rc;
+    Py_BEGIN_ALLOW_THREADS
+    rc = vs_assembly_targets((size_t)n, b[0].buf, b[1].buf, b[2].buf, b[3].buf, b[4].buf, margin, b[5].buf,
+                             b[6].buf, b[7].buf, &count);
+    Py_END_ALLOW_THREADS
+    if (rc != VS_OK) {
+        vs_py_error(rc, rc == VS_ENONFINITE ? "assembly_targets: a seen robot's radius, position or points, or the "
+                                              "margin, is not finite"
+                                            : "assembly_targets: a negative radius or margin");
+        goto out;
+    }
+    result = PyLong_FromSize_t(count);
+out:
+    for (int k = 0; k < got; k++) PyBuffer_Release(&b[k]);
+    return result;
+}
+
 PyMethodDef vs_py_step_methods[] = {
     {"structure_step", (PyCFunction)(void (*)(void))py_structure_step, METH_FASTCALL,
      "structure_step(...): fit, advance and judged fit of one frame (vsfleet/_core/vs_step.h)."},
+    {"assembly_targets", (PyCFunction)(void (*)(void))py_assembly_targets, METH_FASTCALL,
+     "assembly_targets(radius_m, pose_world, seen, points_now, points_next, margin_m, now_out, next_out, "
+     "detoured_out) -> the count detoured: the assembly tie-break (vsfleet/_core/vs_assembly.h)."},
     {NULL, NULL, 0, NULL},
 };

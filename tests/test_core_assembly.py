@@ -1,0 +1,245 @@
+"""The assembly tie-break in the compiled core (vsfleet/_core/vs_assembly.c) against its numpy reference, bit for bit.
+
+Random crowds (2-40 robots packed 1-5 cm apart, some unseen, random points), head-on pairs, collinear rows and
+crowds on a dyadic grid whose blockers tie exactly in ``along``: the core's three outputs equal the reference's
+(np.array_equal). Then the documented rule on a hand-built head-on pair, ties, the refusals, and the agent step:
+it calls ``config.impl.assembly_targets``, and with the core's tie-break its outputs are the reference's bits.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from vsfleet import _core
+from vsfleet.assembly import assembly_targets, assembly_targets_reference
+from vsfleet.coreconst import ASSEMBLING_M, DETOUR_CLEAR_M
+from vsfleet.errors import NonFiniteError, ShapeError, VsfleetValueError
+from vsfleet.frames import Frame
+from vsfleet.impl import core as core_impl, reference as reference_impl
+from vsfleet.step import AgentState, StepConfig, agent_step
+from vsfleet.wire import Mission, RobotSpec
+
+MARGIN = 0.015
+KINDS = ("block", "row", "dyadic", "head_on", "scatter")
+
+
+def crowd(rng: np.random.Generator, kind: str):
+    """(radii, pose (n, 3), seen, points_now, points_next, margin) of one random crowd of the given kind."""
+    n = int(rng.integers(2, 41))
+    radius = 0.05 if rng.random() < 0.6 else float(rng.uniform(0.0, 0.08))
+    radii = np.full(n, radius) if rng.random() < 0.7 else rng.uniform(0.0, 0.08, n)
+    gap = rng.uniform(0.01, 0.05)
+    if kind == "block":                      # an n/5 x 5 block, bodies 1-5 cm apart, a little jitter
+        pitch = 2.0 * radius + gap
+        xy = np.array([(pitch * (k % 5), pitch * (k // 5)) for k in range(n)]) + rng.normal(0.0, 0.002, (n, 2))
+    elif kind == "row":                      # collinear: one row along a random direction (or exactly along x)
+        th = 0.0 if rng.random() < 0.5 else rng.uniform(-math.pi, math.pi)
+        s = (2.0 * radius + gap) * np.arange(n)
+        xy = np.c_[s * math.cos(th), s * math.sin(th)]
+    elif kind == "dyadic":                   # a grid of 1/32 m, points along the axes: exact ties in along
+        cells = rng.choice(64, size=n, replace=False)
+        xy = np.c_[cells % 8, cells // 8] / 32.0
+    elif kind == "head_on":                  # pairs face to face, each one's point behind the other
+        xy = np.array([((k % 2) * (2.0 * radius + gap), 0.4 * (k // 2)) for k in range(n)])
+    else:
+        xy = rng.uniform(-0.3, 0.3, (n, 2)) * math.sqrt(n)
+    pose = np.c_[xy, rng.uniform(-math.pi, math.pi, n)]
+    if kind == "head_on":
+        points = xy + np.c_[np.where(np.arange(n) % 2 == 0, 0.5, -0.5), rng.normal(0.0, 0.01, n) * (n % 3 == 0)]
+    elif kind == "dyadic":
+        axis = rng.integers(0, 4, n)
+        step = np.array([(1.0, 0.0), (-1.0, 0.0), (0.0, 1.0), (0.0, -1.0)])[axis] * rng.integers(1, 9, (n, 1)) / 8.0
+        points = xy + step
+    else:
+        points = rng.uniform(-0.6, 0.6, (n, 2)) * math.sqrt(n / 5.0)
+    near = rng.random(n) < 0.15              # some robots at or near their points: not on their way
+    points[near] = xy[near] + rng.uniform(-0.03, 0.03, (int(near.sum()), 2))
+    seen = rng.random(n) < (1.0 if rng.random() < 0.3 else 0.85)
+    nxt = points + (0.0 if rng.random() < 0.3 else rng.normal(0.0, 0.005, (n, 2)))
+    margin = MARGIN if rng.random() < 0.6 else float(rng.choice([0.0, rng.uniform(0.0, 0.03)]))
+    return radii, pose, seen, points, nxt, margin
+
+
+def test_the_core_reproduces_the_reference_bit_for_bit_on_random_crowds():
+    rng = np.random.default_rng(29)
+    detoured = cases = 0
+    for k in range(800):
+        args = crowd(rng, KINDS[k % len(KINDS)])
+        got, want = assembly_targets(*args), assembly_targets_reference(*args)
+        for g, w, name in zip(got, want, ("points_now", "points_next", "detoured")):
+            assert np.array_equal(g, w), (k, KINDS[k % len(KINDS)], name)
+            assert g.dtype == w.dtype and g.shape == w.shape
+        detoured += int(want[2].sum())
+        cases += bool(want[2].any())
+    assert cases > 300 and detoured > 1500, (cases, detoured)   # the tie-break did work in most crowds
+
+
+def test_unseen_rows_are_not_read_and_their_points_pass_through_as_they_are():
+    rng = np.random.default_rng(7)
+    for k in range(100):
+        radii, pose, seen, now, nxt, margin = crowd(rng, KINDS[k % len(KINDS)])
+        seen[0] = False
+        pose[~seen, :2] = np.nan                      # as frame_arrays leaves them
+        radii[~seen] = -1.0
+        now[~seen] = np.inf
+        got, want = assembly_targets(radii, pose, seen, now, nxt, margin), \
+            assembly_targets_reference(radii, pose, seen, now, nxt, margin)
+        for g, w in zip(got, want):
+            assert np.array_equal(g, w, equal_nan=True), k
+        assert not got[2][~seen].any() and np.array_equal(got[0][~seen], now[~seen])
+
+
+def _head_on():
+    radii = np.array([0.05, 0.05])
+    pose = np.array([[0.0, 0.0, 0.0], [0.12, 0.0, math.pi]])    # face to face, 2 cm apart
+    points = np.array([[0.5, 0.0], [-0.4, 0.0]])                 # each one's point behind the other
+    return radii, pose, np.ones(2, bool), points, points + 0.01, MARGIN
+
+
+@pytest.mark.parametrize("fn", [assembly_targets, assembly_targets_reference], ids=["core", "reference"])
+def test_of_a_head_on_pair_the_higher_row_passes_the_other_on_its_right_at_the_documented_waypoint(fn):
+    """Docstring's rule: the later row gives way; its waypoint lies c = (r_i + r_j + margin) + DETOUR_CLEAR_M to
+    its right of the line to the other and c short of it; the other keeps both its points."""
+    radii, pose, seen, points, nxt, margin = _head_on()
+    now, next_, detoured = fn(radii, pose, seen, points, nxt, margin)
+    assert detoured.tolist() == [False, True]
+    assert now[0].tolist() == points[0].tolist() and next_[0].tolist() == nxt[0].tolist()
+    assert now[1].tolist() == next_[1].tolist()
+    c = 0.05 + 0.05 + margin + DETOUR_CLEAR_M
+    u = (pose[0, :2] - pose[1, :2]) / 0.12                      # from r2 towards r1: -x
+    w = now[1] - pose[1, :2]
+    assert w @ u == pytest.approx(0.12 - c, abs=1e-15)          # c short of r1 along the line
+    assert u[0] * w[1] - u[1] * w[0] == pytest.approx(-c, abs=1e-15)   # c to the right of it (r2 heads -x: +y)
+    # the rows decide, not the poses: swapped, the other robot gives way, to its own right
+    now_s, _, detoured_s = fn(radii, pose[::-1].copy(), seen, points[::-1].copy(), nxt[::-1].copy(), margin)
+    assert detoured_s.tolist() == [False, True] and now_s[1, 1] < -0.1
+
+
+def test_of_blockers_tied_in_along_the_lower_row_is_the_one_gone_round():
+    """numpy's argmin takes the first minimum: two robots mirrored about the way tie exactly."""
+    radii = np.full(3, 0.05)
+    pose = np.array([[0.0, 0.0, 0.0], [0.0625, 0.03125, 0.0], [0.0625, -0.03125, 0.0]])
+    points = np.array([[1.0, 0.0], [0.0625, 0.03125], [0.0625, -0.03125]])   # r2, r3 on their points
+    for order in ([0, 1, 2], [0, 2, 1]):
+        args = (radii, pose[order], np.ones(3, bool), points[order], points[order], MARGIN)
+        now, _, detoured = assembly_targets(*args)
+        want = assembly_targets_reference(*args)
+        assert all(np.array_equal(g, w) for g, w in zip((now, _, detoured), want))
+        assert detoured.tolist() == [True, False, False]
+        # round row 1 on the side robot 0 is on (row 1 to its left: pass it on its right, y < 0; else y > 0)
+        assert (now[0, 1] < 0.0) == (pose[order][1, 1] > 0.0)
+
+
+def test_robots_near_their_points_a_single_robot_and_no_robots_keep_their_targets():
+    radii, pose, seen, points, nxt, margin = _head_on()
+    near = pose[:, :2] + np.array([[ASSEMBLING_M, 0.0], [-ASSEMBLING_M, 0.0]])   # exactly ASSEMBLING_M: not on its way
+    for args in ((radii, pose, seen, near, nxt, margin), (radii[:1], pose[:1], seen[:1], points[:1], nxt[:1], margin),
+                 (np.zeros(0), np.zeros((0, 3)), np.zeros(0, bool), np.zeros((0, 2)), np.zeros((0, 2)), margin)):
+        now, next_, detoured = assembly_targets(*args)
+        assert not detoured.any() and np.array_equal(now, args[3]) and np.array_equal(next_, args[4])
+
+
+def test_the_core_refuses_what_it_cannot_read():
+    radii, pose, seen, points, nxt, margin = _head_on()
+    for bad in ("pose", "points", "next", "radius"):
+        a = [radii.copy(), pose.copy(), seen, points.copy(), nxt.copy()]
+        {"pose": lambda: a[1].__setitem__((1, 1), np.nan), "points": lambda: a[3].__setitem__((0, 0), np.inf),
+         "next": lambda: a[4].__setitem__((1, 0), np.nan), "radius": lambda: a[0].__setitem__(0, np.inf)}[bad]()
+        with pytest.raises(NonFiniteError):
+            assembly_targets(*a, margin)
+    with pytest.raises(NonFiniteError):
+        assembly_targets(radii, pose, seen, points, nxt, math.nan)
+    with pytest.raises(VsfleetValueError):
+        assembly_targets(radii, pose, seen, points, nxt, -0.01)
+    with pytest.raises(VsfleetValueError):
+        assembly_targets(np.array([0.05, -0.05]), pose, seen, points, nxt, margin)
+    with pytest.raises(ShapeError):
+        assembly_targets(radii, pose[:, :2], seen, points, nxt, margin)
+    out = np.empty((2, 2))
+    with pytest.raises(VsfleetValueError, match="shares memory"):   # the binding: outputs apart from the inputs
+        _core.assembly_targets(radii, pose, seen, points, nxt, margin, points, out, np.empty(2, bool))
+    with pytest.raises(ValueError):
+        _core.assembly_targets(radii, pose, seen, points, nxt, margin, out, np.empty((3, 2)), np.empty(2, bool))
+    count = _core.assembly_targets(radii, pose, seen, points, nxt, margin, out, np.empty((2, 2)), np.empty(2, bool))
+    assert count == 1
+
+
+def _crowd_mission(n: int = 8) -> tuple[Mission, np.ndarray]:
+    """n robots of 5 cm packed 2 cm apart in a 2-row block, their points on a 0.3 m grid in a shuffled order."""
+    rng = np.random.default_rng(3)
+    order = rng.permutation(n)
+    robots = tuple((f"r{i + 1:02d}", RobotSpec(p=(0.3 * (order[i] % (n // 2)), 0.3 * (order[i] // (n // 2))),
+                                               wheel_base=0.12, wheel_speed_max=0.3, wheel_accel_max=0.8,
+                                               radius=0.05)) for i in range(n))
+    start = np.array([(0.12 * (i % (n // 2)), 0.12 * (i // (n // 2))) for i in range(n)])
+    mission = Mission(version=1, metric="l2", robots=robots, speed_max=0.08, turn_rate_max=0.3, effective_t=0.0,
+                      goal=(0.3, 0.1, 0.0))
+    return mission, start
+
+
+def test_the_step_calls_the_impls_tie_break_and_its_outputs_are_the_references_bits():
+    mission, start = _crowd_mission()
+    calls = []
+
+    def recorded(fn):
+        def call(*a):
+            out = fn(*a)
+            calls.append((fn.__name__, int(out[2].sum())))
+            return out
+        return call
+
+    configs = []
+    for fn in (assembly_targets, assembly_targets_reference):
+        cfg = StepConfig(dt_s=1.0 / 30.0)
+        object.__setattr__(cfg, "impl", dataclasses.replace(core_impl, assembly_targets=recorded(fn)))
+        configs.append(cfg)
+    assert core_impl.assembly_targets is assembly_targets
+    assert reference_impl.assembly_targets is assembly_targets_reference
+    rng = np.random.default_rng(5)
+    states = [AgentState("r01"), AgentState("r01")]
+    ids = mission.robot_ids
+    for k in range(12):
+        t = k / 30.0
+        xy = start + rng.normal(0.0, 0.002, start.shape)
+        poses = {r: (float(xy[i, 0]), float(xy[i, 1]), float(0.3 * i)) for i, r in enumerate(ids) if k % 5 or i != 3}
+        frame = Frame(seq=k + 1, t=t, poses=poses, complete=len(poses) == len(ids), fresh=frozenset(poses))
+        outs = []
+        for j, cfg in enumerate(configs):
+            states[j], out = agent_step(states[j], mission, frame, t + 0.001, cfg)
+            outs.append(out)
+        a, b = outs
+        assert (a.cmd.vl, a.cmd.vr) == (b.cmd.vl, b.cmd.vr)
+        assert a.wheels_m_s.tobytes() == b.wheels_m_s.tobytes()
+        assert [(e.robot, e.kind, e.t, e.dev) for e in a.events] == [(e.robot, e.kind, e.t, e.dev) for e in b.events]
+    core_calls = [c for c in calls if c[0] == "assembly_targets"]
+    ref_calls = [c for c in calls if c[0] == "assembly_targets_reference"]
+    assert len(core_calls) == len(ref_calls) == 12
+    assert [c[1] for c in core_calls] == [c[1] for c in ref_calls] and sum(c[1] for c in core_calls) > 0
+
+
+def test_the_numpy_reference_reproduces_the_cores_golden_records():
+    """tests/data/golden-core.txt's assembly_targets records (replayed natively, at -O0/-O2/-O3 and on aarch64 by
+    tests/test_core_golden.py) are the reference's bits too."""
+    import sys
+    from pathlib import Path
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from golden_core import PATH, read
+
+    records = [(i, w) for e, i, w in read(PATH) if e == "assembly_targets"]
+    assert len(records) >= 150
+    detoured = 0
+    for inputs, want in records:
+        n = int(inputs[0])
+        a = np.asarray(inputs)
+        radii, pose = a[2:2 + n], a[2 + n:2 + 4 * n].reshape(n, 3)
+        seen, now = a[2 + 4 * n:2 + 5 * n] != 0.0, a[2 + 5 * n:2 + 7 * n].reshape(n, 2)
+        nxt = a[2 + 7 * n:2 + 9 * n].reshape(n, 2)
+        got_now, got_next, got_det = assembly_targets_reference(radii, pose, seen, now, nxt, float(a[1]))
+        got = [*got_now.ravel(), *got_next.ravel(), *got_det.astype(float), float(got_det.sum())]
+        assert [v.hex() for v in got] == [v.hex() for v in want]
+        detoured += int(got_det.sum())
+    assert detoured > 300, detoured

@@ -1,0 +1,111 @@
+/* vs_assembly.c - the assembly tie-break (see vs_assembly.h).
+ *
+ * The numpy reference (vsfleet/assembly.py) computes (n, n) tables of along, lateral and bars and
+ * then walks the barred rows in order; here the same numbers are computed where they are needed,
+ * with no table: robot i's row of the tables in one pass over j, and bars[j][i] (head on or not)
+ * again from robot j's own way.  Every number is the reference's expression, in its order:
+ *     to = point - xy, dist = sqrt(to.x to.x + to.y to.y), d = to / dist,
+ *     rel = xy_j - xy_i, along = rel.x d.x + rel.y d.y, lateral = d.x rel.y - d.y rel.x,
+ *     width = (r_i + r_j) + margin, gap = sqrt(rel.x rel.x + rel.y rel.y), u = rel / gap,
+ *     way = (xy_i + normal clear) + u (gap - clear),
+ * and the first blocker is numpy's argmin: the least along, the first (lowest row) of equal ones.  So
+ * the outputs are the reference's bits for every finite input (-ffp-contract=off: no fused
+ * multiply-add); finite inputs so large that a square overflows give inf or NaN in both alike. */
+#include <math.h>   /* sqrt only */
+
+#include "vscore.h"
+#include "vs_assembly.h"
+
+/* Robot i's way to its point: 1 if it is on its way (seen, more than VS_ASSEMBLING_M from its point),
+ * with its distance and direction. */
+static int on_way(const double *pose_world, const unsigned char *seen, const double *points_now, size_t i,
+                  double *dist, double *dx, double *dy)
+{
+    if (!seen[i]) return 0;
+    double tx = points_now[2 * i] - pose_world[3 * i], ty = points_now[2 * i + 1] - pose_world[3 * i + 1];
+    double d = sqrt(tx * tx + ty * ty);
+    if (!(d > VS_ASSEMBLING_M)) return 0;
+    *dist = d;
+    *dx = tx / d;
+    *dy = ty / d;
+    return 1;
+}
+
+/* Does j (seen) bar robot i, on its way (dist, d)?  along and lateral of j on i's way are set. */
+static int bars(const double *radius_m, const double *pose_world, double margin_m, size_t i, double dist, double dx,
+                double dy, size_t j, double *along, double *lateral, double *width)
+{
+    double rx = pose_world[3 * j] - pose_world[3 * i], ry = pose_world[3 * j + 1] - pose_world[3 * i + 1];
+    double a = rx * dx + ry * dy;
+    double l = dx * ry - dy * rx;
+    double w = (radius_m[i] + radius_m[j]) + margin_m;
+    *along = a;
+    *lateral = l;
+    *width = w;
+    return a > 0.0 && a < dist + w && vs_fabs(l) < w;
+}
+
+int vs_assembly_targets(size_t n, const double *radius_m, const double *pose_world, const unsigned char *seen,
+                        const double *points_now, const double *points_next, double margin_m, double *now_out,
+                        double *next_out, unsigned char *detoured_out, size_t *n_detoured)
+{
+    if (n > 0 && (radius_m == NULL || pose_world == NULL || seen == NULL || points_now == NULL
+                  || points_next == NULL || now_out == NULL || next_out == NULL || detoured_out == NULL))
+        return VS_EVALUE;
+    if (!vs_isfinite(margin_m)) return VS_ENONFINITE;
+    if (!(margin_m >= 0.0)) return VS_EVALUE;
+    for (size_t i = 0; i < n; i++) {
+        if (!seen[i]) continue;
+        if (!(vs_isfinite(radius_m[i]) && vs_isfinite(pose_world[3 * i]) && vs_isfinite(pose_world[3 * i + 1])
+              && vs_isfinite(points_now[2 * i]) && vs_isfinite(points_now[2 * i + 1])
+              && vs_isfinite(points_next[2 * i]) && vs_isfinite(points_next[2 * i + 1])))
+            return VS_ENONFINITE;
+        if (!(radius_m[i] >= 0.0)) return VS_EVALUE;
+    }
+    for (size_t i = 0; i < 2 * n; i++) {
+        now_out[i] = points_now[i];
+        next_out[i] = points_next[i];
+    }
+    size_t count = 0;
+    for (size_t i = 0; i < n; i++) detoured_out[i] = 0;
+    for (size_t i = 0; i < n && n >= 2; i++) {
+        double dist, dx, dy;
+        if (!on_way(pose_world, seen, points_now, i, &dist, &dx, &dy)) continue;
+        /* the first blocker: the least along among the robots that bar i, the first of equal ones */
+        size_t j = n;
+        double best = 0.0, lat_j = 0.0, width_j = 0.0;
+        for (size_t k = 0; k < n; k++) {
+            double along, lateral, width;
+            if (k == i || !seen[k]) continue;
+            if (!bars(radius_m, pose_world, margin_m, i, dist, dx, dy, k, &along, &lateral, &width)) continue;
+            if (j == n || along < best) {
+                j = k;
+                best = along;
+                lat_j = lateral;
+                width_j = width;
+            }
+        }
+        if (j == n) continue;
+        /* head on: j bars i too (j on its way, i ahead on it) */
+        double dist_j, dx_j, dy_j, along_ji, lat_ji, width_ji;
+        int mutual = on_way(pose_world, seen, points_now, j, &dist_j, &dx_j, &dy_j)
+                     && bars(radius_m, pose_world, margin_m, j, dist_j, dx_j, dy_j, i, &along_ji, &lat_ji, &width_ji);
+        if (mutual && j > i) continue;   /* head on, and i has the lower row: i keeps its way */
+        double left = (!mutual && lat_j < 0.0) ? 1.0 : -1.0;   /* j on i's right: pass on its left */
+        double rx = pose_world[3 * j] - pose_world[3 * i], ry = pose_world[3 * j + 1] - pose_world[3 * i + 1];
+        double gap = sqrt(rx * rx + ry * ry);
+        double ux = rx / gap, uy = ry / gap;                   /* towards j */
+        double nx = -uy * left, ny = ux * left;
+        double clear = width_j + VS_DETOUR_CLEAR_M;   /* round j: as far beside the line to j, that much short */
+        double wx = (pose_world[3 * i] + nx * clear) + ux * (gap - clear);
+        double wy = (pose_world[3 * i + 1] + ny * clear) + uy * (gap - clear);
+        now_out[2 * i] = wx;
+        now_out[2 * i + 1] = wy;
+        next_out[2 * i] = wx;
+        next_out[2 * i + 1] = wy;
+        detoured_out[i] = 1;
+        count++;
+    }
+    if (n_detoured != NULL) *n_detoured = count;
+    return VS_OK;
+}

@@ -1,0 +1,38 @@
+/* vs_assembly.h - the assembly tie-break of the agent step (issue 28, crowded starts; issue 29: in the core).
+ *
+ * As vsfleet.assembly.assembly_targets_reference, bit for bit (the same operations in the same order,
+ * + - * / and sqrt only).  Robot i, seen and more than VS_ASSEMBLING_M from its point, is barred by robot
+ * j (seen, j != i) when j's centre lies ahead on i's straight way to its point, 0 < along < dist + width,
+ * within width = (r_i + r_j) + margin_m of that line; its first blocker is the nearest such j (the least
+ * along; ties: the lowest row).  Two robots that bar each other (head on): the one of the higher row gives
+ * way and passes the other on its right; the other keeps its way.  A robot barred by one that does not bar
+ * it passes it on the side it is already on (on the right when dead ahead).  Passing j means heading for
+ * the waypoint c = width + VS_DETOUR_CLEAR_M to that side of the line from i to j and c short of j along
+ * it.  Every agent computes the same targets from the same frame.
+ */
+#ifndef VS_ASSEMBLY_H
+#define VS_ASSEMBLY_H
+
+#include <stddef.h>
+
+#define VS_ASSEMBLING_M 0.05   /* [m] a seen robot farther than this from its point is on its way to it */
+#define VS_DETOUR_CLEAR_M 0.03 /* [m] a detour's waypoint lies this far beyond touching + margin_m, beside
+                                  the line to the blocker and as far short of it */
+
+/* Every robot's targets after the tie-break, and which robots it sent round another.
+ *   radius_m (n) [m] >= 0; pose_world (n, 3) [m, m, rad; world] (x and y read, the heading never);
+ *   seen (n) 0/1 (nonzero: seen); points_now, points_next (n, 2) [m; world], every robot's point on
+ *   the fitted and on the advanced structure; margin_m [m] >= 0, the clearance beyond the bodies.
+ *   Only seen rows are read: radius_m, pose_world's x and y, points_now and points_next there must be
+ *   finite (VS_ENONFINITE), radius_m >= 0 (VS_EVALUE); an unseen row's values, whatever they are,
+ *   are never read and its points are copied through as they are.
+ *   Outputs: now_out, next_out (n, 2): points_now / points_next, with a detoured robot's rows both
+ *   set to its waypoint; detoured_out (n) 0/1.  With n < 2 or no robot on its way the outputs are
+ *   the inputs and no robot is detoured.  *n_detoured (optional, NULL): the count of detoured robots.
+ * O(n^2) time, no allocation.  The outputs must not overlap the inputs.  Errors: VS_EVALUE (NULL
+ * arrays with n > 0, a negative radius or margin), VS_ENONFINITE; outputs are written only on VS_OK. */
+int vs_assembly_targets(size_t n, const double *radius_m, const double *pose_world, const unsigned char *seen,
+                        const double *points_now, const double *points_next, double margin_m, double *now_out,
+                        double *next_out, unsigned char *detoured_out, size_t *n_detoured);
+
+#endif

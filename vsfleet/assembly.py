@@ -1,0 +1,86 @@
+"""The assembly tie-break (issue 28, crowded starts): every robot's target when robots bar each other's way.
+
+``assembly_targets`` runs the compiled core (vsfleet/_core/vs_assembly.c, issue 29) and
+``assembly_targets_reference`` is the numpy specification it reproduces bit for bit; vsfleet.impl picks one
+(``Impl.assembly_targets``) and vsfleet.step.agent_step calls it on every frame of a mission with bodies.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from . import _core
+from .coreconst import ASSEMBLING_M, DETOUR_CLEAR_M
+from .errors import ShapeError
+
+
+def assembly_targets(radii_m: np.ndarray, pose_world: np.ndarray, seen: np.ndarray, points_now: np.ndarray,
+                     points_next: np.ndarray, margin_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The assembly tie-break in the compiled core: (points_now, points_next, detoured (n,) bool), new arrays.
+
+    The same arguments and the same bits as :func:`assembly_targets_reference`. Only seen rows are read:
+    their radius, x, y and points must be finite (NonFiniteError), radii and margin_m >= 0 (VsfleetValueError).
+    """
+    radii = np.ascontiguousarray(radii_m, dtype=float)
+    pose = np.ascontiguousarray(pose_world, dtype=float)
+    flags = np.ascontiguousarray(seen, dtype=bool)
+    now_in = np.ascontiguousarray(points_now, dtype=float)
+    next_in = np.ascontiguousarray(points_next, dtype=float)
+    n = len(radii)
+    if (radii.shape != (n,) or pose.shape != (n, 3) or flags.shape != (n,) or now_in.shape != (n, 2)
+            or next_in.shape != (n, 2)):
+        raise ShapeError(f"assembly_targets: radii (n,), pose_world (n, 3), seen (n,), points_now and points_next "
+                         f"(n, 2), got {radii.shape}, {pose.shape}, {flags.shape}, {now_in.shape}, {next_in.shape}")
+    now, nxt, detoured = np.empty((n, 2)), np.empty((n, 2)), np.empty(n, dtype=bool)
+    _core.assembly_targets(radii, pose, flags, now_in, next_in, float(margin_m), now, nxt, detoured)
+    return now, nxt, detoured
+
+
+def assembly_targets_reference(radii_m: np.ndarray, pose_world: np.ndarray, seen: np.ndarray, points_now: np.ndarray,
+                               points_next: np.ndarray, margin_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The assembly tie-break: (points_now, points_next, detoured (n,) bool), every robot's target.
+
+    Robot i, seen and more than ASSEMBLING_M from its point, is barred by robot j (seen) when j's centre lies
+    ahead on i's straight way to its point (0 < along < distance + width) within width = r_i + r_j + margin
+    of that line; its first blocker is the nearest such j. Two robots that bar each other (head on): the one
+    of the higher row (the later id) gives way and passes the other on its right; the other keeps its way. A
+    robot barred by one that does not bar it passes it on the side it is already on (on the right when dead
+    ahead). Passing j means heading for the waypoint c = width + DETOUR_CLEAR_M to that side of the line from
+    i to j and c short of j along it: never towards j while they touch, and round j as i goes. Every
+    agent computes the same targets from the same frame (a pure function of it, in + - * / and sqrt, which
+    IEEE 754 rounds alike everywhere: no libm function whose last bit could differ between hosts)."""
+    n = len(pose_world)
+    xy = pose_world[:, :2]
+    to = points_now - xy
+    dist = np.sqrt(to[:, 0] * to[:, 0] + to[:, 1] * to[:, 1])   # + * / sqrt only: the same bits on every platform
+    on_way = seen & (dist > ASSEMBLING_M)
+    detoured = np.zeros(n, dtype=bool)
+    if n < 2 or not on_way.any():
+        return points_now, points_next, detoured
+    d = to / np.where(on_way, dist, 1.0)[:, None]
+    rel = xy[None, :, :] - xy[:, None, :]                              # rel[i, j] = p_j - p_i
+    along = rel[:, :, 0] * d[:, None, 0] + rel[:, :, 1] * d[:, None, 1]
+    lateral = d[:, None, 0] * rel[:, :, 1] - d[:, None, 1] * rel[:, :, 0]   # > 0: j left of i's way
+    width = radii_m[:, None] + radii_m[None, :] + margin_m
+    bars = (on_way[:, None] & seen[None, :] & ~np.eye(n, dtype=bool) & (along > 0.0)
+            & (along < dist[:, None] + width) & (np.abs(lateral) < width))
+    first = np.argmin(np.where(bars, along, np.inf), axis=1)
+    rows = np.flatnonzero(bars.any(axis=1))
+    now, nxt = points_now.copy(), points_next.copy()
+    for i in rows:
+        j = int(first[i])
+        mutual = bool(bars[j, i])
+        if mutual and j > i:
+            continue                         # head on, and i has the lower row: i keeps its way
+        left = 1.0 if (not mutual and lateral[i, j] < 0.0) else -1.0     # j on i's right: pass on its left
+        gap = math.sqrt(rel[i, j, 0] * rel[i, j, 0] + rel[i, j, 1] * rel[i, j, 1])
+        u = rel[i, j] / gap                                              # towards j
+        normal = np.array([-u[1], u[0]]) * left
+        clear = width[i, j] + DETOUR_CLEAR_M      # round j: as far beside the line to j, and that much short of j
+        way = xy[i] + normal * clear + u * (gap - clear)
+        now[i] = way
+        nxt[i] = way
+        detoured[i] = True
+    return now, nxt, detoured
