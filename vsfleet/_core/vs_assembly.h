@@ -23,9 +23,9 @@
  *   radius_m (n) [m] >= 0; pose_world (n, 3) [m, m, rad; world] (x and y read, the heading never);
  *   seen (n) 0/1 (nonzero: seen); points_now, points_next (n, 2) [m; world], every robot's point on
  *   the fitted and on the advanced structure; margin_m [m] >= 0, the clearance beyond the bodies.
- *   Only seen rows are read: radius_m, pose_world's x and y, points_now and points_next there must be
- *   finite (VS_ENONFINITE), radius_m >= 0 (VS_EVALUE); an unseen row's values, whatever they are,
- *   are never read and its points are copied through as they are.
+ *   Only seen rows enter the tie-break: there radius_m, pose_world's x and y, points_now and points_next
+ *   must be finite (VS_ENONFINITE) and radius_m >= 0 (VS_EVALUE); an unseen row's values, whatever they
+ *   are (NaN included), are neither checked nor used, and its points are copied through as they are.
  *   Outputs: now_out, next_out (n, 2): points_now / points_next, with a detoured robot's rows both
  *   set to its waypoint; detoured_out (n) 0/1.  With n < 2 or no robot on its way the outputs are
  *   the inputs and no robot is detoured.  *n_detoured (optional, NULL): the count of detoured robots.
