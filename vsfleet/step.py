@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 from functools import cached_property, lru_cache
 from itertools import chain, repeat
 from typing import Callable, Mapping
@@ -28,17 +28,21 @@ from typing import Callable, Mapping
 import numpy as np
 
 from .advance import Goal, GoalPath, GoalPose, GoalTwist, StructureLimits
+from . import _core
 from .assembly import assembly_targets, assembly_targets_reference  # noqa: F401 (re-exported: the step's names)
-from .coreconst import GOAL_PATH, GOAL_POSE, GOAL_TWIST, LIMIT_FIELDS, METRIC_CODES
-from .control import DEFAULT_CONTROLLER, ControlInput, make_controller
+from .coreconst import (AGENT_CONTROLLERS, AGENT_SCRATCH_F64_PER_ROBOT, AGENT_SCRATCH_U8_PER_ROBOT, AGENT_STALL_MOVE_M,
+                        AGENT_STALL_S, AGENT_STALL_TURN_RAD, DECISION_KINDS, FAILURE_MODES, GOAL_PATH, GOAL_POSE,
+                        GOAL_TWIST, LIMIT_FIELDS, METRIC_CODES)
+from .control import (DEFAULT_CONTROLLER, Arc, ControlInput, Held, Precision, PrecisionState, Tracking, TurnThenGo,
+                      make_controller)
 from .envelope import Envelope, Envelopes
-from .failure import FailurePolicy, FailureState, Health, restart_timers, with_health
+from .failure import Decision, FailurePolicy, FailureState, Health, restart_timers, with_health
 from .frames import Frame
 from .geometry import Pose2, angle_diff
 from .field import Field, build_field, follow_field
 from .impl import Impl, choose as choose_impl, core as core_impl
 from .safety import SafetyParams
-from .structure import MISSION_ARGS, PLAN_MARGIN_M, Structure, room_field  # noqa: F401 (re-exported: the step's names)
+from .structure import MISSION_ARGS, PLAN_MARGIN_M, Structure, make_structure, room_field  # noqa: F401 (re-exported)
 from .wire import CmdMsg, EventMsg, HealthMsg, Mission, StateMsg
 
 Controller = Callable  # vsfleet.control: controller(state, ControlInput) -> (state, wheels (n, 2))
@@ -415,6 +419,10 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
         notes.append(Note("info", f"frame {frame.seq}: switching to mission v{mission.version}"))
         state = _enter_mission(state, mission, policy, config)
     n = len(arrays.ids)
+    if config.impl is core_impl and config.shared_structures is None:
+        kernel = _agent_kernel(arrays, mission, state.robot, controller, config)
+        if kernel is not None:   # the rest of the frame in one call into the core (vs_agent_step)
+            return _frame_in_core(kernel, state, mission, arrays, controller, frame, config, notes)
     wheels_prev, ctrl = state.wheels_m_s, state.ctrl
     if frame.t - state.last_cmd_t > config.ttl_s or ctrl is None:
         # a gap longer than ttl: every robot has halted since the last commands
@@ -463,7 +471,8 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
     state_msg = None
     if seen[own]:
         f, g = s.fit_pose, s.goal_pose
-        err = float(math.hypot(pose[own, 0] - s.points_now[own, 0], pose[own, 1] - s.points_now[own, 1]))
+        dx, dy = float(pose[own, 0] - s.points_now[own, 0]), float(pose[own, 1] - s.points_now[own, 1])
+        err = math.sqrt(dx * dx + dy * dy)   # + * sqrt only (the core's vs_agent_step): the same bits everywhere
         state_msg = StateMsg(t=frame.t, seq=frame.seq, x=f.x, y=f.y, th=f.th, gx=g.x, gy=g.y, gth=g.th,
                              cost=s.cost, err=err, used=_used_ids(arrays.ids, s.used),
                              rejected=0, complete=frame.complete, mission=mission.version, shape=s.shape)
@@ -489,12 +498,7 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
         short = s.left_m if s.blocked else _goal_distance(arrays, s.fit_pose)
         events += (EventMsg(t=frame.t, seq=frame.seq, robot=state.robot, kind="blocked" if now else "unblocked",
                             dev=short, by=state.robot),)
-        notes.append(Note("warning", f"frame {frame.seq}: no path to the goal around the obstacles: the structure "
-                                     f"stops at the closest safe pose, {short:.3f} m short") if s.blocked else
-                     Note("warning", f"frame {frame.seq}: stuck on the way, {short:.3f} m short: for {STALL_S:.0f} s "
-                                     "the safety filter has held robots back and the structure has not moved (a "
-                                     "passage tighter than the plan allowed for)") if now else
-                     Note("info", f"frame {frame.seq}: the structure is on its way to the goal again"))
+        notes.append(_blocked_note(frame.seq, s.blocked, now, short))
     if s.shape != state.shape:   # reshape: every agent at the same frame (a function of the frame)
         notes.append(Note("info", f"frame {frame.seq}: the structure takes {shape_name(arrays, s.shape)}"))
     notes.extend(Note("warning", f"frame {frame.seq}: robot {d.robot} {d.kind} (deviation {d.deviation_m:.3f} m, "
@@ -506,6 +510,136 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
                              structure=s, wheels_m_s=wheels)
 
 
+@dataclass(frozen=True)
+class _Kernel:
+    """A mission's and an agent's constants for vs_agent_step (vsfleet._core.agent_config), and its scratch."""
+
+    config: object              # the capsule
+    scratch_f64: np.ndarray
+    scratch_u8: np.ndarray
+    stateless: tuple            # Precision's arrays standing in for a controller that keeps no state
+
+
+_KERNELS: dict[tuple, tuple[MissionArrays, _Kernel]] = {}
+PRECISION_STATE_FIELDS = tuple(f.name for f in fields(PrecisionState))
+FAILURE_FIELDS = tuple(f.name for f in fields(FailureState))
+
+
+def _agent_kernel(arrays: MissionArrays, mission: Mission, robot: str, controller: Controller,
+                  config: StepConfig) -> _Kernel | None:
+    """The core's agent step for this mission, robot, controller and config (built once; None: a controller the
+    core does not run, whose frames then go through the numpy glue below)."""
+    key = (id(arrays), robot, id(controller), config.dt_s, config.ttl_s, config.age_s, config.resync_gap_s)
+    hit = _KERNELS.get(key)
+    if hit is not None and hit[0] is arrays:
+        return hit[1]
+    inner, deadband, still = controller, 0.0, 0.0
+    if isinstance(controller, Held):
+        inner, deadband, still = controller.inner, controller.deadband_m, controller.still_speed_m_s
+    name = {Precision: "precision", TurnThenGo: "turn_then_go", Arc: "arc", Tracking: "tracking"}.get(type(inner))
+    if name is None:
+        return None
+    gains = (inner.horizon_s,) if name == "arc" else tuple(float(g) for g in inner._core)
+    p = arrays.policy
+    policy = (FAILURE_MODES.index(p.mode), p.fail_deviation_m, p.fail_after_s, p.rejoin_deviation_m, p.rejoin_after_s,
+              p.recover_after_s, p.min_progress_ratio, p.min_expected_m ** 2, p.min_approach_m)
+    sp = _safety_params(config.dt_s)
+    n = len(arrays.ids)
+    capsule = _core.agent_config(arrays.core, arrays.index[robot], AGENT_CONTROLLERS.index(name), gains, deadband,
+                                 still, policy, (sp.margin_m, sp.gamma_per_s, sp.offset_m, sp.dt_s),
+                                 (config.dt_s, config.ttl_s, config.age_s, config.resync_gap_s, mission.effective_t),
+                                 arrays.room, bool(arrays.radii.any()))
+    stateless = Precision().initial(n)
+    kernel = _Kernel(capsule, np.zeros(AGENT_SCRATCH_F64_PER_ROBOT * n), np.zeros(AGENT_SCRATCH_U8_PER_ROBOT * n,
+                                                                                  dtype=bool),
+                     tuple(getattr(stateless, k).copy() for k in PRECISION_STATE_FIELDS))
+    if len(_KERNELS) >= 16:
+        _KERNELS.clear()
+    _KERNELS[key] = (arrays, kernel)
+    return kernel
+
+
+def _frame_in_core(kernel: _Kernel, state: AgentState, mission: Mission, arrays: MissionArrays, controller,
+                   frame: Frame, config: StepConfig, notes: list) -> tuple[AgentState, StepOutput]:
+    """agent_step from the frame's poses on, in the core (vs_agent_step): the same bits as the numpy glue below.
+    The state's arrays (wheels, the controller's, the failure rule's) are advanced in place: the state passed in
+    is consumed, and only the one returned is to be used."""
+    n = len(arrays.ids)
+    pose, seen, fresh = frame_arrays(arrays.ids, frame.poses, frame.fresh)
+    ctrl = state.ctrl
+    if ctrl is None:
+        ctrl = controller.initial(n)
+        if isinstance(ctrl, PrecisionState):   # arrays of its own each (initial shares one zeros array): the core
+            ctrl = PrecisionState(*(getattr(ctrl, k).copy() for k in PRECISION_STATE_FIELDS))   # writes in place
+    precision = tuple(getattr(ctrl, k) for k in PRECISION_STATE_FIELDS) if isinstance(ctrl, PrecisionState) \
+        else kernel.stateless
+    f = state.failure
+    at = state.stall_pose
+    scalars = np.array((state.last_frame_t, state.last_cmd_t, state.ctrl is not None, state.blocked,
+                        state.stall_since_t, at is not None, *(at[:3] if at is not None else (0.0, 0.0, 0.0)),
+                        bool(at[3]) if at is not None else False, state.stalled, state.shape), dtype=float)
+    used = np.empty(n, dtype=bool)
+    r = _core.agent_step(kernel.config, (state.wheels_m_s, *precision, *(getattr(f, k) for k in FAILURE_FIELDS)), scalars,
+                         pose, seen, fresh, float(frame.t), used, kernel.scratch_f64, kernel.scratch_u8)
+    last_frame_t = float(scalars[0])
+    resynced = r[0]
+    if resynced:
+        notes.append(Note("warning", f"frame {frame.seq}: no frame for {frame.t - state.last_frame_t:.2f} s; "
+                                     "restarting failure timers and asking peers for their failure state"))
+        state = replace(state, phase=SyncPhase.RESYNCING)
+    if len(r) == 1:   # no robot usable
+        return _evolve(state, last_frame_t=last_frame_t), StepOutput(notes=tuple(notes))
+    (_, fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m, shape, vl, vr, own_seen, err, event,
+     event_dev, shape_before, made) = r
+    cmd = CmdMsg(t=frame.t, seq=frame.seq, vl=vl, vr=vr, ttl=config.ttl_s)
+    state_msg = None
+    if own_seen:
+        state_msg = StateMsg(t=frame.t, seq=frame.seq, x=fx, y=fy, th=fth, gx=gx, gy=gy, gth=gth, cost=cost, err=err,
+                             used=_used_ids(arrays.ids, used), rejected=0, complete=frame.complete,
+                             mission=mission.version, shape=shape)
+    failure = f
+    health = _health(failure, arrays.ids)
+    health_msg = HealthMsg(t=frame.t, seq=frame.seq, mission=mission.version, failed=tuple(sorted(health.failed)),
+                           dropped=tuple(sorted(health.dropped)), since=tuple(sorted(health.since_t.items())))
+    ids = arrays.ids
+    decisions = [Decision(t, ids[i], DECISION_KINDS[k], d) for i, k, t, d in made]
+    events = tuple(EventMsg(t=d.t, seq=frame.seq, robot=d.robot, kind=d.kind, dev=d.deviation_m, by=state.robot)
+                   for d in decisions)
+    stalled = bool(scalars[10])
+    if event:
+        now_blocked = event == 1
+        events += (EventMsg(t=frame.t, seq=frame.seq, robot=state.robot, kind="blocked" if now_blocked else "unblocked",
+                            dev=event_dev, by=state.robot),)
+        notes.append(_blocked_note(frame.seq, blocked, now_blocked, event_dev))
+    if shape != shape_before:
+        notes.append(Note("info", f"frame {frame.seq}: the structure takes {shape_name(arrays, shape)}"))
+    notes.extend(Note("warning", f"frame {frame.seq}: robot {d.robot} {d.kind} (deviation {d.deviation_m:.3f} m, "
+                                 f"on_failure={mission.on_failure})") for d in decisions)
+    stall_pose = (float(scalars[6]), float(scalars[7]), float(scalars[8]), bool(scalars[9])) if scalars[5] else None
+    state = _evolve(state, last_frame_t=last_frame_t, wheels_m_s=state.wheels_m_s, ctrl=ctrl, failure=failure,
+                    health=health, last_seq=frame.seq, blocked=bool(blocked), stall_since_t=float(scalars[4]),
+                    stall_pose=stall_pose, stalled=stalled, shape=int(shape), last_cmd_t=frame.t,
+                    ticks=state.ticks + 1)
+    sf = kernel.scratch_f64   # vs_agent_step's scratch begins with the poses seen, points_now, points_next, deviations
+    structure = make_structure(fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, used,
+                               sf[3 * n:5 * n].reshape(n, 2).copy(), sf[5 * n:7 * n].reshape(n, 2).copy(),
+                               sf[7 * n:8 * n].copy(), blocked, left_m, shape)
+    return state, StepOutput(cmd=cmd, state=state_msg, health=health_msg, events=events, notes=tuple(notes),
+                             structure=structure, wheels_m_s=state.wheels_m_s.copy())
+
+
+def _blocked_note(seq: int, blocked: bool, now: bool, short: float) -> Note:
+    """The log line of the room's verdict changing (blocked: the plan's; now: blocked or stuck, else going on)."""
+    if not now:
+        return Note("info", f"frame {seq}: the structure is on its way to the goal again")
+    if blocked:
+        return Note("warning", f"frame {seq}: no path to the goal around the obstacles: the structure "
+                               f"stops at the closest safe pose, {short:.3f} m short")
+    return Note("warning", f"frame {seq}: stuck on the way, {short:.3f} m short: for {STALL_S:.0f} s "
+                           "the safety filter has held robots back and the structure has not moved (a "
+                           "passage tighter than the plan allowed for)")
+
+
 def shape_name(arrays: MissionArrays, shape: int) -> str:
     """A shape's name for a log line: "the template", or the mission's reshape by name ("scale 0.8", "column")."""
     return "the template" if shape == 0 else f"shape {shape} ({arrays.shapes[shape - 1][0]})"
@@ -513,9 +647,9 @@ def shape_name(arrays: MissionArrays, shape: int) -> str:
 
 #: the stall watch (stall_state): stuck after STALL_S [s] of the safety filter changing commands while the
 #: structure stays within STALL_MOVE_M [m] and STALL_TURN_RAD [rad] of where the watch began
-STALL_S = 3.0
-STALL_MOVE_M = 0.02
-STALL_TURN_RAD = 0.05
+STALL_S = AGENT_STALL_S
+STALL_MOVE_M = AGENT_STALL_MOVE_M
+STALL_TURN_RAD = AGENT_STALL_TURN_RAD
 
 
 def stall_state(state: AgentState, arrays: MissionArrays, s: Structure, filtered: bool, failed_any: bool,
@@ -536,7 +670,8 @@ def stall_state(state: AgentState, arrays: MissionArrays, s: Structure, filtered
         float(dev.max()) < arrays.policy.fail_deviation_m
     p = s.fit_pose
     since, at, stalled = state.stall_since_t, state.stall_pose, state.stalled
-    moved = at is None or (math.hypot(p.x - at[0], p.y - at[1]) > STALL_MOVE_M
+    dx, dy = p.x - at[0] if at is not None else 0.0, p.y - at[1] if at is not None else 0.0
+    moved = at is None or (math.sqrt(dx * dx + dy * dy) > STALL_MOVE_M
                            or abs(angle_diff(p.th, at[2])) > STALL_TURN_RAD)
     if stalled:
         return (since, at, not moved)
@@ -552,7 +687,10 @@ def _goal_distance(arrays: MissionArrays, pose: Pose2) -> float:
     """How far [m] a structure pose is from the mission's final goal position."""
     goal = arrays.goal
     target = goal.pose if isinstance(goal, GoalPose) else goal.waypoints[-1] if isinstance(goal, GoalPath) else None
-    return 0.0 if target is None else math.hypot(target.x - pose.x, target.y - pose.y)
+    if target is None:
+        return 0.0
+    dx, dy = target.x - pose.x, target.y - pose.y
+    return math.sqrt(dx * dx + dy * dy)
 
 
 @lru_cache(maxsize=8)

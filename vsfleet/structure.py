@@ -151,12 +151,19 @@ def structure_step_core(arrays, metric: str, pose_world: np.ndarray, seen: np.nd
     if r is None:
         return None
     fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m, shape = r
+    return make_structure(fx, fy, wrap_angle(fth), gx, gy, wrap_angle(gth), vx, vy, w, cost, at_goal, used, now, nxt,
+                          dev, blocked, left_m, shape)
+
+
+def make_structure(fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, used, now, nxt, dev, blocked, left_m,
+                   shape) -> Structure:
+    """A Structure of the core's numbers, its headings fth and gth already wrapped (wrap_angle)."""
     # the frozen dataclasses filled without their __init__s (as advance._result and _evolve do), every field given
     # as __init__ would set it (Pose2: x and y as floats, th wrapped by wrap_angle): 2 Pose2, a Twist2 and the
     # Structure cost about 6 us through their __init__s at n = 10
     fit, goal, twist, out = _new(Pose2), _new(Pose2), _new(Twist2), _new(Structure)
-    _set(fit, "__dict__", {"x": float(fx), "y": float(fy), "th": wrap_angle(fth)})
-    _set(goal, "__dict__", {"x": float(gx), "y": float(gy), "th": wrap_angle(gth)})
+    _set(fit, "__dict__", {"x": float(fx), "y": float(fy), "th": fth})
+    _set(goal, "__dict__", {"x": float(gx), "y": float(gy), "th": gth})
     _set(twist, "__dict__", {"vx_m_s": vx, "vy_m_s": vy, "w_rad_s": w})
     _set(out, "__dict__", {"fit_pose": fit, "goal_pose": goal, "twist": twist, "cost": cost, "at_goal": at_goal,
                            "used": used, "points_now": now, "points_next": nxt, "deviations_m": dev,

@@ -10,6 +10,7 @@
 #include "py_util.h"
 #include "vscore.h"
 #include "vs_advance.h"
+#include "vs_agent.h"
 #include "vs_assembly.h"
 #include "vs_control.h"
 #include "vs_failure.h"
@@ -34,11 +35,12 @@ extern PyMethodDef vs_py_safety_methods[];
 extern PyMethodDef vs_py_plan_methods[];
 extern PyMethodDef vs_py_field_methods[];
 extern PyMethodDef vs_py_wire_methods[];
+extern PyMethodDef vs_py_agent_methods[];
 
 static PyMethodDef *tables[] = {vs_py_math_methods, vs_py_fit_methods, vs_py_advance_methods,
                                 vs_py_control_methods, vs_py_failure_methods, vs_py_step_methods,
                                 vs_py_golden_methods, vs_py_safety_methods, vs_py_plan_methods,
-                                vs_py_field_methods, vs_py_wire_methods};
+                                vs_py_field_methods, vs_py_wire_methods, vs_py_agent_methods};
 
 /* ------------------------------------------------------------------ the interface's constants
  * Exported as module attributes, so that Python reads them here and never writes them again
@@ -64,6 +66,8 @@ static const int_const ints[] = {
     {"PLAN_OK", VS_PLAN_OK}, {"PLAN_BLOCKED", VS_PLAN_BLOCKED}, {"PLAN_MAX_OBSTACLES", VS_PLAN_MAX_OBSTACLES},
     {"FIT_MAX_ROUNDS", VS_FIT_MAX_ROUNDS}, {"L1_NEWTON_N", VS_L1_NEWTON_N}, {"LINF_SPLIT", VS_LINF_SPLIT},
     {"WIRE_MAX_FRAME_BYTES", VS_WIRE_MAX_FRAME_BYTES}, {"WIRE_MAX_ROBOTS", VS_WIRE_MAX_ROBOTS},
+    {"AGENT_SCRATCH_F64_PER_ROBOT", VS_AGENT_SCRATCH_F64_PER_ROBOT},
+    {"AGENT_SCRATCH_U8_PER_ROBOT", VS_AGENT_SCRATCH_U8_PER_ROBOT},
 };
 
 static const double_const doubles[] = {
@@ -75,10 +79,15 @@ static const double_const doubles[] = {
     {"PLAN_SIDE_BIAS", VS_PLAN_SIDE_BIAS}, {"PLAN_GOAL_TIE_M", VS_PLAN_GOAL_TIE_M},
     {"FIT_CERT_TOL", VS_FIT_CERT_TOL}, {"FIT_MAX_ABS", VS_FIT_MAX_ABS}, {"SINC_SERIES_BELOW", VS_SINC_SERIES_BELOW},
     {"WIRE_MAX_ABS", VS_WIRE_MAX_ABS}, {"WIRE_MAX_ABS_T", VS_WIRE_MAX_ABS_T},
+    {"AGENT_STALL_S", VS_AGENT_STALL_S}, {"AGENT_STALL_MOVE_M", VS_AGENT_STALL_MOVE_M},
+    {"AGENT_STALL_TURN_RAD", VS_AGENT_STALL_TURN_RAD},
 };
 
 /* the names Python gives the codes: a tuple indexed by code */
 static const coded metrics[] = {{"l1", VS_METRIC_L1}, {"l2", VS_METRIC_L2}, {"linf", VS_METRIC_LINF}};
+/* the controllers the agent step runs (vs_agent.h VS_AGENT_*), by vsfleet.control.CONTROLLERS' names */
+static const coded agent_controllers[] = {{"precision", VS_AGENT_PRECISION}, {"turn_then_go", VS_AGENT_TURN_THEN_GO},
+                                          {"arc", VS_AGENT_ARC}, {"tracking", VS_AGENT_TRACKING}};
 static const coded decisions[] = {{"fail", VS_DECISION_FAIL}, {"drop", VS_DECISION_DROP},
                                   {"rejoin", VS_DECISION_REJOIN}, {"recover", VS_DECISION_RECOVER}};
 static const coded modes[] = {{"hold", VS_FAILURE_HOLD}, {"drop", VS_FAILURE_DROP}, {"rejoin", VS_FAILURE_REJOIN}};
@@ -161,6 +170,7 @@ static int add_constants(PyObject *m)
     if (add_coded(m, "METRICS", metrics, COUNT(metrics)) < 0) return -1;
     if (add_coded(m, "DECISION_KINDS", decisions, COUNT(decisions)) < 0) return -1;
     if (add_coded(m, "FAILURE_MODES", modes, COUNT(modes)) < 0) return -1;
+    if (add_coded(m, "AGENT_CONTROLLERS", agent_controllers, COUNT(agent_controllers)) < 0) return -1;
     if (add_members(m, "LIMIT_FIELDS", limits, COUNT(limits), sizeof(vs_limits)) < 0) return -1;
     if (add_members(m, "PRECISION_GAIN_FIELDS", precision, COUNT(precision), sizeof(vs_precision_gains)) < 0)
         return -1;

@@ -1,0 +1,126 @@
+"""The agent step in one call into the core (vs_agent_step) against the numpy glue of vsfleet.step, bit for bit.
+
+agent_step runs the per-frame part of a frame in the core whenever it can (the compiled implementation, no
+structures shared between agents); offline runs that share structures between agents take the numpy glue. Both
+must decide the same: every command sent, every robot's truth, every decision and every shape, on the same
+frames. The scenarios cover the failure policies, the four controllers, a room with bodies (the safety filter,
+the assembly tie-break), a stall in a gap, reshaping, and gaps in the frames (past ttl and past the resync gap).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import vsfleet.step as step
+from vsfleet.frames import Frame
+from vsfleet.simfleet.offline import run_offline
+from vsfleet.step import AgentState, StepConfig, agent_step
+from vsfleet.zglue.scenario_file import load_scenario
+
+from test_room import thin_wall, triangle_in_a_room
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def both(scenario, seconds: float, **kw):
+    """The same run twice: the numpy glue (structures shared between the agents) and the core (not shared)."""
+    glue = run_offline(scenario, seconds, share_structures=True, **kw)
+    core = run_offline(scenario, seconds, share_structures=False, **kw)
+    return glue, core
+
+
+def assert_same(glue, core) -> None:
+    assert np.array_equal(glue.commands_m_s, core.commands_m_s)
+    assert np.array_equal(glue.positions_m, core.positions_m)
+    assert np.array_equal(glue.deviations_m, core.deviations_m, equal_nan=True)
+    assert glue.decisions == core.decisions
+    assert glue.shapes == core.shapes
+    assert glue.t_goal_s == core.t_goal_s
+
+
+@pytest.mark.parametrize("on_failure", ["hold", "drop", "rejoin"])
+def test_a_halted_robot_under_each_policy(on_failure):
+    sc = load_scenario(ROOT / "scenarios" / "paper-failure.toml")
+    sc = dataclasses.replace(sc, mission=dataclasses.replace(sc.mission, on_failure=on_failure))
+    glue, core = both(sc, 14.0, seed=2, stop_at_goal=False)
+    assert any(glue.decisions.values())          # the halted robot was decided on
+    assert_same(glue, core)
+
+
+@pytest.mark.parametrize("controller", ["turn_then_go", "arc", "tracking", "precision"])
+def test_every_controller(controller):
+    sc = load_scenario(ROOT / "scenarios" / "paper-triangle.toml")
+    glue, core = both(sc, 4.0, seed=3, controller=controller)
+    assert_same(glue, core)
+
+
+def test_a_room_with_bodies_the_safety_filter_and_a_stall():
+    """The thin wall's 0.52 m gap with the triangle turned 0.5 rad: the filter holds a robot and the stall watch
+    says 'blocked' (tests/test_room.py)."""
+    glue, core = both(triangle_in_a_room(thin_wall(0.52), phi_rad=0.5), 30.0, seed=1)
+    assert all(ds and ds[0].kind == "blocked" for ds in glue.decisions.values())
+    assert_same(glue, core)
+
+
+def test_a_shuffled_crowd_goes_round_itself():
+    from bench.crowd import crowd_doc
+    from vsfleet.scenario import scenario_from_dict
+
+    sc = scenario_from_dict(crowd_doc(10, 3, 6.0), name="crowd-10-shuffled")
+    glue, core = both(sc, 6.0, seed=3, stop_at_goal=False)
+    assert_same(glue, core)
+
+
+def test_a_column_switch():
+    sc = load_scenario(ROOT / "scenarios" / "room-column-switch.toml")
+    glue, core = both(sc, 12.0, seed=1, stop_at_goal=False)
+    assert any(glue.shapes.values())
+    assert_same(glue, core)
+
+
+def test_gaps_past_ttl_and_past_the_resync_gap_and_robots_missing():
+    """One agent's frames with holes: 0.4 s (past ttl: the controller starts afresh), 1.5 s (past the resync
+    gap: the failure timers restart), robots missing from some frames."""
+    sc = load_scenario(ROOT / "scenarios" / "paper-failure.toml")
+    mission = dataclasses.replace(sc.mission, effective_t=0.0)
+    ids = mission.robot_ids
+    rng = np.random.default_rng(5)
+    t, frames = 0.0, []
+    for k in range(240):
+        t += 1.0 / 30.0 + (0.4 if k == 60 else 1.5 if k == 150 else 0.0)
+        poses = {r: (float(x), float(y), float(th)) for r, (x, y, th) in
+                 zip(ids, rng.normal(0.0, 0.05, (len(ids), 3)) + [(0.01 * k, 0.0, 0.0)])
+                 if not (k % 17 == 0 and r == ids[1])}
+        frames.append(Frame(seq=k + 1, t=t, poses=poses, complete=len(poses) == len(ids),
+                            fresh=frozenset(poses), src="sim"))
+    outs = {}
+    for glue in (True, False):
+        config = StepConfig(shared_structures={} if glue else None)
+        state, got = AgentState(ids[0]), []
+        for f in frames:
+            state, out = agent_step(state, mission, f, f.t + 0.01, config)
+            got.append((out.cmd, out.state, out.health, out.events, out.notes,
+                        None if out.wheels_m_s is None else out.wheels_m_s.tobytes()))
+        outs[glue] = (got, state.phase, state.ticks)
+    assert outs[True] == outs[False]
+    notes = [n.text for got in outs[True][0] for n in got[4]]
+    assert any("restarting failure timers" in n for n in notes)
+
+
+def test_the_core_step_runs_when_it_can_and_the_glue_otherwise(monkeypatch):
+    """agent_step takes the core for the compiled implementation without shared structures (the agent process)."""
+    calls = []
+    real = step._frame_in_core
+    monkeypatch.setattr(step, "_frame_in_core", lambda *a: calls.append(1) or real(*a))
+    sc = load_scenario(ROOT / "scenarios" / "paper-triangle.toml")
+    run_offline(sc, 1.0, seed=1, share_structures=False)
+    assert calls
+    calls.clear()
+    run_offline(sc, 1.0, seed=1, share_structures=True)
+    assert not calls
+    assert math.isfinite(1.0)

@@ -1,0 +1,303 @@
+/* py_agent.c - binding of the agent's per-frame step (vs_agent.h): vsfleet._core.agent_config, agent_step. */
+#include "py_util.h"
+#include "vscore.h"
+#include "vs_agent.h"
+
+const vs_field *vs_py_field(PyObject *obj);   /* py_field.c: NULL for None (or with an error set) */
+
+#define AGENT_CAPSULE "vsfleet._core.agent_config"
+#define N_MISSION_BUFS 10
+
+/* a mission and an agent's constants, with the buffers it points into held until the capsule goes */
+typedef struct {
+    vs_agent_config cfg;
+    vs_mission m;
+    Py_buffer views[N_MISSION_BUFS];
+    int got;
+    const vs_field *shape_fields[VS_STEP_MAX_SHAPES];
+    PyObject *keep;          /* the mission tuple (its fields' capsules) */
+} agent_config;
+
+static void agent_config_free(PyObject *cap)
+{
+    agent_config *a = PyCapsule_GetPointer(cap, AGENT_CAPSULE);
+    if (a == NULL) return;
+    for (int i = 0; i < a->got; i++) PyBuffer_Release(&a->views[i]);
+    Py_XDECREF(a->keep);
+    PyMem_Free(a);
+}
+
+static int doubles_of(PyObject *seq, double *out, Py_ssize_t k, const char *name)
+{
+    PyObject *fast = PySequence_Fast(seq, name);
+    if (fast == NULL) return -1;
+    if (PySequence_Fast_GET_SIZE(fast) != k) {
+        Py_DECREF(fast);
+        PyErr_Format(vs_ValueError, "agent_config: %s must hold %zd numbers", name, k);
+        return -1;
+    }
+    for (Py_ssize_t i = 0; i < k; i++) {
+        out[i] = PyFloat_AsDouble(PySequence_Fast_GET_ITEM(fast, i));
+        if (out[i] == -1.0 && PyErr_Occurred()) { Py_DECREF(fast); return -1; }
+    }
+    Py_DECREF(fast);
+    return 0;
+}
+
+/* agent_config(mission, own, controller, gains, deadband_m, still_speed_m_s, policy, safety, times, room, bodies)
+ * mission: the mission packed for the core in MISSION_ARGS order (vsfleet.step.core_mission); own: the agent's row;
+ * controller: VS_AGENT_* code; gains: the controller's numbers in its C struct's order (precision 16, turn_then_go
+ * 5, arc 1, tracking 6); policy: (mode code, fail_deviation_m, fail_after_s, rejoin_deviation_m, rejoin_after_s,
+ * recover_after_s, min_progress_ratio, min_expected_m2, min_approach_m); safety: (margin_m, gamma_per_s, offset_m,
+ * dt_s); times: (dt_s, ttl_s, age_s, resync_gap_s, effective_t) -> a capsule */
+static PyObject *py_agent_config(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
+{
+    (void)mod;
+    if (nargs != 11) { PyErr_SetString(PyExc_TypeError, "agent_config takes 11 arguments"); return NULL; }
+    PyObject *mt = a[0];
+    if (!PyTuple_Check(mt) || PyTuple_GET_SIZE(mt) != 14) {
+        PyErr_SetString(PyExc_TypeError, "agent_config: the mission must be the core's 14-tuple (core_mission)");
+        return NULL;
+    }
+    agent_config *c = PyMem_Calloc(1, sizeof *c);
+    if (c == NULL) return PyErr_NoMemory();
+    PyObject *cap = PyCapsule_New(c, AGENT_CAPSULE, agent_config_free);
+    if (cap == NULL) { PyMem_Free(c); return NULL; }
+    c->keep = Py_NewRef(mt);
+    /* MISSION_ARGS: template, base, vmax, amax, metric, goal_kind, goal, limits, radius, obstacles, margin, field,
+     * shapes_xy, shape_fields */
+    static const int dbl[N_MISSION_BUFS] = {0, 1, 2, 3, 6, 7, 8, 9, 12, -1};
+    static const char *names[N_MISSION_BUFS] = {"template_xy", "wheel_base_m", "wheel_speed_max_m_s",
+                                                "wheel_accel_max_m_s2", "goal", "limits", "radius_m", "obstacles",
+                                                "shapes_xy", ""};
+    for (; c->got < N_MISSION_BUFS - 1; c->got++)
+        if (vs_py_doubles(PyTuple_GET_ITEM(mt, dbl[c->got]), &c->views[c->got], -1, 0, names[c->got]) < 0) goto fail;
+    Py_ssize_t n = c->views[0].len / 16;
+    if (n < 1 || c->views[0].len % 16 || c->views[1].len != 8 * n || c->views[2].len != 8 * n
+        || c->views[3].len != 8 * n || c->views[6].len != 8 * n || c->views[4].len == 0 || c->views[4].len % 24
+        || c->views[5].len != 72 || c->views[7].len % 24) {
+        PyErr_SetString(vs_ValueError, "agent_config: the mission's arrays do not fit n robots");
+        goto fail;
+    }
+    PyObject *sf = PyTuple_GET_ITEM(mt, 13);
+    if (!PyTuple_Check(sf) || PyTuple_GET_SIZE(sf) > VS_STEP_MAX_SHAPES
+        || c->views[8].len != 16 * n * PyTuple_GET_SIZE(sf)) {
+        PyErr_SetString(vs_ValueError, "agent_config: shapes_xy and shape_fields do not agree");
+        goto fail;
+    }
+    for (Py_ssize_t j = 0; j < PyTuple_GET_SIZE(sf); j++)
+        if ((c->shape_fields[j] = vs_py_field(PyTuple_GET_ITEM(sf, j))) == NULL) {
+            if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "agent_config: a shape without its field");
+            goto fail;
+        }
+    const vs_field *field = vs_py_field(PyTuple_GET_ITEM(mt, 11));
+    if (field == NULL && PyErr_Occurred()) goto fail;
+    long metric = PyLong_AsLong(PyTuple_GET_ITEM(mt, 4)), kind = PyLong_AsLong(PyTuple_GET_ITEM(mt, 5));
+    double margin = PyFloat_AsDouble(PyTuple_GET_ITEM(mt, 10));
+    if (PyErr_Occurred()) goto fail;
+    const double *lim = c->views[5].buf;
+    vs_mission m = {(size_t)n, c->views[0].buf, c->views[1].buf, c->views[2].buf, c->views[3].buf, (int)metric,
+                    {(int)kind, c->views[4].buf, (size_t)(c->views[4].len / 24)},
+                    {lim[0], lim[1], lim[2], lim[3], lim[4], lim[5], lim[6], lim[7], lim[8]},
+                    c->views[6].buf, c->views[7].buf, (size_t)(c->views[7].len / 24), margin, field,
+                    (size_t)PyTuple_GET_SIZE(sf), c->views[8].buf, c->shape_fields};
+    c->m = m;
+    vs_agent_config *g = &c->cfg;
+    g->mission = &c->m;
+    Py_ssize_t own = PyLong_AsSsize_t(a[1]);
+    long ctrl = PyLong_AsLong(a[2]);
+    g->deadband_m = PyFloat_AsDouble(a[4]);
+    g->still_speed_m_s = PyFloat_AsDouble(a[5]);
+    int room = PyObject_IsTrue(a[9]), bodies = PyObject_IsTrue(a[10]);
+    if (PyErr_Occurred() || room < 0 || bodies < 0) goto fail;
+    if (own < 0 || own >= n) { PyErr_SetString(vs_ValueError, "agent_config: own must be a row"); goto fail; }
+    g->own = (size_t)own;
+    g->controller = (int)ctrl;
+    g->room = room;
+    g->bodies = bodies;
+    double gains[16];
+    switch (ctrl) {
+    case VS_AGENT_PRECISION:
+        if (doubles_of(a[3], gains, 16, "gains") < 0) goto fail;
+        g->precision = (vs_precision_gains){gains[0], gains[1], gains[2], gains[3], gains[4], gains[5], gains[6],
+                                            gains[7], gains[8], gains[9], gains[10], gains[11], gains[12], gains[13],
+                                            gains[14], gains[15]};
+        break;
+    case VS_AGENT_TURN_THEN_GO:
+        if (doubles_of(a[3], gains, 5, "gains") < 0) goto fail;
+        g->turn_then_go = (vs_turn_then_go_gains){gains[0], gains[1], gains[2], gains[3], gains[4] != 0.0};
+        break;
+    case VS_AGENT_ARC:
+        if (doubles_of(a[3], gains, 1, "gains") < 0) goto fail;
+        g->arc_horizon_s = gains[0];
+        break;
+    case VS_AGENT_TRACKING:
+        if (doubles_of(a[3], gains, 6, "gains") < 0) goto fail;
+        g->tracking = (vs_tracking_gains){gains[0], gains[1], gains[2], gains[3], gains[4], gains[5]};
+        break;
+    default:
+        PyErr_SetString(vs_ValueError, "agent_config: unknown controller code");
+        goto fail;
+    }
+    double pol[9], saf[4], times[5];
+    if (doubles_of(a[6], pol, 9, "policy") < 0 || doubles_of(a[7], saf, 4, "safety") < 0
+        || doubles_of(a[8], times, 5, "times") < 0)
+        goto fail;
+    g->policy = (vs_failure_policy){(int)pol[0], pol[1], pol[2], pol[3], pol[4], pol[5], pol[6], pol[7], pol[8]};
+    g->safety = (vs_safety_params){saf[0], saf[1], saf[2], saf[3]};
+    g->dt_s = times[0];
+    g->ttl_s = times[1];
+    g->age_s = times[2];
+    g->resync_gap_s = times[3];
+    g->effective_t = times[4];
+    return cap;
+fail:
+    Py_DECREF(cap);
+    return NULL;
+}
+
+enum { BUF_F64, BUF_BOOL, BUF_I64 };
+
+static int get_buf(PyObject *obj, Py_buffer *view, int kind, Py_ssize_t count, int writable, const char *name)
+{
+    int flags = PyBUF_C_CONTIGUOUS | PyBUF_FORMAT | (writable ? PyBUF_WRITABLE : 0);
+    if (PyObject_GetBuffer(obj, view, flags) < 0) {
+        PyErr_Format(PyExc_TypeError, "agent_step: %s must be a C-contiguous%s buffer", name, writable ? " writable" : "");
+        return -1;
+    }
+    const char *f = view->format ? view->format : "B";
+    if (*f == '<' || *f == '=' || *f == '@') f++;
+    int ok = kind == BUF_F64 ? (view->itemsize == 8 && f[0] == 'd' && f[1] == 0)
+           : kind == BUF_BOOL ? (view->itemsize == 1 && (f[0] == '?' || f[0] == 'B') && f[1] == 0)
+                              : (view->itemsize == 8 && (f[0] == 'q' || f[0] == 'l') && f[1] == 0);
+    if (!ok || view->len / view->itemsize != count) {
+        PyErr_Format(vs_ValueError, "agent_step: %s must hold %zd %s", name, count,
+                     kind == BUF_F64 ? "float64" : kind == BUF_BOOL ? "bool" : "int64");
+        PyBuffer_Release(view);
+        return -1;
+    }
+    return 0;
+}
+
+/* the state's arrays, in this order (vsfleet.agentcore.CoreState.arrays) */
+#define N_STATE 21
+#define N_SCALARS 12
+#define N_STEP_ARGS 10
+
+/* agent_step(config, state_arrays (21), scalars (12 float64), pose_world (n, 3), seen (n), fresh (n), t, used_out (n),
+ *            scratch_f64, scratch_u8) -> (resynced,) (no robot usable) or (resynced, fx, fy, fth, gx, gy, gth, vx, vy, w,
+ *            cost, at_goal,
+ *            blocked, left_m, shape, vl, vr, own_seen, err_m, event, event_dev_m, shape_before,
+ *            ((row, kind code, t, deviation_m), ...)); resynced alone in a 1-tuple when no robot was usable.
+ * scalars: last_frame_t, last_cmd_t, ctrl_ready, blocked, stall_since_t, stall_watch, stall_x, stall_y, stall_th,
+ * stall_filter, stalled, shape: read, and written back. */
+static PyObject *py_agent_step(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
+{
+    (void)mod;
+    if (nargs != N_STEP_ARGS) { PyErr_SetString(PyExc_TypeError, "agent_step takes 10 arguments"); return NULL; }
+    agent_config *c = PyCapsule_GetPointer(a[0], AGENT_CAPSULE);
+    if (c == NULL) return NULL;
+    if (!PyTuple_Check(a[1]) || PyTuple_GET_SIZE(a[1]) != N_STATE) {
+        PyErr_SetString(PyExc_TypeError, "agent_step: the state must be a tuple of 21 arrays");
+        return NULL;
+    }
+    double t = PyFloat_AsDouble(a[6]);
+    if (t == -1.0 && PyErr_Occurred()) return NULL;
+    const Py_ssize_t n = (Py_ssize_t)c->m.n;
+    Py_buffer v[N_STATE + 7];
+    int got = 0;
+    PyObject *result = NULL;
+    vs_failure_decision *dec = NULL;
+    /* the window's width from window_t (state 15: (n, W)) */
+    Py_buffer wt;
+    if (PyObject_GetBuffer(PyTuple_GET_ITEM(a[1], 15), &wt, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0) return NULL;
+    Py_ssize_t W = (wt.ndim == 2 && wt.shape[0] == n) ? wt.shape[1] : 0;
+    PyBuffer_Release(&wt);
+    if (W < 1) { PyErr_SetString(vs_ValueError, "agent_step: window_t must be (n, W), W >= 1"); return NULL; }
+    static const struct { int kind; Py_ssize_t per_row; const char *name; } spec[N_STATE] = {
+        {BUF_F64, 2, "wheels_m_s"},
+        {BUF_F64, 3, "pose_world"}, {BUF_F64, 2, "gains"}, {BUF_F64, 2 * VS_PRECISION_HISTORY, "history_m_s"},
+        {BUF_F64, 2, "target_world"}, {BUF_F64, 2, "feed_m_s"}, {BUF_F64, 1, "turn_rad_s"},
+        {BUF_F64, 1, "direction"}, {BUF_BOOL, 1, "ready"},
+        {BUF_F64, 1, "since_t"}, {BUF_BOOL, 1, "failed"}, {BUF_BOOL, 1, "dropped"}, {BUF_F64, 1, "last_t"},
+        {BUF_F64, 2, "last_xy"}, {BUF_F64, 2, "last_expected"}, {BUF_F64, -1, "window_t"},
+        {BUF_I64, -4, "window_nm"}, {BUF_I64, 1, "head"}, {BUF_BOOL, -1, "in_window"}, {BUF_I64, 4, "sums_nm"},
+        {BUF_F64, -1, "window_dev_m"},
+    };
+    for (; got < N_STATE; got++) {
+        Py_ssize_t per = spec[got].per_row < 0 ? -spec[got].per_row * W : spec[got].per_row;
+        if (get_buf(PyTuple_GET_ITEM(a[1], got), &v[got], spec[got].kind, n * per, 1, spec[got].name) < 0) goto done;
+    }
+    if (get_buf(a[2], &v[got], BUF_F64, N_SCALARS, 1, "scalars") < 0) goto done;
+    got++;
+    if (get_buf(a[3], &v[got], BUF_F64, 3 * n, 0, "pose_world") < 0) goto done;
+    got++;
+    if (get_buf(a[4], &v[got], BUF_BOOL, n, 0, "seen") < 0) goto done;
+    got++;
+    if (get_buf(a[5], &v[got], BUF_BOOL, n, 0, "fresh") < 0) goto done;
+    got++;
+    if (get_buf(a[7], &v[got], BUF_BOOL, n, 1, "used_out") < 0) goto done;
+    got++;
+    if (get_buf(a[8], &v[got], BUF_F64, VS_AGENT_SCRATCH_F64(n), 1, "scratch_f64") < 0) goto done;
+    got++;
+    if (get_buf(a[9], &v[got], BUF_BOOL, VS_AGENT_SCRATCH_U8(n), 1, "scratch_u8") < 0) goto done;
+    got++;
+    double *sc = v[N_STATE].buf;
+    vs_agent_state st = {
+        v[0].buf, sc[2] != 0.0,
+        {v[1].buf, v[2].buf, v[3].buf, v[4].buf, v[5].buf, v[6].buf, v[7].buf, v[8].buf},
+        {(size_t)n, (size_t)W, v[9].buf, v[10].buf, v[11].buf, v[12].buf, v[13].buf, v[14].buf, v[15].buf,
+         v[16].buf, v[17].buf, v[18].buf, v[19].buf, v[20].buf},
+        sc[0], sc[1], sc[3] != 0.0, sc[4], sc[5] != 0.0, {sc[6], sc[7], sc[8]}, sc[9] != 0.0, sc[10] != 0.0,
+        (int)sc[11],
+    };
+    dec = PyMem_Malloc(sizeof *dec * 2 * (size_t)n);
+    if (dec == NULL) { PyErr_NoMemory(); goto done; }
+    vs_agent_out out;
+    int rc;
+    Py_BEGIN_ALLOW_THREADS
+    rc = vs_agent_step(&c->cfg, &st, v[N_STATE + 1].buf, v[N_STATE + 2].buf, v[N_STATE + 3].buf, t, &out,
+                       v[N_STATE + 4].buf, dec, v[N_STATE + 5].buf, v[N_STATE + 6].buf);
+    Py_END_ALLOW_THREADS
+    if (rc != VS_OK) { vs_py_error(rc, "agent_step refused its inputs"); goto done; }
+    sc[0] = st.last_frame_t;
+    sc[1] = st.last_cmd_t;
+    sc[2] = st.ctrl_ready;
+    sc[3] = st.blocked;
+    sc[4] = st.stall_since_t;
+    sc[5] = st.stall_watch;
+    sc[6] = st.stall_pose[0];
+    sc[7] = st.stall_pose[1];
+    sc[8] = st.stall_pose[2];
+    sc[9] = st.stall_filter;
+    sc[10] = st.stalled;
+    sc[11] = st.shape;
+    if (!out.ran) { result = Py_BuildValue("(O)", out.resynced ? Py_True : Py_False); goto done; }
+    PyObject *decs = PyTuple_New((Py_ssize_t)out.n_decisions);
+    if (decs == NULL) goto done;
+    for (size_t k = 0; k < out.n_decisions; k++) {
+        PyObject *item = Py_BuildValue("(nidd)", (Py_ssize_t)dec[k].row, dec[k].kind, dec[k].t, dec[k].deviation_m);
+        if (item == NULL) { Py_DECREF(decs); goto done; }
+        PyTuple_SET_ITEM(decs, (Py_ssize_t)k, item);
+    }
+    const vs_structure *s = &out.s;
+    result = Py_BuildValue("(OddddddddddOOdiddOdidiN)", out.resynced ? Py_True : Py_False, s->fit_x, s->fit_y,
+                           s->fit_th, s->goal_x, s->goal_y, s->goal_th, s->vx_m_s, s->vy_m_s, s->w_rad_s, s->cost,
+                           s->at_goal ? Py_True : Py_False, s->blocked ? Py_True : Py_False, s->left_m, s->shape,
+                           out.vl_m_s, out.vr_m_s, out.own_seen ? Py_True : Py_False, out.err_m, out.event,
+                           out.event_dev_m, out.shape_before, decs);
+done:
+    PyMem_Free(dec);
+    for (int k = 0; k < got; k++) PyBuffer_Release(&v[k]);
+    return result;
+}
+
+PyMethodDef vs_py_agent_methods[] = {
+    {"agent_config", (PyCFunction)(void (*)(void))py_agent_config, METH_FASTCALL,
+     "agent_config(mission, own, controller, gains, deadband_m, still_speed_m_s, policy, safety, times, room, "
+     "bodies) -> capsule: a mission and an agent's constants for agent_step (vsfleet/_core/vs_agent.h)."},
+    {"agent_step", (PyCFunction)(void (*)(void))py_agent_step, METH_FASTCALL,
+     "agent_step(config, state, scalars, pose_world, seen, fresh, t, used_out, scratch_f64, scratch_u8): one "
+     "frame of the agent past its poses (vsfleet/_core/vs_agent.h); the state is updated in place."},
+    {NULL, NULL, 0, NULL},
+};
