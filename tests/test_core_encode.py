@@ -170,6 +170,36 @@ def test_numpy_float64_values_are_written_as_floats_as_encode_writes_them():
     assert _core.encode_cmd(np.float64(1.5), 3, np.float64(0.1), 0.2, 0.3) == encode(CmdMsg(1.5, 3, 0.1, 0.2, 0.3))
 
 
+@pytest.mark.parametrize("reference", [False, True])
+def test_the_agents_own_messages_as_agent_step_builds_them_encode_alike(reference):
+    """The recorded paper-failure run (tests/golden_step.py), 60 frames of each agent, with the core's step and
+    the reference's: every command, every state (with the agent's rejection count, as agent/main.py sends it)
+    and the stop command take the binding's argument types and give encode's bytes."""
+    from dataclasses import replace
+
+    from golden_step import load
+
+    from vsfleet.step import AgentState, agent_step, stop_command
+
+    mission, frames, config, recorded = load()
+    config = replace(config, reference=reference)
+    states = 0
+    for robot in sorted(recorded):
+        agent = AgentState(robot)
+        for frame, now in frames[:60]:
+            agent, out = agent_step(agent, mission, frame, now, config)
+            c = out.cmd
+            assert _core.encode_cmd(c.t, c.seq, c.vl, c.vr, c.ttl) == encode(c)
+            if out.state is not None:
+                args = list(state_args(out.state))
+                args[11] = 17
+                assert _core.encode_state(*args) == encode(out.state, rejected=17)
+                states += 1
+        c = stop_command(agent, 99.5, config.ttl_s)
+        assert _core.encode_cmd(c.t, c.seq, c.vl, c.vr, c.ttl) == encode(c)
+    assert states >= 100
+
+
 # ---------------------------------------------------------------- round trips within the contract
 
 finite = st.floats(-1e6, 1e6, allow_nan=False)
