@@ -20,6 +20,15 @@
  * its end) and the caller's buffers are sometimes too small.  An unmutated frame must be
  * accepted (refused if a src ends in a newline or an id holds a NUL); an accepted one must hold
  * what the contract allows; a refusal must give a reason.
+ *
+ * Then the encoders of cmd and state (vs_wire.h, vs_wire_enc.c) with random values: hostile floats
+ * and any bits (NaN payloads too), integers at and between every msgpack width's boundary, 0 to
+ * 1100 ids of 0 to 300 bytes (sometimes 70000).  With room, a message must fit its bound, have
+ * the size msgpack's smallest forms give, and read back (vs_mp_next) to the same keys in order
+ * and the same values, bit for bit.  Then again into a buffer of a random cap (often one byte
+ * short, or the exact size): below the size the encoder must return 0, at or above it the same
+ * bytes; either way no byte past cap may change (a guard region after the buffer, or a buffer
+ * of exactly cap bytes for ASan).
  */
 #include <stdio.h>
 #include <stdlib.h>
@@ -456,6 +465,191 @@ static int fuzz_wire(long iters)
     return 0;
 }
 
+/* ---------------------------------------------------------------- the encoders */
+
+/* an integer at or between msgpack's width boundaries: a counter (>= 0) */
+static uint64_t edge_u64(void)
+{
+    static const uint64_t edges[] = {0, 1, 127, 128, 255, 256, 65535, 65536, 0xffffffffULL, 0x100000000ULL,
+                                     0x7fffffffffffffffULL, 0x8000000000000000ULL, 0xffffffffffffffffULL};
+    if (next() % 2) return edges[next() % (sizeof edges / sizeof edges[0])];
+    return next() >> (next() % 64);                 /* every width about as often */
+}
+
+/* an integer of either sign at or between the boundaries (mission, shape, v) */
+static int64_t edge_i64(void)
+{
+    static const int64_t edges[] = {-1, -32, -33, -128, -129, -32768, -32769, -2147483647LL - 1, -2147483647LL - 2,
+                                    INT64_MIN, INT64_MAX, 0, 127, 128, 255, 256, 65535, 65536};
+    if (next() % 2) return edges[next() % (sizeof edges / sizeof edges[0])];
+    int64_t v = (int64_t)(next() >> (1 + next() % 63));
+    return (next() % 2) ? -v : v;
+}
+
+static double any_f64(void)
+{
+    if (next() % 4) return hostile(NULL, 0, NULL, 0);
+    uint64_t b = next();
+    double v;
+    memcpy(&v, &b, 8);
+    return v;
+}
+
+/* the sizes of msgpack's smallest forms, written out from the spec */
+static size_t uint_bytes(uint64_t v) { return v < 128 ? 1 : v < 256 ? 2 : v < 65536 ? 3 : v <= 0xffffffffULL ? 5 : 9; }
+static size_t int_bytes(int64_t v)
+{
+    if (v >= 0) return uint_bytes((uint64_t)v);
+    return v >= -32 ? 1 : v >= -128 ? 2 : v >= -32768 ? 3 : v >= -2147483647 - 1 ? 5 : 9;
+}
+static size_t str_head_bytes(size_t n) { return n < 32 ? 1 : n < 256 ? 2 : n < 65536 ? 3 : 5; }
+static size_t array_head_bytes(size_t n) { return n < 16 ? 1 : n < 65536 ? 3 : 5; }
+
+/* reading back: each returns 1 when the next item is what it should be */
+static int read_key(vs_mp_reader *r, const char *key)
+{
+    vs_mp_item it;
+    size_t n = strlen(key);
+    return vs_mp_next(r, &it) && it.kind == VS_MP_STR && it.u == n && memcmp(r->buf + it.off, key, n) == 0;
+}
+static int read_f64(vs_mp_reader *r, const char *key, double v)
+{
+    vs_mp_item it;
+    return read_key(r, key) && vs_mp_next(r, &it) && it.kind == VS_MP_FLOAT && !it.is_f32 && memcmp(&it.d, &v, 8) == 0;
+}
+static int read_uint(vs_mp_reader *r, const char *key, uint64_t v)
+{
+    vs_mp_item it;
+    return read_key(r, key) && vs_mp_next(r, &it) && it.kind == VS_MP_UINT && it.u == v;
+}
+static int read_int(vs_mp_reader *r, const char *key, int64_t v)
+{
+    vs_mp_item it;
+    if (v >= 0) return read_uint(r, key, (uint64_t)v);
+    return read_key(r, key) && vs_mp_next(r, &it) && it.kind == VS_MP_NEGINT && it.i == v;
+}
+
+enum { GUARD = 32 };
+
+/* cap for the second call: often one byte short or the exact size, else anything up to size + 8 */
+static size_t random_cap(size_t size)
+{
+    switch (next() % 4) {
+    case 0: return size - 1;
+    case 1: return size;
+    default: return (size_t)(next() % (size + 9));
+    }
+}
+
+/* encode (cmd: state == NULL) into a buffer of cap bytes: 1 on a broken promise; *refusals counts the 0s returned */
+static int encode_into(size_t cap, const unsigned char *want, size_t size, const double *cmd, uint64_t seq,
+                       const vs_wire_state *st, long *refusals)
+{
+    int exact = next() % 2;                          /* exactly cap bytes (ASan), or cap + a guard region */
+    unsigned char *b = malloc(cap + (exact ? 0 : GUARD) + 1);
+    if (!b) return 2;
+    memset(b, 0xa5, cap + (exact ? 0 : GUARD) + 1);
+    size_t got = st ? vs_wire_encode_state(st, b, cap) : vs_wire_encode_cmd(cmd[0], seq, cmd[1], cmd[2], cmd[3], b, cap);
+    int broken = cap < size ? got != 0 : (got != size || memcmp(b, want, size) != 0);
+    for (size_t i = cap; i < cap + (exact ? 0 : GUARD) + 1; i++) broken |= b[i] != 0xa5;   /* nothing past cap */
+    *refusals += got == 0;
+    free(b);
+    return broken;
+}
+
+static int fuzz_encode(long iters)
+{
+    enum { POOL = 1 << 17, MAX_IDS = 1100 };
+    unsigned char *pool = malloc(POOL);
+    vs_wire_str *ids = malloc(sizeof *ids * MAX_IDS);
+    unsigned char cmd_buf[VS_WIRE_CMD_MAX_BYTES];
+    long cmd_calls = 0, cmd_refused = 0, state_calls = 0, state_refused = 0, most_ids = 0;
+    size_t largest = 0;
+    if (!pool || !ids) return 2;
+    for (size_t i = 0; i < POOL; i++) pool[i] = (unsigned char)next();
+    for (long it = 0; it < iters; it++) {
+        /* the command */
+        double c[4] = {any_f64(), any_f64(), any_f64(), any_f64()};
+        uint64_t seq = edge_u64();
+        size_t size = vs_wire_encode_cmd(c[0], seq, c[1], c[2], c[3], cmd_buf, sizeof cmd_buf);
+        vs_mp_reader r;
+        vs_mp_item item;
+        vs_mp_init(&r, cmd_buf, size);
+        int ok = size == 1 + 16 + 4 * 9 + uint_bytes(seq) && vs_mp_next(&r, &item) && item.kind == VS_MP_MAP
+                 && item.u == 5 && read_f64(&r, "t", c[0]) && read_uint(&r, "seq", seq) && read_f64(&r, "vl", c[1])
+                 && read_f64(&r, "vr", c[2]) && read_f64(&r, "ttl", c[3]) && r.pos == size;
+        cmd_calls += 2;
+        cmd_refused += size == 0;
+        if (!ok || encode_into(random_cap(size), cmd_buf, size, c, seq, NULL, &cmd_refused)) {
+            fprintf(stderr, "fuzz wire_encode_cmd: broken promise at iteration %ld (size %zu)\n", it, size);
+            return 1;
+        }
+        /* the state */
+        vs_wire_state st = {any_f64(), edge_u64(), any_f64(), any_f64(), any_f64(), any_f64(), any_f64(), any_f64(),
+                            any_f64(), any_f64(), ids, 0, edge_u64(), (int)(next() % 3), edge_i64(), edge_i64(),
+                            (next() % 2) ? VS_WIRE_PROTOCOL_V : edge_i64()};
+        size_t n = next() % 16 == 0 ? (size_t)(next() % (MAX_IDS + 1)) : (size_t)(next() % 41), id_bytes = 0;
+        size_t want = 3 + 71 + 9 * 9 + 1 + uint_bytes(st.seq) + uint_bytes(st.rejected) + int_bytes(st.mission)
+                      + int_bytes(st.shape) + int_bytes(st.v) + array_head_bytes(n);
+        if (n == 0 && next() % 2) st.used = NULL;    /* no ids: no pointer needed */
+        for (size_t j = 0; j < n; j++) {
+            size_t len = next() % 200 == 0 ? 65000 + (size_t)(next() % 5000)
+                       : next() % 8 == 0 ? (size_t)(next() % 301) : (size_t)(next() % 13);
+            if (n > 40 && len > 300) len = 300;
+            ids[j].len = len;
+            ids[j].s = pool + (size_t)(next() % (POOL - len));
+            id_bytes += len;
+            want += str_head_bytes(len) + len;
+        }
+        st.n_used = n;
+        size_t bound = VS_WIRE_STATE_MAX_BYTES(n, id_bytes);
+        unsigned char *full = malloc(bound);
+        if (!full) return 2;
+        size = vs_wire_encode_state(&st, full, bound);
+        vs_mp_init(&r, full, size);
+        ok = size == want && size <= bound && vs_mp_next(&r, &item) && item.kind == VS_MP_MAP && item.u == 16
+             && read_f64(&r, "t", st.t) && read_uint(&r, "seq", st.seq) && read_f64(&r, "x", st.x)
+             && read_f64(&r, "y", st.y) && read_f64(&r, "th", st.th) && read_f64(&r, "gx", st.gx)
+             && read_f64(&r, "gy", st.gy) && read_f64(&r, "gth", st.gth) && read_f64(&r, "cost", st.cost)
+             && read_f64(&r, "err", st.err) && read_key(&r, "used") && vs_mp_next(&r, &item)
+             && item.kind == VS_MP_ARRAY && item.u == n;
+        for (size_t j = 0; j < n && ok; j++)
+            ok = vs_mp_next(&r, &item) && item.kind == VS_MP_STR && item.u == ids[j].len
+                 && memcmp(full + item.off, ids[j].s, ids[j].len) == 0;
+        ok = ok && read_uint(&r, "rejected", st.rejected) && read_key(&r, "complete") && vs_mp_next(&r, &item)
+             && item.kind == VS_MP_BOOL && item.u == (st.complete != 0) && read_int(&r, "mission", st.mission)
+             && read_int(&r, "shape", st.shape) && read_int(&r, "v", st.v) && r.pos == size && r.why == NULL;
+        state_calls += 2;
+        state_refused += size == 0;
+        if (!ok || encode_into(random_cap(size), full, size, NULL, 0, &st, &state_refused)) {
+            fprintf(stderr, "fuzz wire_encode_state: broken promise at iteration %ld (%zu ids, size %zu of %zu)\n",
+                    it, n, size, want);
+            return 1;
+        }
+        most_ids = (long)n > most_ids ? (long)n : most_ids;
+        largest = size > largest ? size : largest;
+        free(full);
+    }
+    /* a str longer than a 32-bit header holds does not fit, whatever cap says: nothing is written */
+    if (sizeof(size_t) > 4) {
+        unsigned char small[8];
+        vs_mp_writer w;
+        memset(small, 0xa5, sizeof small);
+        vs_mp_writer_init(&w, small, SIZE_MAX);
+        vs_mp_put_str(&w, pool, (size_t)((uint64_t)1 << 32));
+        vs_mp_put_uint(&w, 1);
+        for (size_t i = 0; i < sizeof small; i++)
+            if (small[i] != 0xa5 || vs_mp_end(&w) != 0) { fprintf(stderr, "fuzz wire_encode: a 4 GiB str was written\n"); return 1; }
+    }
+    printf("fuzz %-14s %ld calls: %ld written, %ld refused (cap too small)\n", "wire_encode_cmd", cmd_calls,
+           cmd_calls - cmd_refused, cmd_refused);
+    printf("fuzz %-14s %ld calls: %ld written, %ld refused (cap too small); up to %ld ids, %zu bytes\n",
+           "wire_encode_state", state_calls, state_calls - state_refused, state_refused, most_ids, largest);
+    free(pool);
+    free(ids);
+    return 0;
+}
+
 /* a value of an ordinary frame most of the time, a hostile one sometimes */
 static double mostly(double ordinary) { return (next() % 8) ? ordinary : hostile(NULL, 0, NULL, 0); }
 
@@ -571,5 +765,7 @@ int main(int argc, char **argv)
     free(in); free(out);
     int rc = fuzz_failure(iters / 4 + 1);
     if (rc != 0) return rc;
-    return fuzz_wire(iters * 5);
+    rc = fuzz_wire(iters * 5);
+    if (rc != 0) return rc;
+    return fuzz_encode(iters * 5);
 }

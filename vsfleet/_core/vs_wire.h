@@ -12,6 +12,10 @@
  * writes into the caller's fixed-size buffers, and strings (src, robot ids) are returned as slices
  * (offset, length) of the payload, never copied.  A refusal comes with one short reason (static
  * text), the field it concerns, and the robot row if any.
+ *
+ * The writer and the encoders of the agent's two per-frame messages, cmd and state (vs_wire_enc.c),
+ * are at the end: they write the bytes vsfleet.wire.encode writes, byte for byte, into the caller's
+ * buffer.
  */
 #ifndef VS_WIRE_H
 #define VS_WIRE_H
@@ -112,5 +116,82 @@ int vs_wire_decode_frame(const unsigned char *payload, size_t len,
                          const unsigned char *expect_src, size_t expect_src_len,
                          vs_wire_slice *ids, double *poses, size_t cap,
                          vs_frame *frame, vs_wire_error *err);
+
+
+/* ---------------------------------------------------------------- the writer (vs_wire_enc.c)
+ * msgpack as msgpack-python's packb(obj, use_bin_type=True) writes it, for the types our messages
+ * hold: every integer in its smallest form (fixint, then uint/int 8, 16, 32, 64; a value >= 0 always
+ * in an unsigned form), a float as float64 (big-endian, its bits as they are: -0.0, NaN payloads and
+ * infinities too), a bool, a str with its smallest header (fixstr, str 8, 16, 32), arrays and maps
+ * with theirs (fix, 16, 32).  Writes go into the caller's buffer, never past cap.  The first write
+ * that does not fit sticks (as the reader's first error): every later write does nothing, and
+ * vs_mp_end returns 0.  Nothing is allocated. */
+
+typedef struct {
+    unsigned char *buf;
+    size_t cap, n;     /* n: the bytes written so far (n <= cap) */
+    int full;          /* 0 until a write did not fit (or a length msgpack cannot hold), then 1 */
+} vs_mp_writer;
+
+void vs_mp_writer_init(vs_mp_writer *w, unsigned char *buf, size_t cap);
+/* The bytes written, or 0 when a write did not fit (the buffer then holds a partial message). */
+size_t vs_mp_end(const vs_mp_writer *w);
+void vs_mp_put_map(vs_mp_writer *w, uint64_t count);       /* entries: count key-value pairs follow */
+void vs_mp_put_array(vs_mp_writer *w, uint64_t count);     /* entries: count items follow */
+/* A str of len bytes (UTF-8, not checked); a len above 2^32 - 1 does not fit, whatever cap is. */
+void vs_mp_put_str(vs_mp_writer *w, const unsigned char *s, size_t len);
+void vs_mp_put_uint(vs_mp_writer *w, uint64_t v);
+void vs_mp_put_int(vs_mp_writer *w, int64_t v);            /* v >= 0 as vs_mp_put_uint */
+void vs_mp_put_f64(vs_mp_writer *w, double v);
+void vs_mp_put_bool(vs_mp_writer *w, int v);               /* nonzero: true */
+
+/* ---------------------------------------------------------------- the agent's messages
+ * The encoders are serialisers, as vsfleet.wire.encode is: they check no value against the contract
+ * (a NaN is written as its bits; receivers refuse it).  Each returns the number of bytes written, or
+ * 0 when cap is too small (the buffer's contents are then unspecified; nothing is written past cap).
+ * The keys are written in the message dataclass's field order, every field always (the optional
+ * ones too), as encode(msg) does. */
+
+#define VS_WIRE_PROTOCOL_V 1       /* vsfleet.wire.PROTOCOL_V: the telemetry version written by default */
+
+/* A command, vsfleet.wire.CmdMsg, the msgpack map {t, seq, vl, vr, ttl}:
+ * t [s] the answered frame's observation time, tracker clock (or now, for a stop command); seq the
+ * answered frame's number; vl, vr the left and right wheel ground speeds [m/s]; ttl [s] how long the
+ * robot may keep them.  At most VS_WIRE_CMD_MAX_BYTES bytes (seq as uint 64). */
+#define VS_WIRE_CMD_MAX_BYTES 62u
+size_t vs_wire_encode_cmd(double t, uint64_t seq, double vl, double vr, double ttl, unsigned char *buf, size_t cap);
+
+/* A byte string given by pointer and length: the caller's, read, never copied or kept. */
+typedef struct {
+    const unsigned char *s;   /* len bytes (may be NULL when len is 0) */
+    size_t len;
+} vs_wire_str;
+
+/* A state, vsfleet.wire.StateMsg: the agent's view after frame seq. */
+typedef struct {
+    double t;                 /* [s] the answered frame's observation time, tracker clock */
+    uint64_t seq;             /* the answered frame's number */
+    double x, y, th;          /* the fitted structure pose [m, m, rad; world] */
+    double gx, gy, gth;       /* the desired (advanced) structure pose [m, m, rad; world] */
+    double cost;              /* [m] the fit's cost */
+    double err;               /* [m] the own robot's distance to its fitted point */
+    const vs_wire_str *used;  /* the robot ids in the fit (UTF-8; ASCII [A-Za-z0-9_-] by the contract),
+                                 n_used of them, sent as an array in this order */
+    size_t n_used;
+    uint64_t rejected;        /* bad messages the agent counted so far */
+    int complete;             /* 0: the frame ran on its deadline without every pose; else 1 (a bool) */
+    int64_t mission;          /* the version of the mission used; -1: not sent (none) */
+    int64_t shape;            /* the structure's shape: 0 the template, k >= 1 the mission's k-th reshape */
+    int64_t v;                /* the protocol version followed: VS_WIRE_PROTOCOL_V */
+} vs_wire_state;
+
+/* At most this many bytes for a state of n_used ids of id_bytes bytes in all (every integer as
+ * (u)int 64, every header in its widest form). */
+#define VS_WIRE_STATE_FIXED_MAX_BYTES 206u
+#define VS_WIRE_STATE_MAX_BYTES(n_used, id_bytes) (VS_WIRE_STATE_FIXED_MAX_BYTES + 5u * (n_used) + (id_bytes))
+
+/* The msgpack map {t, seq, x, y, th, gx, gy, gth, cost, err, used, rejected, complete, mission,
+ * shape, v} (16 keys: a map 16 header), as vsfleet.wire.encode(StateMsg(...)) writes it. */
+size_t vs_wire_encode_state(const vs_wire_state *s, unsigned char *buf, size_t cap);
 
 #endif
