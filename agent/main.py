@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import bisect
 import collections
+import math
 import logging
 import queue
 import threading
@@ -47,6 +48,7 @@ from vsfleet.step import (
     StepConfig,
     SyncPhase,
     adopt_health,
+    agent_payload_step,
     agent_step,
     mission_arrays,
     stop_command,
@@ -130,6 +132,9 @@ class Agent:
         self.waiting = 0          # frames that came before any mission
         self.frames_replaced = 0  # frames replaced in the slot before they were run (a flood, or a slow host)
         self._slot: dict[str, FrameMsg] = {}  # src -> the newest frame not yet run
+        # the last frame run in one pass (fast_frame), not yet shown to the merger: (key, payload); the merger takes
+        # it before the next frame it is offered, so its held poses are those it would hold had it merged that one
+        self._fast_last: tuple[str, bytes] | None = None
         self._slot_lock = threading.Lock()
         self.wake = threading.Event()  # set when a frame lands in the slot
 
@@ -191,12 +196,46 @@ class Agent:
         if wake:
             self.wake.set()
 
+    def fast_frame(self, key: str, payload: bytes) -> bool:
+        """Run a frame in one pass from its payload to the command's and the state's (vsfleet.step.agent_payload_step)
+        when it is the common case: one source, which this agent already follows (no other heard within the merger's
+        max_age_s), every robot of the one mission held in it, and nothing waiting in the slot or the merger. False: the frame was not run (nothing changed); the
+        caller hands it to on_frame and poll, which decide the same bits the long way. The caller holds the agent."""
+        head = self._frame_head
+        merger = self.merger
+        if merger.pending is not None or self._slot or not key.startswith(head):
+            return False
+        src = key[len(head):]
+        if self.following != frozenset((src,)) or src not in merger.heard:
+            return False
+        others_t = max((t for s, t in merger.heard.items() if s != src), default=-math.inf)
+        missions = self.missions.by_version
+        if len(missions) != 1:
+            return False
+        (mission,) = missions.values()
+        got = agent_payload_step(self.state, mission, payload, src, self.clock(), self.config, merger.done,
+                                 merger.max_future_s, self.rejections.count, merger.max_age_s, others_t)
+        if got is None:
+            return False
+        self.state, out = got
+        merger.done = (out.t, out.seq)
+        merger.heard[src] = max(out.t, merger.heard[src])
+        self._fast_last = (key, payload)
+        self.put_cmd(out.cmd)
+        self.put_state(out.state)
+        self.emit(out.notes, out.events, out.health)
+        return True
+
     def take_frames(self) -> None:
         """Hand what the slot holds to the merger (the main thread)."""
         with self._slot_lock:
             items, self._slot = list(self._slot.values()), {}
             self.wake.clear()
         now = self.clock()
+        if self._fast_last is not None:   # the last frame run in one pass: its poses, held as the merger holds them
+            key, payload = self._fast_last
+            self._fast_last = None
+            items.insert(0, self.config.impl.decode_frame(payload, key[len(self._frame_head):]))
         for msg in items:
             if self.missions.latest() is None:
                 self.waiting += 1  # no mission yet: nothing to do with frames
@@ -337,15 +376,19 @@ class Agent:
         except (VsfleetValueError, ArithmeticError, ValueError, MemoryError) as exc:
             self.rejections.reject(self.keys.frame(frame.src or "*"), f"frame {frame.seq} unusable: {exc!r}")
             return
-        for note in out.notes:
-            log.log(logging.WARNING if note.level == "warning" else logging.INFO, "%s", note.text)
         if out.cmd is not None:
             self.put_cmd(encode(out.cmd))
         if out.state is not None:
             self.put_state(encode(out.state, rejected=self.rejections.count))
-        if out.health is not None:
-            self._health_msg = out.health  # encoded only when a peer asks (health_payload)
-        for ev in out.events:
+        self.emit(out.notes, out.events, out.health)
+
+    def emit(self, notes, events, health) -> None:
+        """A frame's log lines, its events (published, and the newest kept), and the health answer from now on."""
+        for note in notes:
+            log.log(logging.WARNING if note.level == "warning" else logging.INFO, "%s", note.text)
+        if health is not None:
+            self._health_msg = health  # encoded only when a peer asks (health_payload)
+        for ev in events:
             self.decisions.append(Decision(ev.t, ev.robot, ev.kind, ev.dev))
             self.put_event(encode_event(ev))
 
@@ -483,8 +526,9 @@ class AgentWiring:
             try:
                 if self.stopped or self.crashed:
                     return
-                agent.on_frame(key, payload, wake=False)
-                agent.poll()
+                if not agent.fast_frame(key, payload):   # one pass, frame bytes to command bytes; else the long way
+                    agent.on_frame(key, payload, wake=False)
+                    agent.poll()
                 if agent.merger.time_to_deadline(agent.clock()) is not None:
                     agent.wake.set()  # a frame waits for other sources: the main loop keeps its deadline
             except Exception as exc:  # noqa: BLE001 - handed to the main loop, which ends the agent

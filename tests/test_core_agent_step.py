@@ -124,3 +124,66 @@ def test_the_core_step_runs_when_it_can_and_the_glue_otherwise(monkeypatch):
     run_offline(sc, 1.0, seed=1, share_structures=True)
     assert not calls
     assert math.isfinite(1.0)
+
+
+# ------------------------------------------------------------------ the agent's one pass, payload to payload
+
+def test_the_agents_one_pass_sends_the_bytes_of_the_long_way_through_a_stream_that_leaves_it_and_comes_back():
+    """Two agents on the same payloads at the same clock: one runs frames in one pass when it can (fast_frame, as
+    its zenoh callback does), the other always the long way (decode, merger, agent_step, wire.encode). The stream
+    leaves the common case and comes back: the first frames, a frame without one robot, a stale frame, a frame
+    from the future, a repeated frame, a hostile payload, a gap past ttl, a second tracker source for a while, and
+    a mission update. Every command and state payload must be the same bytes, and so must the events."""
+    from vsfleet.agent.main import Agent
+    from vsfleet.wire import FrameMsg, Keys, encode_frame, encode_mission
+
+    keys = Keys("demo")
+    sc = load_scenario(ROOT / "scenarios" / "paper-failure.toml")
+    mission = dataclasses.replace(sc.mission, effective_t=0.0, version=1)
+    ids = mission.robot_ids
+    clock = [0.0]
+    out = {True: ([], [], []), False: ([], [], [])}
+    agents = {}
+    for fast in (True, False):
+        cmds, states, events = out[fast]
+        agents[fast] = Agent(ids[0], keys, cmds.append, states.append, clock=lambda: clock[0],
+                             put_event=events.append)
+        agents[fast].on_mission(keys.mission, encode_mission(mission))
+    rng = np.random.default_rng(9)
+    base = np.array([mission.spec(r).p for r in ids])
+    ran_fast = 0
+    t = 0.0
+    for k in range(420):
+        t += 1.0 / 30.0 + (0.5 if k == 200 else 0.0)
+        xy = base + (0.002 * k, 0.0) + rng.normal(0.0, 0.001, base.shape)
+        poses = {r: (float(x), float(y), float(rng.normal(0.0, 0.01))) for r, (x, y) in zip(ids, xy)}
+        if k % 50 == 7:
+            poses.pop(ids[1])                                     # one robot missing
+        src = "cam2" if 300 <= k < 320 and k % 2 else "sim"      # a second source for a while
+        seq = k + 1
+        frame_t = t + (5.0 if k == 90 else -2.0 if k == 91 else 0.0)   # from the future, then stale
+        payload = encode_frame(FrameMsg(frame_t, seq, src, poses))
+        if k == 120:
+            payload = payload[:-3]                               # hostile: cut short
+        if k == 350:
+            for fast in (True, False):                           # a mission update, effective at once
+                agents[fast].on_mission(keys.mission, encode_mission(dataclasses.replace(mission, version=2,
+                                                                                            speed_max=0.05)))
+        clock[0] = t + 0.004
+        repeats = 2 if k == 150 else 1                           # the same payload twice
+        for _ in range(repeats):
+            for fast, agent in agents.items():
+                key = keys.frame(src)
+                if fast and agent.fast_frame(key, payload):
+                    ran_fast += 1
+                    continue
+                agent.on_frame(key, payload, wake=False)
+                agent.poll()
+        clock[0] = t + 0.04                                     # a deadline passes (a second source's frame)
+        for agent in agents.values():
+            agent.poll()
+    assert out[True][0] == out[False][0]
+    assert out[True][1] == out[False][1]
+    assert out[True][2] == out[False][2]
+    assert 360 < ran_fast < 420 and len(out[True][0]) > 380   # back to one pass once the second source is quiet
+    assert agents[True].state.ticks == agents[False].state.ticks

@@ -548,7 +548,7 @@ def _agent_kernel(arrays: MissionArrays, mission: Mission, robot: str, controlle
     capsule = _core.agent_config(arrays.core, arrays.index[robot], AGENT_CONTROLLERS.index(name), gains, deadband,
                                  still, policy, (sp.margin_m, sp.gamma_per_s, sp.offset_m, sp.dt_s),
                                  (config.dt_s, config.ttl_s, config.age_s, config.resync_gap_s, mission.effective_t),
-                                 arrays.room, bool(arrays.radii.any()))
+                                 arrays.room, bool(arrays.radii.any()), arrays.ids)
     stateless = Precision().initial(n)
     kernel = _Kernel(capsule, np.zeros(AGENT_SCRATCH_F64_PER_ROBOT * n), np.zeros(AGENT_SCRATCH_U8_PER_ROBOT * n,
                                                                                   dtype=bool),
@@ -559,13 +559,8 @@ def _agent_kernel(arrays: MissionArrays, mission: Mission, robot: str, controlle
     return kernel
 
 
-def _frame_in_core(kernel: _Kernel, state: AgentState, mission: Mission, arrays: MissionArrays, controller,
-                   frame: Frame, config: StepConfig, notes: list) -> tuple[AgentState, StepOutput]:
-    """agent_step from the frame's poses on, in the core (vs_agent_step): the same bits as the numpy glue below.
-    The state's arrays (wheels, the controller's, the failure rule's) are advanced in place: the state passed in
-    is consumed, and only the one returned is to be used."""
-    n = len(arrays.ids)
-    pose, seen, fresh = frame_arrays(arrays.ids, frame.poses, frame.fresh)
+def _core_inputs(kernel: _Kernel, state: AgentState, controller, n: int) -> tuple[object, tuple, np.ndarray]:
+    """(the controller's state, the state's arrays, its numbers) as vsfleet._core.agent_step takes them."""
     ctrl = state.ctrl
     if ctrl is None:
         ctrl = controller.initial(n)
@@ -578,54 +573,120 @@ def _frame_in_core(kernel: _Kernel, state: AgentState, mission: Mission, arrays:
     scalars = np.array((state.last_frame_t, state.last_cmd_t, state.ctrl is not None, state.blocked,
                         state.stall_since_t, at is not None, *(at[:3] if at is not None else (0.0, 0.0, 0.0)),
                         bool(at[3]) if at is not None else False, state.stalled, state.shape), dtype=float)
-    used = np.empty(n, dtype=bool)
-    r = _core.agent_step(kernel.config, (state.wheels_m_s, *precision, *(getattr(f, k) for k in FAILURE_FIELDS)), scalars,
-                         pose, seen, fresh, float(frame.t), used, kernel.scratch_f64, kernel.scratch_u8)
+    return ctrl, (state.wheels_m_s, *precision, *(getattr(f, k) for k in FAILURE_FIELDS)), scalars
+
+
+def _core_outcome(state: AgentState, mission: Mission, arrays: MissionArrays, ctrl, t: float, seq: int, r: tuple,
+                  scalars: np.ndarray, notes: list) -> tuple[AgentState, HealthMsg | None, tuple]:
+    """The new state, the health answer and the events of a frame the core ran (r: vsfleet._core.agent_step's
+    answer, scalars: the state's numbers it wrote back); its log lines are added to notes."""
     last_frame_t = float(scalars[0])
-    resynced = r[0]
-    if resynced:
-        notes.append(Note("warning", f"frame {frame.seq}: no frame for {frame.t - state.last_frame_t:.2f} s; "
+    if r[0]:   # resynced
+        notes.append(Note("warning", f"frame {seq}: no frame for {t - state.last_frame_t:.2f} s; "
                                      "restarting failure timers and asking peers for their failure state"))
         state = replace(state, phase=SyncPhase.RESYNCING)
     if len(r) == 1:   # no robot usable
-        return _evolve(state, last_frame_t=last_frame_t), StepOutput(notes=tuple(notes))
-    (_, fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m, shape, vl, vr, own_seen, err, event,
-     event_dev, shape_before, made) = r
+        return _evolve(state, last_frame_t=last_frame_t), None, ()
+    blocked, shape, event, event_dev, shape_before, made = r[12], r[14], r[19], r[20], r[21], r[22]
+    failure = state.failure
+    health = _health(failure, arrays.ids)
+    health_msg = HealthMsg(t=t, seq=seq, mission=mission.version, failed=tuple(sorted(health.failed)),
+                           dropped=tuple(sorted(health.dropped)), since=tuple(sorted(health.since_t.items())))
+    events: tuple = ()
+    if made or event or shape != shape_before:
+        ids = arrays.ids
+        decisions = [Decision(td, ids[i], DECISION_KINDS[k], d) for i, k, td, d in made]
+        events = tuple(EventMsg(t=d.t, seq=seq, robot=d.robot, kind=d.kind, dev=d.deviation_m, by=state.robot)
+                       for d in decisions)
+        if event:
+            now_blocked = event == 1
+            events += (EventMsg(t=t, seq=seq, robot=state.robot, kind="blocked" if now_blocked else "unblocked",
+                                dev=event_dev, by=state.robot),)
+            notes.append(_blocked_note(seq, blocked, now_blocked, event_dev))
+        if shape != shape_before:
+            notes.append(Note("info", f"frame {seq}: the structure takes {shape_name(arrays, shape)}"))
+        notes.extend(Note("warning", f"frame {seq}: robot {d.robot} {d.kind} (deviation {d.deviation_m:.3f} m, "
+                                     f"on_failure={mission.on_failure})") for d in decisions)
+    stall_pose = (float(scalars[6]), float(scalars[7]), float(scalars[8]), bool(scalars[9])) if scalars[5] else None
+    state = _evolve(state, last_frame_t=last_frame_t, ctrl=ctrl, health=health, last_seq=seq, blocked=bool(blocked),
+                    stall_since_t=float(scalars[4]), stall_pose=stall_pose, stalled=bool(scalars[10]),
+                    shape=int(shape), last_cmd_t=t, ticks=state.ticks + 1)
+    return state, health_msg, events
+
+
+def _frame_in_core(kernel: _Kernel, state: AgentState, mission: Mission, arrays: MissionArrays, controller,
+                   frame: Frame, config: StepConfig, notes: list) -> tuple[AgentState, StepOutput]:
+    """agent_step from the frame's poses on, in the core (vs_agent_step): the same bits as the numpy glue below.
+    The state's arrays (wheels, the controller's, the failure rule's) are advanced in place: the state passed in
+    is consumed, and only the one returned is to be used."""
+    n = len(arrays.ids)
+    pose, seen, fresh = frame_arrays(arrays.ids, frame.poses, frame.fresh)
+    ctrl, arrays_in, scalars = _core_inputs(kernel, state, controller, n)
+    used = np.empty(n, dtype=bool)
+    r = _core.agent_step(kernel.config, arrays_in, scalars, pose, seen, fresh, float(frame.t), used,
+                         kernel.scratch_f64, kernel.scratch_u8)
+    state, health_msg, events = _core_outcome(state, mission, arrays, ctrl, frame.t, frame.seq, r, scalars, notes)
+    if len(r) == 1:
+        return state, StepOutput(notes=tuple(notes))
+    (_, fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m, shape, vl, vr, own_seen, err, *_) = r
     cmd = CmdMsg(t=frame.t, seq=frame.seq, vl=vl, vr=vr, ttl=config.ttl_s)
     state_msg = None
     if own_seen:
         state_msg = StateMsg(t=frame.t, seq=frame.seq, x=fx, y=fy, th=fth, gx=gx, gy=gy, gth=gth, cost=cost, err=err,
                              used=_used_ids(arrays.ids, used), rejected=0, complete=frame.complete,
                              mission=mission.version, shape=shape)
-    failure = f
-    health = _health(failure, arrays.ids)
-    health_msg = HealthMsg(t=frame.t, seq=frame.seq, mission=mission.version, failed=tuple(sorted(health.failed)),
-                           dropped=tuple(sorted(health.dropped)), since=tuple(sorted(health.since_t.items())))
-    ids = arrays.ids
-    decisions = [Decision(t, ids[i], DECISION_KINDS[k], d) for i, k, t, d in made]
-    events = tuple(EventMsg(t=d.t, seq=frame.seq, robot=d.robot, kind=d.kind, dev=d.deviation_m, by=state.robot)
-                   for d in decisions)
-    stalled = bool(scalars[10])
-    if event:
-        now_blocked = event == 1
-        events += (EventMsg(t=frame.t, seq=frame.seq, robot=state.robot, kind="blocked" if now_blocked else "unblocked",
-                            dev=event_dev, by=state.robot),)
-        notes.append(_blocked_note(frame.seq, blocked, now_blocked, event_dev))
-    if shape != shape_before:
-        notes.append(Note("info", f"frame {frame.seq}: the structure takes {shape_name(arrays, shape)}"))
-    notes.extend(Note("warning", f"frame {frame.seq}: robot {d.robot} {d.kind} (deviation {d.deviation_m:.3f} m, "
-                                 f"on_failure={mission.on_failure})") for d in decisions)
-    stall_pose = (float(scalars[6]), float(scalars[7]), float(scalars[8]), bool(scalars[9])) if scalars[5] else None
-    state = _evolve(state, last_frame_t=last_frame_t, wheels_m_s=state.wheels_m_s, ctrl=ctrl, failure=failure,
-                    health=health, last_seq=frame.seq, blocked=bool(blocked), stall_since_t=float(scalars[4]),
-                    stall_pose=stall_pose, stalled=stalled, shape=int(shape), last_cmd_t=frame.t,
-                    ticks=state.ticks + 1)
     sf = kernel.scratch_f64   # vs_agent_step's scratch begins with the poses seen, points_now, points_next, deviations
     structure = make_structure(fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, used,
                                sf[3 * n:5 * n].reshape(n, 2).copy(), sf[5 * n:7 * n].reshape(n, 2).copy(),
                                sf[7 * n:8 * n].copy(), blocked, left_m, shape)
     return state, StepOutput(cmd=cmd, state=state_msg, health=health_msg, events=events, notes=tuple(notes),
                              structure=structure, wheels_m_s=state.wheels_m_s.copy())
+
+
+@dataclass(frozen=True)
+class PayloadStep:
+    """What agent_payload_step gives for a frame it ran: the command's and the state's payloads (the state's
+    ``rejected`` filled in), the frame's t and seq, the health answer, events and log lines (as StepOutput's)."""
+
+    cmd: bytes
+    state: bytes
+    t: float
+    seq: int
+    health: HealthMsg | None
+    events: tuple
+    notes: tuple
+
+
+def agent_payload_step(state: AgentState, mission: Mission | None, payload: bytes, src: str, now_s: float,
+                       config: StepConfig, done: tuple[float, int], max_future_s: float, rejected: int,
+                       max_age_s: float = 0.25, others_t: float = -math.inf) -> tuple[AgentState, PayloadStep] | None:
+    """One pass from a frame's payload to the command's and the state's payloads (vsfleet._core.agent_frame), for
+    the agent's common case: a frame of one source that lists exactly the robots of the mission in force, which
+    this state already runs, newer than the last frame run (done: its (t, seq)), neither stale against now_s nor
+    more than max_future_s ahead of it, with no other source heard within max_age_s before it (others_t: the
+    newest frame time of any other source; the merger's rule, vsfleet.frames.FrameMerger). None otherwise, and nothing is changed: the frame then goes the long way
+    (decode, merge, agent_step), which decides the same bits (tests/test_core_agent_step.py). The state passed in
+    is consumed when a frame runs, as in agent_step."""
+    if (mission is None or state.mission_version != mission.version or state.ctrl is None
+            or config.impl is not core_impl or config.shared_structures is not None):
+        return None
+    arrays = mission_arrays(mission)
+    if state.robot not in arrays.index:
+        return None
+    controller = config.controller or mission_controller(mission.controller, mission.controller_gains)
+    kernel = _agent_kernel(arrays, mission, state.robot, controller, config)
+    if kernel is None:
+        return None
+    ctrl, arrays_in, scalars = _core_inputs(kernel, state, controller, len(arrays.ids))
+    got = _core.agent_frame(kernel.config, arrays_in, scalars, kernel.scratch_f64, kernel.scratch_u8, payload, src,
+                            now_s, max_future_s, config.max_stale_s, done[0], done[1], mission.version, rejected,
+                            max_age_s, others_t)
+    if got is None:
+        return None
+    cmd, state_payload, t, seq, r = got
+    notes: list = []
+    state, health_msg, events = _core_outcome(state, mission, arrays, ctrl, t, seq, r, scalars, notes)
+    return state, PayloadStep(cmd, state_payload, t, seq, health_msg, events, tuple(notes))
 
 
 def _blocked_note(seq: int, blocked: bool, now: bool, short: float) -> Note:

@@ -1,7 +1,10 @@
 /* py_agent.c - binding of the agent's per-frame step (vs_agent.h): vsfleet._core.agent_config, agent_step. */
+#include <string.h>
+
 #include "py_util.h"
 #include "vscore.h"
 #include "vs_agent.h"
+#include "vs_wire.h"
 
 const vs_field *vs_py_field(PyObject *obj);   /* py_field.c: NULL for None (or with an error set) */
 
@@ -16,6 +19,18 @@ typedef struct {
     int got;
     const vs_field *shape_fields[VS_STEP_MAX_SHAPES];
     PyObject *keep;          /* the mission tuple (its fields' capsules) */
+    /* the frame path (agent_frame): the mission's robot ids in its sorted order (UTF-8 bytes, kept in ids_blob),
+     * and buffers sized for n robots */
+    PyObject *ids_blob;      /* bytes: every id, one after the other */
+    vs_wire_str *ids;        /* (n) slices of ids_blob */
+    vs_wire_str *used_ids;   /* (n) the ids of the robots a fit used */
+    vs_wire_slice *slices;   /* (n) the frame's ids, as the decoder gives them */
+    double *frame_poses;     /* (n, 3) the frame's poses in the order sent */
+    double *row_poses;       /* (n, 3) the same, in rows */
+    unsigned char *seen;     /* (n) */
+    unsigned char *used;     /* (n) */
+    unsigned char *state_buf;
+    size_t state_cap;
 } agent_config;
 
 static void agent_config_free(PyObject *cap)
@@ -24,6 +39,15 @@ static void agent_config_free(PyObject *cap)
     if (a == NULL) return;
     for (int i = 0; i < a->got; i++) PyBuffer_Release(&a->views[i]);
     Py_XDECREF(a->keep);
+    Py_XDECREF(a->ids_blob);
+    PyMem_Free(a->ids);
+    PyMem_Free(a->used_ids);
+    PyMem_Free(a->slices);
+    PyMem_Free(a->frame_poses);
+    PyMem_Free(a->row_poses);
+    PyMem_Free(a->seen);
+    PyMem_Free(a->used);
+    PyMem_Free(a->state_buf);
     PyMem_Free(a);
 }
 
@@ -44,16 +68,18 @@ static int doubles_of(PyObject *seq, double *out, Py_ssize_t k, const char *name
     return 0;
 }
 
-/* agent_config(mission, own, controller, gains, deadband_m, still_speed_m_s, policy, safety, times, room, bodies)
+/* agent_config(mission, own, controller, gains, deadband_m, still_speed_m_s, policy, safety, times, room, bodies,
+ *              ids)
  * mission: the mission packed for the core in MISSION_ARGS order (vsfleet.step.core_mission); own: the agent's row;
  * controller: VS_AGENT_* code; gains: the controller's numbers in its C struct's order (precision 16, turn_then_go
  * 5, arc 1, tracking 6); policy: (mode code, fail_deviation_m, fail_after_s, rejoin_deviation_m, rejoin_after_s,
  * recover_after_s, min_progress_ratio, min_expected_m2, min_approach_m); safety: (margin_m, gamma_per_s, offset_m,
- * dt_s); times: (dt_s, ttl_s, age_s, resync_gap_s, effective_t) -> a capsule */
+ * dt_s); times: (dt_s, ttl_s, age_s, resync_gap_s, effective_t); ids: the mission's robot ids in its sorted
+ * order (str) -> a capsule */
 static PyObject *py_agent_config(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
 {
     (void)mod;
-    if (nargs != 11) { PyErr_SetString(PyExc_TypeError, "agent_config takes 11 arguments"); return NULL; }
+    if (nargs != 12) { PyErr_SetString(PyExc_TypeError, "agent_config takes 12 arguments"); return NULL; }
     PyObject *mt = a[0];
     if (!PyTuple_Check(mt) || PyTuple_GET_SIZE(mt) != 14) {
         PyErr_SetString(PyExc_TypeError, "agent_config: the mission must be the core's 14-tuple (core_mission)");
@@ -150,6 +176,45 @@ static PyObject *py_agent_config(PyObject *mod, PyObject *const *a, Py_ssize_t n
     g->age_s = times[2];
     g->resync_gap_s = times[3];
     g->effective_t = times[4];
+    /* the ids, for agent_frame */
+    if (!PyTuple_Check(a[11]) || PyTuple_GET_SIZE(a[11]) != n) {
+        PyErr_SetString(PyExc_TypeError, "agent_config: ids must be a tuple of the mission's n robot ids");
+        goto fail;
+    }
+    PyObject *parts = PyList_New(n);
+    if (parts == NULL) goto fail;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        PyObject *b = PyUnicode_AsUTF8String(PyTuple_GET_ITEM(a[11], i));
+        if (b == NULL) { Py_DECREF(parts); goto fail; }
+        PyList_SET_ITEM(parts, i, b);
+    }
+    PyObject *empty = PyBytes_FromStringAndSize("", 0);
+    c->ids_blob = empty ? PyObject_CallMethod(empty, "join", "O", parts) : NULL;
+    Py_XDECREF(empty);
+    c->ids = PyMem_Calloc((size_t)n, sizeof *c->ids);
+    c->used_ids = PyMem_Calloc((size_t)n, sizeof *c->used_ids);
+    c->slices = PyMem_Calloc((size_t)n, sizeof *c->slices);
+    c->frame_poses = PyMem_Calloc(3 * (size_t)n, sizeof(double));
+    c->row_poses = PyMem_Calloc(3 * (size_t)n, sizeof(double));
+    c->seen = PyMem_Calloc((size_t)n, 1);
+    c->used = PyMem_Calloc((size_t)n, 1);
+    if (c->ids_blob == NULL || c->ids == NULL || c->used_ids == NULL || c->slices == NULL || c->frame_poses == NULL || c->row_poses == NULL
+        || c->seen == NULL || c->used == NULL) {
+        Py_DECREF(parts);
+        if (!PyErr_Occurred()) PyErr_NoMemory();
+        goto fail;
+    }
+    const unsigned char *blob = (const unsigned char *)PyBytes_AS_STRING(c->ids_blob);
+    size_t at = 0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        size_t len = (size_t)PyBytes_GET_SIZE(PyList_GET_ITEM(parts, i));
+        c->ids[i] = (vs_wire_str){blob + at, len};
+        at += len;
+    }
+    Py_DECREF(parts);
+    c->state_cap = VS_WIRE_STATE_MAX_BYTES((size_t)n, at);
+    c->state_buf = PyMem_Malloc(c->state_cap);
+    if (c->state_buf == NULL) { PyErr_NoMemory(); goto fail; }
     return cap;
 fail:
     Py_DECREF(cap);
@@ -184,36 +249,39 @@ static int get_buf(PyObject *obj, Py_buffer *view, int kind, Py_ssize_t count, i
 #define N_SCALARS 12
 #define N_STEP_ARGS 10
 
-/* agent_step(config, state_arrays (21), scalars (12 float64), pose_world (n, 3), seen (n), fresh (n), t, used_out (n),
- *            scratch_f64, scratch_u8) -> (resynced,) (no robot usable) or (resynced, fx, fy, fth, gx, gy, gth, vx, vy, w,
- *            cost, at_goal,
- *            blocked, left_m, shape, vl, vr, own_seen, err_m, event, event_dev_m, shape_before,
- *            ((row, kind code, t, deviation_m), ...)); resynced alone in a 1-tuple when no robot was usable.
- * scalars: last_frame_t, last_cmd_t, ctrl_ready, blocked, stall_since_t, stall_watch, stall_x, stall_y, stall_th,
- * stall_filter, stalled, shape: read, and written back. */
-static PyObject *py_agent_step(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
+/* the state's buffers, held for one call */
+typedef struct {
+    Py_buffer v[N_STATE + 3];
+    int got;
+    vs_agent_state st;
+    double *sc;
+    double *scratch_f64;
+    unsigned char *scratch_u8;
+} state_views;
+
+static void release_state(state_views *sv)
 {
-    (void)mod;
-    if (nargs != N_STEP_ARGS) { PyErr_SetString(PyExc_TypeError, "agent_step takes 10 arguments"); return NULL; }
-    agent_config *c = PyCapsule_GetPointer(a[0], AGENT_CAPSULE);
-    if (c == NULL) return NULL;
-    if (!PyTuple_Check(a[1]) || PyTuple_GET_SIZE(a[1]) != N_STATE) {
-        PyErr_SetString(PyExc_TypeError, "agent_step: the state must be a tuple of 21 arrays");
-        return NULL;
-    }
-    double t = PyFloat_AsDouble(a[6]);
-    if (t == -1.0 && PyErr_Occurred()) return NULL;
+    for (int k = 0; k < sv->got; k++) PyBuffer_Release(&sv->v[k]);
+    sv->got = 0;
+}
+
+/* state: the 21 arrays; scalars (12): last_frame_t, last_cmd_t, ctrl_ready, blocked, stall_since_t, stall_watch,
+ * stall_x, stall_y, stall_th, stall_filter, stalled, shape */
+static int get_state(const agent_config *c, PyObject *tuple, PyObject *scalars, PyObject *f64, PyObject *u8,
+                     state_views *sv)
+{
+    sv->got = 0;
     const Py_ssize_t n = (Py_ssize_t)c->m.n;
-    Py_buffer v[N_STATE + 7];
-    int got = 0;
-    PyObject *result = NULL;
-    vs_failure_decision *dec = NULL;
+    if (!PyTuple_Check(tuple) || PyTuple_GET_SIZE(tuple) != N_STATE) {
+        PyErr_SetString(PyExc_TypeError, "agent_step: the state must be a tuple of 21 arrays");
+        return -1;
+    }
     /* the window's width from window_t (state 15: (n, W)) */
     Py_buffer wt;
-    if (PyObject_GetBuffer(PyTuple_GET_ITEM(a[1], 15), &wt, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0) return NULL;
+    if (PyObject_GetBuffer(PyTuple_GET_ITEM(tuple, 15), &wt, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0) return -1;
     Py_ssize_t W = (wt.ndim == 2 && wt.shape[0] == n) ? wt.shape[1] : 0;
     PyBuffer_Release(&wt);
-    if (W < 1) { PyErr_SetString(vs_ValueError, "agent_step: window_t must be (n, W), W >= 1"); return NULL; }
+    if (W < 1) { PyErr_SetString(vs_ValueError, "agent_step: window_t must be (n, W), W >= 1"); return -1; }
     static const struct { int kind; Py_ssize_t per_row; const char *name; } spec[N_STATE] = {
         {BUF_F64, 2, "wheels_m_s"},
         {BUF_F64, 3, "pose_world"}, {BUF_F64, 2, "gains"}, {BUF_F64, 2 * VS_PRECISION_HISTORY, "history_m_s"},
@@ -224,25 +292,23 @@ static PyObject *py_agent_step(PyObject *mod, PyObject *const *a, Py_ssize_t nar
         {BUF_I64, -4, "window_nm"}, {BUF_I64, 1, "head"}, {BUF_BOOL, -1, "in_window"}, {BUF_I64, 4, "sums_nm"},
         {BUF_F64, -1, "window_dev_m"},
     };
-    for (; got < N_STATE; got++) {
-        Py_ssize_t per = spec[got].per_row < 0 ? -spec[got].per_row * W : spec[got].per_row;
-        if (get_buf(PyTuple_GET_ITEM(a[1], got), &v[got], spec[got].kind, n * per, 1, spec[got].name) < 0) goto done;
+    for (; sv->got < N_STATE; sv->got++) {
+        Py_ssize_t per = spec[sv->got].per_row < 0 ? -spec[sv->got].per_row * W : spec[sv->got].per_row;
+        if (get_buf(PyTuple_GET_ITEM(tuple, sv->got), &sv->v[sv->got], spec[sv->got].kind, n * per, 1,
+                    spec[sv->got].name) < 0)
+            goto fail;
     }
-    if (get_buf(a[2], &v[got], BUF_F64, N_SCALARS, 1, "scalars") < 0) goto done;
-    got++;
-    if (get_buf(a[3], &v[got], BUF_F64, 3 * n, 0, "pose_world") < 0) goto done;
-    got++;
-    if (get_buf(a[4], &v[got], BUF_BOOL, n, 0, "seen") < 0) goto done;
-    got++;
-    if (get_buf(a[5], &v[got], BUF_BOOL, n, 0, "fresh") < 0) goto done;
-    got++;
-    if (get_buf(a[7], &v[got], BUF_BOOL, n, 1, "used_out") < 0) goto done;
-    got++;
-    if (get_buf(a[8], &v[got], BUF_F64, VS_AGENT_SCRATCH_F64(n), 1, "scratch_f64") < 0) goto done;
-    got++;
-    if (get_buf(a[9], &v[got], BUF_BOOL, VS_AGENT_SCRATCH_U8(n), 1, "scratch_u8") < 0) goto done;
-    got++;
+    if (get_buf(scalars, &sv->v[sv->got], BUF_F64, N_SCALARS, 1, "scalars") < 0) goto fail;
+    sv->got++;
+    if (get_buf(f64, &sv->v[sv->got], BUF_F64, VS_AGENT_SCRATCH_F64(n), 1, "scratch_f64") < 0) goto fail;
+    sv->got++;
+    if (get_buf(u8, &sv->v[sv->got], BUF_BOOL, VS_AGENT_SCRATCH_U8(n), 1, "scratch_u8") < 0) goto fail;
+    sv->got++;
+    Py_buffer *v = sv->v;
     double *sc = v[N_STATE].buf;
+    sv->sc = sc;
+    sv->scratch_f64 = v[N_STATE + 1].buf;
+    sv->scratch_u8 = v[N_STATE + 2].buf;
     vs_agent_state st = {
         v[0].buf, sc[2] != 0.0,
         {v[1].buf, v[2].buf, v[3].buf, v[4].buf, v[5].buf, v[6].buf, v[7].buf, v[8].buf},
@@ -251,44 +317,192 @@ static PyObject *py_agent_step(PyObject *mod, PyObject *const *a, Py_ssize_t nar
         sc[0], sc[1], sc[3] != 0.0, sc[4], sc[5] != 0.0, {sc[6], sc[7], sc[8]}, sc[9] != 0.0, sc[10] != 0.0,
         (int)sc[11],
     };
+    sv->st = st;
+    return 0;
+fail:
+    release_state(sv);
+    return -1;
+}
+
+static void put_scalars(state_views *sv)
+{
+    double *sc = sv->sc;
+    const vs_agent_state *st = &sv->st;
+    sc[0] = st->last_frame_t;
+    sc[1] = st->last_cmd_t;
+    sc[2] = st->ctrl_ready;
+    sc[3] = st->blocked;
+    sc[4] = st->stall_since_t;
+    sc[5] = st->stall_watch;
+    sc[6] = st->stall_pose[0];
+    sc[7] = st->stall_pose[1];
+    sc[8] = st->stall_pose[2];
+    sc[9] = st->stall_filter;
+    sc[10] = st->stalled;
+    sc[11] = st->shape;
+}
+
+/* (resynced,) or (resynced, fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m, shape, vl, vr,
+ * own_seen, err_m, event, event_dev_m, shape_before, ((row, kind code, t, deviation_m), ...)) */
+static PyObject *result_of(const vs_agent_out *out, const vs_failure_decision *dec)
+{
+    if (!out->ran) return Py_BuildValue("(O)", out->resynced ? Py_True : Py_False);
+    PyObject *decs = PyTuple_New((Py_ssize_t)out->n_decisions);
+    if (decs == NULL) return NULL;
+    for (size_t k = 0; k < out->n_decisions; k++) {
+        PyObject *item = Py_BuildValue("(nidd)", (Py_ssize_t)dec[k].row, dec[k].kind, dec[k].t, dec[k].deviation_m);
+        if (item == NULL) { Py_DECREF(decs); return NULL; }
+        PyTuple_SET_ITEM(decs, (Py_ssize_t)k, item);
+    }
+    const vs_structure *s = &out->s;
+    return Py_BuildValue("(OddddddddddOOdiddOdidiN)", out->resynced ? Py_True : Py_False, s->fit_x, s->fit_y,
+                         s->fit_th, s->goal_x, s->goal_y, s->goal_th, s->vx_m_s, s->vy_m_s, s->w_rad_s, s->cost,
+                         s->at_goal ? Py_True : Py_False, s->blocked ? Py_True : Py_False, s->left_m, s->shape,
+                         out->vl_m_s, out->vr_m_s, out->own_seen ? Py_True : Py_False, out->err_m, out->event,
+                         out->event_dev_m, out->shape_before, decs);
+}
+
+/* agent_step(config, state_arrays (21), scalars (12 float64), pose_world (n, 3), seen (n), fresh (n), t, used_out (n),
+ *            scratch_f64, scratch_u8) -> result_of's tuple.  The state (arrays and scalars) is updated in place. */
+static PyObject *py_agent_step(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
+{
+    (void)mod;
+    if (nargs != N_STEP_ARGS) { PyErr_SetString(PyExc_TypeError, "agent_step takes 10 arguments"); return NULL; }
+    agent_config *c = PyCapsule_GetPointer(a[0], AGENT_CAPSULE);
+    if (c == NULL) return NULL;
+    double t = PyFloat_AsDouble(a[6]);
+    if (t == -1.0 && PyErr_Occurred()) return NULL;
+    const Py_ssize_t n = (Py_ssize_t)c->m.n;
+    state_views sv;
+    if (get_state(c, a[1], a[2], a[8], a[9], &sv) < 0) return NULL;
+    Py_buffer v[4];
+    int got = 0;
+    PyObject *result = NULL;
+    vs_failure_decision *dec = NULL;
+    if (get_buf(a[3], &v[got], BUF_F64, 3 * n, 0, "pose_world") < 0) goto done;
+    got++;
+    if (get_buf(a[4], &v[got], BUF_BOOL, n, 0, "seen") < 0) goto done;
+    got++;
+    if (get_buf(a[5], &v[got], BUF_BOOL, n, 0, "fresh") < 0) goto done;
+    got++;
+    if (get_buf(a[7], &v[got], BUF_BOOL, n, 1, "used_out") < 0) goto done;
+    got++;
     dec = PyMem_Malloc(sizeof *dec * 2 * (size_t)n);
     if (dec == NULL) { PyErr_NoMemory(); goto done; }
     vs_agent_out out;
     int rc;
     Py_BEGIN_ALLOW_THREADS
-    rc = vs_agent_step(&c->cfg, &st, v[N_STATE + 1].buf, v[N_STATE + 2].buf, v[N_STATE + 3].buf, t, &out,
-                       v[N_STATE + 4].buf, dec, v[N_STATE + 5].buf, v[N_STATE + 6].buf);
+    rc = vs_agent_step(&c->cfg, &sv.st, v[0].buf, v[1].buf, v[2].buf, t, &out, v[3].buf, dec, sv.scratch_f64,
+                       sv.scratch_u8);
     Py_END_ALLOW_THREADS
     if (rc != VS_OK) { vs_py_error(rc, "agent_step refused its inputs"); goto done; }
-    sc[0] = st.last_frame_t;
-    sc[1] = st.last_cmd_t;
-    sc[2] = st.ctrl_ready;
-    sc[3] = st.blocked;
-    sc[4] = st.stall_since_t;
-    sc[5] = st.stall_watch;
-    sc[6] = st.stall_pose[0];
-    sc[7] = st.stall_pose[1];
-    sc[8] = st.stall_pose[2];
-    sc[9] = st.stall_filter;
-    sc[10] = st.stalled;
-    sc[11] = st.shape;
-    if (!out.ran) { result = Py_BuildValue("(O)", out.resynced ? Py_True : Py_False); goto done; }
-    PyObject *decs = PyTuple_New((Py_ssize_t)out.n_decisions);
-    if (decs == NULL) goto done;
-    for (size_t k = 0; k < out.n_decisions; k++) {
-        PyObject *item = Py_BuildValue("(nidd)", (Py_ssize_t)dec[k].row, dec[k].kind, dec[k].t, dec[k].deviation_m);
-        if (item == NULL) { Py_DECREF(decs); goto done; }
-        PyTuple_SET_ITEM(decs, (Py_ssize_t)k, item);
-    }
-    const vs_structure *s = &out.s;
-    result = Py_BuildValue("(OddddddddddOOdiddOdidiN)", out.resynced ? Py_True : Py_False, s->fit_x, s->fit_y,
-                           s->fit_th, s->goal_x, s->goal_y, s->goal_th, s->vx_m_s, s->vy_m_s, s->w_rad_s, s->cost,
-                           s->at_goal ? Py_True : Py_False, s->blocked ? Py_True : Py_False, s->left_m, s->shape,
-                           out.vl_m_s, out.vr_m_s, out.own_seen ? Py_True : Py_False, out.err_m, out.event,
-                           out.event_dev_m, out.shape_before, decs);
+    put_scalars(&sv);
+    result = result_of(&out, dec);
 done:
     PyMem_Free(dec);
     for (int k = 0; k < got; k++) PyBuffer_Release(&v[k]);
+    release_state(&sv);
+    return result;
+}
+
+/* the row of a robot id (bytes) among the mission's sorted ids, or -1 (UTF-8's byte order is the code points')*/
+static Py_ssize_t row_of(const agent_config *c, const unsigned char *id, size_t len)
+{
+    Py_ssize_t lo = 0, hi = (Py_ssize_t)c->m.n - 1;
+    while (lo <= hi) {
+        Py_ssize_t mid = lo + (hi - lo) / 2;
+        const vs_wire_str *r = &c->ids[mid];
+        size_t k = r->len < len ? r->len : len;
+        int cmp = memcmp(r->s, id, k);
+        if (cmp == 0) cmp = r->len < len ? -1 : r->len > len ? 1 : 0;
+        if (cmp == 0) return mid;
+        if (cmp < 0) lo = mid + 1;
+        else hi = mid - 1;
+    }
+    return -1;
+}
+
+/* agent_frame(config, state_arrays, scalars, scratch_f64, scratch_u8, payload, src, now_s, max_future_s, max_stale_s,
+ *             done_t, done_seq, mission_version, rejected, max_age_s, others_t)
+ * One pass from a frame's payload to the command's and the state's payloads, for the agent's common case: one
+ * source, whose frame lists exactly the mission's robots, newer than the last frame run (done_t, done_seq), neither
+ * stale nor from the future against now_s, of the mission in force (t >= its effective_t), and no other source
+ * heard within max_age_s of it (others_t: the newest frame time of every other source, -inf for none).
+ * -> None when the frame is not that case (nothing is changed: the agent's merger and step take it), else
+ *    (cmd payload, state payload, t, seq, result_of's tuple).  The state is updated in place. */
+static PyObject *py_agent_frame(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
+{
+    (void)mod;
+    if (nargs != 16) { PyErr_SetString(PyExc_TypeError, "agent_frame takes 16 arguments"); return NULL; }
+    agent_config *c = PyCapsule_GetPointer(a[0], AGENT_CAPSULE);
+    if (c == NULL) return NULL;
+    if (!PyBytes_Check(a[5]) || !PyUnicode_Check(a[6])) {
+        PyErr_SetString(PyExc_TypeError, "agent_frame: payload must be bytes and src a str");
+        return NULL;
+    }
+    Py_ssize_t src_len;
+    const char *src = PyUnicode_AsUTF8AndSize(a[6], &src_len);
+    if (src == NULL) { PyErr_Clear(); Py_RETURN_NONE; }   /* not UTF-8: the agent's own path rejects it */
+    double now = PyFloat_AsDouble(a[7]), max_future = PyFloat_AsDouble(a[8]), max_stale = PyFloat_AsDouble(a[9]);
+    double done_t = PyFloat_AsDouble(a[10]);
+    long long done_seq = PyLong_AsLongLong(a[11]), version = PyLong_AsLongLong(a[12]);
+    unsigned long long rejected = PyLong_AsUnsignedLongLong(a[13]);
+    double max_age = PyFloat_AsDouble(a[14]), others_t = PyFloat_AsDouble(a[15]);
+    if (PyErr_Occurred()) return NULL;
+    const size_t n = c->m.n;
+    vs_frame fr;
+    vs_wire_error err;
+    int rc = vs_wire_decode_frame((const unsigned char *)PyBytes_AS_STRING(a[5]), (size_t)PyBytes_GET_SIZE(a[5]),
+                                  (const unsigned char *)src, (size_t)src_len, c->slices, c->frame_poses, n, &fr,
+                                  &err);
+    if (rc != VS_OK || fr.n != n) Py_RETURN_NONE;   /* refused, or not every robot: the agent's own path */
+    if (fr.t > now + max_future || fr.t < now - max_stale || fr.t < c->cfg.effective_t) Py_RETURN_NONE;
+    if (fr.t < done_t || (fr.t == done_t && (long long)fr.seq <= done_seq)) Py_RETURN_NONE;
+    if (!(others_t < fr.t - max_age)) Py_RETURN_NONE;   /* another source heard lately could shadow or hold robots */
+    memset(c->seen, 0, n);
+    const unsigned char *payload = (const unsigned char *)PyBytes_AS_STRING(a[5]);
+    for (size_t k = 0; k < n; k++) {
+        Py_ssize_t row = row_of(c, payload + c->slices[k].off, c->slices[k].len);
+        if (row < 0) Py_RETURN_NONE;   /* a robot the mission does not name (the decoder refuses duplicates) */
+        c->seen[row] = 1;
+        for (int j = 0; j < 3; j++) c->row_poses[3 * row + j] = c->frame_poses[3 * k + j];
+    }
+    state_views sv;
+    if (get_state(c, a[1], a[2], a[3], a[4], &sv) < 0) return NULL;
+    PyObject *result = NULL;
+    vs_failure_decision *dec = PyMem_Malloc(sizeof *dec * 2 * n);
+    if (dec == NULL) { PyErr_NoMemory(); goto done; }
+    vs_agent_out out;
+    unsigned char cmd[VS_WIRE_CMD_MAX_BYTES];
+    size_t cmd_len = 0, state_len = 0;
+    Py_BEGIN_ALLOW_THREADS
+    rc = vs_agent_step(&c->cfg, &sv.st, c->row_poses, c->seen, c->seen, fr.t, &out, c->used, dec, sv.scratch_f64,
+                       sv.scratch_u8);
+    if (rc == VS_OK && out.ran) {
+        cmd_len = vs_wire_encode_cmd(fr.t, fr.seq, out.vl_m_s, out.vr_m_s, c->cfg.ttl_s, cmd, sizeof cmd);
+        size_t k = 0;
+        for (size_t i = 0; i < n; i++)
+            if (c->used[i]) c->used_ids[k++] = c->ids[i];
+        const vs_structure *s = &out.s;
+        vs_wire_state msg = {fr.t, fr.seq, s->fit_x, s->fit_y, s->fit_th, s->goal_x, s->goal_y, s->goal_th, s->cost,
+                             out.err_m, c->used_ids, k, rejected, 1, version, s->shape, VS_WIRE_PROTOCOL_V};
+        state_len = vs_wire_encode_state(&msg, c->state_buf, c->state_cap);
+    }
+    Py_END_ALLOW_THREADS
+    if (rc != VS_OK) { vs_py_error(rc, "agent_frame refused its inputs"); goto done; }
+    put_scalars(&sv);
+    PyObject *r = result_of(&out, dec);
+    if (r == NULL) goto done;
+    if (!out.ran) {   /* no robot usable: unreachable with every robot seen, kept for the shape of the answer */
+        result = Py_BuildValue("(OOdLN)", Py_None, Py_None, fr.t, (long long)fr.seq, r);
+        goto done;
+    }
+    if (cmd_len == 0 || state_len == 0) { Py_DECREF(r); PyErr_NoMemory(); goto done; }
+    result = Py_BuildValue("(y#y#dLN)", (const char *)cmd, (Py_ssize_t)cmd_len, (const char *)c->state_buf,
+                           (Py_ssize_t)state_len, fr.t, (long long)fr.seq, r);
+done:
+    PyMem_Free(dec);
+    release_state(&sv);
     return result;
 }
 
@@ -299,5 +513,9 @@ PyMethodDef vs_py_agent_methods[] = {
     {"agent_step", (PyCFunction)(void (*)(void))py_agent_step, METH_FASTCALL,
      "agent_step(config, state, scalars, pose_world, seen, fresh, t, used_out, scratch_f64, scratch_u8): one "
      "frame of the agent past its poses (vsfleet/_core/vs_agent.h); the state is updated in place."},
+    {"agent_frame", (PyCFunction)(void (*)(void))py_agent_frame, METH_FASTCALL,
+     "agent_frame(config, state, scalars, scratch_f64, scratch_u8, payload, src, now_s, max_future_s, max_stale_s, "
+     "done_t, done_seq, mission_version, rejected, max_age_s, others_t) -> None or (cmd payload, state payload, t, seq, step result): one "
+     "pass from a frame's payload to the command's and the state's (vsfleet/_core/py_agent.c)."},
     {NULL, NULL, 0, NULL},
 };
