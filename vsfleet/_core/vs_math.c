@@ -9,9 +9,6 @@ static uint64_t bits(double x) { uint64_t u; memcpy(&u, &x, sizeof u); return u;
 static double from_bits(uint64_t u) { double x; memcpy(&x, &u, sizeof x); return x; }
 static uint32_t high_word(double x) { return (uint32_t)(bits(x) >> 32); }
 
-int vs_isnan(double x) { return (bits(x) & 0x7fffffffffffffffULL) > 0x7ff0000000000000ULL; }
-int vs_isfinite(double x) { return (bits(x) & 0x7ff0000000000000ULL) != 0x7ff0000000000000ULL; }
-double vs_fabs(double x) { return from_bits(bits(x) & 0x7fffffffffffffffULL); }
 double vs_hypot(double x, double y) { return sqrt(x * x + y * y); }
 
 /* ---- sin, cos (fdlibm kernels on [-pi/4, pi/4]) */
