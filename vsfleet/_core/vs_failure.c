@@ -107,6 +107,7 @@ static int motion_step(const vs_failure_policy *p, vs_failure_state *s, const vs
      * full ring overwrites its oldest item); the earliest frame time of those that stay */
     const size_t at = had ? (size_t)((uint64_t)s->head[i] % (uint64_t)W) : W;
     double first_t = INFINITY;
+    size_t first_kept = W;                         /* the first slot of the earliest time among those that stay */
     for (size_t j = 0; j < W; j++) {
         if (!inw[j]) continue;
         if (j == at || !(wt[j] > expire_before)) {
@@ -114,6 +115,7 @@ static int motion_step(const vs_failure_policy *p, vs_failure_state *s, const vs
             inw[j] = 0;
         } else if (wt[j] < first_t) {
             first_t = wt[j];
+            first_kept = j;
         }
     }
     int stuck = 0;
@@ -130,6 +132,7 @@ static int motion_step(const vs_failure_policy *p, vs_failure_state *s, const vs
         }
         inw[at] = 1;
         s->head[i] += 1;
+        const double kept_t = first_t;
         if (t < first_t) first_t = t;
         double sx = (double)sums[0] / VS_FAILURE_NM_PER_M, sy = (double)sums[1] / VS_FAILURE_NM_PER_M;
         double ox = (double)sums[2] / VS_FAILURE_NM_PER_M, oy = (double)sums[3] / VS_FAILURE_NM_PER_M;
@@ -141,9 +144,9 @@ static int motion_step(const vs_failure_policy *p, vs_failure_state *s, const vs
             stuck = vs_isfinite(ratio) && ratio < p->min_progress_ratio;
         }
         if (settled && vs_isfinite(dev)) {
-            size_t first = W;                      /* the first slot of the earliest time in the window */
-            for (size_t j = 0; j < W; j++)
-                if (inw[j] && (first == W || wt[j] < wt[first])) first = j;
+            /* the first slot of the earliest time in the window: the earliest kept, or the item just written at
+             * (time t), the lower slot on a tie (as numpy's argmin over the slots) */
+            size_t first = first_kept == W || t < kept_t ? at : t == kept_t && at < first_kept ? at : first_kept;
             *approach = wdev[first] - dev > p->min_approach_m;
         }
     }
