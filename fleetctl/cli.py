@@ -12,6 +12,12 @@ import sys
 import threading
 import traceback
 
+# Every program works on arrays of a few hundred numbers at most, where OpenBLAS's thread pool only costs: it spins
+# about 50 ms of CPU in each process that imports numpy, and again after each BLAS call (this host, 2026-12-04: an
+# idle process 51 ms over its first second, 3 ms with one thread). Set before any program imports numpy; an
+# environment that says otherwise is left alone. (zglue/forks.py sets the same for the fork server.)
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 # command -> (module, what it is). The one tool module that names programs: `vsfleet agent` loads the
 # agent by name and runs its main as the agent's own process (tests/test_purity.py, docs/architecture.md)
 COMMANDS = {

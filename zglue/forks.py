@@ -54,6 +54,7 @@ def serve_forks(modules: list[str]) -> int:
     A request may also carry ``title``, the command line the child shows (set_cmdline)."""
     import gc  # noqa: PLC0415
     import select  # noqa: PLC0415
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")   # as fleetctl/cli.py: no BLAS thread pool (before numpy)
     for name in modules:
         importlib.import_module(name)
     gc.freeze()  # what was imported stays out of the children's collections: fewer pages copied
