@@ -84,6 +84,7 @@ WIRE_MAX_FRAME_BYTES: int = _core.WIRE_MAX_FRAME_BYTES
 WIRE_MAX_ROBOTS: int = _core.WIRE_MAX_ROBOTS
 WIRE_MAX_ABS: float = _core.WIRE_MAX_ABS
 WIRE_MAX_ABS_T: float = _core.WIRE_MAX_ABS_T
+WIRE_PROTOCOL_V: int = _core.WIRE_PROTOCOL_V
 
 # the bindings' argument layouts by name (py_control.c, py_step.c): every controller's ControlInput arguments,
 # Precision's state arrays, and structure_step's arguments (the mission's before pose_world and from radius_m

@@ -28,7 +28,8 @@ import numpy as np
 from . import _core
 from .control import CONTROLLERS
 from .coreconst import (DECISION_KINDS, FAILURE_MODES, WIRE_MAX_ABS as MAX_ABS, WIRE_MAX_ABS_T as MAX_ABS_T,
-                        WIRE_MAX_FRAME_BYTES as MAX_FRAME_BYTES, WIRE_MAX_ROBOTS as MAX_ROBOTS)
+                        WIRE_MAX_FRAME_BYTES as MAX_FRAME_BYTES, WIRE_MAX_ROBOTS as MAX_ROBOTS,
+                        WIRE_PROTOCOL_V as PROTOCOL_V)
 from .errors import VsfleetValueError
 from .failure import FailurePolicy
 from .fit import METRICS  # noqa: F401 (a mission's metric: one of the fit's; re-exported)
@@ -45,7 +46,8 @@ MAX_TTL_S = 5.0         # a command may keep a robot moving for at most this lon
 CONTROLLER_NAMES = tuple(sorted(CONTROLLERS))  # a mission's controller: one of vsfleet.control's
 FAULT_KINDS = ("none", "stop", "slow", "stall", "wheel")
 ON_FAILURE = FAILURE_MODES   # a mission's on_failure: the failure rule's modes (vs_failure.h VS_FAILURE_*)
-PROTOCOL_V = 1          # the telemetry version (field ``v``) this code writes and reads in full
+# PROTOCOL_V (1): the telemetry version (field ``v``) this code writes and reads in full; the core's encoders' too
+# (vs_wire.h VS_WIRE_PROTOCOL_V)
 
 
 class WireError(VsfleetValueError):
