@@ -232,8 +232,9 @@ class Agent:
             items, self._slot = list(self._slot.values()), {}
             self.wake.clear()
         now = self.clock()
-        if self._fast_last is not None:   # the last frame run in one pass: its poses, held as the merger holds them
-            key, payload = self._fast_last
+        if items and self._fast_last is not None:   # the last frame run in one pass: its poses, held as the merger
+            key, payload = self._fast_last          # would hold them (only once a frame goes the long way: the
+                                                    # main loop's idle wake-ups, 20 a second, decoded it each time)
             self._fast_last = None
             items.insert(0, self.config.impl.decode_frame(payload, key[len(self._frame_head):]))
         for msg in items:
