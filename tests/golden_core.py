@@ -6,6 +6,8 @@ here (vsfleet._core.golden_call). Each line is ``<entry> <n_in> <in...> <n_out> 
 through the binding, through a plain C driver built at -O0, -O2 and -O3, and with numpy's
 AVX-512 paths off; ``make test-cross`` replays them on aarch64 under qemu. Record again only
 on purpose (a change of the core's arithmetic), and say so in the commit.
+``python tests/golden_core.py --only ENTRY`` records that entry's lines again (at the end of the file)
+and leaves every other line as it is.
 """
 
 from __future__ import annotations
@@ -56,8 +58,10 @@ def safety_records(seed: int = 5, count: int = 120) -> list[tuple[str, list[floa
 
 def records() -> list[tuple[str, list[float]]]:
     """Every recorded call: (entry, flat inputs)."""
-    from step_core_records import assembly_records, shape_records, step_records  # noqa: PLC0415 - (tests/)
-    return trig_records() + step_records() + safety_records() + field_records() + shape_records() + assembly_records()
+    from step_core_records import (agent_step_records, assembly_records, shape_records,  # noqa: PLC0415 - (tests/)
+                                   step_records)
+    return (trig_records() + step_records() + safety_records() + field_records() + shape_records()
+            + assembly_records() + agent_step_records())
 
 
 def line(entry: str, inputs, outputs) -> str:
@@ -100,16 +104,30 @@ def field_records(seed: int = 17, count: int = 24) -> list[tuple[str, list[float
     return out
 
 
-def main() -> None:
+def main(only: str | None = None) -> None:
+    """Record every entry (only: that entry's lines alone, again, at the end; the others kept as they are)."""
     from vsfleet import _core
-    lines = ["# golden vectors of vsfleet's compiled core: tests/golden_core.py (entry n_in in... n_out out...)"]
-    for entry, inputs in records():
+    if only is None:
+        lines, todo = ["# golden vectors of vsfleet's compiled core: tests/golden_core.py (entry n_in in... n_out out...)"], \
+            records()
+    else:
+        from step_core_records import agent_step_records  # noqa: PLC0415 - (tests/)
+        makers = {"agent_step": agent_step_records}
+        if only not in makers:
+            raise SystemExit(f"--only: one of {sorted(makers)}")
+        lines = [t for t in PATH.read_text().splitlines() if t.split(" ", 1)[0] != only]
+        todo = makers[only]()
+    before = len(lines)
+    for entry, inputs in todo:
         lines.append(line(entry, inputs, _core.golden_call(entry, np.asarray(inputs, dtype=float))))
     PATH.write_text("\n".join(lines) + "\n")
-    print(f"wrote {len(lines) - 1} records to {PATH}")
+    print(f"wrote {len(lines) - before} records to {PATH}")
 
 
 if __name__ == "__main__":
+    import argparse
     import sys
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    main()
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--only", help="record this entry's lines alone (agent_step)")
+    main(parser.parse_args().only)

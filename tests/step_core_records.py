@@ -139,3 +139,137 @@ def assembly_records(seed: int = 29, count: int = 150) -> list[tuple[str, list[f
         out.append(("assembly_targets", [float(n), margin, *radii, *pose.ravel(), *seen.astype(float),
                                          *points.ravel(), *nxt.ravel()]))
     return out
+
+
+#: the agent's whole step (vs_golden.c's ``agent_step``): runs of real scenarios offline, one agent's frames each
+#: (name, scenario, seconds, run_offline's keywords, robot, frames run before the record, the record's frames,
+#: edits: frame index -> ("drop", robot ids missing) or ("gap", frames skipped before it))
+AGENT_RUNS = (
+    ("paper-triangle precision", "paper-triangle", 5.0, {"seed": 3, "stop_at_goal": False, "controller": "precision"}, "r1", 0, 40,
+     {12: ("drop", ("r2",)), 13: ("drop", ("r2", "r3")), 25: ("gap", 11)}),
+    ("paper-triangle turn_then_go", "paper-triangle", 5.0, {"seed": 3, "stop_at_goal": False, "controller": "turn_then_go"}, "r2", 10, 40,
+     {20: ("gap", 35), 30: ("drop", ("r1",))}),
+    ("paper-triangle arc", "paper-triangle", 5.0, {"seed": 3, "stop_at_goal": False, "controller": "arc"}, "r3", 5, 40,
+     {8: ("drop", ("r3",)), 9: ("drop", ("r3",)), 22: ("gap", 10)}),
+    ("paper-triangle tracking", "paper-triangle", 5.0, {"seed": 3, "stop_at_goal": False, "controller": "tracking"}, "r1", 20, 40,
+     {15: ("drop", ("r1", "r2", "r3")), 16: ("gap", 40)}),
+    ("paper-failure hold", "paper-failure@hold", 14.0, {"seed": 2, "stop_at_goal": False}, "r1", 262, 60,
+     {40: ("drop", ("r2",))}),
+    ("paper-failure drop", "paper-failure@drop", 14.0, {"seed": 2, "stop_at_goal": False}, "r3", 262, 60,
+     {45: ("gap", 11)}),
+    ("paper-failure rejoin", "paper-failure@rejoin", 14.0, {"seed": 2, "stop_at_goal": False}, "r2", 262, 60,
+     {50: ("gap", 33)}),
+    ("room-pillar-facing", "room-pillar-facing", 6.0, {"seed": 1}, "r1", 100, 50, {30: ("drop", ("r2",))}),
+    ("room-wall-gap", "room-wall-gap", 6.0, {"seed": 1}, "r2", 60, 50, {10: ("gap", 12)}),
+    ("thin-wall stall", "thin-wall", 30.0, {"seed": 1}, "r1", 620, 40, {}),
+    ("room-column-switch", "room-column-switch", 40.0, {"seed": 1}, "r1", 860, 40, {5: ("drop", ("r3",))}),
+    ("crowd-10", "crowd-10", 3.0, {"seed": 3, "stop_at_goal": False}, "r03", 20, 30,
+     {5: ("drop", ("r01", "r07")), 18: ("gap", 12)}),
+)
+
+
+def _scenario(name: str):
+    from vsfleet.zglue.scenario_file import load_scenario
+    if name.startswith("crowd-"):
+        from bench.crowd import crowd_doc
+        from vsfleet.scenario import scenario_from_dict
+        return scenario_from_dict(crowd_doc(int(name.split("-")[1]), 3, 6.0), name=f"{name}-shuffled")
+    if name == "thin-wall":   # tests/test_room.py: the triangle turned 0.5 rad before a 0.52 m gap (a stall)
+        from test_room import thin_wall, triangle_in_a_room
+        return triangle_in_a_room(thin_wall(0.52), phi_rad=0.5)
+    base, _, policy = name.partition("@")
+    sc = load_scenario(Path(__file__).resolve().parent.parent / "scenarios" / f"{base}.toml")
+    if policy:
+        sc = dataclasses.replace(sc, mission=dataclasses.replace(sc.mission, on_failure=policy))
+    return sc
+
+
+def agent_run_frames(run) -> tuple:
+    """One agent's frames of a run offline, as its agent_step took them: (robot, config, [(mission, frame, now_s)]
+    run before the record, the record's [(mission, frame, now_s)]), the record's edited (robots missing, gaps)."""
+    import sys
+    root = str(Path(__file__).resolve().parent.parent)
+    if root not in sys.path:
+        sys.path.insert(0, root)   # bench/
+    import vsfleet.agent.main as agent_main
+    from vsfleet.frames import Frame
+    from vsfleet.simfleet.offline import run_offline
+    _name, scenario, seconds, kw, robot, warm, count, edits = run
+    took, configs = [], []
+    step_fn, payload_fn = agent_main.agent_step, agent_main.agent_payload_step
+
+    def spy(state, mission, frame, now_s, config):
+        if state.robot == robot and mission is not None:
+            took.append((mission, frame, now_s))
+            configs.append(config)
+        return step_fn(state, mission, frame, now_s, config)
+
+    agent_main.agent_step, agent_main.agent_payload_step = spy, lambda *a, **k: None   # every frame the long way
+    try:
+        run_offline(_scenario(scenario), seconds, share_structures=False, **kw)
+    finally:
+        agent_main.agent_step, agent_main.agent_payload_step = step_fn, payload_fn
+    config = dataclasses.replace(configs[0], shared_structures=None)
+    need = warm + count + sum(arg for what, arg in edits.values() if what == "gap")
+    assert len(took) >= need, f"{_name}: {len(took)} frames, {need} wanted"
+    record, k = [], warm
+    for j in range(count):
+        what, arg = edits.get(j, (None, None))
+        if what == "gap":
+            k += arg
+        mission, frame, now_s = took[k]
+        if what == "drop":
+            frame = Frame(seq=frame.seq, t=frame.t, poses={r: p for r, p in frame.poses.items() if r not in arg},
+                          complete=False, fresh=frozenset(r for r in frame.fresh if r not in arg), src=frame.src,
+                          sources=frame.sources)
+        record.append((mission, frame, now_s))
+        k += 1
+    assert all(m.version == took[0][0].version for m, _, _ in took[:k]), "one mission per record"
+    return robot, config, took[:warm], record
+
+
+def agent_step_records(runs=AGENT_RUNS) -> list[tuple[str, list[float]]]:
+    """vs_golden.c's ``agent_step`` on AGENT_RUNS: the agent's state after the frames run before the record (the
+    core's path of vsfleet.step.agent_step), its mission and constants as vsfleet.step hands them to the core
+    (vsfleet._core.agent_config's arguments), and the record's frames as frame_arrays gives them."""
+    return [("agent_step", agent_step_inputs(*agent_run_frames(run))) for run in runs]
+
+
+def agent_step_inputs(robot, config, warm, record) -> list[float]:
+    import vsfleet.step as step
+    from vsfleet import _core
+    from vsfleet.field import CELL_M, HEADINGS, MAX_STATES
+    from vsfleet.step import AgentState, agent_step
+    mission = record[0][0]
+    state = AgentState(robot=robot)
+    for m, frame, now_s in warm:
+        state, _ = agent_step(state, m, frame, now_s, config)
+    arrays = mission_arrays(mission)
+    controller = config.controller or step.mission_controller(mission.controller, mission.controller_gains)
+    if state.mission_version != mission.version:
+        state = step._enter_mission(state, mission, arrays.policy, config)
+    got = []
+    make = _core.agent_config
+    step._KERNELS.clear()
+    _core.agent_config = lambda *a: got.append(a) or make(*a)
+    try:
+        kernel = step._agent_kernel(arrays, mission, robot, controller, config)
+    finally:
+        _core.agent_config = make
+    (core, own, code, gains, deadband, still, policy, safety, times, room, bodies, _ids), = got
+    (tpl, wb, vmax, amax, metric, kind, goal, limits, radii, obstacles, margin, _field, shapes_xy, _fields) = core
+    n = len(arrays.ids)
+    head = [float(n), float(metric), float(kind), float(len(goal) // 3), *goal, *limits, *tpl.ravel(), *wb, *vmax,
+            *amax, margin, CELL_M, float(HEADINGS), float(MAX_STATES), float(len(obstacles) // 3), *radii,
+            *obstacles, float(len(arrays.shapes)), *shapes_xy]
+    gains = [*map(float, gains), *[0.0] * (16 - len(gains))]
+    agent = [float(own), float(code), *gains, float(deadband), float(still), *map(float, policy), *map(float, safety),
+             *map(float, times), float(room), float(bodies)]
+    _ctrl, arrays_in, scalars = step._core_inputs(kernel, state, controller, n)
+    width = arrays_in[15].shape[1]
+    packed = [float(width)] + [float(v) for a in arrays_in for v in np.asarray(a).ravel()] + [*map(float, scalars)]
+    frames = []
+    for _m, frame, _now in record:
+        pose, seen, fresh = step.frame_arrays(arrays.ids, frame.poses, frame.fresh)
+        frames += [float(frame.t), *pose.ravel(), *seen.astype(float), *fresh.astype(float)]
+    return head + agent + packed + frames

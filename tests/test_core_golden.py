@@ -27,7 +27,7 @@ RECORDS = read(PATH)
 def test_the_golden_file_covers_every_entry_the_core_offers():
     names = {r[0] for r in RECORDS}
     assert names == {"sin", "cos", "atan2", "wrap_angle", "structure_step", "structure_step_shapes", "safety_filter",
-                     "field_build", "field_follow", "assembly_targets"}
+                     "field_build", "field_follow", "assembly_targets", "agent_step"}
     assert sum(r[0] == "structure_step" for r in RECORDS) >= 1000
 
 

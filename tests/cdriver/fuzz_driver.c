@@ -29,6 +29,16 @@
  * short, or the exact size): below the size the encoder must return 0, at or above it the same
  * bytes; either way no byte past cap may change (a guard region after the buffer, or a buffer
  * of exactly cap bytes for ASan).
+ *
+ * Last, the agent's whole step (vs_agent.h) over runs of frames through one state: n robots (0 to 40, mostly 1 to
+ * 12; its golden entry is fuzzed here too, not in the table above), a mission with or without bodies and
+ * obstacles, a room's field (a coarse lattice, built now and then; else NULL, with obstacles or without), each
+ * controller (and unknown codes), hostile gains, policy and safety values now and then (invalid ones too), a random
+ * state (the controller's, the failure rule's ring of W slots with its heads, timers, flags and the stall watch's),
+ * then 30 frames: the time on and on, sometimes back, past ttl, past the resync gap or not finite; poses near the
+ * template or hostile (NaN and inf in seen rows too), random seen and fresh flags.  Each array sits in a buffer of
+ * exactly its size.  A call must return VS_OK or a VS_E* code, and on VS_OK write at most 2n decisions of rows and
+ * kinds that exist.
  */
 #include <stdio.h>
 #include <stdlib.h>
@@ -40,6 +50,8 @@
 #include "vs_wire.h"
 #include "vs_failure.h"
 #include "vs_assembly.h"
+#include "vs_agent.h"
+#include "vs_field.h"
 
 static uint64_t state = 0x9e3779b97f4a7c15ULL;
 static uint64_t next(void)
@@ -713,6 +725,308 @@ static int fuzz_failure(long iters)
     return 0;
 }
 
+/* buffers of exactly k items (one when k = 0: malloc(0) may give NULL) */
+static double *doubles(size_t k) { return malloc(sizeof(double) * (k ? k : 1)); }
+static unsigned char *bytes_of(size_t k) { return malloc(k ? k : 1); }
+static int64_t *int64s(size_t k) { return malloc(sizeof(int64_t) * (k ? k : 1)); }
+
+/* a value of a hostile policy or safety parameter: negative, zero, huge, NaN or inf */
+static double odd_param(double ordinary)
+{
+    switch (next() % 12) {
+    case 0: return -ordinary;
+    case 1: return 0.0;
+    case 2: return 1e300;
+    case 3: return hostile(NULL, 0, NULL, 0);
+    default: return ordinary;
+    }
+}
+
+/* agent_step's golden entry (vs_golden.c's packing): a valid call, 1-4 robots, a pose goal, 0-2 obstacles, 1-4
+ * ring slots, a fresh state and 1-5 frames; returns the count of values */
+static long agent_flat_input(double *in)
+{
+    static const double gains[4][16] = {
+        {2.5, 0.025, 0.15, 0.1, 0.2, 0.3, 0.1, 0.2, 0.01, 0.5, 2.0, 0.01, 5e-4, 5e-3, 1600.0, 9.0},
+        {1.0, 0.075, 0.25, 0.001, 1.0}, {1.0}, {2.0, 2500.0, 100.0, 5.0, 0.005, 0.02}};
+    static const double limits[9] = {0.1, 0.5, 0.003, 0.01, 0.15, 0.006, 0.012, 0.5, 2.0};
+    static const double policy[9] = {0.0, 0.05, 0.5, 0.02, 0.3, 0.2, 0.3, 0.0025, 0.02};
+    long n = 1 + (long)(next() % 4), m = (long)(next() % 3), W = 1 + (long)(next() % 4), frames = 1 + (long)(next() % 5);
+    int ctrl = (int)(next() % 4), bodies = (int)(next() % 2);
+    long len = 0;
+    double v;   /* each value is drawn before in[len++] stores it */
+#define PUT(x) do { v = (x); in[len++] = v; } while (0)
+    PUT((double)n); PUT((double)(next() % 3)); PUT(0.0); PUT(1.0);
+    PUT(1.0 + uniform()); PUT(uniform()); PUT(uniform() - 0.5);
+    for (int j = 0; j < 9; j++) PUT(limits[j]);
+    for (long i = 0; i < 2 * n; i++) PUT(0.3 * (uniform() - 0.5));
+    for (long i = 0; i < n; i++) PUT(0.16);
+    for (long i = 0; i < n; i++) PUT(0.25);
+    for (long i = 0; i < n; i++) PUT(1.0);
+    PUT(0.02); PUT(0.1); PUT(8.0); PUT(20000.0); PUT((double)m);
+    for (long i = 0; i < n; i++) PUT(bodies ? 0.05 : 0.0);
+    for (long j = 0; j < m; j++) { PUT(0.5 + uniform()); PUT(uniform() - 0.5); PUT(0.05 + 0.1 * uniform()); }
+    PUT(0.0);                                              /* shapes */
+    PUT((double)(next() % (uint64_t)n)); PUT((double)ctrl);
+    for (int j = 0; j < 16; j++) PUT(gains[ctrl][j]);
+    PUT((next() % 2) ? 0.0 : 0.004); PUT(0.001);
+    PUT((double)(next() % 3));
+    for (int j = 1; j < 9; j++) PUT(policy[j]);
+    PUT(0.015); PUT(5.0); PUT(0.03); PUT(1.0 / 30.0);
+    PUT(1.0 / 30.0); PUT(0.3); PUT(1.0 / 60.0); PUT(1.0); PUT(0.0);
+    PUT((double)(m > 0 || bodies)); PUT((double)bodies);
+    PUT((double)W);
+    /* the 21 arrays: per robot 2, 3, 2, 10, 2, 2, 1, 1, 1 | 1, 1, 1, 1, 2, 2, W, 4W, 1, W, 4, W */
+    for (long i = 0; i < 2 * n + 3 * n; i++) PUT(0.0);
+    for (long i = 0; i < 2 * n; i++) PUT(1.0);
+    for (long i = 0; i < 10 * n + 4 * n + n; i++) PUT(0.0);
+    for (long i = 0; i < n; i++) PUT(1.0);                 /* direction */
+    for (long i = 0; i < n; i++) PUT(0.0);                 /* ready */
+    for (long i = 0; i < n; i++) PUT(0.0 / 0.0);           /* since */
+    for (long i = 0; i < 2 * n; i++) PUT(0.0);             /* failed, dropped */
+    for (long i = 0; i < n; i++) PUT(0.0 / 0.0);           /* last_t */
+    for (long i = 0; i < 4 * n; i++) PUT(0.0);
+    for (long i = 0; i < n * W; i++) PUT(0.0 / 0.0);       /* window_t */
+    for (long i = 0; i < 4 * n * W + n + n * W + 4 * n + n * W; i++) PUT(0.0);
+    PUT(-1.0 / 0.0); PUT(-1.0 / 0.0); PUT(0.0); PUT(0.0); PUT(0.0 / 0.0);
+    for (int j = 0; j < 7; j++) PUT(0.0);
+    double t = uniform();
+    for (long f = 0; f < frames; f++) {
+        t += (next() % 4) ? 1.0 / 30.0 : 0.5;
+        PUT(t);
+        long at = len;
+        for (long i = 0; i < n; i++) { PUT(uniform() - 0.5); PUT(uniform() - 0.5); PUT(uniform() - 0.5); }
+        for (long i = 0; i < n; i++) PUT((double)(next() % 5 != 0));
+        for (long i = 0; i < n; i++) PUT(in[at + 3 * n + i]);
+    }
+#undef PUT
+    return len;
+}
+
+static int fuzz_agent(long iters)
+{
+    static const double limits_default[9] = {0.1, 0.5, 0.003, 0.01, 0.15, 0.006, 0.012, 0.5, 2.0};
+    static const double precision_default[16] = {2.5, 0.025, 0.15, 0.1, 0.2, 0.3, 0.1, 0.2, 0.01, 0.5, 2.0, 0.01,
+                                                 5e-4, 5e-3, 1600.0, 9.0};
+    static const double ttg_default[5] = {1.0, 0.075, 0.25, 0.001, 1.0}, tracking_default[6] = {2.0, 2500.0, 100.0,
+                                                                                                5.0, 0.005, 0.02};
+    const int frames = 30;
+    long calls = 0, ran = 0, skipped = 0, decided = 0, events = 0, fields = 0, refused[4] = {0, 0, 0, 0};
+    const golden_entry *flat = golden_find("agent_step");
+    if (flat == NULL) return 5;
+    for (long it = 0; it < iters; it++) {
+        int wild = next() % 4 == 0;   /* hostile values in the mission and the state (else in the frames alone) */
+#define MAYBE(v) (wild ? mostly(v) : (v))
+        size_t n = (it % 25 == 0) ? (size_t)(next() % 41) : 1 + (size_t)(next() % 12);
+        size_t W = (next() % 16) ? 1 + (size_t)(next() % 12) : 0;
+        size_t m_obs = (next() % 2) ? (size_t)(next() % 4) : 0;
+        int kind = (int)(next() % 3), metric = (int)(next() % 3);
+        if (next() % 20 == 0) kind = (int)(next() % 7) - 2;
+        size_t k_goal = (kind == VS_GOAL_PATH || next() % 20 == 0) ? 1 + (size_t)(next() % 3) : 1;
+        if (next() % 20 == 0) metric = (int)(next() % 7) - 2;
+        double *tpl = doubles(2 * n), *wb = doubles(n), *vmax = doubles(n), *amax = doubles(n), *radii = doubles(n);
+        double *goal = doubles(3 * k_goal), *obs = doubles(3 * m_obs);
+        int bodies_on = next() % 2;
+        for (size_t i = 0; i < n; i++) {
+            tpl[2 * i] = MAYBE(0.3 * (uniform() - 0.5));
+            tpl[2 * i + 1] = MAYBE(0.3 * (uniform() - 0.5));
+            wb[i] = MAYBE(0.16);
+            vmax[i] = MAYBE(0.25);
+            amax[i] = MAYBE(1.0);
+            radii[i] = bodies_on ? MAYBE(0.05) : 0.0;
+        }
+        for (size_t j = 0; j < k_goal; j++) {
+            goal[3 * j] = MAYBE(1.0 + uniform());
+            goal[3 * j + 1] = MAYBE(uniform());
+            goal[3 * j + 2] = MAYBE(3.0 * (uniform() - 0.5));
+        }
+        for (size_t j = 0; j < m_obs; j++) {
+            obs[3 * j] = MAYBE(0.5 + uniform());
+            obs[3 * j + 1] = MAYBE(uniform() - 0.5);
+            obs[3 * j + 2] = MAYBE(0.05 + 0.2 * uniform());
+        }
+        vs_limits lim;
+        double lv[9];
+        for (int j = 0; j < 9; j++) lv[j] = (next() % 64) ? limits_default[j] : odd_param(limits_default[j]);
+        lim = (vs_limits){lv[0], lv[1], lv[2], lv[3], lv[4], lv[5], lv[6], lv[7], lv[8]};
+        vs_field field;
+        int have_field = 0;
+        if (m_obs > 0 && n > 0 && kind != VS_GOAL_TWIST && next() % 2 == 0) {   /* a coarse room: cheap to build */
+            have_field = vs_field_build(tpl, radii, n, 0.02, obs, m_obs, goal + 3 * (k_goal - 1), 0.1, 8, 20000,
+                                        &field) == VS_OK;
+            fields += have_field;
+        }
+        vs_mission m = {n, tpl, wb, vmax, amax, metric, {kind, goal, k_goal}, lim, radii, obs, m_obs, 0.02,
+                        have_field ? &field : NULL, 0, NULL, NULL};
+        vs_agent_config cfg;
+        memset(&cfg, 0, sizeof cfg);
+        cfg.mission = &m;
+        cfg.own = (next() % 20) ? (n ? (size_t)(next() % n) : 0) : n + (size_t)(next() % 3);
+        cfg.controller = (next() % 20) ? (int)(next() % 4) : (int)(next() % 9) - 3;
+        double gv[16];
+        for (int j = 0; j < 16; j++) gv[j] = (next() % 64) ? precision_default[j] : odd_param(precision_default[j]);
+        cfg.precision = (vs_precision_gains){gv[0], gv[1], gv[2], gv[3], gv[4], gv[5], gv[6], gv[7], gv[8], gv[9],
+                                             gv[10], gv[11], gv[12], gv[13], gv[14], gv[15]};
+        for (int j = 0; j < 6; j++) gv[j] = (next() % 64) ? (j < 5 ? ttg_default[j] : 0.0) : odd_param(ttg_default[j % 5]);
+        int reverse = (int)(next() % 2);
+        cfg.turn_then_go = (vs_turn_then_go_gains){gv[0], gv[1], gv[2], gv[3], reverse};
+        cfg.arc_horizon_s = (next() % 64) ? 1.0 : odd_param(1.0);
+        for (int j = 0; j < 6; j++) gv[j] = (next() % 64) ? tracking_default[j] : odd_param(tracking_default[j]);
+        cfg.tracking = (vs_tracking_gains){gv[0], gv[1], gv[2], gv[3], gv[4], gv[5]};
+        cfg.deadband_m = (next() % 2) ? 0.0 : MAYBE(0.004);
+        cfg.still_speed_m_s = MAYBE(0.001);
+        /* one value per statement: the draws happen in this order whatever the compiler (figures stay) */
+        int hostile_policy = next() % 24 == 0;
+        double pv[9] = {0.0, 0.05, 0.5, 0.02, 0.3, 0.2, 0.3, 0.0025, 0.02};
+        pv[0] = (next() % 16) ? (double)(next() % 3) : (double)((int)(next() % 7) - 2);
+        for (int j = 1; j < 9 && hostile_policy; j++) pv[j] = odd_param(pv[j]);
+        cfg.policy = (vs_failure_policy){(int)pv[0], pv[1], pv[2], pv[3], pv[4], pv[5], pv[6], pv[7], pv[8]};
+        int hostile_safety = next() % 24 == 0;
+        double sv[4] = {0.015, 5.0, 0.03, 1.0 / 30.0};
+        for (int j = 0; j < 4 && hostile_safety; j++) sv[j] = odd_param(sv[j]);
+        cfg.safety = (vs_safety_params){sv[0], sv[1], sv[2], sv[3]};
+        cfg.dt_s = (next() % 48) ? 1.0 / 30.0 : odd_param(1.0 / 30.0);
+        cfg.ttl_s = (next() % 48) ? 0.3 : odd_param(0.3);
+        cfg.age_s = (next() % 48) ? 1.0 / 60.0 : odd_param(1.0 / 60.0);
+        cfg.resync_gap_s = (next() % 48) ? 1.0 : odd_param(1.0);
+        cfg.effective_t = (next() % 48) ? 0.0 : hostile(NULL, 0, NULL, 0);
+        cfg.room = (next() % 8) ? (m_obs > 0 || bodies_on) : (int)(next() % 2);
+        cfg.bodies = (next() % 8) ? bodies_on : (int)(next() % 2);
+        /* the state */
+        double *wheels = doubles(2 * n), *p_pose = doubles(3 * n), *p_gains = doubles(2 * n);
+        double *p_hist = doubles(2 * VS_PRECISION_HISTORY * n), *p_target = doubles(2 * n), *p_feed = doubles(2 * n);
+        double *p_turn = doubles(n), *p_dir = doubles(n);
+        unsigned char *p_ready = bytes_of(n);
+        double *since = doubles(n), *last_t = doubles(n), *last_xy = doubles(2 * n), *last_exp = doubles(2 * n);
+        double *wt = doubles(n * W), *wdev = doubles(n * W);
+        int64_t *nm = int64s(4 * n * W), *head = int64s(n), *sums = int64s(4 * n);
+        unsigned char *failed = bytes_of(n), *dropped = bytes_of(n), *inw = bytes_of(n * W);
+        double *pose = doubles(3 * n), *scratch = doubles(VS_AGENT_SCRATCH_F64(n));
+        unsigned char *seen = bytes_of(n), *fresh = bytes_of(n), *used = bytes_of(n);
+        unsigned char *scratch_u8 = bytes_of(VS_AGENT_SCRATCH_U8(n));
+        vs_failure_decision *dec = malloc(sizeof *dec * (n > 0 ? 2 * n : 1));
+        if (!tpl || !wb || !vmax || !amax || !radii || !goal || !obs || !wheels || !p_pose || !p_gains || !p_hist
+            || !p_target || !p_feed || !p_turn || !p_dir || !p_ready || !since || !last_t || !last_xy || !last_exp
+            || !wt || !wdev || !nm || !head || !sums || !failed || !dropped || !inw || !pose || !scratch || !seen
+            || !fresh || !used || !scratch_u8 || !dec)
+            return 2;
+        for (size_t i = 0; i < n; i++) {
+            wheels[2 * i] = MAYBE(0.1 * (uniform() - 0.5));
+            wheels[2 * i + 1] = MAYBE(0.1 * (uniform() - 0.5));
+            for (int c = 0; c < 3; c++) p_pose[3 * i + c] = MAYBE(uniform());
+            p_gains[2 * i] = MAYBE(1.0);
+            p_gains[2 * i + 1] = MAYBE(1.0);
+            for (int c = 0; c < 2 * VS_PRECISION_HISTORY; c++) p_hist[2 * VS_PRECISION_HISTORY * i + c] = MAYBE(0.0);
+            for (int c = 0; c < 2; c++) {
+                p_target[2 * i + c] = MAYBE(uniform());
+                p_feed[2 * i + c] = MAYBE(0.0);
+            }
+            p_turn[i] = MAYBE(0.0);
+            p_dir[i] = (next() % 2) ? 1.0 : -1.0;
+            p_ready[i] = (unsigned char)(next() % 2);
+            since[i] = (next() % 2) ? 0.0 / 0.0 : MAYBE(uniform());
+            last_t[i] = (next() % 3) ? 0.0 / 0.0 : MAYBE(uniform());
+            last_xy[2 * i] = MAYBE(uniform());
+            last_xy[2 * i + 1] = MAYBE(uniform());
+            last_exp[2 * i] = MAYBE(0.003);
+            last_exp[2 * i + 1] = MAYBE(0.0);
+            head[i] = (!wild || next() % 10) ? (int64_t)(next() % 1000) : -(int64_t)(next() % 3);
+            failed[i] = (unsigned char)(next() % 4 == 0);
+            dropped[i] = (unsigned char)(next() % 6 == 0);
+            for (int c = 0; c < 4; c++) sums[4 * i + c] = (int64_t)(next() % 2000000) - 1000000;
+        }
+        for (size_t j = 0; j < n * W; j++) {
+            wt[j] = (next() % 2) ? 0.0 / 0.0 : MAYBE(uniform());
+            wdev[j] = MAYBE(uniform());
+            inw[j] = (unsigned char)(next() % 2);
+            for (int c = 0; c < 4; c++) nm[4 * j + c] = (int64_t)(next() % 200000) - 100000;
+        }
+        double t0 = (next() % 4) ? uniform() : MAYBE(uniform());
+        double sc[8];   /* ctrl_ready, last_frame_t, last_cmd_t, blocked, stall_since_t, stall_watch, filter, stalled */
+        sc[0] = (double)(next() % 2);
+        sc[1] = (next() % 2) ? -1.0 / 0.0 : t0 - 0.1;
+        sc[2] = (next() % 2) ? -1.0 / 0.0 : t0 - 0.1;
+        sc[3] = (double)(next() % 2);
+        sc[4] = (next() % 2) ? 0.0 / 0.0 : MAYBE(t0);
+        sc[5] = (double)(next() % 2);
+        sc[6] = (double)(next() % 2);
+        sc[7] = (double)(next() % 2);
+        double at[3];
+        at[0] = MAYBE(1.0);
+        at[1] = MAYBE(0.5);
+        at[2] = MAYBE(0.0);
+        vs_agent_state st = {wheels, (int)sc[0],
+                             {p_pose, p_gains, p_hist, p_target, p_feed, p_turn, p_dir, p_ready},
+                             {n, W, since, failed, dropped, last_t, last_xy, last_exp, wt, nm, head, inw, sums, wdev},
+                             sc[1], sc[2], (int)sc[3], sc[4], (int)sc[5], {at[0], at[1], at[2]}, (int)sc[6],
+                             (int)sc[7], 0};
+        double t = t0;
+        for (int f = 0; f < frames; f++) {
+            uint64_t r = next() % 24;
+            t += r == 0 ? 0.4 : r == 1 ? 1.5 : r == 2 ? -0.05 : 1.0 / 30.0;   /* past ttl, past resync, back */
+            double tf = (next() % 100) ? t : hostile(NULL, 0, NULL, 0);
+            for (size_t i = 0; i < n; i++) {
+                seen[i] = (unsigned char)(next() % 6 != 0);
+                fresh[i] = (unsigned char)((next() % 5) ? seen[i] : next() % 2);   /* fresh without seen too */
+                double x = tpl[2 * i] + 0.01 * f, y = tpl[2 * i + 1];
+                int bad = next() % 48 == 0;   /* NaN, inf, huge in a seen row now and then */
+                pose[3 * i] = bad ? mostly(x) : seen[i] ? x : ((next() % 2) ? 0.0 / 0.0 : mostly(x));
+                pose[3 * i + 1] = bad ? mostly(y) : seen[i] ? y + 0.001 * (uniform() - 0.5) : 0.0 / 0.0;
+                pose[3 * i + 2] = bad ? mostly(0.0) : 0.3 * (uniform() - 0.5);
+            }
+            vs_agent_out out;
+            memset(&out, 0xA5, sizeof out);
+            int rc = vs_agent_step(&cfg, &st, pose, seen, fresh, tf, &out, used, dec, scratch, scratch_u8);
+            calls++;
+            if (rc == VS_OK) {
+                if (!out.ran) { skipped++; continue; }
+                ran++;
+                if (out.n_decisions > 2 * n) return 6;
+                for (size_t j = 0; j < out.n_decisions; j++)
+                    if (dec[j].row >= n || dec[j].kind < VS_DECISION_FAIL || dec[j].kind > VS_DECISION_RECOVER) return 7;
+                decided += (long)out.n_decisions;
+                events += out.event != 0;
+            } else if (rc == VS_EVALUE || rc == VS_ENONFINITE || rc == VS_ENOMEM) {
+                refused[-rc]++;
+            } else {
+                fprintf(stderr, "fuzz agent_step: iteration %ld frame %d returned %d, not a VS_E* code\n", it, f, rc);
+                return 8;
+            }
+        }
+        if (have_field) vs_field_free(&field);
+        free(tpl); free(wb); free(vmax); free(amax); free(radii); free(goal); free(obs); free(wheels); free(p_pose);
+        free(p_gains); free(p_hist); free(p_target); free(p_feed); free(p_turn); free(p_dir); free(p_ready);
+        free(since); free(last_t); free(last_xy); free(last_exp); free(wt); free(wdev); free(nm); free(head);
+        free(sums); free(failed); free(dropped); free(inw); free(pose); free(scratch); free(seen); free(fresh);
+        free(used); free(scratch_u8); free(dec);
+    }
+    printf("fuzz %-14s %ld calls: %ld ran (%ld decisions, %ld events), %ld without a robot usable, refused %ld "
+           "(VS_EVALUE %ld, VS_ENONFINITE %ld, VS_ENOMEM %ld); %ld rooms with a field\n", "agent_step", calls, ran,
+           decided, events, skipped, refused[1] + refused[2] + refused[3], refused[1], refused[2], refused[3], fields);
+    /* its golden entry: valid packings, then with one to three values hostile, and hostile flat inputs */
+    enum { FLAT = 4096 };
+    double *in = malloc(sizeof(double) * FLAT), *fo = malloc(sizeof(double) * FLAT);
+    if (!in || !fo) return 2;
+    long flat_ran = 0, flat_refused = 0;
+#undef MAYBE
+    for (long it = 0; it < iters; it++) {
+        long k = (long)(next() % FLAT);
+        if (it % 8) {
+            k = agent_flat_input(in);
+            for (uint64_t j = next() % 4; j > 0 && (it % 8) > 2; j--) {
+                long at = (long)(next() % (uint64_t)k);
+                in[at] = hostile(in, k, in, k);
+            }
+        } else {
+            for (long i = 0; i < k; i++) in[i] = hostile(in, i, in, i);
+        }
+        if (flat->run(in, k, fo, FLAT) < 0) flat_refused++; else flat_ran++;
+    }
+    free(in); free(fo);
+    printf("fuzz %-14s %ld flat calls: %ld ran, %ld refused\n", "agent_step", iters, flat_ran, flat_refused);
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     long iters = argc > 1 ? atol(argv[1]) : 2000;
@@ -723,6 +1037,7 @@ int main(int argc, char **argv)
     if (!in || !out) return 2;
     for (size_t e = 0; e < count; e++) {
         long refused = 0, ran = 0, detoured = 0;
+        if (strcmp(all[e].name, "agent_step") == 0) continue;   /* fuzz_agent, last (the figures above stay) */
         for (long it = 0; it < iters; it++) {
             long n = (long)(next() % 301);
             if (it % 50 == 0) n = 0;
@@ -767,5 +1082,7 @@ int main(int argc, char **argv)
     if (rc != 0) return rc;
     rc = fuzz_wire(iters * 5);
     if (rc != 0) return rc;
-    return fuzz_encode(iters * 5);
+    rc = fuzz_encode(iters * 5);
+    if (rc != 0) return rc;
+    return fuzz_agent(iters / 20 + 1);
 }

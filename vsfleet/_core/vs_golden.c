@@ -3,10 +3,13 @@
  * One packing per core function, used both by the recorder (vsfleet._core.golden_call, from
  * Python) and by the plain C driver (tests/cdriver/golden_driver.c, native, aarch64 under
  * qemu, sanitizers), so the two can only agree if the core computes the same bits. */
+#include <math.h>
 #include <stdint.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "vscore.h"
+#include "vs_agent.h"
 #include "vs_assembly.h"
 #include "vs_golden.h"
 #include "vs_step.h"
@@ -245,6 +248,237 @@ static long g_assembly_targets(const double *in, long n_in, double *out, long ca
     return 5 * n + 1;
 }
 
+/* a mission as structure_step packs it, without the frame's values (its poses, flags, elapsed and dt): n, metric,
+ * goal kind, k goal poses, 3k goal, 9 limits, 2n template, n wheel base, n speed max, n accel max, margin, cell,
+ * headings, max states, m obstacles, n radii, 3m obstacles, s shapes, 2n s points; the room's field (and each
+ * shape's) built as structure_step builds them */
+typedef struct {
+    vs_mission m;
+    vs_field field, shape_field[VS_STEP_MAX_SHAPES];
+    const vs_field *shape_ptr[VS_STEP_MAX_SHAPES];
+    int have_field;
+    long built;
+} golden_mission;
+
+static void mission_free(golden_mission *g)
+{
+    for (long j = 0; j < g->built; j++) vs_field_free(&g->shape_field[j]);
+    if (g->have_field) vs_field_free(&g->field);
+    g->built = 0;
+    g->have_field = 0;
+}
+
+/* unpacks the mission at in[0 .. n_in): the count of values it took, -1 when refused (nothing to free) */
+static long mission_of(const double *in, long n_in, golden_mission *g)
+{
+    memset(g, 0, sizeof *g);
+    if (n_in < 4) return -1;
+    long n = count_of(in[0], 1, 4096), metric = count_of(in[1], 0, 2), kind = count_of(in[2], 0, 2),
+         k = count_of(in[3], 1, 100000);
+    if (n < 0 || metric < 0 || kind < 0 || k < 0) return -1;
+    long base = 4 + 3 * k + 9 + 5 * n;   /* then margin, cell, headings, max states, m */
+    if (n_in < base + 5) return -1;
+    long m_obs = count_of(in[base + 4], 0, 256), heads = count_of(in[base + 2], 4, 1024),
+         max_states = count_of(in[base + 3], 1024, 100000000);
+    if (m_obs < 0 || heads < 0 || max_states < 0) return -1;
+    long at = base + 5 + n + 3 * m_obs;
+    if (n_in < at + 1) return -1;
+    long n_shapes = count_of(in[at], 0, VS_STEP_MAX_SHAPES);
+    if (n_shapes < 0 || n_in < at + 1 + 2 * n * n_shapes) return -1;
+    const double *goal = in + 4, *lim = goal + 3 * k, *tpl = lim + 9, *wb = tpl + 2 * n, *vmax = wb + n,
+                 *amax = vmax + n, *room = amax + n, *radii = room + 5, *obstacles = radii + n,
+                 *shapes = obstacles + 3 * m_obs + 1;
+    double margin = room[0], cell = room[1];
+    if (m_obs > 0 && kind != VS_GOAL_TWIST) {
+        if (vs_field_build(tpl, radii, (size_t)n, margin, obstacles, (size_t)m_obs, goal + 3 * (k - 1), cell,
+                           (size_t)heads, (size_t)max_states, &g->field) != VS_OK)
+            return -1;
+        g->have_field = 1;
+        for (; g->built < n_shapes; g->built++) {
+            if (vs_field_build(shapes + 2 * n * g->built, radii, (size_t)n, margin, obstacles, (size_t)m_obs,
+                               goal + 3 * (k - 1), cell, (size_t)heads, (size_t)max_states,
+                               &g->shape_field[g->built]) != VS_OK) {
+                mission_free(g);
+                return -1;
+            }
+            g->shape_ptr[g->built] = &g->shape_field[g->built];
+        }
+    }
+    vs_mission m = {(size_t)n, tpl, wb, vmax, amax, (int)metric, {(int)kind, goal, (size_t)k},
+                    {lim[0], lim[1], lim[2], lim[3], lim[4], lim[5], lim[6], lim[7], lim[8]},
+                    radii, obstacles, (size_t)m_obs, margin, g->have_field ? &g->field : NULL,
+                    (size_t)g->built, shapes, g->shape_ptr};
+    g->m = m;
+    return at + 1 + 2 * n * n_shapes;
+}
+
+/* a whole number of at most 2^62 in magnitude in a double (an int64 of the failure rule's state), else -1 */
+static int int64_of(double v, int64_t *out)
+{
+    if (!(v >= -4611686018427387904.0 && v <= 4611686018427387904.0) || v != floor(v)) return -1;
+    *out = (int64_t)v;
+    return 0;
+}
+
+/* NaN as one bit pattern (+NaN: what C99 hex floats and Python's float.hex write back) */
+static double canon(double v) { return isnan(v) ? NAN : v; }
+
+/* agent_step: the mission (mission_of), then the agent: own, controller (VS_AGENT_*), 16 gains (the controller's
+ * struct's values first: precision 16, turn_then_go 5, arc 1, tracking 6), deadband, still speed, 9 policy (mode,
+ * then vs_failure_policy's numbers), 4 safety, dt, ttl, age, resync gap, effective_t, room, bodies; then the state:
+ * W, then py_agent.c's 21 arrays in order (2n wheels; the precision state: 3n pose, 2n gains, 10n history, 2n
+ * target, 2n feed, n turn, n direction, n ready; the failure state: n since, n failed, n dropped, n last_t, 2n
+ * last_xy, 2n last_expected, nW window_t, 4nW window_nm, n head, nW in_window, 4n sums, nW window_dev) and its 12
+ * scalars (last_frame_t, last_cmd_t, ctrl_ready, blocked, stall_since_t, stall_watch, stall x, y, th,
+ * stall_filter, stalled, shape); then F frames, each t, 3n poses, n seen, n fresh
+ * -> per frame: ran, resynced, then (if ran) fit 3, goal 3, twist 3, cost, at_goal, blocked, left, shape, vl, vr,
+ *    own_seen, err, event, event_dev, shape_before, n used, n deviations, the count of decisions d and d times
+ *    (row, kind, t, deviation); then the final state as packed (the 21 arrays, the 12 scalars).  NaN comes out as
+ *    +NaN. */
+static long g_agent_step(const double *in, long n_in, double *out, long cap)
+{
+    golden_mission g;
+    long at = mission_of(in, n_in, &g);
+    if (at < 0) return -1;
+    const long n = (long)g.m.n;
+    long result = -1;
+    double *buf = NULL;
+    unsigned char *bytes = NULL;
+    int64_t *ints = NULL;
+    vs_failure_decision *dec = NULL;
+    const long n_cfg = 2 + 16 + 2 + 9 + 4 + 5 + 2;
+    if (n_in < at + n_cfg + 1) goto done;
+    const double *c = in + at, *gains = c + 2;
+    long own = count_of(c[0], 0, n - 1), W = count_of(c[n_cfg], 1, 100000);
+    if (own < 0 || W < 1) goto done;
+    vs_agent_config cfg;
+    memset(&cfg, 0, sizeof cfg);
+    cfg.mission = &g.m;
+    cfg.own = (size_t)own;
+    cfg.controller = (int)count_of(c[1], 0, 3);
+    if (cfg.controller == VS_AGENT_PRECISION)
+        cfg.precision = (vs_precision_gains){gains[0], gains[1], gains[2], gains[3], gains[4], gains[5], gains[6],
+                                             gains[7], gains[8], gains[9], gains[10], gains[11], gains[12],
+                                             gains[13], gains[14], gains[15]};
+    cfg.turn_then_go = (vs_turn_then_go_gains){gains[0], gains[1], gains[2], gains[3], gains[4] != 0.0};
+    cfg.arc_horizon_s = gains[0];
+    cfg.tracking = (vs_tracking_gains){gains[0], gains[1], gains[2], gains[3], gains[4], gains[5]};
+    const double *p = gains + 16;
+    cfg.deadband_m = p[0];
+    cfg.still_speed_m_s = p[1];
+    p += 2;
+    cfg.policy = (vs_failure_policy){(int)count_of(p[0], 0, 1000), p[1], p[2], p[3], p[4], p[5], p[6], p[7], p[8]};
+    p += 9;
+    cfg.safety = (vs_safety_params){p[0], p[1], p[2], p[3]};
+    p += 4;
+    cfg.dt_s = p[0];
+    cfg.ttl_s = p[1];
+    cfg.age_s = p[2];
+    cfg.resync_gap_s = p[3];
+    cfg.effective_t = p[4];
+    cfg.room = p[5] != 0.0;
+    cfg.bodies = p[6] != 0.0;
+    p += 8;   /* past W */
+    /* the state: 21 arrays, then 12 scalars */
+    const long per[21] = {2, 3, 2, 2 * VS_PRECISION_HISTORY, 2, 2, 1, 1, 1, 1, 1, 1, 1, 2, 2, W, 4 * W, 1, W, 4, W};
+    long n_state = 12;
+    for (int k = 0; k < 21; k++) n_state += n * per[k];
+    at += n_cfg + 1;
+    if (n_in < at + n_state) goto done;
+    long per_frame = 1 + 5 * n, frames = (n_in - at - n_state) / per_frame;
+    if ((n_in - at - n_state) % per_frame != 0) goto done;
+    buf = malloc(sizeof(double) * (size_t)(n_state + VS_AGENT_SCRATCH_F64(n)));
+    bytes = malloc((size_t)(n * (3 + 2 * W + 3) + VS_AGENT_SCRATCH_U8(n)));
+    ints = malloc(sizeof(int64_t) * (size_t)(n * (4 * W + 1 + 4)));
+    dec = malloc(sizeof *dec * (size_t)(2 * n));
+    if (buf == NULL || bytes == NULL || ints == NULL || dec == NULL) goto done;
+    /* doubles: the arrays' values as given (booleans and ints too, for the output); their typed copies below */
+    memcpy(buf, p, sizeof(double) * (size_t)n_state);
+    double *arr[21];
+    long off = 0;
+    for (int k = 0; k < 21; k++) {
+        arr[k] = buf + off;
+        off += n * per[k];
+    }
+    double *sc = buf + off;
+    unsigned char *ready = bytes, *failed = ready + n, *dropped = failed + n, *in_window = dropped + n;
+    unsigned char *seen = in_window + n * W, *fresh = seen + n, *used = fresh + n, *scratch_u8 = used + n;
+    int64_t *window_nm = ints, *head = window_nm + 4 * n * W, *sums = head + n;
+    for (long i = 0; i < n; i++) {
+        ready[i] = arr[8][i] != 0.0;
+        failed[i] = arr[10][i] != 0.0;
+        dropped[i] = arr[11][i] != 0.0;
+        if (int64_of(arr[17][i], &head[i]) < 0) goto done;
+    }
+    for (long j = 0; j < n * W; j++) in_window[j] = arr[18][j] != 0.0;
+    for (long j = 0; j < 4 * n * W; j++)
+        if (int64_of(arr[16][j], &window_nm[j]) < 0) goto done;
+    for (long j = 0; j < 4 * n; j++)
+        if (int64_of(arr[19][j], &sums[j]) < 0) goto done;
+    vs_agent_state st = {
+        arr[0], sc[2] != 0.0,
+        {arr[1], arr[2], arr[3], arr[4], arr[5], arr[6], arr[7], ready},
+        {(size_t)n, (size_t)W, arr[9], failed, dropped, arr[12], arr[13], arr[14], arr[15], window_nm, head,
+         in_window, sums, arr[20]},
+        sc[0], sc[1], sc[3] != 0.0, sc[4], sc[5] != 0.0, {sc[6], sc[7], sc[8]}, sc[9] != 0.0, sc[10] != 0.0,
+        (int)count_of(sc[11], 0, VS_STEP_MAX_SHAPES),
+    };
+    double *scratch_f64 = buf + n_state, *o = out;
+    const double *fr = in + at + n_state;
+    for (long f = 0; f < frames; f++, fr += per_frame) {
+        for (long i = 0; i < n; i++) {
+            seen[i] = fr[1 + 3 * n + i] != 0.0;
+            fresh[i] = fr[1 + 4 * n + i] != 0.0;
+        }
+        vs_agent_out r;
+        if (vs_agent_step(&cfg, &st, fr + 1, seen, fresh, fr[0], &r, used, dec, scratch_f64, scratch_u8) != VS_OK)
+            goto done;
+        long need = r.ran ? 24 + 2 * n + 4 * (long)r.n_decisions : 2;
+        if (cap - (o - out) < need + n_state) goto done;
+        *o++ = r.ran;
+        *o++ = r.resynced;
+        if (!r.ran) continue;
+        const vs_structure *s = &r.s;
+        double head_out[21] = {s->fit_x, s->fit_y, s->fit_th, s->goal_x, s->goal_y, s->goal_th, s->vx_m_s,
+                               s->vy_m_s, s->w_rad_s, s->cost, (double)s->at_goal, (double)s->blocked, s->left_m,
+                               (double)s->shape, r.vl_m_s, r.vr_m_s, (double)r.own_seen, r.err_m, (double)r.event,
+                               r.event_dev_m, (double)r.shape_before};
+        for (int k = 0; k < 21; k++) *o++ = canon(head_out[k]);
+        for (long i = 0; i < n; i++) *o++ = used[i];
+        for (long i = 0; i < n; i++) *o++ = canon(scratch_f64[7 * n + i]);   /* the deviations (vs_agent.c) */
+        *o++ = (double)r.n_decisions;
+        for (size_t k = 0; k < r.n_decisions; k++) {
+            *o++ = (double)dec[k].row;
+            *o++ = (double)dec[k].kind;
+            *o++ = canon(dec[k].t);
+            *o++ = canon(dec[k].deviation_m);
+        }
+    }
+    if (cap - (o - out) < n_state) goto done;
+    /* the final state, packed as it came in */
+    for (long i = 0; i < n; i++) {
+        arr[8][i] = ready[i];
+        arr[10][i] = failed[i];
+        arr[11][i] = dropped[i];
+        arr[17][i] = (double)head[i];
+    }
+    for (long j = 0; j < n * W; j++) arr[18][j] = in_window[j];
+    for (long j = 0; j < 4 * n * W; j++) arr[16][j] = (double)window_nm[j];
+    for (long j = 0; j < 4 * n; j++) arr[19][j] = (double)sums[j];
+    double tail[12] = {st.last_frame_t, st.last_cmd_t, st.ctrl_ready, st.blocked, st.stall_since_t, st.stall_watch,
+                       st.stall_pose[0], st.stall_pose[1], st.stall_pose[2], st.stall_filter, st.stalled, st.shape};
+    memcpy(sc, tail, sizeof tail);
+    for (long j = 0; j < n_state; j++) *o++ = canon(buf[j]);
+    result = (long)(o - out);
+done:
+    free(buf);
+    free(bytes);
+    free(ints);
+    free(dec);
+    mission_free(&g);
+    return result;
+}
+
 static const golden_entry entries[] = {
     {"field_build", g_field_build},
     {"field_follow", g_field_follow},
@@ -256,6 +490,7 @@ static const golden_entry entries[] = {
     {"atan2", g_atan2},
     {"wrap_angle", g_wrap},
     {"assembly_targets", g_assembly_targets},
+    {"agent_step", g_agent_step},
 };
 
 const golden_entry *golden_find(const char *name)
