@@ -169,6 +169,10 @@ static PyObject *py_agent_config(PyObject *mod, PyObject *const *a, Py_ssize_t n
     if (doubles_of(a[6], pol, 9, "policy") < 0 || doubles_of(a[7], saf, 4, "safety") < 0
         || doubles_of(a[8], times, 5, "times") < 0)
         goto fail;
+    if (!(pol[0] == 0.0 || pol[0] == 1.0 || pol[0] == 2.0)) {   /* a mode code, before any cast to int */
+        PyErr_SetString(vs_ValueError, "agent_config: the policy's mode must be a code of FAILURE_MODES");
+        goto fail;
+    }
     g->policy = (vs_failure_policy){(int)pol[0], pol[1], pol[2], pol[3], pol[4], pol[5], pol[6], pol[7], pol[8]};
     g->safety = (vs_safety_params){saf[0], saf[1], saf[2], saf[3]};
     g->dt_s = times[0];
@@ -306,6 +310,10 @@ static int get_state(const agent_config *c, PyObject *tuple, PyObject *scalars, 
     sv->got++;
     Py_buffer *v = sv->v;
     double *sc = v[N_STATE].buf;
+    if (!(sc[11] >= 0.0 && sc[11] <= (double)VS_STEP_MAX_SHAPES)) {   /* the shape, before any cast to int */
+        PyErr_SetString(vs_ValueError, "agent_step: the state's shape must be in [0, VS_STEP_MAX_SHAPES]");
+        goto fail;
+    }
     sv->sc = sc;
     sv->scratch_f64 = v[N_STATE + 1].buf;
     sv->scratch_u8 = v[N_STATE + 2].buf;
