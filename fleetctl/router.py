@@ -13,6 +13,7 @@ import argparse
 import json
 import logging
 import socket
+import sys
 import threading
 import time
 
@@ -20,7 +21,7 @@ import zenoh
 
 from vsfleet.zglue.lifecycle import StopFlag
 from vsfleet.zglue.program import common_flags, program, refusing
-from vsfleet.zglue.zconf import open_session, zenoh_config
+from vsfleet.zglue.zconf import add_zenoh_args, open_session, zenoh_config, zenoh_flags
 
 log = logging.getLogger("vsfleet.router")
 
@@ -55,6 +56,23 @@ def loopback_router_config(port: int) -> zenoh.Config:
     conf.insert_json5("adminspace/enabled", "true")
     conf.insert_json5("transport/shared_memory/enabled", "false")   # as every program's default (zglue.zconf)
     return conf
+
+
+def start_router_child(children, cwd=None) -> str:
+    """A `vsfleet router` process on a free loopback port, multicast scouting off (as on a deployment), started as
+    ``children``'s "router" (fleetctl.run.Children); waits until it listens and returns its endpoint."""
+    port = free_loopback_port()
+    children.start("router", [sys.executable, "-m", "vsfleet.fleetctl.cli", "router", "--listen",
+                              f"tcp/127.0.0.1:{port}", "--no-multicast-scouting"], cwd=cwd)
+    wait_listening(port, 30.0)
+    return f"tcp/127.0.0.1:{port}"
+
+
+def client_config(endpoint: str) -> zenoh.Config:
+    """A client session's config for a loopback router's endpoint (the flags every child gets: zenoh_flags)."""
+    p = argparse.ArgumentParser()
+    add_zenoh_args(p)
+    return zenoh_config(p.parse_args(zenoh_flags(endpoint)))
 
 
 class EmbeddedRouter:
