@@ -41,9 +41,9 @@ import numpy as np
 import zenoh
 
 from vsfleet.fleetctl.mission_cmd import stamp
-from vsfleet.fleetctl.router import free_loopback_port, open_loopback_router, wait_listening
+from vsfleet.fleetctl.router import client_config, open_loopback_router, start_router_child
 from vsfleet.fleetctl.run import SPAWN_MODES, Children, child_command
-from vsfleet.zglue.zconf import RELIABLE_QOS, STREAM_QOS, add_zenoh_args, zenoh_config, zenoh_flags
+from vsfleet.zglue.zconf import RELIABLE_QOS, STREAM_QOS, zenoh_flags
 from vsfleet.geometry import Pose2
 from vsfleet.kinematics import integrate_arc
 from vsfleet.wire import (
@@ -183,12 +183,6 @@ class LoopRun:
                 and percentiles_s(self.latency_s)["p99"] < self.period_s)
 
 
-def _client_config(endpoint: str) -> zenoh.Config:
-    p = argparse.ArgumentParser()
-    add_zenoh_args(p)
-    return zenoh_config(p.parse_args(zenoh_flags(endpoint)))
-
-
 class _Sink:
     """The sim side: every cmd and state with its arrival time, and each robot's latest wheels."""
 
@@ -224,15 +218,6 @@ def _pace_until(t: float) -> None:
     dt = t - time.perf_counter()
     if dt > 0:
         time.sleep(dt)
-
-
-def _router_child(children: Children) -> str:
-    """A `vsfleet router` process on a free loopback port (as on a deployment); waits until it listens."""
-    port = free_loopback_port()
-    children.start("router", child_command("router", "--listen", f"tcp/127.0.0.1:{port}",
-                                           "--no-multicast-scouting"), cwd=ROOT)
-    wait_listening(port, 30.0)
-    return f"tcp/127.0.0.1:{port}"
 
 
 TRIVIAL_EXPRESS = {"trivial": "agent", "trivial-express": "on", "trivial-batched": "off"}
@@ -289,8 +274,8 @@ def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2
     log_dir = Path(tempfile.mkdtemp(prefix=f"vsfleet-bench-{n}-"))
     children = Children(log_dir)
     if router_process:
-        endpoint = _router_child(children)
-        router = zenoh.open(_client_config(endpoint))
+        endpoint = start_router_child(children, cwd=ROOT)
+        router = zenoh.open(client_config(endpoint))
     else:
         router, endpoint = open_loopback_router()
     sessions = []
@@ -305,8 +290,8 @@ def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2
         payload = encode_mission(mission)
         queryable = router.declare_queryable(keys.mission, lambda q: q.reply(keys.mission, payload),
                                              complete=True)
-        tracker_s = zenoh.open(_client_config(endpoint))
-        sim_s = zenoh.open(_client_config(endpoint))
+        tracker_s = zenoh.open(client_config(endpoint))
+        sim_s = zenoh.open(client_config(endpoint))
         sessions += [tracker_s, sim_s]
         sink = _Sink(keys)
         subs = [sim_s.declare_subscriber(keys.cmd(), sink.on_cmd),
@@ -478,8 +463,8 @@ def run_floor(plans: list[tuple[str, float | None, int]], log=print, router_proc
     router = None
     try:
         if router_process:
-            endpoint = _router_child(children)
-            router = zenoh.open(_client_config(endpoint))
+            endpoint = start_router_child(children, cwd=ROOT)
+            router = zenoh.open(client_config(endpoint))
         else:
             router, endpoint = open_loopback_router()
         router.liveliness().declare_subscriber(keys.alive("pong"), lambda s: alive.add(str(s.key_expr)),
@@ -487,7 +472,7 @@ def run_floor(plans: list[tuple[str, float | None, int]], log=print, router_proc
         children.start("pong", [sys.executable, "-m", "bench.zenoh_pong", "--fleet", fleet,
                                 *zenoh_flags(endpoint)], cwd=ROOT)
         _wait(lambda: alive, 60.0, "pong process alive")
-        sess = zenoh.open(_client_config(endpoint))
+        sess = zenoh.open(client_config(endpoint))
         sessions.append(sess)
         got = threading.Event()
         box: list[float] = [0.0]
