@@ -61,11 +61,15 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
                 metric: str | None = None, noise_xy_m: float | None = None,
                 noise_th_rad: float | None = None, latency_frames: int = 1, seed: int = 0,
                 goal_tol_m: float = 0.005, stop_at_goal: bool = True, tracker_clock_ahead_s: float = 0.0,
-                share_structures: bool = True, reference: bool = False, engine: str | None = None,
+                share_structures: bool = False, reference: bool = False, engine: str | None = None,
                 **gains: float) -> OfflineRun:
     """The fleet of ``scenario`` offline: one agent per robot on counted frames, simfleet's physics.
 
     reference: the agents run the numpy reference of the step instead of the compiled core (tests).
+    share_structures: the agents share the structures they compute and step in the numpy glue of
+    vsfleet.step.agent_step (the way offline runs went before the core had the whole step); by default each agent
+    runs its frame in the core (vs_agent_step), as an agent process does: 1.3-2x faster offline (paper-failure
+    0.44 -> 0.34 s, crowd-10 1.33 -> 0.67 s of CPU for 20 s), the same bits (tests/test_core_agent_step.py).
     engine: the physics engine (simfleet.engine.ENGINES; None: the scenario's [sim] engine)."""
     mission = scenario.mission
     if metric is not None:
@@ -102,8 +106,8 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
     # it: the agent itself keeps only its newest ones
     decisions: dict[str, list[Decision]] = {r: [] for r in robots}
     shapes: dict[str, list[tuple[int, int]]] = {r: [] for r in robots}
-    # the agents share the structures they compute: an agent whose frame, mission and failure masks equal
-    # another's takes that agent's structure (the same pure function of the same inputs) instead of
+    # share_structures: the agents share the structures they compute: an agent whose frame, mission and failure
+    # masks equal another's takes that agent's structure (the same pure function of the same inputs) instead of
     # fitting again; everything else (controller, failure rule, state) each agent computes on its own
     shared: dict | None = {} if share_structures else None
     for r in robots:  # one agent per robot, each with its own state, as in the fleet
