@@ -29,6 +29,7 @@ typedef struct {
     double *row_poses;       /* (n, 3) the same, in rows */
     unsigned char *seen;     /* (n) */
     unsigned char *used;     /* (n) */
+    vs_failure_decision *decisions;   /* (2n) the failure rule's decisions of a frame */
     unsigned char *state_buf;
     size_t state_cap;
 } agent_config;
@@ -47,6 +48,7 @@ static void agent_config_free(PyObject *cap)
     PyMem_Free(a->row_poses);
     PyMem_Free(a->seen);
     PyMem_Free(a->used);
+    PyMem_Free(a->decisions);
     PyMem_Free(a->state_buf);
     PyMem_Free(a);
 }
@@ -202,8 +204,9 @@ static PyObject *py_agent_config(PyObject *mod, PyObject *const *a, Py_ssize_t n
     c->row_poses = PyMem_Calloc(3 * (size_t)n, sizeof(double));
     c->seen = PyMem_Calloc((size_t)n, 1);
     c->used = PyMem_Calloc((size_t)n, 1);
+    c->decisions = PyMem_Calloc(2 * (size_t)n, sizeof *c->decisions);
     if (c->ids_blob == NULL || c->ids == NULL || c->used_ids == NULL || c->slices == NULL || c->frame_poses == NULL || c->row_poses == NULL
-        || c->seen == NULL || c->used == NULL) {
+        || c->seen == NULL || c->used == NULL || c->decisions == NULL) {
         Py_DECREF(parts);
         if (!PyErr_Occurred()) PyErr_NoMemory();
         goto fail;
@@ -478,8 +481,7 @@ static PyObject *py_agent_frame(PyObject *mod, PyObject *const *a, Py_ssize_t na
     state_views sv;
     if (get_state(c, a[1], a[2], a[3], a[4], &sv) < 0) return NULL;
     PyObject *result = NULL;
-    vs_failure_decision *dec = PyMem_Malloc(sizeof *dec * 2 * n);
-    if (dec == NULL) { PyErr_NoMemory(); goto done; }
+    vs_failure_decision *dec = c->decisions;   /* sized with the mission (the kernels still allocate scratch) */
     vs_agent_out out;
     unsigned char cmd[VS_WIRE_CMD_MAX_BYTES];
     size_t cmd_len = 0, state_len = 0;
@@ -509,7 +511,6 @@ static PyObject *py_agent_frame(PyObject *mod, PyObject *const *a, Py_ssize_t na
     result = Py_BuildValue("(y#y#dLN)", (const char *)cmd, (Py_ssize_t)cmd_len, (const char *)c->state_buf,
                            (Py_ssize_t)state_len, fr.t, (long long)fr.seq, r);
 done:
-    PyMem_Free(dec);
     release_state(&sv);
     return result;
 }
