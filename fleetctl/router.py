@@ -58,12 +58,17 @@ def loopback_router_config(port: int) -> zenoh.Config:
     return conf
 
 
+def child_command(*args: str) -> list[str]:
+    """The command line of a `vsfleet <command>` child process (run's children, the router child)."""
+    return [sys.executable, "-m", "vsfleet.fleetctl.cli", *args]
+
+
 def start_router_child(children, cwd=None) -> str:
     """A `vsfleet router` process on a free loopback port, multicast scouting off (as on a deployment), started as
     ``children``'s "router" (fleetctl.run.Children); waits until it listens and returns its endpoint."""
     port = free_loopback_port()
-    children.start("router", [sys.executable, "-m", "vsfleet.fleetctl.cli", "router", "--listen",
-                              f"tcp/127.0.0.1:{port}", "--no-multicast-scouting"], cwd=cwd)
+    children.start("router", child_command("router", "--listen", f"tcp/127.0.0.1:{port}", "--no-multicast-scouting"),
+                   cwd=cwd)
     wait_listening(port, 30.0)
     return f"tcp/127.0.0.1:{port}"
 

@@ -55,7 +55,7 @@ from vsfleet.zglue.lifecycle import StopFlag, wall_clock
 from vsfleet.zglue.program import common_flags, program, refusing
 from .mission_cmd import stamp
 from .record import LiveRecorder, iter_log, write_log
-from .router import EmbeddedRouter, client_config, start_router_child
+from .router import EmbeddedRouter, child_command, client_config, start_router_child  # noqa: F401 (child_command: also run's name)
 from vsfleet.zglue.scenario_file import load_scenario
 from vsfleet.zglue.forks import ForkedChild, ForkServer
 from vsfleet.zglue.zconf import RELIABLE_QOS, open_session, zenoh_flags
@@ -67,10 +67,6 @@ GOAL_POS_TOL_M = 0.01
 GOAL_TH_TOL_RAD = 0.02
 SETTLED_WHEEL_M_S = 0.002
 SETTLE_S = 1.0
-
-
-def child_command(*args: str) -> list[str]:
-    return [sys.executable, "-m", "vsfleet.fleetctl.cli", *args]
 
 
 # How a child that was asked to stop may end: 0 once it is up (it handles SIGTERM and SIGINT itself);

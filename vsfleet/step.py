@@ -471,8 +471,7 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
     state_msg = None
     if seen[own]:
         f, g = s.fit_pose, s.goal_pose
-        dx, dy = float(pose[own, 0] - s.points_now[own, 0]), float(pose[own, 1] - s.points_now[own, 1])
-        err = math.sqrt(dx * dx + dy * dy)   # + * sqrt only (the core's vs_agent_step): the same bits everywhere
+        err = _norm(float(pose[own, 0] - s.points_now[own, 0]), float(pose[own, 1] - s.points_now[own, 1]))
         state_msg = StateMsg(t=frame.t, seq=frame.seq, x=f.x, y=f.y, th=f.th, gx=g.x, gy=g.y, gth=g.th,
                              cost=s.cost, err=err, used=_used_ids(arrays.ids, s.used),
                              rejected=0, complete=frame.complete, mission=mission.version, shape=s.shape)
@@ -731,8 +730,7 @@ def stall_state(state: AgentState, arrays: MissionArrays, s: Structure, filtered
         float(dev.max()) < arrays.policy.fail_deviation_m
     p = s.fit_pose
     since, at, stalled = state.stall_since_t, state.stall_pose, state.stalled
-    dx, dy = p.x - at[0] if at is not None else 0.0, p.y - at[1] if at is not None else 0.0
-    moved = at is None or (math.sqrt(dx * dx + dy * dy) > STALL_MOVE_M
+    moved = at is None or (_norm(p.x - at[0], p.y - at[1]) > STALL_MOVE_M
                            or abs(angle_diff(p.th, at[2])) > STALL_TURN_RAD)
     if stalled:
         return (since, at, not moved)
@@ -748,9 +746,11 @@ def _goal_distance(arrays: MissionArrays, pose: Pose2) -> float:
     """How far [m] a structure pose is from the mission's final goal position."""
     goal = arrays.goal
     target = goal.pose if isinstance(goal, GoalPose) else goal.waypoints[-1] if isinstance(goal, GoalPath) else None
-    if target is None:
-        return 0.0
-    dx, dy = target.x - pose.x, target.y - pose.y
+    return 0.0 if target is None else _norm(target.x - pose.x, target.y - pose.y)
+
+
+def _norm(dx: float, dy: float) -> float:
+    """sqrt(dx*dx + dy*dy): + * sqrt only, as the core's vs_agent_step computes it (not math.hypot): the same bits."""
     return math.sqrt(dx * dx + dy * dy)
 
 
