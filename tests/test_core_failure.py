@@ -169,6 +169,31 @@ def test_a_halted_robot_fails_the_progress_test_on_the_same_frame_in_the_core_an
     assert [(r, kind) for _, r, kind in decided] == [("r2", "fail"), ("r2", "drop")]
 
 
+def test_a_dropped_robot_near_its_point_but_not_moving_as_commanded_is_not_taken_back_to_fail_again():
+    """rejoin: near its point is not enough while the window says stuck. Taken back so, the robot failed
+    again on the next frame (stuck counts a whole window back), and the fleet flapped fail/rejoin every
+    30 frames (tests/integration/test_faults.py under load, 2026-12-05)."""
+    policy = FailurePolicy("rejoin", fail_after_s=1.0, rejoin_deviation_m=0.02, rejoin_after_s=1.0)
+    dt, robots = 1 / 30, ("r1", "r2")
+    core = ref = FailureState.initial(2, policy, dt)
+    xy, decided = np.zeros((2, 2)), []
+    for k in range(330):
+        t = 10.0 + k * dt
+        expected = np.array([[0.1 * dt, 0.0], [0.0, 0.1 * dt]])
+        # r2 halts at frame 40 and stays on its point (deviation 0), commanded on (rejoin drives it);
+        # from frame 200 it moves as commanded again
+        xy = xy + (expected if k < 40 or k >= 200 else expected * [[1.0], [0.0]])
+        core, ref, made = both(policy, core, ref, robots, t, np.ones(2, bool), np.ones(2, bool), xy,
+                               np.zeros(2), expected, dt, 0.3)
+        decided += [(k, d.robot, d.kind) for d in made]
+    kinds = [(r, kind) for _, r, kind in decided]
+    assert kinds == [("r2", "fail"), ("r2", "drop"), ("r2", "rejoin")], decided
+    fail_k, rejoin_k = decided[0][0], decided[2][0]
+    assert 40 < fail_k < 80
+    # taken back only once it moved as commanded long enough for its window to say so, and then kept
+    assert rejoin_k > 200 + 30, decided
+
+
 def test_a_full_ring_overwrites_its_oldest_item_alike():
     """Frames four times faster than step_s: the ring of ceil(fail_after_s / step_s) + 4 slots wraps."""
     policy = FailurePolicy("hold", fail_after_s=0.5, min_expected_m=0.0)

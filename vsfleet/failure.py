@@ -56,7 +56,11 @@ same frame. The rule is:
     of them; the progress test still judges each.
   - ``drop``: the robot is taken out of the fit and its own agent stops it.
   - ``rejoin``: as ``drop``, but a dropped robot that has been within
-    ``rejoin_deviation_m`` of its point for ``rejoin_after_s`` is taken back.
+    ``rejoin_deviation_m`` of its point, and not stuck, for ``rejoin_after_s`` is
+    taken back. Not stuck: taken back while its window still says stuck, it
+    failed again on the next frame (the stuck test counts a whole window back),
+    and agents whose windows differed flapped fail/rejoin every 30 frames
+    (tests/integration/test_faults.py under load, 2026-12-05).
 
 Agents that saw different frames can decide one frame apart. An agent that joins
 late starts from "all healthy", or from its peers' state (:func:`with_health`).
@@ -336,7 +340,7 @@ def failure_step_reference(policy: FailurePolicy, state: FailureState, robots: S
     decisions: list[Decision] = []
     mode = policy.mode
     # dropped robots: rejoin only (their since_t counts compliant time)
-    near = dev <= policy.rejoin_deviation_m
+    near = (dev <= policy.rejoin_deviation_m) & ~stuck   # and moving as commanded (module docstring)
     if mode == "rejoin":
         start = np.where(dropped & near & np.isnan(since), t, since)
         back = dropped & near & (t - start >= policy.rejoin_after_s)

@@ -197,7 +197,9 @@ int vs_failure_step(const vs_failure_policy *policy, vs_failure_state *state, co
         int back = 0, recover = 0, fail = 0;
         if (s->dropped[i]) {                       /* dropped: rejoin only (since counts compliant time) */
             if (p->mode == VS_FAILURE_REJOIN) {
-                if (dev <= p->rejoin_deviation_m) {
+                /* near its point and moving as commanded: a robot taken back while its window says stuck
+                 * would fail again on the next frame, and its peers, whose windows differ, flap with it */
+                if (dev <= p->rejoin_deviation_m && !stuck) {
                     double start = vs_isnan(since) ? t : since;
                     back = t - start >= p->rejoin_after_s;
                     since = back ? nan : start;
