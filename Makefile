@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed
 # PYTHONDONTWRITEBYTECODE=1, so each one compiled the project again: ~0.3 s of CPU per process).
 unexport PYTHONDONTWRITEBYTECODE
 
-.PHONY: demo test test-unit test-integration bench bench-fit clean core test-cross test-sanitize
+.PHONY: demo test test-unit test-integration bench bench-fit clean core test-cross test-sanitize test-noalloc
 
 CORE_SRC := $(wildcard vsfleet/_core/*.c vsfleet/_core/*.h) setup.py
 
@@ -56,7 +56,16 @@ test-cross:
 	aarch64-linux-gnu-gcc $(CORE_CFLAGS) -static -o build/golden-aarch64 $(CORE_C) tests/cdriver/golden_driver.c -lm
 	qemu-aarch64 build/golden-aarch64 $(GOLDEN)
 
-# The core under AddressSanitizer and UBSan: the golden vectors, then a fuzz of every C entry point
+# The agent's frame allocates nothing once its mission's workspace is sized (issue 29): malloc, calloc, realloc
+# and qsort wrapped and counted (tests/test_core_no_alloc.py runs the same)
+NOALLOC_WRAP := -Wl,--wrap=malloc,--wrap=calloc,--wrap=realloc,--wrap=qsort
+test-noalloc:
+	mkdir -p build
+	gcc $(CORE_CFLAGS) $(NOALLOC_WRAP) -o build/noalloc $(CORE_C) tests/cdriver/noalloc_driver.c -lm
+	build/noalloc
+
+# The core under AddressSanitizer and UBSan: the golden vectors, then a fuzz of every C entry point, then the
+# frames without allocation (each workspace exactly its size: ASan sees a kernel write past it)
 SAN := -fsanitize=address,undefined -fno-sanitize-recover=all -fno-omit-frame-pointer -g
 test-sanitize:
 	mkdir -p build
@@ -64,6 +73,8 @@ test-sanitize:
 	ASAN_OPTIONS=detect_leaks=1 build/golden-san $(GOLDEN)
 	gcc $(CORE_CFLAGS) $(SAN) -o build/fuzz-san $(CORE_C) tests/cdriver/fuzz_driver.c -lm
 	ASAN_OPTIONS=detect_leaks=1 build/fuzz-san 20000
+	gcc $(CORE_CFLAGS) $(SAN) $(NOALLOC_WRAP) -o build/noalloc-san $(CORE_C) tests/cdriver/noalloc_driver.c -lm
+	ASAN_OPTIONS=detect_leaks=1 build/noalloc-san
 
 bench-fit: $(STAMP) $(CORE_SO)
 	$(BIN)/python bench/fit.py

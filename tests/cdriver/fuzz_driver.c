@@ -38,8 +38,15 @@
  * then 30 frames: the time on and on, sometimes back, past ttl, past the resync gap or not finite; poses near the
  * template or hostile (NaN and inf in seen rows too), random seen and fresh flags.  Each array sits in a buffer of
  * exactly its size.  A call must return VS_OK or a VS_E* code, and on VS_OK write at most 2n decisions of rows and
- * kinds that exist.
+ * kinds that exist.  Every other mission runs vs_agent_step_ws in a workspace of exactly vs_agent_work_f64 doubles
+ * (the others vs_agent_step, which allocates its own).
+ *
+ * Then the kernels' caller-provided workspaces (the _ws variants): the fit (l1, l2, linf, unknown metrics, weights
+ * or none, 0 to 40 points near a rigid motion of the template or hostile, sometimes exactly 3), the safety filter
+ * and the arcs, each in a workspace of exactly the size its header gives; each must answer what its allocating
+ * twin answers, the same code and the same bits.
  */
+#include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <stdint.h>
@@ -52,6 +59,9 @@
 #include "vs_assembly.h"
 #include "vs_agent.h"
 #include "vs_field.h"
+#include "vs_fit.h"
+#include "vs_kin.h"
+#include "vs_safety.h"
 
 static uint64_t state = 0x9e3779b97f4a7c15ULL;
 static uint64_t next(void)
@@ -905,6 +915,8 @@ static int fuzz_agent(long iters)
         unsigned char *seen = bytes_of(n), *fresh = bytes_of(n), *used = bytes_of(n);
         unsigned char *scratch_u8 = bytes_of(VS_AGENT_SCRATCH_U8(n));
         vs_failure_decision *dec = malloc(sizeof *dec * (n > 0 ? 2 * n : 1));
+        double *work = (it % 2) ? doubles(vs_agent_work_f64(&m)) : NULL;   /* odd missions: the caller's workspace */
+        if ((it % 2) && work == NULL) return 2;
         if (!tpl || !wb || !vmax || !amax || !radii || !goal || !obs || !wheels || !p_pose || !p_gains || !p_hist
             || !p_target || !p_feed || !p_turn || !p_dir || !p_ready || !since || !last_t || !last_xy || !last_exp
             || !wt || !wdev || !nm || !head || !sums || !failed || !dropped || !inw || !pose || !scratch || !seen
@@ -976,7 +988,8 @@ static int fuzz_agent(long iters)
             }
             vs_agent_out out;
             memset(&out, 0xA5, sizeof out);
-            int rc = vs_agent_step(&cfg, &st, pose, seen, fresh, tf, &out, used, dec, scratch, scratch_u8);
+            int rc = work ? vs_agent_step_ws(&cfg, &st, pose, seen, fresh, tf, &out, used, dec, scratch, scratch_u8, work)
+                          : vs_agent_step(&cfg, &st, pose, seen, fresh, tf, &out, used, dec, scratch, scratch_u8);
             calls++;
             if (rc == VS_OK) {
                 if (!out.ran) { skipped++; continue; }
@@ -998,7 +1011,7 @@ static int fuzz_agent(long iters)
         free(p_gains); free(p_hist); free(p_target); free(p_feed); free(p_turn); free(p_dir); free(p_ready);
         free(since); free(last_t); free(last_xy); free(last_exp); free(wt); free(wdev); free(nm); free(head);
         free(sums); free(failed); free(dropped); free(inw); free(pose); free(scratch); free(seen); free(fresh);
-        free(used); free(scratch_u8); free(dec);
+        free(used); free(scratch_u8); free(dec); free(work);
     }
     printf("fuzz %-14s %ld calls: %ld ran (%ld decisions, %ld events), %ld without a robot usable, refused %ld "
            "(VS_EVALUE %ld, VS_ENONFINITE %ld, VS_ENOMEM %ld); %ld rooms with a field\n", "agent_step", calls, ran,
@@ -1024,6 +1037,108 @@ static int fuzz_agent(long iters)
     }
     free(in); free(fo);
     printf("fuzz %-14s %ld flat calls: %ld ran, %ld refused\n", "agent_step", iters, flat_ran, flat_refused);
+    return 0;
+}
+
+/* the same bits (NaN as any NaN) */
+static int same(const double *a, const double *b, size_t k)
+{
+    for (size_t i = 0; i < k; i++)
+        if (memcmp(&a[i], &b[i], sizeof(double)) != 0 && !(a[i] != a[i] && b[i] != b[i])) return 0;
+    return 1;
+}
+
+/* the _ws variants against their allocating twins, each workspace exactly the size its header gives */
+static int fuzz_workspace(long iters)
+{
+    long fits = 0, searched = 0, filters = 0, arcs = 0, refused = 0;
+    for (long it = 0; it < iters; it++) {
+        /* the fit */
+        size_t n = (next() % 4 == 0) ? 3 : (size_t)(next() % 41);
+        int metric = (next() % 16) ? (int)(next() % 3) : (int)(next() % 7) - 2;
+        int weighted = next() % 4 == 0, wild = next() % 4 == 0;
+        double *tpl = doubles(2 * n), *pos = doubles(2 * n), *w = weighted ? doubles(n) : NULL;
+        size_t k_work = vs_fit_work_f64(n, metric);
+        double *work = doubles(k_work);
+        if (!tpl || !pos || (weighted && !w) || !work) return 2;
+        double th = 6.0 * (uniform() - 0.5), c = cos(th), sn = sin(th), tx = uniform() - 0.5, ty = uniform() - 0.5;
+        for (size_t i = 0; i < n; i++) {
+            double px = (next() % 8) ? uniform() - 0.5 : (double)(int)(next() % 3), py = uniform() - 0.5;
+            tpl[2 * i] = wild ? hostile(tpl, (long)(2 * i), tpl, (long)(2 * i)) : px;
+            tpl[2 * i + 1] = py;
+            pos[2 * i] = c * px - sn * py + tx + 0.01 * (uniform() - 0.5);
+            pos[2 * i + 1] = wild && next() % 8 == 0 ? hostile(NULL, 0, NULL, 0) : sn * px + c * py + ty;
+            if (weighted) w[i] = (next() % 8) ? 1.0 + (metric == VS_METRIC_LINF ? 0.0 : uniform()) : mostly(0.0);
+        }
+        vs_fit_result a, b;
+        memset(&a, 0, sizeof a);
+        memset(&b, 0, sizeof b);
+        int ra = vs_fit(tpl, pos, w, n, metric, &a), rb = vs_fit_ws(tpl, pos, w, n, metric, &b, work);
+        double va[5] = {a.x, a.y, a.th, a.cost, a.cost_lower_bound}, vb[5] = {b.x, b.y, b.th, b.cost, b.cost_lower_bound};
+        if (ra != rb || (ra == VS_OK && (!same(va, vb, 5) || a.rounds != b.rounds))) {
+            fprintf(stderr, "fuzz workspace: vs_fit_ws differs from vs_fit at iteration %ld (n %zu, metric %d)\n", it,
+                    n, metric);
+            return 9;
+        }
+        fits++;
+        searched += ra == VS_OK && a.rounds > 0;
+        refused += ra != VS_OK;
+        free(tpl); free(pos); free(w); free(work);
+        /* the safety filter and the arcs */
+        size_t m = (size_t)(next() % 12), k_obs = (size_t)(next() % 4);
+        double *pose = doubles(3 * m), *radius = doubles(m), *base = doubles(m), *vmax = doubles(m), *amax = doubles(m);
+        double *prev = doubles(2 * m), *obs = doubles(3 * k_obs), *nominal = doubles(2 * m), *out_a = doubles(2 * m);
+        double *out_b = doubles(2 * m), *arc_a = doubles(3 * m), *arc_b = doubles(3 * m);
+        unsigned char *active = bytes_of(m);
+        double *sw = doubles(m ? VS_SAFETY_WORK_F64(m, k_obs) : 0), *aw = doubles(VS_INTEGRATE_ARCS_WORK_F64(m));
+        if (!pose || !radius || !base || !vmax || !amax || !prev || !obs || !nominal || !out_a || !out_b || !arc_a
+            || !arc_b || !active || !sw || !aw)
+            return 2;
+        for (size_t i = 0; i < m; i++) {
+            pose[3 * i] = mostly(0.3 * (double)i);
+            pose[3 * i + 1] = mostly(0.1 * (uniform() - 0.5));
+            pose[3 * i + 2] = mostly(3.0 * (uniform() - 0.5));
+            radius[i] = mostly(0.05);
+            base[i] = mostly(0.16);
+            vmax[i] = mostly(0.25);
+            amax[i] = mostly(1.0);
+            active[i] = (unsigned char)(next() % 4 != 0);
+            for (int j = 0; j < 2; j++) {
+                prev[2 * i + j] = mostly(0.2 * (uniform() - 0.5));
+                nominal[2 * i + j] = mostly(0.5 * (uniform() - 0.5));
+            }
+        }
+        for (size_t j = 0; j < k_obs; j++) {
+            obs[3 * j] = mostly(0.3 * (double)j + 0.15);
+            obs[3 * j + 1] = mostly(0.2);
+            obs[3 * j + 2] = mostly(0.1);
+        }
+        vs_safety_params sp = {0.015, 5.0, 0.03, 1.0 / 30.0};
+        memset(out_a, 0, sizeof(double) * (m ? 2 * m : 1));
+        memset(out_b, 0, sizeof(double) * (m ? 2 * m : 1));
+        ra = vs_safety_filter(&sp, m, pose, radius, active, base, vmax, amax, prev, k_obs, obs, nominal, out_a, NULL);
+        rb = vs_safety_filter_ws(&sp, m, pose, radius, active, base, vmax, amax, prev, k_obs, obs, nominal, out_b, NULL,
+                                 sw);
+        if (ra != rb || (ra == VS_OK && !same(out_a, out_b, 2 * m))) {
+            fprintf(stderr, "fuzz workspace: vs_safety_filter_ws differs at iteration %ld\n", it);
+            return 9;
+        }
+        filters++;
+        double dt = (next() % 8) ? 1.0 / 30.0 : hostile(NULL, 0, NULL, 0);
+        memset(arc_a, 0, sizeof(double) * (m ? 3 * m : 1));
+        memset(arc_b, 0, sizeof(double) * (m ? 3 * m : 1));
+        ra = vs_integrate_arcs(pose, nominal, dt, base, m, arc_a);
+        rb = vs_integrate_arcs_ws(pose, nominal, dt, base, m, arc_b, aw);
+        if (ra != rb || (ra == VS_OK && !same(arc_a, arc_b, 3 * m))) {
+            fprintf(stderr, "fuzz workspace: vs_integrate_arcs_ws differs at iteration %ld\n", it);
+            return 9;
+        }
+        arcs++;
+        free(pose); free(radius); free(base); free(vmax); free(amax); free(prev); free(obs); free(nominal);
+        free(out_a); free(out_b); free(arc_a); free(arc_b); free(active); free(sw); free(aw);
+    }
+    printf("fuzz %-14s %ld fits (%ld searched, %ld refused), %ld safety filters, %ld arcs: each as its twin\n",
+           "workspace", fits, searched, refused, filters, arcs);
     return 0;
 }
 
@@ -1084,5 +1199,7 @@ int main(int argc, char **argv)
     if (rc != 0) return rc;
     rc = fuzz_encode(iters * 5);
     if (rc != 0) return rc;
-    return fuzz_agent(iters / 20 + 1);
+    rc = fuzz_agent(iters / 20 + 1);
+    if (rc != 0) return rc;
+    return fuzz_workspace(iters / 4 + 1);
 }

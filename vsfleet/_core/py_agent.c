@@ -32,6 +32,7 @@ typedef struct {
     vs_failure_decision *decisions;   /* (2n) the failure rule's decisions of a frame */
     unsigned char *state_buf;
     size_t state_cap;
+    double *work;            /* the kernels' workspace, vs_agent_work_f64(m) doubles: no frame allocates */
 } agent_config;
 
 static void agent_config_free(PyObject *cap)
@@ -50,6 +51,7 @@ static void agent_config_free(PyObject *cap)
     PyMem_Free(a->used);
     PyMem_Free(a->decisions);
     PyMem_Free(a->state_buf);
+    PyMem_Free(a->work);
     PyMem_Free(a);
 }
 
@@ -222,6 +224,15 @@ static PyObject *py_agent_config(PyObject *mod, PyObject *const *a, Py_ssize_t n
     c->state_cap = VS_WIRE_STATE_MAX_BYTES((size_t)n, at);
     c->state_buf = PyMem_Malloc(c->state_cap);
     if (c->state_buf == NULL) { PyErr_NoMemory(); goto fail; }
+    /* the kernels' workspace, sized with the mission (up to ~10 MB for l1 and linf: the search's tables, untouched
+     * beyond what a fit uses; not zeroed, so never touched here) */
+    size_t work = vs_agent_work_f64(&c->m);
+    if (work > ((size_t)-1 / 2) / sizeof(double)) {
+        PyErr_SetString(vs_ValueError, "agent_config: too many robots or obstacles for the safety filter");
+        goto fail;
+    }
+    c->work = PyMem_Malloc(work * sizeof(double));
+    if (c->work == NULL) { PyErr_NoMemory(); goto fail; }
     return cap;
 fail:
     Py_DECREF(cap);
@@ -389,7 +400,7 @@ static PyObject *py_agent_step(PyObject *mod, PyObject *const *a, Py_ssize_t nar
     Py_buffer v[4];
     int got = 0;
     PyObject *result = NULL;
-    vs_failure_decision *dec = NULL;
+    vs_failure_decision *dec = c->decisions;   /* sized with the mission, as the kernels' work */
     if (get_buf(a[3], &v[got], BUF_F64, 3 * n, 0, "pose_world") < 0) goto done;
     got++;
     if (get_buf(a[4], &v[got], BUF_BOOL, n, 0, "seen") < 0) goto done;
@@ -398,19 +409,16 @@ static PyObject *py_agent_step(PyObject *mod, PyObject *const *a, Py_ssize_t nar
     got++;
     if (get_buf(a[7], &v[got], BUF_BOOL, n, 1, "used_out") < 0) goto done;
     got++;
-    dec = PyMem_Malloc(sizeof *dec * 2 * (size_t)n);
-    if (dec == NULL) { PyErr_NoMemory(); goto done; }
     vs_agent_out out;
     int rc;
     Py_BEGIN_ALLOW_THREADS
-    rc = vs_agent_step(&c->cfg, &sv.st, v[0].buf, v[1].buf, v[2].buf, t, &out, v[3].buf, dec, sv.scratch_f64,
-                       sv.scratch_u8);
+    rc = vs_agent_step_ws(&c->cfg, &sv.st, v[0].buf, v[1].buf, v[2].buf, t, &out, v[3].buf, dec, sv.scratch_f64,
+                          sv.scratch_u8, c->work);
     Py_END_ALLOW_THREADS
     if (rc != VS_OK) { vs_py_error(rc, "agent_step refused its inputs"); goto done; }
     put_scalars(&sv);
     result = result_of(&out, dec);
 done:
-    PyMem_Free(dec);
     for (int k = 0; k < got; k++) PyBuffer_Release(&v[k]);
     release_state(&sv);
     return result;
@@ -481,13 +489,13 @@ static PyObject *py_agent_frame(PyObject *mod, PyObject *const *a, Py_ssize_t na
     state_views sv;
     if (get_state(c, a[1], a[2], a[3], a[4], &sv) < 0) return NULL;
     PyObject *result = NULL;
-    vs_failure_decision *dec = c->decisions;   /* sized with the mission (the kernels still allocate scratch) */
+    vs_failure_decision *dec = c->decisions;   /* sized with the mission, as the kernels' work */
     vs_agent_out out;
     unsigned char cmd[VS_WIRE_CMD_MAX_BYTES];
     size_t cmd_len = 0, state_len = 0;
     Py_BEGIN_ALLOW_THREADS
-    rc = vs_agent_step(&c->cfg, &sv.st, c->row_poses, c->seen, c->seen, fr.t, &out, c->used, dec, sv.scratch_f64,
-                       sv.scratch_u8);
+    rc = vs_agent_step_ws(&c->cfg, &sv.st, c->row_poses, c->seen, c->seen, fr.t, &out, c->used, dec,
+                          sv.scratch_f64, sv.scratch_u8, c->work);
     if (rc == VS_OK && out.ran) {
         cmd_len = vs_wire_encode_cmd(fr.t, fr.seq, out.vl_m_s, out.vr_m_s, c->cfg.ttl_s, cmd, sizeof cmd);
         size_t k = 0;

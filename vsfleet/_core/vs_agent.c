@@ -1,5 +1,6 @@
 /* vs_agent.c - the agent's decision at one frame (vs_agent.h), vsfleet.step.agent_step's twin. */
 #include <math.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "vs_agent.h"
@@ -110,15 +111,44 @@ static void stall_state(const vs_agent_config *cfg, vs_agent_state *st, const vs
     st->stalled = st->stall_filter && t - st->stall_since_t >= VS_AGENT_STALL_S;
 }
 
+static size_t max_size(size_t a, size_t b) { return a > b ? a : b; }
+
+size_t vs_agent_work_f64(const vs_mission *m)
+{
+    size_t n = m->n;
+    if (n == 0) return 0;
+    if (n > ((size_t)1 << 24) || m->n_obstacles > ((size_t)1 << 24)) return (size_t)-1;   /* the filter refuses them */
+    /* the kernels run one after another: each has the whole workspace */
+    size_t w = vs_structure_step_work_f64(n, m->metric);
+    w = max_size(w, VS_CONTROL_PRECISION_WORK_F64(n));
+    w = max_size(w, VS_SAFETY_WORK_F64(n, m->n_obstacles));
+    return max_size(w, VS_INTEGRATE_ARCS_WORK_F64(n));
+}
+
 int vs_agent_step(const vs_agent_config *cfg, vs_agent_state *st, const double *pose_world,
                   const unsigned char *seen, const unsigned char *fresh, double t, vs_agent_out *out,
                   unsigned char *used, vs_failure_decision *decisions, double *scratch_f64,
                   unsigned char *scratch_u8)
 {
+    size_t need = vs_agent_work_f64(cfg->mission);
+    double *work = NULL;
+    if (need > 0 && (need > (size_t)-1 / sizeof(double) || (work = malloc(need * sizeof(double))) == NULL))
+        return VS_ENOMEM;
+    int rc = vs_agent_step_ws(cfg, st, pose_world, seen, fresh, t, out, used, decisions, scratch_f64, scratch_u8,
+                              work);
+    free(work);
+    return rc;
+}
+
+int vs_agent_step_ws(const vs_agent_config *cfg, vs_agent_state *st, const double *pose_world,
+                     const unsigned char *seen, const unsigned char *fresh, double t, vs_agent_out *out,
+                     unsigned char *used, vs_failure_decision *decisions, double *scratch_f64,
+                     unsigned char *scratch_u8, double *work)
+{
     const vs_mission *m = cfg->mission;
     const size_t n = m->n;
     vs_failure_state *f = &st->failure;
-    if (!vs_isfinite(t) || n == 0 || cfg->own >= n || f->n != n) return VS_EVALUE;
+    if (!vs_isfinite(t) || n == 0 || cfg->own >= n || f->n != n || work == NULL) return VS_EVALUE;
     memset(out, 0, sizeof *out);
     out->shape_before = st->shape;
 
@@ -143,8 +173,8 @@ int vs_agent_step(const vs_agent_config *cfg, vs_agent_state *st, const double *
     int hold = cfg->policy.mode == VS_FAILURE_HOLD;
     for (size_t i = 0; i < n; i++) judged[i] = hold ? (f->failed[i] && !f->dropped[i]) : 0;
     vs_structure s;
-    int rc = vs_structure_step(m, pose_world, seen, f->dropped, judged, t - cfg->effective_t, cfg->dt_s, &s, used,
-                               now, next, dev);
+    int rc = vs_structure_step_ws(m, pose_world, seen, f->dropped, judged, t - cfg->effective_t, cfg->dt_s, &s,
+                                  used, now, next, dev, work);
     if (rc != VS_OK) return rc;
     if (!s.any_used) return VS_OK;
     s.fit_th = vs_wrap_angle(s.fit_th);    /* as the reference's Pose2 of the structure (wrap_angle once more) */
@@ -177,7 +207,7 @@ int vs_agent_step(const vs_agent_config *cfg, vs_agent_state *st, const double *
                            m->wheel_speed_max_m_s, m->wheel_accel_max_m_s2, active};
     switch (cfg->controller) {
     case VS_AGENT_PRECISION:
-        rc = vs_control_precision(&cfg->precision, &st->precision, &in, &st->precision, wheels);
+        rc = vs_control_precision_ws(&cfg->precision, &st->precision, &in, &st->precision, wheels, work);
         break;
     case VS_AGENT_TURN_THEN_GO:
         rc = vs_control_turn_then_go(&cfg->turn_then_go, &in, wheels);
@@ -216,8 +246,8 @@ int vs_agent_step(const vs_agent_config *cfg, vs_agent_state *st, const double *
             k++;
         }
         if (k > 0) {
-            rc = vs_safety_filter(&cfg->safety, k, c_pose, c_radius, c_active, c_base, c_vmax, c_amax, c_prev,
-                                  m->n_obstacles, m->obstacles, c_wheels, c_wheels, NULL);
+            rc = vs_safety_filter_ws(&cfg->safety, k, c_pose, c_radius, c_active, c_base, c_vmax, c_amax, c_prev,
+                                     m->n_obstacles, m->obstacles, c_wheels, c_wheels, NULL, work);
             if (rc != VS_OK) return rc;
             k = 0;
             for (size_t i = 0; i < n; i++) {
@@ -242,7 +272,7 @@ int vs_agent_step(const vs_agent_config *cfg, vs_agent_state *st, const double *
     }
     /* the motion test takes only poses of this very frame (vsfleet.step.agent_step says why) */
     for (size_t i = 0; i < n; i++) moved[i] = fresh[i] && active[i];
-    if ((rc = vs_integrate_arcs(pose_seen, wheels, cfg->dt_s, m->wheel_base_m, n, arcs)) != VS_OK) return rc;
+    if ((rc = vs_integrate_arcs_ws(pose_seen, wheels, cfg->dt_s, m->wheel_base_m, n, arcs, work)) != VS_OK) return rc;
     for (size_t i = 0; i < n; i++)
         for (int c = 0; c < 2; c++)
             expected[2 * i + c] = moved[i] ? arcs[3 * i + c] - pose_seen[3 * i + c] : 0.0;

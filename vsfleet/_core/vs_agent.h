@@ -104,10 +104,23 @@ typedef struct {
 #define VS_AGENT_SCRATCH_F64(n) (VS_AGENT_SCRATCH_F64_PER_ROBOT * (n))
 #define VS_AGENT_SCRATCH_U8(n) (VS_AGENT_SCRATCH_U8_PER_ROBOT * (n))
 
+/* Doubles of workspace the kernels of vs_agent_step_ws need for the mission m (the fit's search tables, the safety
+ * filter's rows over its obstacles, the controller's and the kinematics' scratch): a function of m->n, m->metric and
+ * m->n_obstacles, so the caller sizes it once, when it adopts the mission.  (size_t)-1: more robots or obstacles
+ * than the safety filter takes. */
+size_t vs_agent_work_f64(const vs_mission *m);
+
 /* One frame at tracker time t [s]: pose_world (n, 3) read on seen rows (NaN elsewhere allowed), seen and fresh
  * (n) 0/1.  Writes *out, used (n) (the robots the fit used), wheels_out (n, 2) (every robot's command; the
- * state's wheels_m_s then hold them), decisions (cap 2n).  scratch_f64 / scratch_u8: VS_AGENT_SCRATCH_*(n).
+ * state's wheels_m_s then hold them), decisions (cap 2n).  scratch_f64 / scratch_u8: VS_AGENT_SCRATCH_*(n);
+ * work: vs_agent_work_f64(cfg->mission) doubles (NULL: VS_EVALUE).  Allocates nothing.
  * Returns VS_OK or the first kernel's error (the state may then be partly advanced: the caller drops it). */
+int vs_agent_step_ws(const vs_agent_config *cfg, vs_agent_state *st, const double *pose_world,
+                     const unsigned char *seen, const unsigned char *fresh, double t, vs_agent_out *out,
+                     unsigned char *used, vs_failure_decision *decisions, double *scratch_f64,
+                     unsigned char *scratch_u8, double *work);
+
+/* vs_agent_step_ws with its work allocated and freed in the call (the same results, bit for bit). */
 int vs_agent_step(const vs_agent_config *cfg, vs_agent_state *st, const double *pose_world,
                   const unsigned char *seen, const unsigned char *fresh, double t, vs_agent_out *out,
                   unsigned char *used, vs_failure_decision *decisions, double *scratch_f64,

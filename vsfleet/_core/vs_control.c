@@ -81,10 +81,16 @@ static int floordiv_capped(double a, double b, int cap)
 
 #define H VS_PRECISION_HISTORY
 /* per row in the scratch: pose 3, gains 2, history 10, target 2, feed 2, turn, direction, wheels 2 */
-#define ROW (3 + 2 + 2 * H + 2 + 2 + 1 + 1 + 2)
+#define ROW VS_CONTROL_PRECISION_WORK_F64(1)
 
 int vs_control_precision(const vs_precision_gains *g, const vs_precision_state *state, const vs_control_input *in,
                          vs_precision_state *out, double *wheels_out)
+{
+    return vs_control_precision_ws(g, state, in, out, wheels_out, NULL);
+}
+
+int vs_control_precision_ws(const vs_precision_gains *g, const vs_precision_state *state, const vs_control_input *in,
+                            vs_precision_state *out, double *wheels_out, double *work)
 {
     int rc = check_input(in);
     if (rc != VS_OK) return rc;
@@ -100,8 +106,8 @@ int vs_control_precision(const vs_precision_gains *g, const vs_precision_state *
         || !vs_all_finite(state->direction, n))
         return VS_ENONFINITE;
     if (n == 0) return VS_OK;
-    double *scratch = malloc(n * ROW * sizeof *scratch);
-    if (scratch == NULL) return VS_ENOMEM;
+    double *own = NULL, *scratch = work;
+    if (scratch == NULL && (own = scratch = malloc(n * ROW * sizeof *scratch)) == NULL) return VS_ENOMEM;
 
     const double dt = in->dt_s, age = in->age_s;
     const int m = floordiv_capped(age, dt, H - 1);
@@ -254,7 +260,7 @@ int vs_control_precision(const vs_precision_gains *g, const vs_precision_state *
         *o_turn = turn;
         *o_dir = direction;
     }
-    if (!vs_all_finite(scratch, n * ROW)) { free(scratch); return VS_ENONFINITE; }
+    if (!vs_all_finite(scratch, n * ROW)) { free(own); return VS_ENONFINITE; }
     for (size_t i = 0; i < n; i++) {
         const double *r = scratch + i * ROW;
         out->ready[i] = (unsigned char)(state->ready[i] || in->active[i]);
@@ -267,7 +273,7 @@ int vs_control_precision(const vs_precision_gains *g, const vs_precision_state *
         out->direction[i] = r[10 + 2 * H];
         memcpy(wheels_out + 2 * i, r + 11 + 2 * H, 2 * sizeof(double));
     }
-    free(scratch);
+    free(own);
     return VS_OK;
 }
 

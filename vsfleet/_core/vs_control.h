@@ -77,6 +77,12 @@ typedef struct {
 int vs_control_precision(const vs_precision_gains *g, const vs_precision_state *state, const vs_control_input *in,
                          vs_precision_state *out, double *wheels_out);
 
+/* vs_control_precision with its scratch in the caller's workspace: work holds VS_CONTROL_PRECISION_WORK_F64(n)
+ * doubles (no allocation), or is NULL (vs_control_precision: allocated for the one call). */
+int vs_control_precision_ws(const vs_precision_gains *g, const vs_precision_state *state, const vs_control_input *in,
+                            vs_precision_state *out, double *wheels_out, double *work);
+#define VS_CONTROL_PRECISION_WORK_F64(n) ((n) * (3 + 2 + 2 * VS_PRECISION_HISTORY + 2 + 2 + 1 + 1 + 2))
+
 /* ------------------------------------------------------------------ the stateless ones */
 
 typedef struct {

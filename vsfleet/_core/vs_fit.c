@@ -82,16 +82,40 @@ static int cmp_ask(const void *x, const void *y)
     return a->rough - b->rough;
 }
 
+/* the tables live in the workspace, sized once (search_tables): room for need, or -1 (never, by the bounds
+ * there; a refusal, not an overflow, if they were wrong) */
 static int grow(void **p, size_t *cap, size_t need, size_t size)
 {
-    if (need <= *cap) return 0;
-    size_t nc = *cap ? *cap : 64;
-    while (nc < need) nc *= 2;
-    void *q = realloc(*p, nc * size);
-    if (q == NULL) return -1;
-    *p = q;
-    *cap = nc;
-    return 0;
+    (void)p;
+    (void)size;
+    return need <= *cap ? 0 : -1;
+}
+
+/* ask sorted by (th, rough) in place, without allocating (qsort may: glibc's merge sort mallocs from 1 KiB).  The
+ * order is qsort's: two asks that compare equal are the same bits (th is never -0.0 nor NaN), so any sort gives
+ * the same array. */
+static int ask_less(const ask_t *a, const ask_t *b) { return cmp_ask(a, b) < 0; }
+
+static void sift_down(ask_t *a, size_t root, size_t end)
+{
+    for (;;) {
+        size_t c = 2 * root + 1;
+        if (c >= end) return;
+        if (c + 1 < end && ask_less(&a[c], &a[c + 1])) c++;
+        if (!ask_less(&a[root], &a[c])) return;
+        ask_t t = a[root]; a[root] = a[c]; a[c] = t;
+        root = c;
+    }
+}
+
+static void sort_asks(ask_t *a, size_t n)
+{
+    if (n < 2) return;
+    for (size_t i = n / 2; i-- > 0;) sift_down(a, i, n);
+    for (size_t end = n - 1; end > 0; end--) {
+        ask_t t = a[0]; a[0] = a[end]; a[end] = t;
+        sift_down(a, 0, end);
+    }
 }
 
 /* evaluate new angles ths (exact) and rough ones; returns how many (>= 0), -1 no memory,
@@ -107,7 +131,7 @@ static int angles_add(angles_t *S, const double *ths, size_t nt, const double *r
         ask[i].th = vs_fit_npmod(t + VS_PI, 2.0 * VS_PI) - VS_PI;
         ask[i].rough = i >= nt;
     }
-    qsort(ask, na, sizeof(ask_t), cmp_ask);
+    sort_asks(ask, na);
     size_t u = 0;
     for (size_t i = 0; i < na; i++)
         if (i == 0 || ask[i].th != ask[u - 1].th) ask[u++] = ask[i];
@@ -251,12 +275,11 @@ static void push(dvec *d, double x)
  * |Q_i - R P_i - t| >= |R P_i + t| - |Q_i|, so f(th) >= g_P - (sum w |Q_i| (l1) or w max |Q_i| (linf))
  * with g_P the optimal cost of the template points alone, which no rotation changes; likewise with
  * P and Q swapped.  g_P is bounded below by the evaluator's own weak-duality minorant for the
- * problem (P, 0) at one angle.  -inf if neither helps; NaN if out of memory. */
-static double flat_bound(const vs_prob *pr, int metric)
+ * problem (P, 0) at one angle.  -inf if neither helps.  zero: n doubles of workspace. */
+static double flat_bound(const vs_prob *pr, int metric, double *zero)
 {
     size_t n = pr->n;
-    double *zero = calloc(n, sizeof(double));
-    if (zero == NULL) return NAN;
+    for (size_t i = 0; i < n; i++) zero[i] = 0.0;
     double best = -INFINITY, sp = 0.0, sq = 0.0, mp = 0.0, mq = 0.0;
     int linf = metric == VS_METRIC_LINF;
     for (size_t i = 0; i < n; i++) {
@@ -280,24 +303,99 @@ static double flat_bound(const vs_prob *pr, int metric)
         double v = g - rest - 64.0 * VS_EPS * (pr->bound * pr->W + rest);
         if (v > best) best = v;
     }
-    free(zero);
     return best;
 }
 
-/* certify.search: (th, centred tx, ty, lower bound); rounds out. */
+/* ---- the workspace (vs_fit_work_f64): the fit's arrays, then the search's tables, each sized once from the
+ * number of points k and the metric */
+
+#define SLOTS(bytes) (((bytes) + sizeof(double) - 1) / sizeof(double))   /* doubles that hold `bytes` */
+
+/* the angles a search may evaluate (its work cap; S.limit) */
+static size_t search_limit(size_t k)
+{
+    return VS_FIT_WORK / k > VS_FIT_MIN_ANGLES ? VS_FIT_WORK / k : VS_FIT_MIN_ANGLES;
+}
+
+/* The angles one batch may ask, at most.  The table never holds more than limit angles (m <= evals <= limit: the
+ * first batch, <= 3 * 5 + 16 * 3 * LADDER + GRID angles, is below any limit, and later batches stop at it), so a
+ * round has at most limit bad cells, each asking its split point, itself and its successor (when rough) and 2 nlv
+ * splits; each side of the best angle adds at most 24 hints or 12 centres, each 3 LADDER or 2 (nlev + 1 <= 9)
+ * angles. */
+static size_t search_nw_cap(size_t k, int metric)
+{
+    size_t nlv = metric == VS_METRIC_LINF ? (size_t)VS_LINF_SPLIT / k : 0;
+    return search_limit(k) * (3 + 2 * nlv) + 2 * 24 * 3 * LADDER;
+}
+
+/* the search's tables for k points (without zero, k doubles): never more as k grows */
+static size_t search_tables(size_t k, int metric)
+{
+    size_t L = search_limit(k), nw = search_nw_cap(k, metric);
+    return 2 * SLOTS(L * sizeof(vs_ang)) + SLOTS((nw + GRID) * sizeof(ask_t)) + nw + 4 * L + SLOTS(L * sizeof(size_t));
+}
+
+/* the workspace of one fit of exactly k kept points (the search's tables only where a search can run) */
+static size_t fit_need(size_t k, int metric)
+{
+    size_t w = 9 * k + (size_t)VS_FIT_SCRATCH * k + SLOTS(8 * k * sizeof(size_t));
+    if (metric != VS_METRIC_L2 && k >= 3) w += k + search_tables(k, metric);
+    return w;
+}
+
+size_t vs_fit_work_f64(size_t n, int metric)
+{
+    if (n == 0 || metric < VS_METRIC_L1 || metric > VS_METRIC_LINF) return 0;
+    if (n > ((size_t)-1 / sizeof(double) - search_tables(3, VS_METRIC_LINF)) / 64) return (size_t)-1;   /* overflow */
+    size_t w = 9 * n + (size_t)VS_FIT_SCRATCH * n + SLOTS(8 * n * sizeof(size_t));
+    if (metric != VS_METRIC_L2 && n >= 3) w += n + search_tables(3, metric);   /* any k in 3..n: k = 3's tables */
+    return w;
+}
+
+/* the search's tables, carved from the workspace */
+typedef struct {
+    double *zero;
+    vs_ang *a, *tmp;
+    ask_t *ask;
+    double *nw, *lb, *bc, *bs, *g;
+    size_t *bad;
+    size_t limit, nw_cap;
+} search_ws;
+
+static void carve_search(double *p, size_t k, int metric, search_ws *W)
+{
+    size_t L = search_limit(k), nw = search_nw_cap(k, metric);
+    W->limit = L;
+    W->nw_cap = nw;
+    W->zero = p; p += k;
+    W->a = (vs_ang *)(void *)p; p += SLOTS(L * sizeof(vs_ang));
+    W->tmp = (vs_ang *)(void *)p; p += SLOTS(L * sizeof(vs_ang));
+    W->ask = (ask_t *)(void *)p; p += SLOTS((nw + GRID) * sizeof(ask_t));
+    W->nw = p; p += nw;
+    W->lb = p; p += L;
+    W->bc = p; p += L;
+    W->bs = p; p += L;
+    W->g = p; p += L;
+    W->bad = (size_t *)(void *)p;
+}
+
+/* certify.search: (th, centred tx, ty, lower bound); rounds out.  Its tables are W's (carve_search). */
 static int search(const vs_prob *pr, int metric, double th0, const double *guess, int ng, int split,
-                  double t0x, double t0y, int lean, int refine, double *th_out, double *tx_out, double *ty_out,
-                  double *lower_out, int *rounds_out)
+                  double t0x, double t0y, int lean, int refine, const search_ws *W, double *th_out, double *tx_out,
+                  double *ty_out, double *lower_out, int *rounds_out)
 {
     size_t n = pr->n;
     angles_t S;
     memset(&S, 0, sizeof S);
     S.pr = pr; S.metric = metric; S.t0x = t0x; S.t0y = t0y;
-    S.limit = VS_FIT_WORK / n > VS_FIT_MIN_ANGLES ? VS_FIT_WORK / n : VS_FIT_MIN_ANGLES;
-    dvec nw = {NULL, 0, 0, 0};
-    double *lb = NULL, *bc = NULL, *bs = NULL, *g = NULL;
-    size_t *bad = NULL;
-    size_t wcap = 0;
+    S.limit = search_limit(n);
+    S.a = W->a; S.cap = W->limit;
+    S.tmp = W->tmp; S.tmp_cap = W->limit;
+    S.ask = W->ask; S.ask_cap = W->nw_cap + GRID;
+    dvec nw = {W->nw, 0, W->nw_cap, 0};
+    double *lb = W->lb, *bc = W->bc, *bs = W->bs, *g = W->g;
+    size_t *bad = W->bad;
+    size_t wcap = W->limit;
     int rc = VS_OK, rounds = 0;
     /* the first batch */
     const double *offs;
@@ -333,19 +431,12 @@ static int search(const vs_prob *pr, int metric, double th0, const double *guess
         frac[k] = v;
         frac[nlv + k] = 1.0 - v;
     }
-    double flat = flat_bound(pr, metric);
-    if (flat != flat) { rc = VS_ENOMEM; goto done; }
+    double flat = flat_bound(pr, metric, W->zero);
     double lower = 0.0;
     for (int round = 0; round < VS_FIT_MAX_ROUNDS; round++) {
         size_t m = S.m;
         const vs_ang *A = S.a;
-        if (m > wcap) {
-            free(lb); free(bc); free(bs); free(g); free(bad);
-            wcap = 2 * m;
-            lb = malloc(wcap * sizeof *lb); bc = malloc(wcap * sizeof *bc); bs = malloc(wcap * sizeof *bs);
-            g = malloc(wcap * sizeof *g); bad = malloc(wcap * sizeof *bad);
-            if (!lb || !bc || !bs || !g || !bad) { rc = VS_ENOMEM; goto done; }
-        }
+        if (m > wcap) { rc = VS_ENOMEM; goto done; }   /* never: m <= limit (search_nw_cap) */
         rounds = round + 1;
         size_t b = 0;
         double lbmin = 0.0, kmax = 0.0;
@@ -426,8 +517,6 @@ static int search(const vs_prob *pr, int metric, double th0, const double *guess
         *rounds_out = rounds;
     }
 done:
-    free(S.a); free(S.ask); free(S.tmp); free(nw.v);
-    free(lb); free(bc); free(bs); free(g); free(bad);
     return rc;
 }
 
@@ -493,6 +582,12 @@ int vs_fit_cost(const double *d, const double *w, size_t n, int metric, double *
 
 int vs_fit(const double *tpl, const double *pos, const double *weights, size_t n, int metric, vs_fit_result *out)
 {
+    return vs_fit_ws(tpl, pos, weights, n, metric, out, NULL);
+}
+
+int vs_fit_ws(const double *tpl, const double *pos, const double *weights, size_t n, int metric, vs_fit_result *out,
+              double *work)
+{
     if (n == 0 || metric < VS_METRIC_L1 || metric > VS_METRIC_LINF || tpl == NULL || pos == NULL || out == NULL)
         return VS_EVALUE;
     if (!check_finite(tpl, 2 * n) || !check_finite(pos, 2 * n) || (weights && !check_finite(weights, n)))
@@ -514,9 +609,14 @@ int vs_fit(const double *tpl, const double *pos, const double *weights, size_t n
         if (!any) return VS_EVALUE;
     }
     size_t nd = 9 * kept + (size_t)VS_FIT_SCRATCH * kept;
-    double *buf = malloc(nd * sizeof(double));
-    size_t *ibuf = malloc(8 * kept * sizeof(size_t));
-    if (buf == NULL || ibuf == NULL) { free(buf); free(ibuf); return VS_ENOMEM; }
+    double *own = NULL;
+    if (work == NULL) {   /* vs_fit: the workspace of this one fit, once */
+        size_t need = fit_need(kept, metric);
+        if (need > (size_t)-1 / sizeof(double) || (own = work = malloc(need * sizeof(double))) == NULL)
+            return VS_ENOMEM;
+    }
+    double *buf = work;
+    size_t *ibuf = (size_t *)(void *)(work + nd);
     double *w = buf, *Px = w + kept, *Py = Px + kept, *Qx = Py + kept, *Qy = Qx + kept;
     double *px = Qy + kept, *py = px + kept, *rx = py + kept, *ry = rx + kept;
     double *sc = ry + kept;
@@ -590,7 +690,9 @@ int vs_fit(const double *tpl, const double *pos, const double *weights, size_t n
             if (ng == 0 && lean) { guess[0] = th0; ng = 1; }
             split = VS_LINF_SPLIT;
         }
-        rc = search(&pr, metric, th0, guess, ng, split, t0x, t0y, lean, metric == VS_METRIC_LINF,
+        search_ws W;
+        carve_search(work + nd + SLOTS(8 * kept * sizeof(size_t)), kept, metric, &W);
+        rc = search(&pr, metric, th0, guess, ng, split, t0x, t0y, lean, metric == VS_METRIC_LINF, &W,
                     &th, &tx, &ty, &lower, &rounds);
         have_lower = 1;
     }
@@ -620,7 +722,6 @@ int vs_fit(const double *tpl, const double *pos, const double *weights, size_t n
         out->cost_lower_bound = have_lower && lower < cost ? lower : cost;
         out->rounds = rounds;
     }
-    free(buf);
-    free(ibuf);
+    free(own);
     return rc;
 }

@@ -36,6 +36,16 @@ typedef struct { double x, y, th; double cost; double cost_lower_bound; int roun
 int vs_fit(const double *template_xy, const double *positions_xy, const double *weights, size_t n,
            int metric, vs_fit_result *out);
 
+/* vs_fit in the caller's workspace: work holds vs_fit_work_f64(n, metric) doubles (any fit of at most n points
+ * fits in it; no allocation), or is NULL (vs_fit: allocated for the one call).  Same results, bit for bit. */
+int vs_fit_ws(const double *template_xy, const double *positions_xy, const double *weights, size_t n,
+              int metric, vs_fit_result *out, double *work);
+
+/* Doubles of workspace any fit of at most n points under metric needs (0: n = 0 or an unknown metric): O(n) for
+ * l2; l1 and linf add their search's angle tables, sized by its work cap (VS_FIT_WORK / 3 angles at 3 points,
+ * whatever n: about 1.2e6 doubles for linf, 0.8e6 for l1; a fit touches only the part it uses). */
+size_t vs_fit_work_f64(size_t n, int metric);
+
 /* d_out[i] = |r_i - R(th) p_i - (x, y)| [m], i < n (d_out may not alias the inputs). */
 int vs_fit_residuals(const double *template_xy, const double *positions_xy, size_t n,
                      double x, double y, double th, double *d_out);

@@ -346,6 +346,7 @@ static long g_agent_step(const double *in, long n_in, double *out, long cap)
     unsigned char *bytes = NULL;
     int64_t *ints = NULL;
     vs_failure_decision *dec = NULL;
+    double *work = NULL;
     const long n_cfg = 2 + 16 + 2 + 9 + 4 + 5 + 2;
     if (n_in < at + n_cfg + 1) goto done;
     const double *c = in + at, *gains = c + 2;
@@ -391,7 +392,9 @@ static long g_agent_step(const double *in, long n_in, double *out, long cap)
     bytes = malloc((size_t)(n * (3 + 2 * W + 3) + VS_AGENT_SCRATCH_U8(n)));
     ints = malloc(sizeof(int64_t) * (size_t)(n * (4 * W + 1 + 4)));
     dec = malloc(sizeof *dec * (size_t)(2 * n));
-    if (buf == NULL || bytes == NULL || ints == NULL || dec == NULL) goto done;
+    size_t n_work = vs_agent_work_f64(&g.m);   /* the kernels' workspace, once for the run (as an agent's mission) */
+    if (n_work < (size_t)-1 / sizeof(double)) work = malloc(sizeof(double) * (n_work ? n_work : 1));
+    if (buf == NULL || bytes == NULL || ints == NULL || dec == NULL || work == NULL) goto done;
     /* doubles: the arrays' values as given (booleans and ints too, for the output); their typed copies below */
     memcpy(buf, p, sizeof(double) * (size_t)n_state);
     double *arr[21];
@@ -431,7 +434,8 @@ static long g_agent_step(const double *in, long n_in, double *out, long cap)
             fresh[i] = fr[1 + 4 * n + i] != 0.0;
         }
         vs_agent_out r;
-        if (vs_agent_step(&cfg, &st, fr + 1, seen, fresh, fr[0], &r, used, dec, scratch_f64, scratch_u8) != VS_OK)
+        if (vs_agent_step_ws(&cfg, &st, fr + 1, seen, fresh, fr[0], &r, used, dec, scratch_f64, scratch_u8, work)
+            != VS_OK)
             goto done;
         long need = r.ran ? 24 + 2 * n + 4 * (long)r.n_decisions : 2;
         if (cap - (o - out) < need + n_state) goto done;
@@ -475,6 +479,7 @@ done:
     free(bytes);
     free(ints);
     free(dec);
+    free(work);
     mission_free(&g);
     return result;
 }

@@ -70,19 +70,25 @@ void vs_arc_row(const double pose[3], double vl, double vr, double dt, double ba
 int vs_integrate_arcs(const double *pose_world, const double *wheels_m_s, double dt_s, const double *wheel_base_m,
                       size_t n, double *out_pose_world)
 {
+    return vs_integrate_arcs_ws(pose_world, wheels_m_s, dt_s, wheel_base_m, n, out_pose_world, NULL);
+}
+
+int vs_integrate_arcs_ws(const double *pose_world, const double *wheels_m_s, double dt_s, const double *wheel_base_m,
+                         size_t n, double *out_pose_world, double *work)
+{
     if (!vs_isfinite(dt_s) || !vs_all_finite(pose_world, 3 * n) || !vs_all_finite(wheels_m_s, 2 * n)
         || !vs_all_finite(wheel_base_m, n))
         return VS_ENONFINITE;
     if (n == 0) return VS_OK;
     /* into scratch first: a result that overflows (or a zero wheel base) is refused before
      * anything is written */
-    double *r = malloc(3 * n * sizeof *r);
-    if (r == NULL) return VS_ENOMEM;
+    double *own = NULL, *r = work;
+    if (r == NULL && (own = r = malloc(3 * n * sizeof *r)) == NULL) return VS_ENOMEM;
     for (size_t i = 0; i < n; i++)
         vs_arc_row(pose_world + 3 * i, wheels_m_s[2 * i], wheels_m_s[2 * i + 1], dt_s, wheel_base_m[i], r + 3 * i);
-    if (!vs_all_finite(r, 3 * n)) { free(r); return VS_ENONFINITE; }
+    if (!vs_all_finite(r, 3 * n)) { free(own); return VS_ENONFINITE; }
     memcpy(out_pose_world, r, 3 * n * sizeof *r);
-    free(r);
+    free(own);
     return VS_OK;
 }
 

@@ -37,6 +37,12 @@ void vs_arc_row(const double pose[3], double vl_m_s, double vr_m_s, double dt_s,
 int vs_integrate_arcs(const double *pose_world, const double *wheels_m_s, double dt_s, const double *wheel_base_m,
                       size_t n, double *out_pose_world);
 
+/* vs_integrate_arcs with its scratch in the caller's workspace: work holds VS_INTEGRATE_ARCS_WORK_F64(n) doubles
+ * (no allocation), or is NULL (vs_integrate_arcs: allocated for the one call). */
+int vs_integrate_arcs_ws(const double *pose_world, const double *wheels_m_s, double dt_s, const double *wheel_base_m,
+                         size_t n, double *out_pose_world, double *work);
+#define VS_INTEGRATE_ARCS_WORK_F64(n) (3 * (n))
+
 /* One row of vs_limit_wheels (no checks): u (vl, vr) limited around the previous command p. */
 void vs_limit_row(double u0, double u1, double p0, double p1, double speed_max_m_s, double step_max_m_s,
                   double out[2]);

@@ -129,6 +129,18 @@ int vs_safety_filter(const vs_safety_params *p, size_t n, const double *pose_wor
                      const double *wheels_nominal_m_s, double *wheels_safe_m_s,
                      vs_safety_stats *stats)
 {
+    return vs_safety_filter_ws(p, n, pose_world, radius_m, active, wheel_base_m, wheel_speed_max_m_s,
+                               wheel_accel_max_m_s2, wheels_prev_m_s, n_obstacles, obstacles, wheels_nominal_m_s,
+                               wheels_safe_m_s, stats, NULL);
+}
+
+int vs_safety_filter_ws(const vs_safety_params *p, size_t n, const double *pose_world,
+                        const double *radius_m, const unsigned char *active, const double *wheel_base_m,
+                        const double *wheel_speed_max_m_s, const double *wheel_accel_max_m_s2,
+                        const double *wheels_prev_m_s, size_t n_obstacles, const double *obstacles,
+                        const double *wheels_nominal_m_s, double *wheels_safe_m_s,
+                        vs_safety_stats *stats, double *work)
+{
     if (p == NULL) return VS_EVALUE;
     if (!ok_num(p->margin_m) || !ok_num(p->gamma_per_s) || !ok_num(p->offset_m) || !ok_num(p->dt_s))
         return VS_ENONFINITE;
@@ -161,13 +173,12 @@ int vs_safety_filter(const vs_safety_params *p, size_t n, const double *pose_wor
     }
     const double l = p->offset_m, margin = p->margin_m, gamma = p->gamma_per_s, dt = p->dt_s;
     size_t max_rows = (n - 1) + n_obstacles + 4;
-    double *pts = malloc(5 * n * sizeof *pts);            /* px, py, cos, sin, braking distance */
-    double *rows = malloc(3 * max_rows * sizeof *rows);
-    double *out = malloc(2 * n * sizeof *out);
-    if (pts == NULL || rows == NULL || out == NULL) {
-        free(pts); free(rows); free(out);
+    double *own = NULL;
+    if (work == NULL && (own = work = malloc(VS_SAFETY_WORK_F64(n, n_obstacles) * sizeof *work)) == NULL)
         return VS_ENOMEM;
-    }
+    double *pts = work;                                  /* px, py, cos, sin, braking distance */
+    double *rows = pts + 5 * n;
+    double *out = rows + 3 * max_rows;
     for (size_t i = 0; i < n; i++) {
         double s, c;
         vs_sincos(pose_world[3 * i + 2], &s, &c);
@@ -261,8 +272,6 @@ int vs_safety_filter(const vs_safety_params *p, size_t n, const double *pose_wor
         for (size_t k = 0; k < 2 * n; k++) wheels_safe_m_s[k] = out[k];
         if (stats != NULL) *stats = st;
     }
-    free(pts);
-    free(rows);
-    free(out);
+    free(own);
     return rc;
 }

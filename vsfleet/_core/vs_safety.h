@@ -83,4 +83,15 @@ int vs_safety_filter(const vs_safety_params *p, size_t n, const double *pose_wor
                      const double *wheels_nominal_m_s, double *wheels_safe_m_s,
                      vs_safety_stats *stats);
 
+/* vs_safety_filter with its scratch in the caller's workspace: work holds VS_SAFETY_WORK_F64(n, n_obstacles)
+ * doubles (no allocation), or is NULL (vs_safety_filter: allocated for the one call). */
+int vs_safety_filter_ws(const vs_safety_params *p, size_t n, const double *pose_world,
+                        const double *radius_m, const unsigned char *active, const double *wheel_base_m,
+                        const double *wheel_speed_max_m_s, const double *wheel_accel_max_m_s2,
+                        const double *wheels_prev_m_s, size_t n_obstacles, const double *obstacles,
+                        const double *wheels_nominal_m_s, double *wheels_safe_m_s,
+                        vs_safety_stats *stats, double *work);
+/* points 5 n, barrier rows 3 ((n - 1) + n_obstacles + 4), commands 2 n */
+#define VS_SAFETY_WORK_F64(n, n_obstacles) (10 * (n) + 3 * (n_obstacles) + 9)
+
 #endif

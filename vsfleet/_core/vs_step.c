@@ -15,9 +15,9 @@ void vs_apply_pose(double x, double y, double th, const double *p, size_t n, dou
     }
 }
 
-/* The fit on the rows where mask is set, gathered into scratch (4 k doubles). */
+/* The fit on the rows where mask is set, gathered into scratch (4 k doubles); fit_work: vs_fit_work_f64(n). */
 static int fit_rows(const vs_mission *m, const double *template_xy, const double *pose_world,
-                    const unsigned char *mask, size_t k, double *scratch, vs_fit_result *fit)
+                    const unsigned char *mask, size_t k, double *scratch, double *fit_work, vs_fit_result *fit)
 {
     double *tpl = scratch, *xy = scratch + 2 * k;
     size_t j = 0;
@@ -29,7 +29,7 @@ static int fit_rows(const vs_mission *m, const double *template_xy, const double
         xy[2 * j + 1] = pose_world[3 * i + 1];
         j++;
     }
-    return vs_fit(tpl, xy, NULL, k, m->metric, fit);
+    return vs_fit_ws(tpl, xy, NULL, k, m->metric, fit, fit_work);
 }
 
 static void distances(const double *pose_world, const double *pts, size_t n, double *d)
@@ -40,10 +40,26 @@ static void distances(const double *pose_world, const double *pts, size_t n, dou
     }
 }
 
+size_t vs_structure_step_work_f64(size_t n, int metric)
+{
+    size_t fit = vs_fit_work_f64(n, metric);
+    if (fit > (size_t)-1 / 2 || n > (size_t)-1 / 64) return (size_t)-1;   /* overflow: no such buffer */
+    return fit + 9 * n + (n + sizeof(double) - 1) / sizeof(double);
+}
+
 int vs_structure_step(const vs_mission *m, const double *pose_world, const unsigned char *seen,
                       const unsigned char *excluded, const unsigned char *judged_apart, double elapsed_s,
                       double dt_s, vs_structure *out, unsigned char *used, double *points_now,
                       double *points_next, double *deviations_m)
+{
+    return vs_structure_step_ws(m, pose_world, seen, excluded, judged_apart, elapsed_s, dt_s, out, used, points_now,
+                                points_next, deviations_m, NULL);
+}
+
+int vs_structure_step_ws(const vs_mission *m, const double *pose_world, const unsigned char *seen,
+                         const unsigned char *excluded, const unsigned char *judged_apart, double elapsed_s,
+                         double dt_s, vs_structure *out, unsigned char *used, double *points_now,
+                         double *points_next, double *deviations_m, double *work)
 {
     size_t n = m->n, n_used = 0, n_judges = 0;
     if (n == 0) return VS_EVALUE;
@@ -62,11 +78,16 @@ int vs_structure_step(const vs_mission *m, const double *pose_world, const unsig
         out->any_used = 0;
         return VS_OK;
     }
-    /* scratch: gathered template and positions (4n), distances (n), headings (n), deviations (n),
-     * judged points (2n) */
-    double *scratch = malloc(sizeof(double) * 9 * n);
-    unsigned char *mask = malloc(n);
-    if (scratch == NULL || mask == NULL) { free(scratch); free(mask); return VS_ENOMEM; }
+    /* the workspace: the fit's (vs_fit_work_f64), then scratch: gathered template and positions (4n), distances (n),
+     * headings (n), deviations (n), judged points (2n); then the mask (n bytes) */
+    double *own = NULL;
+    if (work == NULL) {   /* vs_structure_step: allocated for this one call */
+        size_t need = vs_structure_step_work_f64(n, m->metric);
+        if (need > (size_t)-1 / sizeof(double) || (own = work = malloc(sizeof(double) * need)) == NULL)
+            return VS_ENOMEM;
+    }
+    double *fit_work = work, *scratch = fit_work + vs_fit_work_f64(n, m->metric);
+    unsigned char *mask = (unsigned char *)(scratch + 9 * n);
     double *dist = scratch + 4 * n, *head = dist + n, *devs = head + n, *judged = devs + n;
     for (size_t i = 0; i < n; i++) mask[i] = (unsigned char)(seen[i] && !excluded[i]);
 
@@ -76,7 +97,7 @@ int vs_structure_step(const vs_mission *m, const double *pose_world, const unsig
     const vs_field *field = m->field;
     vs_goal goal = m->goal;
     int shape = 0;
-    int rc = fit_rows(m, tpl, pose_world, mask, n_used, scratch, &fit);
+    int rc = fit_rows(m, tpl, pose_world, mask, n_used, scratch, fit_work, &fit);
     if (rc != VS_OK) goto done;
     if (field != NULL && m->n_shapes > 0 && goal.kind != VS_GOAL_TWIST && goal.n_poses > 0) {
         /* reshape (vs_step.h): every shape fitted; the robots are in the shape that fits them best (the least
@@ -90,7 +111,7 @@ int vs_structure_step(const vs_mission *m, const double *pose_world, const unsig
             const double *t = j == 0 ? tpl : m->shapes_xy + 2 * n * (j - 1);
             const vs_field *fj = j == 0 ? field : m->shape_fields[j - 1];
             if (j > 0) {
-                rc = fit_rows(m, t, pose_world, mask, n_used, scratch, &fits[j]);
+                rc = fit_rows(m, t, pose_world, mask, n_used, scratch, fit_work, &fits[j]);
                 if (rc != VS_OK) goto done;
             }
             double p[3] = {fits[j].x, fits[j].y, fits[j].th};
@@ -143,7 +164,7 @@ int vs_structure_step(const vs_mission *m, const double *pose_world, const unsig
     if (n_judges >= 2 && n_judges < n_used) {   /* a rigid fit needs two points to fix the heading */
         for (size_t i = 0; i < n; i++) mask[i] = (unsigned char)(mask[i] && !judged_apart[i]);
         vs_fit_result jf;
-        rc = fit_rows(m, tpl, pose_world, mask, n_judges, scratch, &jf);
+        rc = fit_rows(m, tpl, pose_world, mask, n_judges, scratch, fit_work, &jf);
         if (rc != VS_OK) goto done;
         vs_apply_pose(jf.x, jf.y, jf.th, tpl, n, judged);
         distances(pose_world, judged, n, dist);
@@ -163,7 +184,6 @@ int vs_structure_step(const vs_mission *m, const double *pose_world, const unsig
     out->left_m = left_m;
     out->shape = shape;
 done:
-    free(scratch);
-    free(mask);
+    free(own);
     return rc;
 }

@@ -79,6 +79,16 @@ int vs_structure_step(const vs_mission *m, const double *pose_world, const unsig
                       double dt_s, vs_structure *out, unsigned char *used, double *points_now,
                       double *points_next, double *deviations_m);
 
+/* vs_structure_step in the caller's workspace: work holds vs_structure_step_work_f64(m->n, m->metric) doubles (no
+ * allocation), or is NULL (vs_structure_step: allocated for the one call).  Same results, bit for bit. */
+int vs_structure_step_ws(const vs_mission *m, const double *pose_world, const unsigned char *seen,
+                         const unsigned char *excluded, const unsigned char *judged_apart, double elapsed_s,
+                         double dt_s, vs_structure *out, unsigned char *used, double *points_now,
+                         double *points_next, double *deviations_m, double *work);
+
+/* Doubles of workspace vs_structure_step_ws needs for n robots under metric (its fits' and its own). */
+size_t vs_structure_step_work_f64(size_t n, int metric);
+
 /* R(th) p + (x, y) for n points (n, 2) -> out (n, 2) [m; world]. */
 void vs_apply_pose(double x, double y, double th, const double *points_xy, size_t n, double *out);
 
