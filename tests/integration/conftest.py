@@ -30,6 +30,7 @@ import pytest
 import zenoh
 
 from vsfleet.fleetctl.mission_cmd import stamp
+from vsfleet.failure import FailurePolicy
 from vsfleet.fleetctl.router import free_loopback_port, open_loopback_router
 from vsfleet.fleetctl.router import wait_listening as wait_port
 from vsfleet.fleetctl.run import child_command
@@ -218,6 +219,25 @@ def fleet_up(robots=ROBOTS, after_t: float = 0.0):
         commanded = {r for r in robots if any(why == "commanded" for why, _ in obs.why.get(r, ()))}
         states = {r for t, r, _ in obs.state[-30 * len(robots):] if t > after_t}
         return commanded == set(robots) and states >= set(robots)
+    return pred
+
+
+def fleet_judging(mission, robots=ROBOTS):
+    """Predicate: every agent has run ``mission`` (its version) for a whole failure window, so that each
+    can judge a robot stuck (vsfleet/failure.py: a window settles after FAILURE_SETTLED_RATIO of
+    fail_after_s, and an agent that joined later cannot judge before). Read from the agents' states: the
+    frame times [s] each agent stamped under that version span fail_after_s. An agent that starts late on
+    a loaded host (CI rehearsal, 2026-12-05: one switched to the mission 32 frames after the others)
+    otherwise decides on a fault injected at once up to a window after its peers."""
+    window_s = FailurePolicy(mission.on_failure, **dict(mission.failure)).fail_after_s
+
+    def pred(obs: Observed):
+        span: dict[str, list[float]] = {}
+        for _, r, m in obs.state:
+            if m.mission == mission.version:
+                lo_hi = span.setdefault(r, [m.t, m.t])
+                lo_hi[0], lo_hi[1] = min(lo_hi[0], m.t), max(lo_hi[1], m.t)
+        return all(r in span and span[r][1] - span[r][0] >= window_s for r in robots)
     return pred
 
 

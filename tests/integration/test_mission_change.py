@@ -12,7 +12,7 @@ import pytest
 from vsfleet.analysis import agreement
 from vsfleet.wire import FaultMsg, encode
 
-from .conftest import at_goal, start_fleet
+from .conftest import at_goal, fleet_judging, start_fleet
 
 pytestmark = pytest.mark.integration
 
@@ -64,6 +64,8 @@ def test_a_goal_walled_in_stops_the_fleet_blocked_and_a_mission_that_opens_the_r
 
 def test_a_mission_change_while_a_robot_is_failed_and_dropped_keeps_it_dropped_and_the_rest_go_on(fleet):
     start_fleet(fleet, on_failure="drop")
+    # every agent able to judge before the fault: the one-frame bound below is for agents that ran the same frames
+    fleet.observed.wait_for(fleet_judging(fleet.mission), timeout_s=20)
     fleet.router.put(fleet.keys.fault("r2"), encode(FaultMsg("stop", 0.0, 0.0)))
     dropped = fleet.observed.wait_for(lambda o: d if len(d := events(o, "drop", "r2")) == 3 else None,
                                       timeout_s=20)
