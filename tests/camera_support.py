@@ -9,25 +9,59 @@ it (rootdir-based imports, tests/ has no __init__.py), tests/integration include
 
 from __future__ import annotations
 
+import copy
 import subprocess
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from vsfleet.fleetctl.run import child_command
 from vsfleet.tracker.calib import FloorCalibration
 from vsfleet.tracker.calibrate import calibrate_frames
 from vsfleet.tracker.markers import CameraConfig, load_config
-from vsfleet.tracker.render import Renderer, reference_scene, sim_camera_from_dict
+from vsfleet.tracker.render import Renderer, SimCameraSpec, reference_scene, robot_scene, sim_camera_from_dict
 
 ROOT = Path(__file__).parent.parent
 CONFIG = ROOT / "deploy" / "camera" / "overhead.toml"
 TRUTH = {"r1": (0.3, 0.02, 0.0), "r2": (-0.16, 0.25, 0.2), "r3": (-0.13, -0.27, -0.1)}
 
 
+_PRISTINE: dict[tuple[str, str], Renderer] = {}
+
+
+def fresh_renderer(spec: SimCameraSpec, dictionary: str) -> Renderer:
+    """A Renderer in the very state ``Renderer(spec, dictionary)`` starts in, without making its images again.
+
+    Making a Renderer costs ~0.5 s of CPU (the floor seen through every pixel, the vignette, the noise banks); the
+    camera tests made 17 of a few specs. The first one of a spec is kept unused (its arrays read-only: render only
+    reads them, and a write would raise) and each call returns a shallow copy of it with its own random generator
+    at the state a new one's has, and its own marker-texture cache: the same frames, bit for bit."""
+    key = (repr(spec), dictionary)
+    pristine = _PRISTINE.get(key)
+    if pristine is None:
+        pristine = Renderer(spec, dictionary)
+        for value in vars(pristine).values():
+            for array in (value if isinstance(value, list) else [value]):
+                if isinstance(array, np.ndarray):
+                    array.flags.writeable = False
+        _PRISTINE[key] = pristine
+    out = copy.copy(pristine)
+    out.rng = copy.deepcopy(pristine.rng)
+    out.textures = dict(pristine.textures)
+    return out
+
+
 def renderer_for(config: CameraConfig) -> Renderer:
-    """The synthetic camera of ``config`` (its sim_camera section)."""
-    return Renderer(sim_camera_from_dict(config.sim_camera), config.dictionary)
+    """The synthetic camera of ``config`` (its sim_camera section), as Renderer makes it."""
+    return fresh_renderer(sim_camera_from_dict(config.sim_camera), config.dictionary)
+
+
+def frame_of(config: CameraConfig, poses_world: dict, t_s: float = 0.0, spec: SimCameraSpec | None = None):
+    """vsfleet.tracker.render.render_frame (a new Renderer's one frame of the robots at ``poses_world``) on a
+    fresh_renderer: the same image."""
+    spec = spec or sim_camera_from_dict(config.sim_camera)
+    return fresh_renderer(spec, config.dictionary).render(robot_scene(config, spec, poses_world), t_s)
 
 
 def calibrate_rendered(config: CameraConfig, renderer: Renderer) -> FloorCalibration:

@@ -16,6 +16,8 @@ from camera_support import (  # noqa: E402, F401 - the fixtures calibration, con
     calibrate_rendered,
     calibration_fixture,
     config_fixture,
+    frame_of,
+    fresh_renderer,
     renderer_for,
     renderer_fixture,
 )
@@ -141,6 +143,20 @@ def test_unusable_frames_raise_frame_error_and_use_no_seq(config, calibration):
     assert tracker.seq == 1
 
 
+def test_the_tests_renderer_copies_render_what_a_new_renderer_does(config):
+    """camera_support.fresh_renderer and frame_of stand for Renderer(spec, dictionary) and render_frame here: the same
+    frames bit for bit, in the same sequence (a small image: the copies do not depend on its size)."""
+    spec = dataclasses.replace(sim_camera_from_dict(config.sim_camera), width_px=320, height_px=180, f_px=200.0)
+    poses = {"r1": (0.3, 0.02, 0.0), "r2": (1.0, 0.5, -1.0)}
+    assert np.array_equal(frame_of(config, poses, 0.7, spec), render_frame(config, poses, 0.7, spec))
+    new, copied = Renderer(spec, config.dictionary), fresh_renderer(spec, config.dictionary)
+    scene = robot_scene(config, spec, poses)
+    for t in (0.0, 0.1, 0.2):   # each frame draws its noise from the generator: the copy's runs as the new one's
+        assert np.array_equal(copied.render(scene, t), new.render(scene, t))
+    assert np.array_equal(fresh_renderer(spec, config.dictionary).render(scene, 0.0),
+                          Renderer(spec, config.dictionary).render(scene, 0.0))   # not the used copy's state
+
+
 def test_two_cameras_each_publish_their_own_src_and_seq_and_agree_on_the_overlap(config):
     left = dataclasses.replace(sim_camera_from_dict(config.sim_camera), position_m=(0.2, 0.5, 2.4),
                                look_at_m=(0.2, 0.5, 0.0), seed=1)
@@ -149,10 +165,10 @@ def test_two_cameras_each_publish_their_own_src_and_seq_and_agree_on_the_overlap
     seen = {}
     for src, spec in (("camL", left), ("camR", right)):
         cfg = dataclasses.replace(config, src=src, sim_camera=dataclasses.asdict(spec))
-        cal = calibrate_rendered(cfg, Renderer(spec, cfg.dictionary))
+        cal = calibrate_rendered(cfg, fresh_renderer(spec, cfg.dictionary))
         tracker = CameraTracker(cfg, cal)
         tracker.seq = {"camL": 100, "camR": 7}[src]  # trackers count frames independently
-        seen[src] = dict(tracker.process(render_frame(cfg, truth, 0.0, spec), 50.0))
+        seen[src] = dict(tracker.process(frame_of(cfg, truth, 0.0, spec), 50.0))
     assert set(seen["camL"]) == {"r1", "r2"} and set(seen["camR"]) == {"r2", "r3"}
     assert {(m.src, m.seq) for m in seen["camL"].values()} == {("camL", 101)}
     assert {(m.src, m.seq) for m in seen["camR"].values()} == {("camR", 8)}
@@ -168,7 +184,7 @@ def test_the_two_deploy_cameras_calibrate_on_their_own_and_agree_in_their_overla
         cfg = load_config(path)
         cal = calibrate_rendered(cfg, renderer_for(cfg))
         assert cal.error_mm["max"] < 3.0
-        seen[cfg.src] = dict(CameraTracker(cfg, cal).process(render_frame(cfg, truth, 0.0), 1.0))
+        seen[cfg.src] = dict(CameraTracker(cfg, cal).process(frame_of(cfg, truth, 0.0), 1.0))
     assert set(seen) == {"cam1", "cam2"}
     for src, poses in seen.items():
         assert set(poses) == set(truth) and {m.src for m in poses.values()} == {src}
@@ -181,7 +197,7 @@ def test_heading_offset_of_a_marker_mount(config, renderer, calibration):
     cfg = dataclasses.replace(config, markers={**config.markers, 1: dataclasses.replace(
         config.markers[1], heading_offset_rad=math.pi / 2)})
     tracker = CameraTracker(cfg, calibration)
-    out = dict(tracker.process(render_frame(cfg, {"r1": (0.5, 0.5, 0.3)}, 0.0, renderer.spec), 0.0))
+    out = dict(tracker.process(frame_of(cfg, {"r1": (0.5, 0.5, 0.3)}, 0.0, renderer.spec), 0.0))
     assert abs(angle_diff(out["r1"].th, 0.3)) < TH_MAX_RAD
 
 
@@ -283,7 +299,7 @@ def test_lens_distortion_is_undone_by_the_pinhole_calibration(config):
     # Measured over 600 poses with this barrel distortion: position max 2.0 mm, heading max 28 mrad
     # (the worst near the image's top edge); the bounds carry a 2x margin.
     spec = dataclasses.replace(sim_camera_from_dict(config.sim_camera), dist_coeffs=(-0.05, 0.01, 0.0, 0.0, 0.0))
-    ren = Renderer(spec, config.dictionary)
+    ren = fresh_renderer(spec, config.dictionary)
     cal = calibrate_frames([ren.render(reference_scene(config), 0.0)], config, ren.camera.intrinsics)
     pos, th = errors(CameraTracker(config, cal), ren, config, 15, seed=5)
     assert pos.max() < 0.004 and th.max() < 0.06
@@ -363,7 +379,7 @@ def test_a_marker_whose_rays_miss_the_plane_is_rejected_not_published(config, re
     from vsfleet.tracker.calib import calibration_from_dict
 
     tracker = CameraTracker(config, calibration_from_dict(pinhole_doc(TILTED)))
-    frame = render_frame(config, {"r1": (1.0, 1.3, 0.0)}, 0.0, renderer.spec)  # near the image's top edge
+    frame = frame_of(config, {"r1": (1.0, 1.3, 0.0)}, 0.0, renderer.spec)  # near the image's top edge
     assert tracker.process(frame, 1.0) == []
     assert tracker.rejections.by_key == {"marker": 1}
     assert "do not meet the marker plane" in caplog.text

@@ -20,9 +20,18 @@ TOL = 1e-9
 pytestmark = pytest.mark.filterwarnings("ignore:invalid value encountered in divide:RuntimeWarning")
 
 
+def _same_bits(a: np.ndarray, b: np.ndarray) -> bool:
+    """The same shape, dtype and bytes: then every check of assert_same_state holds (NaN where NaN, equal values).
+    About 1 us against numpy.testing's 80 us a field: the random sequences below compare 12 fields on each of
+    ~25 000 frames, and the arrays are almost always bit for bit the same; any difference takes the full checks."""
+    return a.shape == b.shape and a.dtype == b.dtype and a.tobytes() == b.tobytes()
+
+
 def assert_same_state(core: FailureState, ref: FailureState, where: str = "") -> None:
     for name in FIELDS:
         a, b = getattr(core, name), getattr(ref, name)
+        if _same_bits(a, b):
+            continue
         assert a.shape == b.shape and a.dtype == b.dtype, (name, where)
         if a.dtype.kind == "f":
             assert np.array_equal(np.isnan(a), np.isnan(b)), (name, where, a, b)

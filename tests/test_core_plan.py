@@ -55,12 +55,9 @@ def min_clearance(plan: StructurePlan, tpl, rad, obs, samples_per_m: float = 400
         k = max(2, int(math.hypot(b.x - a.x, b.y - a.y) * samples_per_m) + 2)
         for u in np.linspace(0.0, 1.0, k)[1:]:
             poses.append(Pose2(a.x + u * (b.x - a.x), a.y + u * (b.y - a.y), a.th + u * angle_diff(b.th, a.th)))
-    gap = math.inf
-    for p in poses:
-        pts = p.apply(tpl)
-        d = np.hypot(pts[:, None, 0] - obs[None, :, 0], pts[:, None, 1] - obs[None, :, 1])
-        gap = min(gap, float(np.min(d - obs[None, :, 2] - np.asarray(rad)[:, None])))
-    return gap
+    pts = np.stack([p.apply(tpl) for p in poses])   # (poses, n, 2): every pose's gaps in one pass
+    d = np.hypot(pts[:, :, None, 0] - obs[None, None, :, 0], pts[:, :, None, 1] - obs[None, None, :, 1])
+    return float(np.min(d - obs[None, None, :, 2] - np.asarray(rad)[None, :, None]))
 
 
 def disc_clear(xy, big_r, obs) -> bool:

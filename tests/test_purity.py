@@ -1,6 +1,7 @@
 """The pure core never imports zenoh, time, logging or cv2 (I/O and OpenCV stay at the edges)."""
 
 import ast
+import functools
 import re
 from pathlib import Path
 
@@ -11,15 +12,23 @@ ROOT = Path(__file__).parent.parent
 CORE = sorted((ROOT / "vsfleet").rglob("*.py"))
 
 
+@functools.lru_cache(maxsize=None)
+def absolute_imports(path: Path) -> tuple[str, ...]:
+    """The modules ``path`` imports absolutely (``import a.b``, ``from a.b import c``: a.b), in the order they come;
+    once per file in a process: the two tests below read the same files (the trees are not kept: held, hundreds of
+    them made every garbage collection slower than parsing again)."""
+    names = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            names += [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names.append(node.module)
+    return tuple(names)
+
+
 @pytest.mark.parametrize("path", CORE, ids=lambda p: str(p.relative_to(ROOT)))
 def test_core_module_imports_no_io(path):
-    tree = ast.parse(path.read_text())
-    imported = set()
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            imported |= {a.name.split(".")[0] for a in node.names}
-        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-            imported.add(node.module.split(".")[0])
+    imported = {name.split(".")[0] for name in absolute_imports(path)}
     assert not imported & FORBIDDEN, f"{path.name} imports {imported & FORBIDDEN}"
 
 
@@ -30,12 +39,7 @@ SOURCES = sorted(p for d in ("vsfleet", *PROGRAMS, "bench", "tests") for p in (R
 @pytest.mark.parametrize("path", SOURCES, ids=lambda p: str(p.relative_to(ROOT)))
 def test_programs_are_imported_under_the_vsfleet_namespace(path):
     """An import of a top-level agent / fleetctl / ... would work in the repository and fail installed."""
-    tree = ast.parse(path.read_text())
-    bad = []
-    for node in ast.walk(tree):
-        names = ([a.name for a in node.names] if isinstance(node, ast.Import)
-                 else [node.module] if isinstance(node, ast.ImportFrom) and node.module and node.level == 0 else [])
-        bad += [n for n in names if n.split(".")[0] in PROGRAMS]
+    bad = [n for n in absolute_imports(path) if n.split(".")[0] in PROGRAMS]
     assert not bad, f"{path.relative_to(ROOT)} imports {bad}: use vsfleet.{bad[0]}"
 
 
@@ -83,7 +87,13 @@ def room_of(module: str) -> str | None:
 DYNAMIC = {"import_module", "__import__", "find_spec", "run_module"}  # importlib's, runpy's: import by a name
 
 
-def vsfleet_imports(path: Path, text: str | None = None) -> set[str]:
+def vsfleet_imports(path: Path, text: str | None = None) -> frozenset[str]:
+    """_vsfleet_imports of the file's text (or ``text``), memoised by text: rooms' files are read by many tests."""
+    return _vsfleet_imports(path, path.read_text() if text is None else text)
+
+
+@functools.lru_cache(maxsize=None)
+def _vsfleet_imports(path: Path, text: str) -> frozenset[str]:
     """Every vsfleet.* module ``path`` (or ``text`` as if it were there) imports, relative imports resolved.
 
     Also an import by name (importlib.import_module and the like): of a string literal, that module; of
@@ -91,7 +101,7 @@ def vsfleet_imports(path: Path, text: str | None = None) -> set[str]:
     name = module_name(path)
     package = name if path.name == "__init__.py" else name.rpartition(".")[0]
     out = set()
-    tree = ast.parse(path.read_text() if text is None else text)
+    tree = ast.parse(text)
     names = {n.value for n in ast.walk(tree) if isinstance(n, ast.Constant) and isinstance(n.value, str)
              and n.value.split(".")[0] == "vsfleet" and all(part.isidentifier() for part in n.value.split("."))}
     for node in ast.walk(tree):
@@ -114,7 +124,7 @@ def vsfleet_imports(path: Path, text: str | None = None) -> set[str]:
                 module = node.module
             out.add(module)
             out |= {f"{module}.{a.name}" for a in node.names}  # `from . import zconf` imports a module
-    return {m for m in out if m.split(".")[0] == "vsfleet"}
+    return frozenset(m for m in out if m.split(".")[0] == "vsfleet")
 
 
 ROOM_SOURCES = sorted((room, p) for room, d in ROOMS.items() for p in (ROOT / d).rglob("*.py"))
@@ -215,7 +225,8 @@ def c_strip(text: str, strings: bool = True) -> str:
     return "".join(out)
 
 
-def c_parts(text: str) -> tuple[set[str], set[str], set[str]]:
+@functools.lru_cache(maxsize=None)
+def c_parts(text: str) -> tuple[frozenset[str], frozenset[str], frozenset[str]]:
     """(headers included with "...", external functions defined, identifiers used) of one C file.
     Used: in function bodies and initialisers (brace depth >= 1) and in macro bodies; a prototype
     at file scope is no use. Defined: `name(...) {` at file scope, not static."""
@@ -243,7 +254,7 @@ def c_parts(text: str) -> tuple[set[str], set[str], set[str]]:
             start = m.end() if depth == 0 else start
         elif depth > 0:
             used.add(tok)
-    return includes, defined, used
+    return frozenset(includes), frozenset(defined), frozenset(used)   # memoised (the same files, four graphs)
 
 
 def c_graph(texts: dict[str, str] | None = None) -> dict[str, set[str]]:
