@@ -27,13 +27,26 @@ ROOT = Path(__file__).resolve().parent.parent.parent
 @pytest.mark.parametrize("name", ["paper-triangle-obstacle", "tight-row", "room-pillar-facing", "room-wall-gap",
                                   "room-wall-thread", "crowd-10"])
 def test_the_fleet_reaches_its_goal_in_a_room_untouched_and_its_agents_agree(name, tmp_path):
-    summary, _ = run(str(ROOT / "scenarios" / f"{name}.toml"), out_dir=str(tmp_path), progress=False)
+    summary, run_dir = run(str(ROOT / "scenarios" / f"{name}.toml"), out_dir=str(tmp_path), progress=False)
     print(summary.table())
     assert summary.children_ok
-    assert summary.reached_goal, summary.table()
-    assert summary.min_gap_m > 0.0, summary.table()
+    assert summary.reached_goal, summary.table() + how_it_ran(run_dir)
+    assert summary.min_gap_m > 0.0, summary.table() + how_it_ran(run_dir)
     a = summary.agreement
     assert a["frames"] > 100 and a["identical"] == a["frames"], summary.table()
+
+
+def how_it_ran(run_dir: Path) -> str:
+    """What a failed run's processes said of their timing (the run directory goes with tmp_path): each one's
+    stopping line (simfleet's steps over 100 ms late, the agents' stale and replaced frames, the tracker's
+    dropped frames) and how many commands expired. A contact seen once under overload (CI rehearsal,
+    2026-12-05) could not be read back for want of these."""
+    lines, expired = [], 0
+    for log_file in sorted(Path(run_dir).glob("*.log")):
+        text = log_file.read_text(errors="replace").splitlines()
+        expired += sum("command expired" in line for line in text)
+        lines += [f"{log_file.name}: {line}" for line in text if " stopping " in line and "signal" not in line]
+    return "\n" + "\n".join(lines + [f"commands expired: {expired}"])
 
 
 def test_the_fleet_passes_a_gap_narrower_than_the_triangle_as_a_column_every_agent_switching_at_one_frame(tmp_path):
