@@ -163,18 +163,24 @@ def test_every_mode_makes_decisions_in_the_random_sequences():
 
 # ---------------------------------------------------------------- examples
 
-def test_a_halted_robot_fails_the_progress_test_on_the_same_frame_in_the_core_and_the_reference():
-    policy = FailurePolicy("drop", fail_after_s=1.0)
+def r2_halted(policy: FailurePolicy, frames: int, halted) -> list[tuple[int, str, str]]:
+    """Two robots commanded at 0.1 m/s at 30 Hz, on their points (deviation 0), r2 still on the frames k where
+    halted(k); every frame through the core and the reference (both); returns (frame, robot, kind) decided."""
     dt, robots = 1 / 30, ("r1", "r2")
     core = ref = FailureState.initial(2, policy, dt)
     xy, decided = np.zeros((2, 2)), []
-    for k in range(150):
+    for k in range(frames):
         t = 10.0 + k * dt
         expected = np.array([[0.1 * dt, 0.0], [0.0, 0.1 * dt]])
-        xy = xy + (expected if k < 40 else expected * [[1.0], [0.0]])      # r2 halts at frame 40
+        xy = xy + (expected * [[1.0], [0.0]] if halted(k) else expected)
         core, ref, made = both(policy, core, ref, robots, t, np.ones(2, bool), np.ones(2, bool), xy,
                                np.zeros(2), expected, dt, 0.3)
         decided += [(k, d.robot, d.kind) for d in made]
+    return decided
+
+
+def test_a_halted_robot_fails_the_progress_test_on_the_same_frame_in_the_core_and_the_reference():
+    decided = r2_halted(FailurePolicy("drop", fail_after_s=1.0), 150, lambda k: k >= 40)   # r2 halts at frame 40
     assert [(r, kind) for _, r, kind in decided] == [("r2", "fail"), ("r2", "drop")]
 
 
@@ -183,18 +189,9 @@ def test_a_dropped_robot_near_its_point_but_not_moving_as_commanded_is_not_taken
     again on the next frame (stuck counts a whole window back), and the fleet flapped fail/rejoin every
     30 frames (tests/integration/test_faults.py under load, 2026-12-05)."""
     policy = FailurePolicy("rejoin", fail_after_s=1.0, rejoin_deviation_m=0.02, rejoin_after_s=1.0)
-    dt, robots = 1 / 30, ("r1", "r2")
-    core = ref = FailureState.initial(2, policy, dt)
-    xy, decided = np.zeros((2, 2)), []
-    for k in range(330):
-        t = 10.0 + k * dt
-        expected = np.array([[0.1 * dt, 0.0], [0.0, 0.1 * dt]])
-        # r2 halts at frame 40 and stays on its point (deviation 0), commanded on (rejoin drives it);
-        # from frame 200 it moves as commanded again
-        xy = xy + (expected if k < 40 or k >= 200 else expected * [[1.0], [0.0]])
-        core, ref, made = both(policy, core, ref, robots, t, np.ones(2, bool), np.ones(2, bool), xy,
-                               np.zeros(2), expected, dt, 0.3)
-        decided += [(k, d.robot, d.kind) for d in made]
+    # r2 halts at frame 40 and stays on its point (deviation 0), commanded on (rejoin drives it); from frame 200
+    # it moves as commanded again
+    decided = r2_halted(policy, 330, lambda k: 40 <= k < 200)
     kinds = [(r, kind) for _, r, kind in decided]
     assert kinds == [("r2", "fail"), ("r2", "drop"), ("r2", "rejoin")], decided
     fail_k, rejoin_k = decided[0][0], decided[2][0]
