@@ -625,8 +625,9 @@ class AgentWiring:
             self.cmd_pub.put(agent.stop_command())
         self.flush_events()
         log.info("agent %s stopping after %d ticks, %d rejected (%d on overflow), %d frames replaced "
-                 "before they ran, %d stale frames; asked %d mission and %d health queries", self.robot,
-                 agent.ticks, agent.rejections.count, self.overflow, agent.frames_replaced, agent.state.stale,
+                 "before they ran, %d stale frames, %d frames too old to move on; asked %d mission and %d health "
+                 "queries", self.robot, agent.ticks, agent.rejections.count, self.overflow, agent.frames_replaced,
+                 agent.state.stale, agent.state.too_old,
                  self.answered["mission"], self.answered["health"])
         self.mission_sub.undeclare()
         for q in self.queryables:

@@ -5,7 +5,8 @@ message, and handed to one real ``Agent`` per robot (the agent process's slot,
 frame merger and pure step, vsfleet.step.agent_step, with transport and clock
 injected);
 their commands take effect
-``latency_frames`` frames later. Used by the tests (controller choice, faults)
+``latency_frames`` frames later. ``Overload`` models a loaded host: frames that reach the agents late,
+agents that stall, and robots that hold each command for its ttl. Used by the tests (controller choice, faults)
 and by the benchmarks. It does the same job as the multi-process fleet, minus
 zenoh.
 """
@@ -31,6 +32,20 @@ from vsfleet.agent.main import Agent
 
 from .engine import make_engine, step_engine_fleet
 from .physics import Contact, Fault, RobotState, step_fleet
+
+
+@dataclass(frozen=True)
+class Overload:
+    """A loaded host, offline. Frames reach every agent frame_delay_frames frames after they were taken (the agents'
+    clock reads the time they arrive, so they see the age). With probability stall_p at each frame, every agent
+    stalls for stall_frames frames, and runs the newest frame after. The robots hold each command from its arrival
+    for its ttl, as simfleet does, and halt after it (not on the next frame). stall_seed: the stalls' own draws
+    (the tracker's noise keeps the run's seed)."""
+
+    frame_delay_frames: int = 0
+    stall_p: float = 0.0
+    stall_frames: int = 0
+    stall_seed: int = 0
 
 
 @dataclass(frozen=True)
@@ -62,7 +77,7 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
                 noise_th_rad: float | None = None, latency_frames: int = 1, seed: int = 0,
                 goal_tol_m: float = 0.005, stop_at_goal: bool = True, tracker_clock_ahead_s: float = 0.0,
                 share_structures: bool = False, reference: bool = False, engine: str | None = None,
-                **gains: float) -> OfflineRun:
+                overload: Overload | None = None, **gains: float) -> OfflineRun:
     """The fleet of ``scenario`` offline: one agent per robot on counted frames, simfleet's physics.
 
     reference: the agents run the numpy reference of the step instead of the compiled core (tests).
@@ -70,7 +85,9 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
     vsfleet.step.agent_step (the way offline runs went before the core had the whole step); by default each agent
     runs its frame in the core (vs_agent_step), as an agent process does: 1.3-2x faster offline (paper-failure
     0.44 -> 0.34 s, crowd-10 1.33 -> 0.67 s of CPU for 20 s), the same bits (tests/test_core_agent_step.py).
-    engine: the physics engine (simfleet.engine.ENGINES; None: the scenario's [sim] engine)."""
+    engine: the physics engine (simfleet.engine.ENGINES; None: the scenario's [sim] engine).
+    overload: a loaded host (Overload); None: every frame reaches every agent at once, and a command holds for
+    one frame."""
     mission = scenario.mission
     if metric is not None:
         mission = dataclasses.replace(mission, metric=metric)
@@ -101,6 +118,11 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
     t_goal = None
     keys = Keys(scenario.fleet)
     sent: dict[str, tuple[float, float]] = {}
+    sent_ttl: dict[str, float] = {}
+    held: dict[str, tuple[tuple[float, float], float]] = {r: ((0.0, 0.0), -np.inf) for r in robots}  # overload
+    taken: list[bytes] = []          # overload: the frames taken, for the agents to get late
+    stall_rng = np.random.default_rng(overload.stall_seed) if overload is not None else None
+    stall_left = 0
     agents = {}
     # every decision (and blocked/unblocked event) each agent publishes, as the fleet's event/<robot> carries
     # it: the agent itself keeps only its newest ones
@@ -111,7 +133,7 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
     # fitting again; everything else (controller, failure rule, state) each agent computes on its own
     shared: dict | None = {} if share_structures else None
     for r in robots:  # one agent per robot, each with its own state, as in the fleet
-        agents[r] = Agent(r, keys, put_cmd=lambda b, r=r: sent.__setitem__(r, _wheels(b)),
+        agents[r] = Agent(r, keys, put_cmd=lambda b, r=r: _take_cmd(sent, sent_ttl, r, b),
                           put_state=lambda b, r=r: _note_shape(shapes[r], b), put_event=lambda b, r=r: decisions[r].append(_decision(b)),
                           dt_s=dt, clock=lambda: t - tracker_clock_ahead_s, controller=ctrl,
                           command_age_s=latency_frames * dt, shared_structures=shared, reference=reference)
@@ -121,14 +143,26 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
                      s.pose.th + rng.normal(0.0, nth)) for r, s in states.items()}
         sent.clear()
         frame = encode_frame(FrameMsg(t=t, seq=k + 1, src="offline", poses=poses))
-        for agent in agents.values():  # through the agent's slot, merger and step, as in the process
-            agent.on_frame(keys.frame("offline"), frame)
-            agent.poll()
+        if overload is not None:   # the frame the agents get now, if they run one
+            taken.append(frame)
+            frame = taken[k - overload.frame_delay_frames] if k >= overload.frame_delay_frames else None
+            if stall_left > 0:
+                stall_left, frame = stall_left - 1, None
+            elif overload.stall_p > 0.0 and stall_rng.random() < overload.stall_p:
+                stall_left, frame = overload.stall_frames - 1, None
+        sent_ttl.clear()
+        if frame is not None:
+            for agent in agents.values():  # through the agent's slot, merger and step, as in the process
+                agent.on_frame(keys.frame("offline"), frame)
+                agent.poll()
         new = {r: sent.get(r, (0.0, 0.0)) for r in robots}
         sent_log.append([new[r] for r in ids])
-        pending.append(new)
+        pending.append(({r: (new[r], sent_ttl[r]) for r in sent_ttl}, new))
         if len(pending) > latency_frames:
-            applied = pending.pop(0)
+            arrived, applied = pending.pop(0)
+            if overload is not None:   # each robot holds its last command until its ttl runs out
+                held.update({r: (c, t + ttl) for r, (c, ttl) in arrived.items()})
+                applied = {r: held[r][0] if t <= held[r][1] else (0.0, 0.0) for r in robots}
             if t_goal is None:
                 tv += sum(abs(applied[r][0] - cmds[r][0]) + abs(applied[r][1] - cmds[r][1]) for r in robots)
             cmds = applied
@@ -162,9 +196,10 @@ def _note_shape(changes: list[tuple[int, int]], payload: bytes) -> None:
         changes.append((m["seq"], shape))
 
 
-def _wheels(payload: bytes) -> tuple[float, float]:
+def _take_cmd(sent: dict, sent_ttl: dict, robot: str, payload: bytes) -> None:
+    """A robot's command as its agent sent it: its wheels, and its ttl [s]."""
     cmd = decode_cmd(payload)
-    return (cmd.vl, cmd.vr)
+    sent[robot], sent_ttl[robot] = (cmd.vl, cmd.vr), cmd.ttl
 
 
 def _decision(payload: bytes) -> Decision:

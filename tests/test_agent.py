@@ -192,6 +192,39 @@ def test_after_a_frame_gap_longer_than_ttl_the_predicted_commands_start_from_res
     assert not spy.prev[-1].any()
 
 
+ROOM = dataclasses.replace(MISSION, obstacles=((5.0, 5.0, 0.1),))   # an obstacle far off: the safety filter runs
+
+
+@pytest.mark.parametrize("reference", [False, True], ids=["one-pass", "reference"])
+@pytest.mark.parametrize("age_s, room", [(0.1, True), (0.25, True), (0.25, False)])
+def test_a_commands_ttl_ends_where_the_safety_filters_guarantee_for_it_ends(age_s, room, reference):
+    """The filter certifies a command for 1/gamma after the poses it was computed from (docs/safety.md): a robot
+    holding it longer, or a frame run later, could drive a body past the barrier. In a room the ttl is cut there,
+    and a frame older than that answers with a stop. Without a safety filter the ttl stays."""
+    from vsfleet.safety import SafetyParams
+    cmds, clock = [], Clock(100.0)
+    agent = Agent("r1", KEYS, cmds.append, lambda b: None, clock=clock, reference=reference)
+    agent.on_message("mission", KEYS.mission, encode_mission(ROOM if room else MISSION))
+    frame(agent, clock, 1, 100.0, POSES)
+    frame(agent, clock, 2, 100.0 + 1 / 30, POSES)   # the agent follows "sim" from now on
+    t3 = 100.0 + 2 / 30
+    clock.t = t3 + age_s
+    payload = encode_frame(FrameMsg(t3, 3, "sim", POSES))
+    if reference or not agent.fast_frame(KEYS.frame("sim"), payload):   # as the agent's frame callback does
+        agent.on_frame(KEYS.frame("sim"), payload)
+        agent.poll()
+    assert (agent._fast_last is not None) == (not reference)   # the path named ran the frame
+    first, _, third = map(decode_cmd, cmds)
+    assert first.vr > 0.0 and (first.ttl == 0.3 if not room else first.ttl < 0.3)   # on its way
+    horizon_s = 1.0 / SafetyParams().gamma_per_s
+    if not room:
+        assert (third.ttl, agent.state.too_old) == (0.3, 0) and third.vr > 0.0
+    elif age_s < horizon_s:
+        assert third.ttl == t3 + horizon_s - clock.t and third.vr > 0.0 and agent.state.too_old == 0
+    else:
+        assert (third.vl, third.vr, third.ttl, agent.state.too_old) == (0.0, 0.0, 0.3, 1)
+
+
 def test_a_stale_frame_commands_nothing():
     agent, cmds, states, clock = make_agent()
     clock.t = 101.0

@@ -123,3 +123,28 @@ def test_a_robot_whose_commands_stop_expires_exactly_ttl_after_the_last_and_is_a
     for _ in range(brake_steps):
         fleet.step()
     assert (fleet.states["r1"].vl, fleet.states["r1"].vr) == (0.0, 0.0)
+
+
+CROWD = load_scenario(ROOT / "scenarios" / "crowd-10.toml")
+
+
+@pytest.mark.parametrize("delay_frames, seed", [(4, 2), (3, 5)])
+def test_a_crowd_on_a_loaded_host_late_frames_and_stalled_agents_touches_nothing(delay_frames, seed):
+    """Ten robots packed 2 cm apart assemble while the host is loaded: frames reach the agents 3-4 frames late, and
+    every agent stalls for 9 frames at 5 % of frames, its robot holding its last command for its ttl. A command
+    held past the safety filter's horizon (1/gamma after its poses) drove bodies into each other: -1.35 cm
+    (delay 4, seed 2) and -1.15 cm (delay 3, seed 5) with the full 0.3 s ttl. With the ttl cut at that horizon, and
+    a stop for a frame older than it (vsfleet.step.command_ttl_s), no two bodies touch."""
+    import numpy as np
+
+    from vsfleet.simfleet.offline import Overload
+    run = run_offline(CROWD, 45.0, seed=seed, stop_at_goal=False,
+                      overload=Overload(frame_delay_frames=delay_frames, stall_p=0.05, stall_frames=9,
+                                        stall_seed=seed))
+    radii = {r.robot: r.radius for r in CROWD.robots}
+    r = np.array([radii[i] for i in run.robots])
+    p = run.positions_m                                           # (frames, n, 2): the true centres
+    gaps = np.sqrt(((p[:, :, None, :] - p[:, None, :, :]) ** 2).sum(-1)) - (r[:, None] + r[None, :])
+    gaps[:, range(len(r)), range(len(r))] = np.inf
+    assert float(gaps.min()) > 0.0
+    assert len(p) == 45 * 30 and not np.isnan(p).any()

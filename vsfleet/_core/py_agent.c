@@ -497,7 +497,12 @@ static PyObject *py_agent_frame(PyObject *mod, PyObject *const *a, Py_ssize_t na
     rc = vs_agent_step_ws(&c->cfg, &sv.st, c->row_poses, c->seen, c->seen, fr.t, &out, c->used, dec,
                           sv.scratch_f64, sv.scratch_u8, c->work);
     if (rc == VS_OK && out.ran) {
-        cmd_len = vs_wire_encode_cmd(fr.t, fr.seq, out.vl_m_s, out.vr_m_s, c->cfg.ttl_s, cmd, sizeof cmd);
+        /* a frame too old for the safety filter's horizon answers with a stop (vsfleet.step.command_within_horizon) */
+        double ttl = vs_agent_command_ttl(&c->cfg, fr.t, now);
+        if (ttl > 0.0)
+            cmd_len = vs_wire_encode_cmd(fr.t, fr.seq, out.vl_m_s, out.vr_m_s, ttl, cmd, sizeof cmd);
+        else
+            cmd_len = vs_wire_encode_cmd(fr.t, fr.seq, 0.0, 0.0, c->cfg.ttl_s, cmd, sizeof cmd);
         size_t k = 0;
         for (size_t i = 0; i < n; i++)
             if (c->used[i]) c->used_ids[k++] = c->ids[i];

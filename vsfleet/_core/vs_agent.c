@@ -125,6 +125,13 @@ size_t vs_agent_work_f64(const vs_mission *m)
     return max_size(w, VS_INTEGRATE_ARCS_WORK_F64(n));
 }
 
+double vs_agent_command_ttl(const vs_agent_config *cfg, double frame_t, double now_s)
+{
+    if (!cfg->room) return cfg->ttl_s;
+    double left = frame_t + 1.0 / cfg->safety.gamma_per_s - now_s;
+    return left < cfg->ttl_s ? left : cfg->ttl_s;
+}
+
 int vs_agent_step(const vs_agent_config *cfg, vs_agent_state *st, const double *pose_world,
                   const unsigned char *seen, const unsigned char *fresh, double t, vs_agent_out *out,
                   unsigned char *used, vs_failure_decision *decisions, double *scratch_f64,

@@ -126,4 +126,11 @@ int vs_agent_step(const vs_agent_config *cfg, vs_agent_state *st, const double *
                   unsigned char *used, vs_failure_decision *decisions, double *scratch_f64,
                   unsigned char *scratch_u8);
 
+/* The ttl [s] of the command answering a frame taken at frame_t [s, tracker clock] and sent at now_s [s, this host's
+ * clock]: cfg->ttl_s, cut where the safety filter's guarantee for that command ends when the filter runs (cfg->room):
+ * 1 / gamma_per_s after the poses were taken.  Over that horizon the barrier's linear bound h(t) >= (1 - gamma t) h
+ * stays >= 0 (docs/safety.md); a robot that held the command longer, or applied it later, could move past it.
+ * <= 0: the frame is too old to move on, and the agent commands a stop instead (docs/protocol.md, "Stopping"). */
+double vs_agent_command_ttl(const vs_agent_config *cfg, double frame_t, double now_s);
+
 #endif
