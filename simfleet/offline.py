@@ -39,13 +39,20 @@ class Overload:
     """A loaded host, offline. Frames reach every agent frame_delay_frames frames after they were taken (the agents'
     clock reads the time they arrive, so they see the age). With probability stall_p at each frame, every agent
     stalls for stall_frames frames, and runs the newest frame after. The robots hold each command from its arrival
-    for its ttl, as simfleet does, and halt after it (not on the next frame). stall_seed: the stalls' own draws
+    (latency_frames after it was sent) for its ttl, as simfleet does, and halt after it (not on the next frame).
+    The hold is checked once a frame, so a command acts for up to a frame more than its ttl: the stricter case. stall_seed: the stalls' own draws
     (the tracker's noise keeps the run's seed)."""
 
     frame_delay_frames: int = 0
     stall_p: float = 0.0
     stall_frames: int = 0
     stall_seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.frame_delay_frames < 0 or not 0.0 <= self.stall_p <= 1.0 or self.stall_frames < 0 \
+                or (self.stall_p > 0.0 and self.stall_frames < 1):
+            raise ValueError(f"Overload: delay >= 0 frames, 0 <= stall_p <= 1, and stalls of >= 1 frame when "
+                             f"stall_p > 0 (got {self})")
 
 
 @dataclass(frozen=True)

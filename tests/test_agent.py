@@ -195,34 +195,36 @@ def test_after_a_frame_gap_longer_than_ttl_the_predicted_commands_start_from_res
 ROOM = dataclasses.replace(MISSION, obstacles=((5.0, 5.0, 0.1),))   # an obstacle far off: the safety filter runs
 
 
-@pytest.mark.parametrize("reference", [False, True], ids=["one-pass", "reference"])
+@pytest.mark.parametrize("path", ["one-pass", "core-long-way", "reference"])
 @pytest.mark.parametrize("age_s, room", [(0.1, True), (0.25, True), (0.25, False)])
-def test_a_commands_ttl_ends_where_the_safety_filters_guarantee_for_it_ends(age_s, room, reference):
+def test_a_commands_ttl_ends_where_the_safety_filters_guarantee_for_it_ends(age_s, room, path):
     """The filter certifies a command for 1/gamma after the poses it was computed from (docs/safety.md): a robot
     holding it longer, or a frame run later, could drive a body past the barrier. In a room the ttl is cut there,
-    and a frame older than that answers with a stop. Without a safety filter the ttl stays."""
+    and a frame older than that is not run (counted as too_old), as a stale frame. Without a safety filter the ttl
+    stays, and such a frame runs."""
     from vsfleet.safety import SafetyParams
     cmds, clock = [], Clock(100.0)
-    agent = Agent("r1", KEYS, cmds.append, lambda b: None, clock=clock, reference=reference)
+    agent = Agent("r1", KEYS, cmds.append, lambda b: None, clock=clock, reference=path == "reference")
     agent.on_message("mission", KEYS.mission, encode_mission(ROOM if room else MISSION))
     frame(agent, clock, 1, 100.0, POSES)
     frame(agent, clock, 2, 100.0 + 1 / 30, POSES)   # the agent follows "sim" from now on
     t3 = 100.0 + 2 / 30
     clock.t = t3 + age_s
     payload = encode_frame(FrameMsg(t3, 3, "sim", POSES))
-    if reference or not agent.fast_frame(KEYS.frame("sim"), payload):   # as the agent's frame callback does
+    if path != "one-pass" or not agent.fast_frame(KEYS.frame("sim"), payload):   # as the frame callback does
         agent.on_frame(KEYS.frame("sim"), payload)
         agent.poll()
-    assert (agent._fast_last is not None) == (not reference)   # the path named ran the frame
-    first, _, third = map(decode_cmd, cmds)
-    assert first.vr > 0.0 and (first.ttl == 0.3 if not room else first.ttl < 0.3)   # on its way
     horizon_s = 1.0 / SafetyParams().gamma_per_s
+    too_old = room and age_s >= horizon_s
+    assert (agent._fast_last is not None) == (path == "one-pass" and not too_old)   # the path named ran it
+    sent = [decode_cmd(c) for c in cmds]
+    assert sent[0].vr > 0.0 and (sent[0].ttl == 0.3 if not room else sent[0].ttl < 0.3)   # on its way
+    assert [c.seq for c in sent] == ([1, 2] if too_old else [1, 2, 3])
+    assert agent.state.too_old == int(too_old) and agent.state.stale == 0
     if not room:
-        assert (third.ttl, agent.state.too_old) == (0.3, 0) and third.vr > 0.0
-    elif age_s < horizon_s:
-        assert third.ttl == t3 + horizon_s - clock.t and third.vr > 0.0 and agent.state.too_old == 0
-    else:
-        assert (third.vl, third.vr, third.ttl, agent.state.too_old) == (0.0, 0.0, 0.3, 1)
+        assert sent[2].ttl == 0.3 and sent[2].vr > 0.0
+    elif not too_old:
+        assert sent[2].ttl == t3 + horizon_s - clock.t and sent[2].vr > 0.0
 
 
 def test_a_stale_frame_commands_nothing():

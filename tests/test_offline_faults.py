@@ -148,3 +148,15 @@ def test_a_crowd_on_a_loaded_host_late_frames_and_stalled_agents_touches_nothing
     gaps[:, range(len(r)), range(len(r))] = np.inf
     assert float(gaps.min()) > 0.0
     assert len(p) == 45 * 30 and not np.isnan(p).any()
+
+
+def test_in_a_room_a_tracker_clock_further_behind_than_the_safety_filters_horizon_moves_no_robot():
+    """In a room a frame more than 1/gamma (0.2 s) behind an agent's clock is not run (docs/reliability.md, "Clock
+    skew"): the tracker 0.3 s behind, inside the 0.5 s window of a fleet without bodies, moves nothing, and no agent
+    judges a robot for not moving. At 0.15 s behind, the crowd moves."""
+    import numpy as np
+    still = run_offline(CROWD, 5.0, seed=1, tracker_clock_ahead_s=-0.3, stop_at_goal=False)
+    assert len(still.positions_m) == 150 and (still.positions_m == still.positions_m[0]).all()
+    assert not still.commands_m_s.any() and all(d == [] for d in still.decisions.values())
+    moving = run_offline(CROWD, 5.0, seed=1, tracker_clock_ahead_s=-0.15, stop_at_goal=False)
+    assert np.abs(moving.positions_m[-1] - moving.positions_m[0]).max() > 0.1

@@ -297,7 +297,8 @@ class AgentState:
 
     For the mission in force (``mission_version``), rows in its sorted id order: wheels_m_s (n, 2)
     every robot's last command [m/s] (its own robot's as sent, the others' as predicted; zero rows
-    for robots not commanded), ctrl the controller's state, failure the failure rule's state.
+    for robots not commanded), ctrl the controller's state, failure the failure rule's state. stale and
+    too_old count the frames this agent did not run by its own clock (command_ttl_s).
     health: the failure state in the peers' wire form (kept for health answers and adoption).
     Times [s] are on the tracker's clock.
     """
@@ -315,7 +316,7 @@ class AgentState:
     last_seq: int = 0
     ticks: int = 0
     stale: int = 0
-    too_old: int = 0       # frames run whose command became a stop: older than the safety filter's horizon
+    too_old: int = 0       # frames not run in a room: older than the safety filter's horizon (command_ttl_s)
     unnamed: frozenset[int] = frozenset()  # mission versions that do not name this robot (noted once)
     blocked: bool = False  # the structure has no path to the goal around the obstacles (evented on change)
     # the room's stall watch (stall_state): since when [s] the fleet has looked stuck and from which structure
@@ -394,20 +395,10 @@ def command_ttl_s(room: bool, frame_t: float, now_s: float, config: StepConfig) 
     """The ttl [s] of the command answering a frame taken at frame_t [s, tracker clock] and sent at now_s [s, this
     host's clock]: config.ttl_s, cut in a room (the safety filter runs) where the filter's guarantee for that
     command ends, 1 / gamma_per_s after the poses were taken (docs/safety.md, "Stale poses and held commands").
-    <= 0: the frame is too old to move on; the agent then commands a stop. The core's vs_agent_command_ttl."""
+    <= 0: the frame is too old to move on; the agent does not run it. The core's vs_agent_command_ttl."""
     if not room:
         return config.ttl_s
     return min(config.ttl_s, frame_t + 1.0 / _safety_params(config.dt_s).gamma_per_s - now_s)
-
-
-def _too_old(state: AgentState, seq: int, t: float, now_s: float,
-             config: StepConfig) -> tuple[AgentState, tuple[Note, ...]]:
-    """Count a frame whose command became a stop (too old for the safety filter's horizon), and its log line."""
-    n = state.too_old + 1
-    note = Note("warning", f"frame {seq} too old to move on ({now_s - t:.3f} s behind this host's clock, more "
-                           f"than the safety filter's horizon of {1.0 / _safety_params(config.dt_s).gamma_per_s:.2f} "
-                           f"s): the robot is told to stop (#{n}; a loaded host or a stalled link)")
-    return replace(state, too_old=n), ((note,) if n <= 10 or n % 100 == 0 else ())
 
 
 def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: float,
@@ -415,17 +406,24 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
     """Decide one frame at local clock reading now_s [s]; see the module docstring.
 
     mission is the one active at frame.t (vsfleet.frames.MissionBook.active), None if none is.
-    The command's ttl ends where the safety filter's guarantee for it ends (command_ttl_s); a frame older than
-    that is still run (the state is every agent's alike), but its command is a stop.
+    In a room the command's ttl ends where the safety filter's guarantee for it ends (command_ttl_s), and a frame
+    older than that is not run, as a stale frame: no command answers it, and the robot halts when the last one
+    runs out. It is counted (too_old) and logged.
     """
-    state, out = _decide(state, mission, frame, now_s, config)
-    if out.cmd is None or mission is None:
-        return state, out
+    if mission is None or state.robot not in mission.robot_ids or frame.t < now_s - config.max_stale_s:
+        return _decide(state, mission, frame, now_s, config)
     ttl = command_ttl_s(mission_arrays(mission).room, frame.t, now_s, config)
-    if ttl > 0.0:
-        return state, replace(out, cmd=replace(out.cmd, ttl=ttl))
-    state, notes = _too_old(state, frame.seq, frame.t, now_s, config)
-    return state, replace(out, cmd=replace(out.cmd, vl=0.0, vr=0.0), notes=out.notes + notes)
+    if not ttl > 0.0:
+        n = state.too_old + 1
+        note = Note("warning", f"frame {frame.seq} skipped, too old to move on: {now_s - frame.t:.3f} s behind this "
+                               f"host's clock, more than the safety filter's horizon of "
+                               f"{1.0 / _safety_params(config.dt_s).gamma_per_s:.2f} s (#{n}; a loaded host, a "
+                               "stalled link or clock skew); the robot halts")
+        return replace(state, too_old=n), StepOutput(notes=(note,) if n <= 10 or n % 100 == 0 else ())
+    state, out = _decide(state, mission, frame, now_s, config)
+    if out.cmd is not None and out.cmd.ttl != ttl:
+        out = replace(out, cmd=replace(out.cmd, ttl=ttl))
+    return state, out
 
 
 def _decide(state: AgentState, mission: Mission | None, frame: Frame, now_s: float,
@@ -721,9 +719,6 @@ def agent_payload_step(state: AgentState, mission: Mission | None, payload: byte
     cmd, state_payload, t, seq, r = got
     notes: list = []
     state, health_msg, events = _core_outcome(state, mission, arrays, ctrl, t, seq, r, scalars, notes)
-    if command_ttl_s(arrays.room, t, now_s, config) <= 0.0:   # the core sent a stop (vs_agent_command_ttl)
-        state, old = _too_old(state, seq, t, now_s, config)
-        notes.extend(old)
     return state, PayloadStep(cmd, state_payload, t, seq, health_msg, events, tuple(notes))
 
 

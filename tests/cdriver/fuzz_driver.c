@@ -1142,6 +1142,32 @@ static int fuzz_workspace(long iters)
     return 0;
 }
 
+/* vs_agent_command_ttl on hostile clocks and parameters: never above the configured ttl (NaN: the comparison
+ * leaves ttl_s), exactly ttl_s outside a room, and the same bits as the formula it documents inside one. */
+static int fuzz_command_ttl(long iters)
+{
+    long cut = 0, too_old = 0;
+    for (long it = 0; it < iters; it++) {
+        vs_agent_config cfg;
+        memset(&cfg, 0, sizeof cfg);
+        cfg.room = (int)(next() % 2);
+        cfg.ttl_s = (next() % 4) ? 0.3 : any_f64();
+        cfg.safety.gamma_per_s = (next() % 4) ? 5.0 : any_f64();
+        const double frame_t = any_f64(), now = (next() % 2) ? frame_t + 0.4 * uniform() : any_f64();
+        const double ttl = vs_agent_command_ttl(&cfg, frame_t, now);
+        const double left = frame_t + 1.0 / cfg.safety.gamma_per_s - now;
+        const double want = !cfg.room ? cfg.ttl_s : (left < cfg.ttl_s ? left : cfg.ttl_s);
+        if (memcmp(&ttl, &want, sizeof ttl) != 0 || (ttl > cfg.ttl_s)) {
+            fprintf(stderr, "fuzz command_ttl: %.17g for ttl_s %.17g at iteration %ld\n", ttl, cfg.ttl_s, it);
+            return 1;
+        }
+        cut += cfg.room && ttl < cfg.ttl_s;
+        too_old += !(ttl > 0.0);
+    }
+    printf("fuzz %-14s %ld calls: %ld cut below ttl_s, %ld too old to run\n", "command_ttl", iters, cut, too_old);
+    return 0;
+}
+
 int main(int argc, char **argv)
 {
     long iters = argc > 1 ? atol(argv[1]) : 2000;
@@ -1200,6 +1226,8 @@ int main(int argc, char **argv)
     rc = fuzz_encode(iters * 5);
     if (rc != 0) return rc;
     rc = fuzz_agent(iters / 20 + 1);
+    if (rc != 0) return rc;
+    rc = fuzz_command_ttl(iters * 5);
     if (rc != 0) return rc;
     return fuzz_workspace(iters / 4 + 1);
 }

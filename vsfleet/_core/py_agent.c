@@ -446,7 +446,8 @@ static Py_ssize_t row_of(const agent_config *c, const unsigned char *id, size_t 
  * One pass from a frame's payload to the command's and the state's payloads, for the agent's common case: one
  * source, whose frame lists exactly the mission's robots, newer than the last frame run (done_t, done_seq), neither
  * stale nor from the future against now_s, of the mission in force (t >= its effective_t), and no other source
- * heard within max_age_s of it (others_t: the newest frame time of every other source, -inf for none).
+ * heard within max_age_s of it (others_t: the newest frame time of every other source, -inf for none), and young
+ * enough to move on (vs_agent_command_ttl > 0).
  * -> None when the frame is not that case (nothing is changed: the agent's merger and step take it), else
  *    (cmd payload, state payload, t, seq, result_of's tuple).  The state is updated in place. */
 static PyObject *py_agent_frame(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
@@ -476,6 +477,8 @@ static PyObject *py_agent_frame(PyObject *mod, PyObject *const *a, Py_ssize_t na
                                   &err);
     if (rc != VS_OK || fr.n != n) Py_RETURN_NONE;   /* refused, or not every robot: the agent's own path */
     if (fr.t > now + max_future || fr.t < now - max_stale || fr.t < c->cfg.effective_t) Py_RETURN_NONE;
+    const double ttl = vs_agent_command_ttl(&c->cfg, fr.t, now);
+    if (!(ttl > 0.0)) Py_RETURN_NONE;   /* too old for the safety filter's horizon: the long way skips it */
     if (fr.t < done_t || (fr.t == done_t && (long long)fr.seq <= done_seq)) Py_RETURN_NONE;
     if (!(others_t < fr.t - max_age)) Py_RETURN_NONE;   /* another source heard lately could shadow or hold robots */
     memset(c->seen, 0, n);
@@ -497,12 +500,8 @@ static PyObject *py_agent_frame(PyObject *mod, PyObject *const *a, Py_ssize_t na
     rc = vs_agent_step_ws(&c->cfg, &sv.st, c->row_poses, c->seen, c->seen, fr.t, &out, c->used, dec,
                           sv.scratch_f64, sv.scratch_u8, c->work);
     if (rc == VS_OK && out.ran) {
-        /* a frame too old for the safety filter's horizon answers with a stop (vsfleet.step.command_within_horizon) */
-        double ttl = vs_agent_command_ttl(&c->cfg, fr.t, now);
-        if (ttl > 0.0)
-            cmd_len = vs_wire_encode_cmd(fr.t, fr.seq, out.vl_m_s, out.vr_m_s, ttl, cmd, sizeof cmd);
-        else
-            cmd_len = vs_wire_encode_cmd(fr.t, fr.seq, 0.0, 0.0, c->cfg.ttl_s, cmd, sizeof cmd);
+        /* the ttl ends where the safety filter's guarantee ends (vsfleet.step.command_ttl_s) */
+        cmd_len = vs_wire_encode_cmd(fr.t, fr.seq, out.vl_m_s, out.vr_m_s, ttl, cmd, sizeof cmd);
         size_t k = 0;
         for (size_t i = 0; i < n; i++)
             if (c->used[i]) c->used_ids[k++] = c->ids[i];

@@ -130,7 +130,7 @@ int vs_agent_step(const vs_agent_config *cfg, vs_agent_state *st, const double *
  * clock]: cfg->ttl_s, cut where the safety filter's guarantee for that command ends when the filter runs (cfg->room):
  * 1 / gamma_per_s after the poses were taken.  Over that horizon the barrier's linear bound h(t) >= (1 - gamma t) h
  * stays >= 0 (docs/safety.md); a robot that held the command longer, or applied it later, could move past it.
- * <= 0: the frame is too old to move on, and the agent commands a stop instead (docs/protocol.md, "Stopping"). */
+ * <= 0: the frame is too old to move on, and the agent does not run it, as a stale frame (docs/protocol.md). */
 double vs_agent_command_ttl(const vs_agent_config *cfg, double frame_t, double now_s);
 
 #endif
