@@ -431,8 +431,10 @@ def markdown(rep: dict) -> str:
     cfg = rep["config"]
     lines = ["## Soak (issue 30)", "",
              f"*`bench/soak.py --minutes {cfg['minutes']:g}`, measured on {m['date']}: {m['cpu']}, {m['cores']} cores, "
-             f"Python {m['python']}, code at `{m['commit']}`. **The machine was shared with other work** (other "
-             f"engineers' builds and tests): load average {' '.join(m['loadavg_start'])} at the start, "
+             f"Python {m['python']}, code at `{m['commit']}`. "
+             + ("**The machine was shared with other work**: " if rep["others_cores"] >= 0.1
+                else "Little else ran on the machine: ")
+             + f"load average {' '.join(m['loadavg_start'])} at the start, "
              f"{' '.join(rep.get('loadavg_end', ['?']))} at the end; other processes kept "
              f"{rep['others_cores']:.2f} of the {m['cores']} cores busy on average during the soak.*", "",
              f"One fleet (the e2e triangle: 3 robots, 30 Hz, bodies of radius 0.05 m, on_failure rejoin) as real "
