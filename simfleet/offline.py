@@ -40,8 +40,8 @@ class Overload:
     clock reads the time they arrive, so they see the age). With probability stall_p at each frame, every agent
     stalls for stall_frames frames, and runs the newest frame after. The robots hold each command from its arrival
     (latency_frames after it was sent) for its ttl, as simfleet does, and halt after it (not on the next frame).
-    The hold is checked once a frame, so a command acts for up to a frame more than its ttl: the stricter case. stall_seed: the stalls' own draws
-    (the tracker's noise keeps the run's seed)."""
+    The hold is checked once a frame, so a command acts for up to a frame more than its ttl: the stricter case.
+    stall_seed: the stalls' own draws (the tracker's noise keeps the run's seed)."""
 
     frame_delay_frames: int = 0
     stall_p: float = 0.0
