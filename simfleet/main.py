@@ -29,7 +29,7 @@ import zenoh
 from vsfleet.zglue.lifecycle import Rejections, StopFlag, pace, wall_clock
 from vsfleet.zglue.scenario_file import load_scenario
 from vsfleet.zglue.program import common_flags, program, refusing
-from vsfleet.zglue.zconf import RELIABLE_QOS, TRUTH_QOS, open_session, zenoh_config
+from vsfleet.zglue.zconf import BURST_QOS, RELIABLE_QOS, open_session, zenoh_config
 from vsfleet.geometry import Pose2
 from vsfleet.scenario import Scenario
 from vsfleet.wire import ContactMsg, Keys, TruthMsg, decode_cmd, decode_fault, encode
@@ -214,7 +214,7 @@ def run_sim(conf: zenoh.Config, scenario: Scenario, stop: StopFlag | None = None
     fleet = Fleet(scenario, keys, t0=clock())
     truth_every = max(1, round(scenario.sim.rate_hz / scenario.sim.truth_rate_hz))
     with open_session(conf) as session:
-        pubs = {r: session.declare_publisher(keys.truth(r), **TRUTH_QOS) for r in fleet.robots}
+        pubs = {r: session.declare_publisher(keys.truth(r), **BURST_QOS) for r in fleet.robots}
         fleet.start_at(clock())  # the engine built, the session open: simulated time starts now (before any input)
         subs = [
             session.declare_subscriber(keys.cmd(), lambda s: fleet.on_cmd(
