@@ -192,7 +192,8 @@ def test_after_a_frame_gap_longer_than_ttl_the_predicted_commands_start_from_res
     assert not spy.prev[-1].any()
 
 
-ROOM = dataclasses.replace(MISSION, obstacles=((5.0, 5.0, 0.1),))   # an obstacle far off: the safety filter runs
+# bodies (no obstacle, so no field to build): the safety filter runs
+ROOM = dataclasses.replace(MISSION, robots=tuple((r, dataclasses.replace(s, radius=0.05)) for r, s in MISSION.robots))
 
 
 @pytest.mark.parametrize("path", ["one-pass", "core-long-way", "reference"])
