@@ -226,6 +226,14 @@ class Agent:
         self.emit(out.notes, out.events, out.health)
         return True
 
+    def run_frame(self, key: str, payload: bytes) -> None:
+        """Run a frame now: in one pass from its payload to the command's when it can (fast_frame), else the long
+        way (on_frame, poll), which decides the same bits. The frame callback runs frames so, and so do the offline
+        runner and the benches. The caller holds the agent."""
+        if not self.fast_frame(key, payload):
+            self.on_frame(key, payload, wake=False)
+            self.poll()
+
     def take_frames(self) -> None:
         """Hand what the slot holds to the merger (the main thread)."""
         with self._slot_lock:
@@ -527,9 +535,7 @@ class AgentWiring:
             try:
                 if self.stopped or self.crashed:
                     return
-                if not agent.fast_frame(key, payload):   # one pass, frame bytes to command bytes; else the long way
-                    agent.on_frame(key, payload, wake=False)
-                    agent.poll()
+                agent.run_frame(key, payload)
                 if agent.merger.time_to_deadline(agent.clock()) is not None:
                     agent.wake.set()  # a frame waits for other sources: the main loop keeps its deadline
             except Exception as exc:  # noqa: BLE001 - handed to the main loop, which ends the agent

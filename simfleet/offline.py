@@ -90,8 +90,8 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
     reference: the agents run the numpy reference of the step instead of the compiled core (tests).
     share_structures: the agents share the structures they compute and step in the numpy glue of
     vsfleet.step.agent_step (the way offline runs went before the core had the whole step); by default each agent
-    runs its frame in the core (vs_agent_step), as an agent process does: 1.3-2x faster offline (paper-failure
-    0.44 -> 0.34 s, crowd-10 1.33 -> 0.67 s of CPU for 20 s), the same bits (tests/test_core_agent_step.py).
+    runs its frame as an agent process does (Agent.run_frame): in one pass from the frame's payload when it can, else
+    in the core (vs_agent_step), the same bits either way (tests/test_core_agent_step.py).
     engine: the physics engine (simfleet.engine.ENGINES; None: the scenario's [sim] engine).
     overload: a loaded host (Overload); None: every frame reaches every agent at once, and a command holds for
     one frame."""
@@ -159,9 +159,8 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
                 stall_left, frame = overload.stall_frames - 1, None
         sent_ttl.clear()
         if frame is not None:
-            for agent in agents.values():  # through the agent's slot, merger and step, as in the process
-                agent.on_frame(keys.frame("offline"), frame)
-                agent.poll()
+            for agent in agents.values():  # as the agent process's frame callback runs it (Agent.run_frame)
+                agent.run_frame(keys.frame("offline"), frame)
         new = {r: sent.get(r, (0.0, 0.0)) for r in robots}
         sent_log.append([new[r] for r in ids])
         pending.append(({r: (new[r], sent_ttl[r]) for r in sent_ttl}, new))
