@@ -90,6 +90,12 @@ class Recorder:
         with self.lock:
             return list(self.records)
 
+    def tail(self, k: int) -> list[tuple[float, str, bytes]]:
+        """The newest k records, oldest first: a copy of those only, not of the whole recording (ring-100 records
+        ~12,000 messages a second, and the run looks at its tail every second, holding the recorder's lock)."""
+        with self.lock:
+            return self.records[-k:]
+
     def write(self, path: Path) -> None:
         with path.open("wb") as f:
             for t, key, payload in self.snapshot():
@@ -231,7 +237,7 @@ def settled_at_goal(mission: Mission, recorder: Recorder, keys: Keys, window_s: 
     if mission.goal is None and mission.path is None:
         return False
     now = wall_clock()
-    recent = [r for r in recorder.snapshot()[-2000:] if r[0] >= now - window_s]
+    recent = [r for r in recorder.tail(2000) if r[0] >= now - window_s]
     truth = decoded(recent, keys, "truth", decode_truth)
     if not truth or any(abs(m.vl) > SETTLED_WHEEL_M_S or abs(m.vr) > SETTLED_WHEEL_M_S for _, m in truth):
         return False
@@ -428,8 +434,14 @@ def finish_recording(run_dir: Path) -> int:
     return count
 
 
+#: the progress line fits the newest complete truth frame among the newest PROGRESS_RECORDS_PER_ROBOT x n records
+#: (at least 400): a fleet's tick puts about 4 messages a robot on the key space (truth, pose, cmd, state), so this
+#: spans about 5 ticks. A fixed 400 held no complete frame of ring-100 in 7-14 of its progress lines.
+PROGRESS_RECORDS_PER_ROBOT = 20
+
+
 def progress_line(mission: Mission, recorder: Recorder, keys: Keys, elapsed: float, duration: float) -> str:
-    recent = recorder.snapshot()[-400:]
+    recent = recorder.tail(max(400, PROGRESS_RECORDS_PER_ROBOT * len(mission.robots)))
     fitted = fitted_truth(mission, truth_frames(decoded(recent, keys, "truth", decode_truth)))
     if not fitted:
         return f"[{elapsed:5.1f}/{duration:.0f} s] waiting for truth"
