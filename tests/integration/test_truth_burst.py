@@ -1,18 +1,23 @@
-"""simfleet's truth for 100 robots reaches the simulated tracker whole: its frames list every robot.
+"""simfleet's truth for 100 robots reaches its subscribers whole, tick by tick, on a loaded host.
 
 simfleet publishes one ``truth/<robot>`` per robot per truth tick, 100 at once for ring-100. Sent express, each
-was a batch of its own, dropped under congestion (``drop``) or late, and the sim tracker, which observes only
-robots whose truth is at most 0.1 s old, published frames without them. On
-2026-12-05, `vsfleet run scenarios/ring-100.toml` had 64 % of an agent's frames missing robots (each then went the
-agent's long way, and the structure crawled: 1.5 m -> 0.7-1.0 m from its goal in 60 s). Batched (BURST_QOS, as a
-tracker's ``pose/<robot>``), the same run reached its goal in 40 s. This test runs simfleet and the sim tracker
-for ring-100's fleet without agents. Their load is stood in for by three processes that each put 100 express
-messages 30 times a second through the router to the test's session, and two busy loops. On this 2-core machine,
-express truth left robots out of 21 and 23 of 150 frames, batched truth out of 0, 0, 1 and 1.
+message was a batch of its own, and under load the transmit queue (congestion control ``drop``) dropped part of
+a tick. The sim tracker, which observes only robots whose truth is at most 0.1 s old, then published frames
+without them: on 2026-12-05 `vsfleet run scenarios/ring-100.toml` gave each agent 64 % of its frames with robots
+missing, each of which went the agent's long way, and the structure came only 0.7-1.0 m of 1.5 m in 60 s.
+Batched (BURST_QOS, as a tracker's ``pose/<robot>``), the same run reached its goal in 40 s.
+
+This test runs simfleet and the sim tracker for ring-100's fleet without agents. Their load is stood in for by
+three processes that each put 100 express messages 30 times a second through the router to the test's session,
+and two busy loops. It counts, for every truth tick, the robots whose truth reached the test's session (the
+router), and, for information, the tracker's frames that lacked robots. On this 2-core machine (with a bench
+beside it): express, 24 and 79 of ~160 ticks arrived in part (33 and 91 of 150 frames short); batched, 0 and 0
+(1 and 1 frames short). Frames also go short when simfleet itself runs late, so the ticks are what is asserted.
 """
 
 from __future__ import annotations
 
+import collections
 import subprocess
 import sys
 import threading
@@ -26,7 +31,7 @@ from .conftest import LoopbackFleet, closing
 
 RING_100 = Path(__file__).resolve().parents[2] / "scenarios" / "ring-100.toml"
 FRAMES = 150   # 5 s at 30 Hz
-SHORT_MAX = 3  # frames of the 150 that may lack robots (measured: express 21 and 23; batched 0, 0, 1, 1)
+PARTIAL_MAX = 2  # truth ticks that may reach the router in part (measured: express 24 and 79 of ~160; batched 0, 0)
 FLOOD = """
 import json, time, zenoh
 c = zenoh.Config()
@@ -50,7 +55,7 @@ def ring(tmp_path, request):
     closing(f, request)
 
 
-def test_the_sim_trackers_frames_list_every_robot_of_a_fleet_of_100(ring):
+def test_every_truth_tick_of_a_fleet_of_100_reaches_a_subscriber_whole_on_a_loaded_host(ring):
     sizes: list[int] = []
     done = threading.Event()
 
@@ -81,6 +86,12 @@ def test_the_sim_trackers_frames_list_every_robot_of_a_fleet_of_100(ring):
             p.wait()
         noise.undeclare()
         sub.undeclare()
-    got = sizes[:FRAMES]
-    short = [n for n in got if n != 100]
-    assert len(short) <= SHORT_MAX, f"{len(short)} of {len(got)} frames lacked robots: {short[:20]}\n{ring.logs()}"
+    with ring.observed.cond:
+        ticks = collections.Counter(m.t for _, _, m in ring.observed.truth)
+    inner = sorted(ticks)[1:-1]   # the first and the last tick seen may be cut by the subscription's span
+    partial = [ticks[t] for t in inner if ticks[t] != 100]
+    short = [n for n in sizes[:FRAMES] if n != 100]
+    assert len(inner) >= 100, f"{len(inner)} truth ticks seen\n{ring.logs()}"
+    assert len(partial) <= PARTIAL_MAX, (f"{len(partial)} of {len(inner)} truth ticks reached the router in part "
+                                         f"({partial[:20]} robots); {len(short)} of {len(sizes[:FRAMES])} tracker "
+                                         f"frames lacked robots\n{ring.logs()}")
