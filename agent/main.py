@@ -228,8 +228,8 @@ class Agent:
 
     def run_frame(self, key: str, payload: bytes) -> None:
         """Run a frame now: in one pass from its payload to the command's when it can (fast_frame), else the long
-        way (on_frame, poll), which decides the same bits. The frame callback runs frames so, and so do the offline
-        runner and the benches. The caller holds the agent."""
+        way (on_frame, poll), which decides the same bits. The frame callback runs frames so, and so does the offline
+        runner. The caller holds the agent."""
         if not self.fast_frame(key, payload):
             self.on_frame(key, payload, wake=False)
             self.poll()

@@ -93,6 +93,8 @@ class Recorder:
     def tail(self, k: int) -> list[tuple[float, str, bytes]]:
         """The newest k records, oldest first: a copy of those only, not of the whole recording (ring-100 records
         ~12,000 messages a second, and the run looks at its tail every second, holding the recorder's lock)."""
+        if k <= 0:
+            return []
         with self.lock:
             return self.records[-k:]
 
@@ -237,7 +239,9 @@ def settled_at_goal(mission: Mission, recorder: Recorder, keys: Keys, window_s: 
     if mission.goal is None and mission.path is None:
         return False
     now = wall_clock()
-    recent = [r for r in recorder.tail(2000) if r[0] >= now - window_s]
+    # the window's records: about 4 a robot a tick (truth, pose, cmd, state) at up to 30 Hz, and at least 2000
+    recent = [r for r in recorder.tail(max(2000, math.ceil(4 * 30 * window_s * len(mission.robots))))
+              if r[0] >= now - window_s]
     truth = decoded(recent, keys, "truth", decode_truth)
     if not truth or any(abs(m.vl) > SETTLED_WHEEL_M_S or abs(m.vr) > SETTLED_WHEEL_M_S for _, m in truth):
         return False

@@ -41,3 +41,4 @@ def test_the_recorders_tail_is_its_newest_records_oldest_first():
     rec.records.extend((float(i), "k", b"") for i in range(10))
     assert [r[0] for r in rec.tail(3)] == [7.0, 8.0, 9.0]
     assert len(rec.tail(50)) == 10
+    assert rec.tail(0) == [] and rec.tail(-1) == []

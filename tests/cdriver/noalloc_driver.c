@@ -194,7 +194,7 @@ static int run(int metric, int controller, int where, int mode, long *counted)
             blocked += out.s.blocked;
         }
         if (rc != VS_OK || !out.ran) {
-            fprintf(stderr, "noalloc: metric %d controller %d room %d mode %d frame %d: rc %d ran %d\n", metric,
+            fprintf(stderr, "noalloc: metric %d controller %d where %d mode %d frame %d: rc %d ran %d\n", metric,
                     controller, where, mode, f, rc, rc == VS_OK ? out.ran : -1);
             bad++;
             continue;
