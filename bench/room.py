@@ -49,7 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from vsfleet import _core
-from vsfleet.field import PATH_CAP, PATH_M, build_field, follow_field
+from vsfleet.field import PATH_CAP, PATH_M, build_field, field_headings, follow_field
 from vsfleet.geometry import Pose2
 from vsfleet.scenario import scenario_from_dict
 from vsfleet.simfleet.offline import run_offline
@@ -334,7 +334,8 @@ def to_scenario(room: Room, duration_s: float):
 def our_plan(room: Room) -> dict:
     """Our planner on the room: the field the agents build, followed from the start pose to its end."""
     t0 = time.perf_counter()
-    fld = build_field(room.template, room.radii, PLAN_MARGIN_M, room.obstacles, Pose2(*room.goal))
+    fld = build_field(room.template, room.radii, PLAN_MARGIN_M, room.obstacles, Pose2(*room.goal),
+                      n_headings=field_headings(room.template, room.radii, PLAN_MARGIN_M, room.obstacles, room.goal))
     build_s = time.perf_counter() - t0
     way, blocked, left = follow_field(fld, Pose2(*room.start), path_m=1e9, cap=100000)
     lat = fld.lattice

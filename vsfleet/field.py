@@ -43,6 +43,46 @@ HEADINGS = 48
 MAX_STATES = 2_000_000
 # PATH_M, PATH_CAP: the descent handed to the advance each frame [m], and its waypoints at most (vs_step.h)
 
+#: the heading counts a room's lattice may take (field_headings): 48 unless a large structure's turns inflate more
+HEADING_CHOICES = (48, 64, 96)
+HEADING_GAIN_M = 0.005   # a larger count only if its lattice inflates at least this much less [m]
+
+
+def lattice_inflation_m(template_xy, radius_m, margin_m: float, obstacles, goal_xy, n_headings: int,
+                        cell_m: float = CELL_M, max_states: int = MAX_STATES) -> float:
+    """The inflation [m] vs_field_build will give a room's lattice of n_headings: the cell it grows to keep within
+    max_states, and max(h / sqrt 2, the farthest point's turn of half a heading step), by the core's own sizing
+    (vs_field.c, in the same order). Plain arithmetic: every agent computes the same."""
+    pts = [(float(x), float(y)) for x, y in template_xy]
+    rad = [float(r) for r in radius_m]
+    pmax = max([0.0] + [math.sqrt(x * x + y * y) for x, y in pts])
+    reach = max([0.0] + [math.sqrt(x * x + y * y) + r for (x, y), r in zip(pts, rad)])
+    gx, gy = float(goal_xy[0]), float(goal_xy[1])
+    lo_x = min([0.0] + [(float(o[0]) - float(o[2])) - gx for o in obstacles])
+    hi_x = max([0.0] + [(float(o[0]) + float(o[2])) - gx for o in obstacles])
+    lo_y = min([0.0] + [(float(o[1]) - float(o[2])) - gy for o in obstacles])
+    hi_y = max([0.0] + [(float(o[1]) + float(o[2])) - gy for o in obstacles])
+    h = float(cell_m)
+    while True:
+        infl = max(h * math.sqrt(0.5), pmax * (math.pi / n_headings))
+        pad = ((reach + margin_m) + infl) + COMFORT_M + 2.0 * h
+        nx = -math.floor(-(hi_x + pad) / h) - math.floor((lo_x - pad) / h) + 1
+        ny = -math.floor(-(hi_y + pad) / h) - math.floor((lo_y - pad) / h) + 1
+        if nx * ny * n_headings <= max_states or h > 1e6:
+            return infl
+        h *= GROW
+
+
+def field_headings(template_xy, radius_m, margin_m: float, obstacles, goal_xy) -> int:
+    """The heading count of a room's lattice: the first of HEADING_CHOICES whose lattice inflates within
+    HEADING_GAIN_M of the least. A small structure keeps 48 (7.5 degrees): its turns move a body less than half a cell's diagonal.
+    A large one (a 5 x 6 grid, a line of 10) took 6.3-8.8 cm of inflation at 48, from its turns alone, and passages
+    its bodies clear by less were closed to it (bench/room.py, 200 rooms: 7 of its 17 rooms closed were 5 x 6 grids)."""
+    infl = [lattice_inflation_m(template_xy, radius_m, margin_m, obstacles, goal_xy, k) for k in HEADING_CHOICES]
+    least = min(infl)
+    return next(k for k, i in zip(HEADING_CHOICES, infl) if i <= least + HEADING_GAIN_M)
+
+
 _DX = (1, -1, 0, 0, 1, -1, 1, -1)
 _DY = (0, 0, 1, -1, 1, 1, -1, -1)
 

@@ -16,7 +16,8 @@ import numpy as np
 from . import _core
 from .coreconst import STEP_LOOKAHEAD_PER_REACH, STRUCTURE_STEP_ARGS
 from .advance import Goal, GoalPath, GoalPose, GoalTwist, Twist2, advance_structure_reference
-from .field import Field, build_field, build_field_reference, field_open_reference, follow_field_reference
+from .field import (Field, build_field, build_field_reference, field_headings, field_open_reference,
+                    follow_field_reference)
 from .fit import fit_structure_reference
 from .geometry import Pose2, wrap_angle
 
@@ -45,7 +46,8 @@ def room_field(template: np.ndarray, radii, obstacles: np.ndarray, goal: Goal,
     hit = _FIELDS.get(key)
     if hit is not None:
         return hit
-    field = build(tpl, rad, PLAN_MARGIN_M, obs, target)
+    field = build(tpl, rad, PLAN_MARGIN_M, obs, target,
+                  n_headings=field_headings(tpl, rad, PLAN_MARGIN_M, obs, (target.x, target.y)))
     if len(_FIELDS) >= 12:  # a few rooms (and their shapes) at a time: each field holds its lattice (up to 8 MB)
         _FIELDS.clear()
     _FIELDS[key] = field
