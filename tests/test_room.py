@@ -248,3 +248,21 @@ def test_robots_near_their_points_or_with_a_free_way_keep_their_targets():
     points = np.array([[0.02, 0.0], [0.3, 0.3], [1.0, 1.5]])   # near it; a free way; a free way
     now, nxt, detoured = assembly_targets(radii, pose, np.ones(3, bool), points, points + 0.001, 0.015)
     assert not detoured.any() and np.array_equal(now, points) and np.array_equal(nxt, points + 0.001)
+
+
+def test_a_fleet_crawling_round_a_tight_bend_says_blocked_once_not_once_per_threshold_crossed():
+    """bench/room.py's room 149: a square in a bend, one body held 13-16 mm from a wall disc, the structure crawling
+    round (0.26 rad in 45 s). The stall watch took each 0.05 rad of crawl for going again and stuck again 0.1-3 s
+    later: 20 blocked/unblocked events from every agent in 70 s. Going again now needs that much motion within
+    STALL_S: every agent says 'blocked' once."""
+    import sys
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # bench/
+    from bench.room import make_room, to_scenario
+
+    room = make_room(149)
+    run = run_offline(to_scenario(room, 45.0), 45.0, seed=149)
+    assert run.t_goal_s is None
+    said = {r: [d.kind for d in ds if d.kind in ("blocked", "unblocked")] for r, ds in run.decisions.items()}
+    assert all(kinds == ["blocked"] for kinds in said.values()), said
+    first, last = run.trace[int(25.0 * 30)][1], run.trace[-1][1]
+    assert abs(last.th - first.th) > 0.05        # it did crawl past the threshold meanwhile

@@ -755,7 +755,9 @@ def stall_state(state: AgentState, arrays: MissionArrays, s: Structure, filtered
     fleet still assembling). Stuck: watched for STALL_S, the fitted structure all the while within
     STALL_MOVE_M and STALL_TURN_RAD of where the watch began, and the safety filter changed some command on
     some frame of it. The plan said go, the filter said no: without this the fleet stood still and said
-    nothing (issue 28). Going again: the structure moved more than that from where it stuck. stall_watch:
+    nothing (issue 28). Going again: the structure moved more than that within STALL_S of the watch's pose; a
+    structure that only crawls (less than that each STALL_S) stays stuck, the watch's pose moving on with it every
+    STALL_S, so a crawl is one `blocked`, not a `blocked`/`unblocked` pair each time it crosses the threshold. stall_watch:
     (x, y, th, filter seen). A pure function of the frames run, as the failure rule is."""
     if arrays.field is None:
         return math.nan, None, False
@@ -766,7 +768,9 @@ def stall_state(state: AgentState, arrays: MissionArrays, s: Structure, filtered
     since, at, stalled = state.stall_since_t, state.stall_pose, state.stalled
     moved = at is None or (_norm(p.x - at[0], p.y - at[1]) > STALL_MOVE_M
                            or abs(angle_diff(p.th, at[2])) > STALL_TURN_RAD)
-    if stalled:
+    if stalled:   # going again: moved past the thresholds within STALL_S of the watch's pose
+        if not moved and t - since >= STALL_S:   # a crawl: the watch moves on with it
+            return t, (p.x, p.y, p.th, at[3]), True
         return (since, at, not moved)
     if not watched:
         return math.nan, None, False

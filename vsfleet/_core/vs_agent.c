@@ -87,8 +87,14 @@ static void stall_state(const vs_agent_config *cfg, vs_agent_state *st, const vs
         moved = sqrt(dx * dx + dy * dy) > VS_AGENT_STALL_MOVE_M
                 || fabs(vs_wrap_angle(s->fit_th - st->stall_pose[2])) > VS_AGENT_STALL_TURN_RAD;
     }
-    if (st->stalled) {
+    if (st->stalled) {   /* going again: moved past the thresholds within VS_AGENT_STALL_S of the watch's pose */
         st->stalled = !moved;
+        if (st->stalled && t - st->stall_since_t >= VS_AGENT_STALL_S) {   /* a crawl: the watch moves on with it */
+            st->stall_since_t = t;
+            st->stall_pose[0] = s->fit_x;
+            st->stall_pose[1] = s->fit_y;
+            st->stall_pose[2] = s->fit_th;
+        }
         return;
     }
     if (!watched) {

@@ -40,7 +40,8 @@
 
 /* the stall watch (vsfleet.step.stall_state): stuck after VS_AGENT_STALL_S [s] of the safety filter changing
  * commands while the structure stays within VS_AGENT_STALL_MOVE_M [m] and VS_AGENT_STALL_TURN_RAD [rad] of
- * where the watch began */
+ * where the watch began; going again once it moves more than that within VS_AGENT_STALL_S of the watch's pose
+ * (stuck, the watch's pose moves on with the structure every VS_AGENT_STALL_S: a crawl stays stuck) */
 #define VS_AGENT_STALL_S 3.0
 #define VS_AGENT_STALL_MOVE_M 0.02
 #define VS_AGENT_STALL_TURN_RAD 0.05
