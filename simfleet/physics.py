@@ -92,18 +92,17 @@ def applied_wheels(wheels_m_s: np.ndarray, cmd_m_s: np.ndarray, cmd_fresh: np.nd
     (a stop or stall cuts at once). Every engine's actuators follow this rule.
     """
     u = np.where(np.asarray(cmd_fresh, dtype=bool)[:, None], cmd_m_s, 0.0) * params.gain
-    active = (faults.kind != 0) & (t < faults.until_t)
-    if active.any():
+    dv = params.accel_max_m_s2 * dt_s
+    if faults.kind.any():   # else no fault acts, and each np.where below would give u back as it is
+        active = (faults.kind != 0) & (t < faults.until_t)
         halted = active & ((faults.kind == _STOP) | (faults.kind == _STALL))
         u = np.where(halted[:, None], 0.0, u)
         u = np.where((active & (faults.kind == _SLOW))[:, None], u * faults.factor[:, None], u)
         u[:, 0] = np.where(active & (faults.kind == _WHEEL), u[:, 0] * faults.factor, u[:, 0])
-        # a halted robot halts now (motor cut), not after a ramp
-        dv = np.where(halted, np.inf, params.accel_max_m_s2 * dt_s)[:, None]
-    else:   # no fault acts: each np.where above would give u back as it is (a step of the suite's runs: 30 -> 15 us)
-        dv = (params.accel_max_m_s2 * dt_s)[:, None]
+        dv = np.where(halted, np.inf, dv)   # a halted robot halts now (motor cut), not after a ramp
     vmax = params.speed_max_m_s[:, None]
     u = _clip(u, -vmax, vmax)
+    dv = dv[:, None]
     return wheels_m_s + _clip(u - wheels_m_s, -dv, dv)
 
 
