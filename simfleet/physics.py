@@ -91,6 +91,15 @@ def applied_wheels(wheels_m_s: np.ndarray, cmd_m_s: np.ndarray, cmd_fresh: np.nd
     within their ttl. The true/commanded gains, the faults, the speed limit and the acceleration limit
     (a stop or stall cuts at once). Every engine's actuators follow this rule.
     """
+    u, dv = _wheel_targets(cmd_m_s, cmd_fresh, faults, params, t, dt_s)
+    return wheels_m_s + _clip(u - wheels_m_s, -dv, dv)
+
+
+def _wheel_targets(cmd_m_s: np.ndarray, cmd_fresh: np.ndarray, faults: FaultArrays, params: FleetParams, t: float,
+                   dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """applied_wheels' (u, dv): the wheel speeds (n, 2) [m/s] the motors head for over the step at sim time t [s]
+    (gains, faults, speed limit) and how far (n, 1) [m/s] each may move toward them. Where ``faults`` has no
+    fault at all, the same at every t."""
     u = np.where(np.asarray(cmd_fresh, dtype=bool)[:, None], cmd_m_s, 0.0) * params.gain
     dv = params.accel_max_m_s2 * dt_s
     if faults.kind.any():   # else no fault acts, and each np.where below would give u back as it is
@@ -101,9 +110,7 @@ def applied_wheels(wheels_m_s: np.ndarray, cmd_m_s: np.ndarray, cmd_fresh: np.nd
         u[:, 0] = np.where(active & (faults.kind == _WHEEL), u[:, 0] * faults.factor, u[:, 0])
         dv = np.where(halted, np.inf, dv)   # a halted robot halts now (motor cut), not after a ramp
     vmax = params.speed_max_m_s[:, None]
-    u = _clip(u, -vmax, vmax)
-    dv = dv[:, None]
-    return wheels_m_s + _clip(u - wheels_m_s, -dv, dv)
+    return _clip(u, -vmax, vmax), dv[:, None]
 
 
 def step_robots(pose_world: np.ndarray, wheels_m_s: np.ndarray, cmd_m_s: np.ndarray, cmd_fresh: np.ndarray,
@@ -152,17 +159,24 @@ def step_engine_fleet(engine, states: dict[str, RobotState], robots: dict, cmds:
     cmd = np.array([cmds[r] for r in ids], dtype=float)
     fresh = np.ones(len(ids), dtype=bool)
     arrays = FaultArrays.of([faults[r] for r in ids])
+    times, t_end = [], t   # the steps' sim times, each dt_s after the last
     for _ in range(substeps):
-        if timeline and timeline[0].at_s <= t:
-            while timeline and timeline[0].at_s <= t:
-                ev = timeline.pop(0)
-                faults[ev.robot] = Fault(ev.kind, ev.factor, t + ev.duration if ev.duration > 0 else float("inf"))
-            arrays = FaultArrays.of([faults[r] for r in ids])
-        engine.step(cmd, fresh, arrays, t)
-        t += dt_s
+        times.append(t_end)
+        t_end += dt_s
+    steps = getattr(engine, "steps", None)
+    if steps is not None and times and not arrays.kind.any() and not (timeline and timeline[0].at_s <= max(times)):
+        steps(cmd, fresh, arrays, t, substeps)   # no fault acts and none starts: the same steps in one call
+    else:
+        for t in times:
+            if timeline and timeline[0].at_s <= t:
+                while timeline and timeline[0].at_s <= t:
+                    ev = timeline.pop(0)
+                    faults[ev.robot] = Fault(ev.kind, ev.factor, t + ev.duration if ev.duration > 0 else float("inf"))
+                arrays = FaultArrays.of([faults[r] for r in ids])
+            engine.step(cmd, fresh, arrays, t)
     for i, r in enumerate(ids):
         states[r] = RobotState(Pose2(*engine.pose[i]), float(engine.wheels[i, 0]), float(engine.wheels[i, 1]))
-    return t
+    return t_end
 
 
 @dataclass(frozen=True)
@@ -203,3 +217,15 @@ class KinematicEngine:
         self.pose, self.wheels = step_robots(self.pose, self.wheels, cmd_m_s, cmd_fresh, faults, self.params, t,
                                              self.dt_s)
         return []
+
+    def steps(self, cmd_m_s: np.ndarray, cmd_fresh: np.ndarray, faults: FaultArrays, t: float, count: int) -> None:
+        """``count`` steps from sim time t [s] where ``faults`` has no fault at all: each as step does
+        (step_robots), the wheels' targets (the same at every t then) worked out once."""
+        u, dv = _wheel_targets(cmd_m_s, cmd_fresh, faults, self.params, t, self.dt_s)
+        lo = -dv
+        pose, wheels, base = self.pose, self.wheels, self.params.wheel_base_m
+        for _ in range(count):
+            wheels = wheels + _clip(u - wheels, lo, dv)
+            pose = integrate_arcs(pose, wheels, self.dt_s, base)
+            pose[:, 2] = wrap_angles(pose[:, 2])
+        self.pose, self.wheels = pose, wheels
