@@ -164,8 +164,9 @@ def step_engine_fleet(engine, states: dict[str, RobotState], robots: dict, cmds:
         times.append(t_end)
         t_end += dt_s
     steps = getattr(engine, "steps", None)
-    if steps is not None and times and not arrays.kind.any() and not (timeline and timeline[0].at_s <= max(times)):
-        steps(cmd, fresh, arrays, t, substeps)   # no fault acts and none starts: the same steps in one call
+    if steps is not None and times and not (timeline and timeline[0].at_s <= max(times)) \
+            and _settled(arrays, min(times), max(times)):
+        steps(cmd, fresh, arrays, t, substeps)   # no fault starts or ends: the same steps in one call
     else:
         for t in times:
             if timeline and timeline[0].at_s <= t:
@@ -177,6 +178,12 @@ def step_engine_fleet(engine, states: dict[str, RobotState], robots: dict, cmds:
     for i, r in enumerate(ids):
         states[r] = RobotState(Pose2(*engine.pose[i]), float(engine.wheels[i, 0]), float(engine.wheels[i, 1]))
     return t_end
+
+
+def _settled(faults: FaultArrays, t0: float, t1: float) -> bool:
+    """Whether each fault acts alike at every sim time from t0 to t1 [s] (a fault acts while t < until_t: alike at
+    both ends, alike between)."""
+    return not faults.kind.any() or np.array_equal(t0 < faults.until_t, t1 < faults.until_t)
 
 
 @dataclass(frozen=True)
@@ -219,8 +226,8 @@ class KinematicEngine:
         return []
 
     def steps(self, cmd_m_s: np.ndarray, cmd_fresh: np.ndarray, faults: FaultArrays, t: float, count: int) -> None:
-        """``count`` steps from sim time t [s] where ``faults`` has no fault at all: each as step does
-        (step_robots), the wheels' targets (the same at every t then) worked out once."""
+        """``count`` steps from sim time t [s] over which each fault acts alike (none starts or ends): each as step
+        does (step_robots), the wheels' targets (the same at every one of those t) worked out once."""
         u, dv = _wheel_targets(cmd_m_s, cmd_fresh, faults, self.params, t, self.dt_s)
         lo = -dv
         pose, wheels, base = self.pose, self.wheels, self.params.wheel_base_m
