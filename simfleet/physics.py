@@ -175,8 +175,8 @@ def step_engine_fleet(engine, states: dict[str, RobotState], robots: dict, cmds:
                     faults[ev.robot] = Fault(ev.kind, ev.factor, t + ev.duration if ev.duration > 0 else float("inf"))
                 arrays = FaultArrays.of([faults[r] for r in ids])
             engine.step(cmd, fresh, arrays, t)
-    for i, r in enumerate(ids):
-        states[r] = RobotState(Pose2(*engine.pose[i]), float(engine.wheels[i, 0]), float(engine.wheels[i, 1]))
+    for r, pose, (vl, vr) in zip(ids, engine.pose.tolist(), engine.wheels.tolist()):   # Python floats: the same values
+        states[r] = RobotState(Pose2(*pose), vl, vr)
     return t_end
 
 
