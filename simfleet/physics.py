@@ -20,6 +20,11 @@ from vsfleet.kinematics import integrate_arcs, wrap_angles
 from vsfleet.scenario import SimRobot
 from vsfleet.wire import FAULT_KINDS
 
+try:   # np.clip's own ufunc, without the Python layers np.clip goes through to it (~2 us a call)
+    from numpy._core.umath import clip as _clip
+except ImportError:   # pragma: no cover - another numpy
+    _clip = np.clip
+
 FAULT_CODES = {kind: code for code, kind in enumerate(FAULT_KINDS)}  # the wire's order: none 0, stop 1, ...
 _STOP, _SLOW, _STALL, _WHEEL = (FAULT_CODES[k] for k in ("stop", "slow", "stall", "wheel"))
 
@@ -86,17 +91,26 @@ def applied_wheels(wheels_m_s: np.ndarray, cmd_m_s: np.ndarray, cmd_fresh: np.nd
     within their ttl. The true/commanded gains, the faults, the speed limit and the acceleration limit
     (a stop or stall cuts at once). Every engine's actuators follow this rule.
     """
+    u, dv = _wheel_targets(cmd_m_s, cmd_fresh, faults, params, t, dt_s)
+    return wheels_m_s + _clip(u - wheels_m_s, -dv, dv)
+
+
+def _wheel_targets(cmd_m_s: np.ndarray, cmd_fresh: np.ndarray, faults: FaultArrays, params: FleetParams, t: float,
+                   dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """applied_wheels' (u, dv): the wheel speeds (n, 2) [m/s] the motors head for over the step at sim time t [s]
+    (gains, faults, speed limit) and how far (n, 1) [m/s] each may move toward them. Where ``faults`` has no
+    fault at all, the same at every t."""
     u = np.where(np.asarray(cmd_fresh, dtype=bool)[:, None], cmd_m_s, 0.0) * params.gain
-    active = (faults.kind != 0) & (t < faults.until_t)
-    halted = active & ((faults.kind == _STOP) | (faults.kind == _STALL))
-    u = np.where(halted[:, None], 0.0, u)
-    u = np.where((active & (faults.kind == _SLOW))[:, None], u * faults.factor[:, None], u)
-    u[:, 0] = np.where(active & (faults.kind == _WHEEL), u[:, 0] * faults.factor, u[:, 0])
+    dv = params.accel_max_m_s2 * dt_s
+    if faults.kind.any():   # else no fault acts, and each np.where below would give u back as it is
+        active = (faults.kind != 0) & (t < faults.until_t)
+        halted = active & ((faults.kind == _STOP) | (faults.kind == _STALL))
+        u = np.where(halted[:, None], 0.0, u)
+        u = np.where((active & (faults.kind == _SLOW))[:, None], u * faults.factor[:, None], u)
+        u[:, 0] = np.where(active & (faults.kind == _WHEEL), u[:, 0] * faults.factor, u[:, 0])
+        dv = np.where(halted, np.inf, dv)   # a halted robot halts now (motor cut), not after a ramp
     vmax = params.speed_max_m_s[:, None]
-    u = np.clip(u, -vmax, vmax)
-    # a halted robot halts now (motor cut), not after a ramp
-    dv = np.where(halted, np.inf, params.accel_max_m_s2 * dt_s)[:, None]
-    return wheels_m_s + np.clip(u - wheels_m_s, -dv, dv)
+    return _clip(u, -vmax, vmax), dv[:, None]
 
 
 def step_robots(pose_world: np.ndarray, wheels_m_s: np.ndarray, cmd_m_s: np.ndarray, cmd_fresh: np.ndarray,
@@ -145,17 +159,31 @@ def step_engine_fleet(engine, states: dict[str, RobotState], robots: dict, cmds:
     cmd = np.array([cmds[r] for r in ids], dtype=float)
     fresh = np.ones(len(ids), dtype=bool)
     arrays = FaultArrays.of([faults[r] for r in ids])
+    times, t_end = [], t   # the steps' sim times, each dt_s after the last
     for _ in range(substeps):
-        if timeline and timeline[0].at_s <= t:
-            while timeline and timeline[0].at_s <= t:
-                ev = timeline.pop(0)
-                faults[ev.robot] = Fault(ev.kind, ev.factor, t + ev.duration if ev.duration > 0 else float("inf"))
-            arrays = FaultArrays.of([faults[r] for r in ids])
-        engine.step(cmd, fresh, arrays, t)
-        t += dt_s
-    for i, r in enumerate(ids):
-        states[r] = RobotState(Pose2(*engine.pose[i]), float(engine.wheels[i, 0]), float(engine.wheels[i, 1]))
-    return t
+        times.append(t_end)
+        t_end += dt_s
+    steps = getattr(engine, "steps", None)
+    if steps is not None and times and not (timeline and timeline[0].at_s <= max(times)) \
+            and _settled(arrays, min(times), max(times)):
+        steps(cmd, fresh, arrays, t, substeps)   # no fault starts or ends: the same steps in one call
+    else:
+        for t in times:
+            if timeline and timeline[0].at_s <= t:
+                while timeline and timeline[0].at_s <= t:
+                    ev = timeline.pop(0)
+                    faults[ev.robot] = Fault(ev.kind, ev.factor, t + ev.duration if ev.duration > 0 else float("inf"))
+                arrays = FaultArrays.of([faults[r] for r in ids])
+            engine.step(cmd, fresh, arrays, t)
+    for r, pose, (vl, vr) in zip(ids, engine.pose.tolist(), engine.wheels.tolist()):   # Python floats: the same values
+        states[r] = RobotState(Pose2(*pose), vl, vr)
+    return t_end
+
+
+def _settled(faults: FaultArrays, t0: float, t1: float) -> bool:
+    """Whether each fault acts alike at every sim time from t0 to t1 [s] (a fault acts while t < until_t: alike at
+    both ends, alike between)."""
+    return not faults.kind.any() or np.array_equal(t0 < faults.until_t, t1 < faults.until_t)
 
 
 @dataclass(frozen=True)
@@ -196,3 +224,15 @@ class KinematicEngine:
         self.pose, self.wheels = step_robots(self.pose, self.wheels, cmd_m_s, cmd_fresh, faults, self.params, t,
                                              self.dt_s)
         return []
+
+    def steps(self, cmd_m_s: np.ndarray, cmd_fresh: np.ndarray, faults: FaultArrays, t: float, count: int) -> None:
+        """``count`` steps from sim time t [s] over which each fault acts alike (none starts or ends): each as step
+        does (step_robots), the wheels' targets (the same at every one of those t) worked out once."""
+        u, dv = _wheel_targets(cmd_m_s, cmd_fresh, faults, self.params, t, self.dt_s)
+        lo = -dv
+        pose, wheels, base = self.pose, self.wheels, self.params.wheel_base_m
+        for _ in range(count):
+            wheels = wheels + _clip(u - wheels, lo, dv)
+            pose = integrate_arcs(pose, wheels, self.dt_s, base)
+            pose[:, 2] = wrap_angles(pose[:, 2])
+        self.pose, self.wheels = pose, wheels

@@ -58,6 +58,10 @@ def both(policy, state_core, state_ref, robots, t, *args, **kw):
 # ---------------------------------------------------------------- random frame sequences
 
 BEHAVIOURS = ("moves", "stops", "slow", "reverses", "vanishes", "far", "noisy")
+# each behaviour's factor on the expected motion and jitter [m], by its index in BEHAVIOURS
+FACTOR = np.array([{"stops": 0.0, "slow": 0.5, "reverses": -1.0}.get(b, 1.0) for b in BEHAVIOURS])
+NOISE = np.array([3e-3 if b == "noisy" else 1e-4 for b in BEHAVIOURS])
+VANISHES, FAR = BEHAVIOURS.index("vanishes"), BEHAVIOURS.index("far")
 
 
 @st.composite
@@ -95,21 +99,18 @@ def frames_of(sc):
     for k in range(sc["frames"]):
         if rng.random() < 0.05:
             behaviour = rng.integers(0, len(BEHAVIOURS), n)
-        names = [BEHAVIOURS[b] for b in behaviour]
         gap = step_s * sc["frame_dt"] * (1.0 + rng.uniform(-0.2, 0.2))
         if rng.random() < 0.03:
             gap *= rng.integers(2, 15)                   # frames missed: a step scaled (and capped)
         t = t + gap
         commanded = rng.random(n) < 0.9
         expected = np.where(commanded[:, None], 0.1 * step_s * direction, 0.0)
-        factor = np.array([{"stops": 0.0, "slow": 0.5, "reverses": -1.0}.get(b, 1.0) for b in names])
-        xy = xy + factor[:, None] * expected * (gap / step_s)
-        noise = np.array([3e-3 if b == "noisy" else 1e-4 for b in names])
-        xy = xy + rng.normal(0.0, 1.0, (n, 2)) * noise[:, None]
-        seen = np.array([b != "vanishes" for b in names]) & (rng.random(n) < 0.95)
+        xy = xy + FACTOR[behaviour][:, None] * expected * (gap / step_s)
+        xy = xy + rng.normal(0.0, 1.0, (n, 2)) * NOISE[behaviour][:, None]
+        seen = (behaviour != VANISHES) & (rng.random(n) < 0.95)
         fresh = seen & (rng.random(n) < 0.9)
         dev = rng.uniform(0.0, 0.03, n)
-        dev = np.where([b == "far" for b in names], rng.uniform(0.05, 0.5, n), dev)
+        dev = np.where(behaviour == FAR, rng.uniform(0.05, 0.5, n), dev)
         r = rng.random()
         if r < 0.05:
             dev[:] = rng.uniform(0.06, 0.3)              # everyone off: the structure is blamed

@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from vsfleet.advance import GoalPath
 from vsfleet.errors import NonFiniteError, ShapeError, VsfleetValueError
-from vsfleet.geometry import Pose2, angle_diff
+from vsfleet.geometry import Pose2, angle_diff, wrap_angle
 from vsfleet.plan import (
     MAX_OBSTACLES,
     PLAN_BLOCKED,
@@ -50,12 +50,19 @@ def min_clearance(plan: StructurePlan, tpl, rad, obs, samples_per_m: float = 400
     if len(obs) == 0:
         return math.inf
     wps = plan.waypoints
-    poses = [wps[0]]
+    # the poses, as Pose2(x, y, th).apply(tpl) places the robots at each, every pose at once: the same operations
+    # on each element (numpy's elementwise ones; the heading wrapped, its cos and sin by math's, one at a time)
+    xs, ys, ths = [np.array([wps[0].x])], [np.array([wps[0].y])], [wps[0].th]
     for a, b in zip(wps[:-1], wps[1:]):
         k = max(2, int(math.hypot(b.x - a.x, b.y - a.y) * samples_per_m) + 2)
-        for u in np.linspace(0.0, 1.0, k)[1:]:
-            poses.append(Pose2(a.x + u * (b.x - a.x), a.y + u * (b.y - a.y), a.th + u * angle_diff(b.th, a.th)))
-    pts = np.stack([p.apply(tpl) for p in poses])   # (poses, n, 2): every pose's gaps in one pass
+        u = np.linspace(0.0, 1.0, k)[1:]
+        xs.append(a.x + u * (b.x - a.x))
+        ys.append(a.y + u * (b.y - a.y))
+        ths += [wrap_angle(th) for th in a.th + u * angle_diff(b.th, a.th)]
+    x, y = np.concatenate(xs)[:, None], np.concatenate(ys)[:, None]
+    c, s = np.array([math.cos(th) for th in ths])[:, None], np.array([math.sin(th) for th in ths])[:, None]
+    p = np.asarray(tpl, dtype=float)
+    pts = np.stack([c * p[:, 0] - s * p[:, 1] + x, s * p[:, 0] + c * p[:, 1] + y], axis=-1)   # (poses, n, 2)
     d = np.hypot(pts[:, :, None, 0] - obs[None, None, :, 0], pts[:, :, None, 1] - obs[None, None, :, 1])
     return float(np.min(d - obs[None, None, :, 2] - np.asarray(rad)[None, :, None]))
 

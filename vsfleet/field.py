@@ -228,20 +228,16 @@ def build_field_reference(template_xy, radius_m, margin_m: float, obstacles, goa
         dist = dijkstra(graph, directed=False, indices=goal_state)
         reached = np.isfinite(dist)
     # every component the goal cannot reach leads to its state nearest the goal (lattice distance, then index)
-    _, labels = connected_components(graph, directed=False)
     rest = np.flatnonzero(free & ~reached)
-    targets = []
     if rest.size:
+        _, labels = connected_components(graph, directed=False)
         rem = rest % (ny * nx)
         col, row = rem % nx + ix0, rem // nx + iy0
         d2 = col.astype(np.int64) ** 2 + row.astype(np.int64) ** 2
         order = np.lexsort((rest, d2))                    # by d2, then index
-        seen_labels = set()
-        for j in order:
-            lab = labels[rest[j]]
-            if lab not in seen_labels:
-                seen_labels.add(lab)
-                targets.append(int(rest[j]))
+        # each component's first state in that order (np.unique's index is of a label's first occurrence)
+        _, first = np.unique(labels[rest[order]], return_index=True)
+        targets = rest[order[np.sort(first)]].tolist()
         d_blocked = dijkstra(graph, directed=False, indices=targets, min_only=True)
         dist = np.where(reached, dist, d_blocked)
     costs = np.full(total, WALL, dtype=np.uint32)
@@ -257,22 +253,28 @@ def _graph(K: int, ny: int, nx: int, free: np.ndarray, tight: np.ndarray, w_rot:
     """The lattice's edges between free states as a sparse matrix (each edge once; weights doubled where
     an end is tight)."""
     from scipy.sparse import coo_matrix  # noqa: PLC0415 - the reference only (agents never import scipy)
-    idx = np.arange(K * ny * nx).reshape(K, ny, nx)
+    idx = np.arange(K * ny * nx, dtype=np.int32).reshape(K, ny, nx)   # the matrix's index type (max_states < 2^31)
+    free3, tight3 = free.reshape(K, ny, nx), tight.reshape(K, ny, nx)
     rows, cols, ws = [], [], []
 
-    def add(a: np.ndarray, b: np.ndarray, w: int) -> None:
-        a, b = a.ravel(), b.ravel()
-        keep = free[a] & free[b]
-        a, b = a[keep], b[keep]
-        rows.append(a)
-        cols.append(b)
-        ws.append(np.where(tight[a] | tight[b], 2 * w, w).astype(float))
+    def ends(where) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The states at ``where`` (a view of the lattice): their indices, free and tight flags."""
+        return idx[where], free3[where], tight3[where]
 
-    add(idx[:, :, :-1], idx[:, :, 1:], W_AXIS)
-    add(idx[:, :-1, :], idx[:, 1:, :], W_AXIS)
-    add(idx[:, :-1, :-1], idx[:, 1:, 1:], W_DIAG)
-    add(idx[:, :-1, 1:], idx[:, 1:, :-1], W_DIAG)
-    add(idx, np.roll(idx, -1, axis=0), w_rot)
+    def add(a, b, w: int) -> None:
+        """An edge from each state of view a to the state at the same place of view b, where both are free;
+        a boolean mask picks in C order (the states' order)."""
+        (ia, fa, ta), (ib, fb, tb) = a, b
+        keep = fa & fb
+        rows.append(ia[keep])
+        cols.append(ib[keep])
+        ws.append(np.where(ta[keep] | tb[keep], float(2 * w), float(w)))
+
+    add(ends(np.s_[:, :, :-1]), ends(np.s_[:, :, 1:]), W_AXIS)
+    add(ends(np.s_[:, :-1, :]), ends(np.s_[:, 1:, :]), W_AXIS)
+    add(ends(np.s_[:, :-1, :-1]), ends(np.s_[:, 1:, 1:]), W_DIAG)
+    add(ends(np.s_[:, :-1, 1:]), ends(np.s_[:, 1:, :-1]), W_DIAG)
+    add(ends(np.s_[:]), tuple(np.roll(x, -1, axis=0) for x in (idx, free3, tight3)), w_rot)   # heading k to k + 1
     n = K * ny * nx
     return coo_matrix((np.concatenate(ws), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)).tocsr()
 
@@ -357,10 +359,16 @@ def _start_state(lat: Lattice, cost: np.ndarray, pose: Pose2) -> tuple[int | Non
     return start, outside
 
 
+def _cost_view(field: Field) -> memoryview:
+    """The field's costs, one state after another, as Python ints when indexed (what int(costs[s]) gives, at a
+    third of the cost of indexing the array: a descent reads a few hundred states)."""
+    return memoryview(np.ascontiguousarray(np.asarray(field.costs), dtype=np.uint32).reshape(-1))
+
+
 def field_open_reference(field: Field, pose: Pose2) -> tuple[bool, bool]:
     """vs_field_open in Python: (the descent from the pose starts on a free state the goal can be reached from,
     that state lies in the comfort band)."""
-    cost = np.asarray(field.costs).ravel()
+    cost = _cost_view(field)
     start, _outside = _start_state(field.lattice, cost, pose)
     if start is None:
         return False, False
@@ -371,7 +379,7 @@ def field_open_reference(field: Field, pose: Pose2) -> tuple[bool, bool]:
 def follow_field_reference(field: Field, pose: Pose2, path_m: float = PATH_M, cap: int = PATH_CAP):
     """vs_field_follow in Python: (waypoints (k, 3), blocked, left_m)."""
     lat = field.lattice
-    cost = np.asarray(field.costs).ravel()
+    cost = _cost_view(field)
     start, outside = _start_state(lat, cost, pose)
     way = [pose.as_tuple()]
     if start is None:

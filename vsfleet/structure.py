@@ -8,6 +8,7 @@ chosen. :func:`room_field` builds (and memoises) a room's navigation function, P
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from dataclasses import dataclass, replace
 from typing import Callable
 
@@ -28,7 +29,10 @@ PLAN_MARGIN_M = 0.02
 
 
 
-_FIELDS: dict[tuple, Field] = {}
+#: the fields memoised by room_field, the most recently used last: a few rooms (and their shapes) at a time, each
+#: field holding its lattice (up to 8 MB)
+_FIELDS: OrderedDict[tuple, Field] = OrderedDict()
+_FIELDS_KEPT = 12
 
 
 def room_field(template: np.ndarray, radii, obstacles: np.ndarray, goal: Goal,
@@ -45,12 +49,19 @@ def room_field(template: np.ndarray, radii, obstacles: np.ndarray, goal: Goal,
     key = (tpl.tobytes(), rad.tobytes(), obs.tobytes(), target.as_tuple(), PLAN_MARGIN_M, build)
     hit = _FIELDS.get(key)
     if hit is not None:
+        try:
+            _FIELDS.move_to_end(key)
+        except KeyError:   # another thread's build pushed it out meanwhile
+            pass
         return hit
     field = build(tpl, rad, PLAN_MARGIN_M, obs, target,
                   n_headings=field_headings(tpl, rad, PLAN_MARGIN_M, obs, (target.x, target.y)))
-    if len(_FIELDS) >= 12:  # a few rooms (and their shapes) at a time: each field holds its lattice (up to 8 MB)
-        _FIELDS.clear()
     _FIELDS[key] = field
+    while len(_FIELDS) > _FIELDS_KEPT:   # the least recently used out (not all at once: a reference step's shapes
+        try:                              # and the core's, 2 x 5 fields in one test, were all built again)
+            _FIELDS.popitem(last=False)
+        except KeyError:
+            break
     return field
 
 
