@@ -130,10 +130,12 @@ def join(router: FakeRouter, robot: str, steps: int = 6) -> AgentWiring:
     """Start one agent's wiring and run its loop until its join is over (mission held, health asked and taken)."""
     w = AgentWiring(router.session(), robot, KEYS, 1 / 30, 0.3, None)
     for _ in range(steps):
+        w.agent.wake.set()   # no frames here: the loop pass need not wait for one (up to 50 ms each)
         w.run_once()
         if w.fetcher is not None:
             w.fetcher.join(5.0)
         if w.agent.missions.latest() is not None and w.agent.state.phase is SyncPhase.SYNCED:
+            w.agent.wake.set()
             w.run_once()  # its own mission queryable is declared in the loop pass that took the mission
             return w
     raise AssertionError(f"{robot} did not join in {steps} loop passes")
