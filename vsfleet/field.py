@@ -166,6 +166,13 @@ def build_field_reference(template_xy, radius_m, margin_m: float, obstacles, goa
     tpl = np.asarray(template_xy, dtype=float).reshape(-1, 2)
     rad = np.asarray(radius_m, dtype=float).reshape(-1)
     obs = np.asarray(obstacles, dtype=float).reshape(-1, 3)
+    # the core's own checks (vs_field_build: VS_EVALUE / VS_ENONFINITE): the raster's windows below rely on radii
+    # and the margin >= 0 and obstacles of radius > 0 (then a wall's bound is within the tight bound)
+    finite = all(np.isfinite(a).all() for a in (tpl, rad, obs)) and math.isfinite(margin_m) and math.isfinite(cell_m)
+    if len(tpl) == 0 or len(rad) != len(tpl) or not finite or not (margin_m >= 0.0) or not (cell_m >= 1e-3) \
+            or not (rad >= 0.0).all() or not (obs[:, 2] > 0.0).all():
+        raise VsfleetValueError("build_field: at least one robot, finite inputs, radii and margin >= 0, obstacles of "
+                                "radius > 0, cell >= 1 mm")
     gx, gy, gth = goal.x, goal.y, _wrap_outside(goal.th)
     K = int(n_headings)
     dth = (2.0 * math.pi) / K
