@@ -48,29 +48,41 @@ HEADING_CHOICES = (48, 64, 96)
 HEADING_GAIN_M = 0.005   # a larger count only if its lattice inflates at least this much less [m]
 
 
-def lattice_inflation_m(template_xy, radius_m, margin_m: float, obstacles, goal_xy, n_headings: int,
-                        cell_m: float = CELL_M, max_states: int = MAX_STATES) -> float:
-    """The inflation [m] vs_field_build will give a room's lattice of n_headings: the cell it grows to keep within
-    max_states, and max(h / sqrt 2, the farthest point's turn of half a heading step), by the core's own sizing
-    (vs_field.c, in the same order). Plain arithmetic: every agent computes the same."""
-    pts = [(float(x), float(y)) for x, y in template_xy]
-    rad = [float(r) for r in radius_m]
+def lattice_sizing(template_xy, radius_m, margin_m: float, obstacles, goal_xy, n_headings: int,
+                   cell_m: float = CELL_M, max_states: int = MAX_STATES):
+    """vs_field_build's sizing of a room's lattice, in the same order: (h [m], inflation [m], ix0, ix1, iy0, iy1,
+    pmax [m]), the cell grown by GROW until the lattice holds at most max_states; None if it never does. The
+    inflation is max(h / sqrt 2, the farthest point's turn of half a heading step). Plain arithmetic: every agent
+    computes the same (build_field_reference and field_headings both size by it)."""
+    pts = [(float(x), float(y)) for x, y in np.asarray(template_xy, dtype=float).reshape(-1, 2).tolist()]
+    rad = np.asarray(radius_m, dtype=float).reshape(-1).tolist()
     pmax = max([0.0] + [math.sqrt(x * x + y * y) for x, y in pts])
     reach = max([0.0] + [math.sqrt(x * x + y * y) + r for (x, y), r in zip(pts, rad)])
     gx, gy = float(goal_xy[0]), float(goal_xy[1])
-    lo_x = min([0.0] + [(float(o[0]) - float(o[2])) - gx for o in obstacles])
-    hi_x = max([0.0] + [(float(o[0]) + float(o[2])) - gx for o in obstacles])
-    lo_y = min([0.0] + [(float(o[1]) - float(o[2])) - gy for o in obstacles])
-    hi_y = max([0.0] + [(float(o[1]) + float(o[2])) - gy for o in obstacles])
+    obs = np.asarray(obstacles, dtype=float).reshape(-1, 3).tolist()
+    lo_x = min([0.0] + [(o[0] - o[2]) - gx for o in obs])
+    hi_x = max([0.0] + [(o[0] + o[2]) - gx for o in obs])
+    lo_y = min([0.0] + [(o[1] - o[2]) - gy for o in obs])
+    hi_y = max([0.0] + [(o[1] + o[2]) - gy for o in obs])
     h = float(cell_m)
     while True:
         infl = max(h * math.sqrt(0.5), pmax * (math.pi / n_headings))
         pad = ((reach + margin_m) + infl) + COMFORT_M + 2.0 * h
-        nx = -math.floor(-(hi_x + pad) / h) - math.floor((lo_x - pad) / h) + 1
-        ny = -math.floor(-(hi_y + pad) / h) - math.floor((lo_y - pad) / h) + 1
-        if nx * ny * n_headings <= max_states or h > 1e6:
-            return infl
+        ix0, ix1 = _floor((lo_x - pad) / h), -_floor(-(hi_x + pad) / h)
+        iy0, iy1 = _floor((lo_y - pad) / h), -_floor(-(hi_y + pad) / h)
+        if (ix1 - ix0 + 1) * (iy1 - iy0 + 1) * n_headings <= max_states:
+            return h, infl, ix0, ix1, iy0, iy1, pmax
         h *= GROW
+        if h > 1e6:
+            return None
+
+
+def lattice_inflation_m(template_xy, radius_m, margin_m: float, obstacles, goal_xy, n_headings: int,
+                        cell_m: float = CELL_M, max_states: int = MAX_STATES) -> float:
+    """The inflation [m] vs_field_build will give a room's lattice of n_headings (lattice_sizing; inf if the room
+    does not fit)."""
+    sized = lattice_sizing(template_xy, radius_m, margin_m, obstacles, goal_xy, n_headings, cell_m, max_states)
+    return math.inf if sized is None else sized[1]
 
 
 def field_headings(template_xy, radius_m, margin_m: float, obstacles, goal_xy) -> int:
@@ -176,25 +188,10 @@ def build_field_reference(template_xy, radius_m, margin_m: float, obstacles, goa
     gx, gy, gth = goal.x, goal.y, _wrap_outside(goal.th)
     K = int(n_headings)
     dth = (2.0 * math.pi) / K
-    pn = np.sqrt(tpl[:, 0] * tpl[:, 0] + tpl[:, 1] * tpl[:, 1])
-    pmax = max(0.0, float(pn.max()))
-    reach = max(0.0, float((pn + rad).max()))
-    lo_x = min([0.0] + [float((o[0] - o[2]) - gx) for o in obs])
-    hi_x = max([0.0] + [float((o[0] + o[2]) - gx) for o in obs])
-    lo_y = min([0.0] + [float((o[1] - o[2]) - gy) for o in obs])
-    hi_y = max([0.0] + [float((o[1] + o[2]) - gy) for o in obs])
-    h = float(cell_m)
-    while True:
-        infl = max(h * math.sqrt(0.5), pmax * (math.pi / K))
-        pad = ((reach + margin_m) + infl) + COMFORT_M + 2.0 * h
-        ix0, ix1 = _floor((lo_x - pad) / h), -_floor(-(hi_x + pad) / h)
-        iy0, iy1 = _floor((lo_y - pad) / h), -_floor(-(hi_y + pad) / h)
-        states = (ix1 - ix0 + 1) * (iy1 - iy0 + 1) * K
-        if states <= max_states:
-            break
-        h *= GROW
-        if h > 1e6:
-            raise VsfleetValueError("build_field: the room does not fit max_states")
+    sized = lattice_sizing(tpl, rad, margin_m, obs, (gx, gy), K, cell_m, max_states)
+    if sized is None:
+        raise VsfleetValueError("build_field: the room does not fit max_states")
+    h, infl, ix0, ix1, iy0, iy1, pmax = sized
     nx, ny = ix1 - ix0 + 1, iy1 - iy0 + 1
     w_rot = max(1, _floor(float(W_AXIS) * (pmax * dth) / h + 0.5))
     lattice_x = gx + np.arange(ix0, ix1 + 1, dtype=float) * h      # (nx,)

@@ -8,8 +8,8 @@ chosen. :func:`room_field` builds (and memoises) a room's navigation function, P
 from __future__ import annotations
 
 import math
-from collections import OrderedDict
 from dataclasses import dataclass, replace
+from functools import lru_cache
 from typing import Callable
 
 import numpy as np
@@ -28,13 +28,6 @@ from .geometry import Pose2, wrap_angle
 PLAN_MARGIN_M = 0.02
 
 
-
-#: the fields memoised by room_field, the most recently used last: a few rooms (and their shapes) at a time, each
-#: field holding its lattice (up to 8 MB)
-_FIELDS: OrderedDict[tuple, Field] = OrderedDict()
-_FIELDS_KEPT = 12
-
-
 def room_field(template: np.ndarray, radii, obstacles: np.ndarray, goal: Goal,
                build: Callable = build_field) -> Field | None:
     """The room's navigation function for a mission (None without obstacles or with a twist goal), memoised by
@@ -46,23 +39,16 @@ def room_field(template: np.ndarray, radii, obstacles: np.ndarray, goal: Goal,
     tpl = np.ascontiguousarray(template, dtype=float)
     rad = np.ascontiguousarray(np.broadcast_to(np.asarray(radii, dtype=float), (len(tpl),)))
     obs = np.ascontiguousarray(obstacles, dtype=float).reshape(-1, 3)
-    key = (tpl.tobytes(), rad.tobytes(), obs.tobytes(), target.as_tuple(), PLAN_MARGIN_M, build)
-    hit = _FIELDS.get(key)
-    if hit is not None:
-        try:
-            _FIELDS.move_to_end(key)
-        except KeyError:   # another thread's build pushed it out meanwhile
-            pass
-        return hit
-    field = build(tpl, rad, PLAN_MARGIN_M, obs, target,
-                  n_headings=field_headings(tpl, rad, PLAN_MARGIN_M, obs, (target.x, target.y)))
-    _FIELDS[key] = field
-    while len(_FIELDS) > _FIELDS_KEPT:   # the least recently used out (not all at once: a reference step's shapes
-        try:                              # and the core's, 2 x 5 fields in one test, were all built again)
-            _FIELDS.popitem(last=False)
-        except KeyError:
-            break
-    return field
+    return _room_field(tpl.tobytes(), rad.tobytes(), obs.tobytes(), target.as_tuple(), build)
+
+
+@lru_cache(maxsize=12)   # a few rooms and their shapes, the least recently used out: each field holds up to 8 MB
+def _room_field(tpl_bytes: bytes, rad_bytes: bytes, obs_bytes: bytes, target: tuple, build: Callable) -> Field:
+    """room_field's build, by its key (the arrays' bytes): the lattice's heading count by the structure."""
+    tpl = np.frombuffer(tpl_bytes).reshape(-1, 2)
+    rad, obs = np.frombuffer(rad_bytes), np.frombuffer(obs_bytes).reshape(-1, 3)
+    return build(tpl, rad, PLAN_MARGIN_M, obs, Pose2(*target),
+                 n_headings=field_headings(tpl, rad, PLAN_MARGIN_M, obs, target[:2]))
 
 
 @dataclass(frozen=True)
