@@ -42,7 +42,7 @@ from vsfleet.errors import VsfleetValueError
 from vsfleet.failure import Decision
 from vsfleet.frames import Frame, FrameMerger, MissionBook
 from vsfleet.quorum import majority
-from vsfleet.step import (
+from vsfleet.agentcore import (  # the agent's step, in the core and without numpy (issue 29)
     AgentState,
     Controller,
     StepConfig,
@@ -50,7 +50,7 @@ from vsfleet.step import (
     adopt_health,
     agent_payload_step,
     agent_step,
-    mission_arrays,
+    core_mission_of,
     stop_command,
 )
 from vsfleet.wire import (
@@ -116,7 +116,8 @@ class Agent:
         self.put_cmd, self.put_state, self.put_event = put_cmd, put_state, put_event
         self.clock = clock
         self.config = StepConfig(dt_s=dt_s, ttl_s=ttl_s, controller=controller, command_age_s=command_age_s,
-                                 shared_structures=shared_structures, reference=reference)
+                                 shared_structures=shared_structures, reference=reference,
+                                 outputs=False)   # cmd, state, health, events: what an agent publishes
         self.state = AgentState(robot)
         self.missions = MissionBook()
         self.merger = FrameMerger((), dt_s if deadline_s is None else deadline_s, max_age_s)
@@ -454,13 +455,13 @@ def fetch(session: zenoh.Session, selectors: tuple[str, ...], kind: str, inbox: 
 
 
 def prepare_mission(mission: Mission) -> threading.Thread:
-    """Build a new mission's arrays and its room's field (vsfleet.step.mission_arrays, memoised) on a thread of
+    """Build a new mission's constants for the core and its room's field (vsfleet.agentcore.core_mission_of, memoised) on a thread of
     their own, while the frames of the mission in force go on: the field takes up to ~0.2 s for a large room,
     and the mission takes effect later (mission set: 0.5 s). A frame that needs it sooner builds it itself (the
     same pure function: the same bits)."""
     def build() -> None:
         try:
-            mission_arrays(mission)
+            core_mission_of(mission)
         except Exception:  # noqa: BLE001 - the frame that needs it builds it again and raises there
             log.exception("mission v%d: building its arrays failed", mission.version)
 

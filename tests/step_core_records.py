@@ -236,6 +236,7 @@ def agent_step_records(runs=AGENT_RUNS) -> list[tuple[str, list[float]]]:
 
 
 def agent_step_inputs(robot, config, warm, record) -> list[float]:
+    import vsfleet.agentcore as agentcore
     import vsfleet.step as step
     from vsfleet import _core
     from vsfleet.field import CELL_M, HEADINGS, MAX_STATES
@@ -247,17 +248,18 @@ def agent_step_inputs(robot, config, warm, record) -> list[float]:
     arrays = mission_arrays(mission)
     controller = config.controller or step.mission_controller(mission.controller, mission.controller_gains)
     if state.mission_version != mission.version:
-        state = step._enter_mission(state, mission, arrays.policy, config)
+        state = step.enter_mission(state, mission, arrays.policy, config)
     got = []
     make = _core.agent_config
-    step._KERNELS.clear()
+    agentcore._KERNELS.clear()
     _core.agent_config = lambda *a: got.append(a) or make(*a)
     try:
-        kernel = step._agent_kernel(arrays, mission, robot, controller, config)
+        kernel = agentcore.agent_kernel(agentcore.core_mission_of(mission), mission, robot, controller, config)
     finally:
         _core.agent_config = make
     (core, own, code, gains, deadband, still, policy, safety, times, room, bodies, _ids), = got
     (tpl, wb, vmax, amax, metric, kind, goal, limits, radii, obstacles, margin, _field, shapes_xy, _fields) = core
+    tpl = np.asarray(tpl)
     n = len(arrays.ids)
     head = [float(n), float(metric), float(kind), float(len(goal) // 3), *goal, *limits, *tpl.ravel(), *wb, *vmax,
             *amax, margin, CELL_M, float(HEADINGS), float(MAX_STATES), float(len(obstacles) // 3), *radii,
@@ -265,7 +267,7 @@ def agent_step_inputs(robot, config, warm, record) -> list[float]:
     gains = [*map(float, gains), *[0.0] * (16 - len(gains))]
     agent = [float(own), float(code), *gains, float(deadband), float(still), *map(float, policy), *map(float, safety),
              *map(float, times), float(room), float(bodies)]
-    _ctrl, arrays_in, scalars = step._core_inputs(kernel, state, controller, n)
+    _ctrl, arrays_in, scalars = agentcore._core_inputs(kernel, state, controller, n)
     width = arrays_in[15].shape[1]
     packed = [float(width)] + [float(v) for a in arrays_in for v in np.asarray(a).ravel()] + [*map(float, scalars)]
     frames = []

@@ -7,6 +7,9 @@ import msgpack
 import pytest
 
 import vsfleet.agent.main as agent_main
+import vsfleet.agentcore as agentcore
+import vsfleet.agentstate as agentstate
+import vsfleet.glue as glue
 import vsfleet.impl as impl_module
 import vsfleet.step as step_mod
 from vsfleet.agent.main import Agent
@@ -420,14 +423,14 @@ def test_the_agent_refuses_a_deadline_outside_its_range():
 @pytest.mark.parametrize("on_failure, judged", [("hold", {"r2"}), ("drop", set()), ("rejoin", set())])
 def test_only_under_hold_are_failed_robots_judged_apart(monkeypatch, on_failure, judged):
     seen = []
-    real = step_mod.structure_step
+    real = glue.structure_step
 
     def spy(arrays, metric, pose, seen_rows, excluded, judged_apart, *args):
         seen.append(frozenset(r for r, j in zip(arrays.ids, judged_apart) if j))
         return real(arrays, metric, pose, seen_rows, excluded, judged_apart, *args)
 
-    monkeypatch.setattr(step_mod, "structure_step", spy)
-    monkeypatch.setattr(step_mod, "_agent_kernel", lambda *args: None)   # the numpy glue, which calls structure_step
+    monkeypatch.setattr(glue, "structure_step", spy)
+    monkeypatch.setattr(agentcore, "agent_kernel", lambda *args: None)   # the numpy glue, which calls structure_step
     agent, cmds, states, clock = make_agent()
     agent.on_message("mission", KEYS.mission, encode_mission(dataclasses.replace(MISSION, version=2,
                                                                                  on_failure=on_failure)))
@@ -493,10 +496,10 @@ def test_a_new_mission_with_a_room_is_prepared_off_the_frame_path_once_and_its_f
     built = step_mod.mission_arrays(agent.missions.latest())
     assert built.field is not None
     calls = []
-    original = step_mod.build_field
-    step_mod.build_field = lambda *a, **k: calls.append(1) or original(*a, **k)
+    original = agentstate.build_field
+    agentstate.build_field = lambda *a, **k: calls.append(1) or original(*a, **k)
     try:
         frame(agent, Clock(100.0), 1, 100.0, POSES)  # the agent's own clock object is not this one: t is fresh
     finally:
-        step_mod.build_field = original
+        agentstate.build_field = original
     assert calls == []  # the step found the prepared field

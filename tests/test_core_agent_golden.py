@@ -24,6 +24,7 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import vsfleet.agentcore as agentcore
 import vsfleet.step as step  # noqa: E402
 from golden_core import PATH, read  # noqa: E402
 from step_core_records import AGENT_RUNS, agent_run_frames, agent_step_inputs  # noqa: E402
@@ -97,14 +98,14 @@ def step_outputs(robot, config, warm, record, run_with) -> tuple[list, list[floa
     mission = record[0][0]
     arrays = step.mission_arrays(mission)
     controller = config.controller or step.mission_controller(mission.controller, mission.controller_gains)
-    kernel = step._agent_kernel(arrays, mission, robot, controller, config)
-    _ctrl, arrays_in, scalars = step._core_inputs(kernel, state, controller, len(arrays.ids))
+    kernel = agentcore.agent_kernel(agentcore.core_mission_of(mission), mission, robot, controller, config)
+    _ctrl, arrays_in, scalars = agentcore._core_inputs(kernel, state, controller, len(arrays.ids))
     return per, [float(v) for a in arrays_in for v in np.asarray(a).ravel()] + [*map(float, scalars)]
 
 
 def without_stale_stall_pose(state: list[float]) -> list[float]:
     """The packed state with the stall watch's pose zeroed when the watch is off: vs_agent_step leaves the last
-    pose there (never read while off), the Python state holds None (packed as zeros by step._core_inputs)."""
+    pose there (never read while off), the Python state holds None (packed as zeros by agentcore._core_inputs)."""
     state = list(state)
     if state[STALL_WATCH] == 0.0:
         state[STALL_POSE] = [0.0, 0.0, 0.0]

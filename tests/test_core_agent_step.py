@@ -16,7 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import vsfleet.agentcore as agentcore
 import vsfleet.step as step
+from vsfleet.control import Precision
 from vsfleet.frames import Frame
 from vsfleet.simfleet.offline import run_offline
 from vsfleet.step import AgentState, StepConfig, agent_step
@@ -115,8 +117,8 @@ def test_gaps_past_ttl_and_past_the_resync_gap_and_robots_missing():
 def test_the_core_step_runs_when_it_can_and_the_glue_otherwise(monkeypatch):
     """agent_step takes the core for the compiled implementation without shared structures (the agent process)."""
     calls = []
-    real = step._frame_in_core
-    monkeypatch.setattr(step, "_frame_in_core", lambda *a: calls.append(1) or real(*a))
+    real = agentcore._frame_in_core
+    monkeypatch.setattr(agentcore, "_frame_in_core", lambda *a: calls.append(1) or real(*a))
     sc = load_scenario(ROOT / "scenarios" / "paper-triangle.toml")
     run_offline(sc, 1.0, seed=1, share_structures=False)
     assert calls
@@ -195,7 +197,7 @@ def test_the_binding_refuses_a_policy_mode_or_a_shape_that_is_not_a_code():
 
     sc = load_scenario(ROOT / "scenarios" / "paper-triangle.toml")
     arrays = step.mission_arrays(sc.mission)
-    args = [arrays.core, 0, 0, tuple(float(g) for g in step.Precision()._core), 0.0, 0.0,
+    args = [arrays.core, 0, 0, tuple(float(g) for g in Precision()._core), 0.0, 0.0,
             (0.0, 0.05, 1.0, 0.05, 1.0, 1.0, 0.2, 1e-4, 0.02), (0.015, 5.0, 0.0, 1 / 30), (1 / 30, 0.3, 1 / 60, 1.0, 0.0),
             False, False, arrays.ids]
     _core.agent_config(*args)
@@ -207,9 +209,9 @@ def test_the_binding_refuses_a_policy_mode_or_a_shape_that_is_not_a_code():
     config = _core.agent_config(*args)
     n = len(arrays.ids)
     state = AgentState(arrays.ids[0])
-    state = step._enter_mission(state, sc.mission, arrays.policy, StepConfig())
-    kernel = step._agent_kernel(arrays, sc.mission, arrays.ids[0], step.mission_controller(None), StepConfig())
-    _, arrays_in, scalars = step._core_inputs(kernel, state, step.mission_controller(None), n)
+    state = step.enter_mission(state, sc.mission, arrays.policy, StepConfig())
+    kernel = agentcore.agent_kernel(agentcore.core_mission_of(sc.mission), sc.mission, arrays.ids[0], step.mission_controller(None), StepConfig())
+    _, arrays_in, scalars = agentcore._core_inputs(kernel, state, step.mission_controller(None), n)
     pose = np.zeros((n, 3))
     seen = np.ones(n, dtype=bool)
     for shape in (math.nan, -1.0, 1e300):

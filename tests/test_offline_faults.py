@@ -75,7 +75,7 @@ def test_the_same_seed_gives_the_same_run_bit_for_bit_whether_or_not_the_agents_
 def test_a_shared_structure_is_taken_only_on_equal_inputs_and_is_read_only():
     import numpy as np
 
-    from vsfleet.step import _shared_structure_step, mission_arrays, structure_step
+    from vsfleet.glue import _shared_structure_step, mission_arrays, structure_step
     mission = FAILURE.mission
     arrays = mission_arrays(mission)
     n = len(mission.robot_ids)

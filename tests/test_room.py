@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import vsfleet.agentcore as agentcore
 from vsfleet.analysis import min_gap_m
 from vsfleet.simfleet.offline import run_offline
 from vsfleet.wire import Mission, RobotSpec, TruthMsg
@@ -112,17 +113,17 @@ def ring_with_gap(gap_m: float, centre=(2.0, 1.5), radius: float = 0.8, r: float
 
 def filter_changes(monkeypatch) -> list[float]:
     """Record, per frame stepped, how much the safety filter changed any robot's command [m/s]."""
-    import vsfleet.step as step
+    import vsfleet.glue as glue
     changes: list[float] = []
-    original = step._safe_wheels
+    original = glue._safe_wheels
 
     def recording(arrays, pose, seen, active, wheels, wheels_prev, config):
         out = original(arrays, pose, seen, active, wheels, wheels_prev, config)
         changes.append(float(np.abs(out - wheels).max()))
         return out
 
-    monkeypatch.setattr(step, "_safe_wheels", recording)
-    monkeypatch.setattr(step, "_agent_kernel", lambda *args: None)   # the numpy glue, where _safe_wheels is
+    monkeypatch.setattr(glue, "_safe_wheels", recording)
+    monkeypatch.setattr(agentcore, "agent_kernel", lambda *args: None)   # the numpy glue, where _safe_wheels is
     return changes
 
 

@@ -20,13 +20,14 @@ import math
 from dataclasses import dataclass
 from typing import Sequence, Union
 
-import numpy as np
-
+from .lazy import lazy_numpy
 from . import _core
 from .coreconst import GOAL_PATH, GOAL_PLAN, GOAL_POSE, GOAL_TWIST, LIMIT_FIELDS
 from .envelope import Envelope, Envelopes
 from .errors import ShapeError, VsfleetValueError
 from .geometry import Pose2, angle_diff
+
+np = lazy_numpy(globals())   # numpy on first use: the agent process never loads it (vsfleet.lazy)
 
 # Iterations of the deterministic interval searches below: 2**-80 of the unit
 # interval is far below double precision, so the result is converged and

@@ -9,11 +9,12 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
+from .lazy import lazy_numpy
 from . import _core
 from .coreconst import ASSEMBLING_M, DETOUR_CLEAR_M
 from .errors import ShapeError
+
+np = lazy_numpy(globals())   # numpy on first use: the agent process never loads it (vsfleet.lazy)
 
 
 def assembly_targets(radii_m: np.ndarray, pose_world: np.ndarray, seen: np.ndarray, points_now: np.ndarray,

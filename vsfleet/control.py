@@ -20,12 +20,12 @@ wheel-gain estimation; see :class:`Precision`).
 from __future__ import annotations
 
 import math
+from array import array
 from dataclasses import dataclass, fields
 from operator import attrgetter
 from typing import Callable
 
-import numpy as np
-
+from .lazy import lazy_numpy
 from . import _core
 from .coreconst import (CONTROL_INPUT_ARGS, PRECISION_GAIN_FIELDS, PRECISION_HISTORY as _HISTORY,
                         PRECISION_STATE_ARGS, TRACKING_GAIN_FIELDS)
@@ -38,6 +38,8 @@ from .kinematics import (
     sinc_v_reference as sinc_v,
     wrap_angles_reference as wrap_angles,
 )
+
+np = lazy_numpy(globals())   # numpy on first use: the agent process never loads it (vsfleet.lazy)
 
 
 class UnknownControllerError(VsfleetValueError):
@@ -200,7 +202,8 @@ def _core_call(fn, head: tuple, inp: ControlInput, tail: tuple, head_flags: tupl
 
 
 def _core_gains(obj, values) -> None:
-    object.__setattr__(obj, "_core", np.array(values, dtype=float))
+    """The gains in the core's order, as a float64 buffer (no numpy: controllers are made in the agent process)."""
+    object.__setattr__(obj, "_core", array("d", map(float, values)))
 
 
 # --------------------------------------------------------------------------- the paper's two

@@ -76,11 +76,12 @@ import math
 from dataclasses import dataclass, field
 from typing import Mapping, Sequence
 
-import numpy as np
-
+from .lazy import lazy_numpy
 from . import _core
 from .coreconst import DECISION_KINDS, FAILURE_MODES, FAILURE_NM_PER_M as _NM_PER_M, FAILURE_SETTLED_RATIO
 from .errors import VsfleetValueError
+
+np = lazy_numpy(globals())   # numpy on first use: the agent process never loads it (vsfleet.lazy)
 
 # the rule's decisions (DECISION_KINDS, by their codes in vs_failure.h: VS_DECISION_*; vsfleet.wire's
 # EVENT_KINDS begins with them) and its modes (FAILURE_MODES, VS_FAILURE_*) are the core's (vsfleet.coreconst)

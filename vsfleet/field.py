@@ -16,8 +16,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numpy as np
-
+from .lazy import lazy_numpy
 from . import _core
 from .coreconst import (  # the core's (vs_field.h, vs_step.h), under the names this module has always used
     FIELD_BLOCKED_BIT as BLOCKED_BIT,
@@ -32,8 +31,11 @@ from .coreconst import (  # the core's (vs_field.h, vs_step.h), under the names 
     STEP_PATH_CAP as PATH_CAP,
     STEP_PATH_M as PATH_M,
 )
+from .buffers import f64
 from .errors import VsfleetValueError
 from .geometry import Pose2
+
+np = lazy_numpy(globals())   # numpy on first use: the agent process never loads it (vsfleet.lazy)
 
 # COMFORT_M [m]: beyond the margin, edges near obstacles cost twice (the safety filter stays idle)
 
@@ -54,12 +56,14 @@ def lattice_sizing(template_xy, radius_m, margin_m: float, obstacles, goal_xy, n
     pmax [m]), the cell grown by GROW until the lattice holds at most max_states; None if it never does. The
     inflation is max(h / sqrt 2, the farthest point's turn of half a heading step). Plain arithmetic: every agent
     computes the same (build_field_reference and field_headings both size by it)."""
-    pts = [(float(x), float(y)) for x, y in np.asarray(template_xy, dtype=float).reshape(-1, 2).tolist()]
-    rad = np.asarray(radius_m, dtype=float).reshape(-1).tolist()
+    flat = f64(template_xy)
+    pts = list(zip(flat[0::2], flat[1::2]))
+    rad = f64(radius_m).tolist()
     pmax = max([0.0] + [math.sqrt(x * x + y * y) for x, y in pts])
     reach = max([0.0] + [math.sqrt(x * x + y * y) + r for (x, y), r in zip(pts, rad)])
     gx, gy = float(goal_xy[0]), float(goal_xy[1])
-    obs = np.asarray(obstacles, dtype=float).reshape(-1, 3).tolist()
+    flat = f64(obstacles)
+    obs = list(zip(flat[0::3], flat[1::3], flat[2::3]))
     lo_x = min([0.0] + [(o[0] - o[2]) - gx for o in obs])
     hi_x = max([0.0] + [(o[0] + o[2]) - gx for o in obs])
     lo_y = min([0.0] + [(o[1] - o[2]) - gy for o in obs])
@@ -129,10 +133,8 @@ class Field:
 def build_field(template_xy, radius_m, margin_m: float, obstacles, goal: Pose2, cell_m: float = CELL_M,
                 n_headings: int = HEADINGS, max_states: int = MAX_STATES) -> Field:
     """The compiled core's field (vs_field_build); costs read back lazily by tests only."""
-    handle = _core.field_build(np.ascontiguousarray(template_xy, dtype=float),
-                               np.ascontiguousarray(radius_m, dtype=float), float(margin_m),
-                               np.ascontiguousarray(obstacles, dtype=float).reshape(-1),
-                               np.array(goal.as_tuple(), dtype=float), float(cell_m), int(n_headings), int(max_states))
+    handle = _core.field_build(f64(template_xy), f64(radius_m), float(margin_m), f64(obstacles), f64(goal.as_tuple()),
+                               float(cell_m), int(n_headings), int(max_states))
     lat = Lattice(*_core.field_info(handle))
     return Field(lat, _CoreCosts(handle, lat), handle)
 

@@ -13,14 +13,16 @@ motion, exactly; :func:`inverse_arc` is its inverse for a target point.
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 
-import numpy as np
-
+from .lazy import lazy_numpy
 from . import _core
 from .coreconst import SINC_SERIES_BELOW as _SINC_SERIES_BELOW  # vs_kin.h's
 from .envelope import Envelope
 from .errors import NonFiniteError, ShapeError, VsfleetValueError
 from .geometry import Pose2
+
+np = lazy_numpy(globals())   # numpy on first use: the agent process never loads it (vsfleet.lazy)
 
 # Below this |x| the series of sin(x)/x is used; its error there is < 1e-24.
 
@@ -328,7 +330,10 @@ def integrate_arcs_reference(pose_world: np.ndarray, wheels_m_s: np.ndarray, dt_
                      p[:, 2] + w * dt_s)
 
 
-_ATAN2 = np.frompyfunc(_core.atan2, 2, 1)   # the core's atan2, element by element (the reference's tie-breaks)
+@lru_cache(maxsize=1)
+def _atan2_ufunc():
+    """The core's atan2, element by element (the reference's tie-breaks): a numpy ufunc, made on first use."""
+    return np.frompyfunc(_core.atan2, 2, 1)
 
 
 def limit_wheels_v_reference(wheels_m_s: np.ndarray, wheels_prev_m_s: np.ndarray, dt_s: float,
@@ -382,7 +387,7 @@ def _limit_rows(u: np.ndarray, p: np.ndarray, vmax: np.ndarray, step: np.ndarray
     # the angles with the core's own atan2, not numpy's: two corners on one ray from the origin tie exactly,
     # and numpy's arctan2 and the core's differ by an ulp there, which chose the other corner (1 closed loop
     # in about 1000 of tests/test_core_control.py's hypothesis cases)
-    ang = np.abs(_ATAN2(u[:, :1] * cy - u[:, 1:] * cx, u[:, :1] * cx + u[:, 1:] * cy).astype(float))
+    ang = np.abs(_atan2_ufunc()(u[:, :1] * cy - u[:, 1:] * cx, u[:, :1] * cx + u[:, 1:] * cy).astype(float))
     dist = np.hypot(cx - u[:, :1], cy - u[:, 1:])
     best = np.zeros(len(u), dtype=int)
     for j in range(1, 4):  # first minimum by (angle, distance), as min() over the corners

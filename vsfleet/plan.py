@@ -28,10 +28,10 @@ from __future__ import annotations
 import heapq
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Sequence
 
-import numpy as np
-
+from .lazy import lazy_numpy
 from . import _core
 from .coreconst import (  # the core's (vs_plan.h), under the names this module has always used
     PLAN_ARC_STEP_RAD as ARC_STEP_RAD,
@@ -46,9 +46,18 @@ from .coreconst import (  # the core's (vs_plan.h), under the names this module 
 from .errors import NonFiniteError, ShapeError, VsfleetValueError
 from .geometry import Pose2, wrap_angle
 
+np = lazy_numpy(globals())   # numpy on first use: the agent process never loads it (vsfleet.lazy)
+
 _TWO_PI = 2.0 * math.pi
 _CAP = 256      # waypoints room for the first core call (it says when it needs more)
-_NO_OBSTACLES = np.zeros((0, 3))
+
+
+@lru_cache(maxsize=1)
+def _no_obstacles():
+    """(0, 3) obstacles, read-only: made on first use (numpy is not loaded at import, vsfleet.lazy)."""
+    a = np.zeros((0, 3))
+    a.flags.writeable = False
+    return a
 
 
 @dataclass(frozen=True)
@@ -92,9 +101,9 @@ def _shapes(start, goal, template_xy, radius_m, obstacles):
         rad = np.full(tpl.shape[0], float(rad))
     if rad.shape != (tpl.shape[0],):
         raise ShapeError(f"radius_m must be ({tpl.shape[0]},), got shape {rad.shape}")
-    obs = np.ascontiguousarray(obstacles if obstacles is not None else _NO_OBSTACLES, dtype=float)
+    obs = np.ascontiguousarray(obstacles if obstacles is not None else _no_obstacles(), dtype=float)
     if obs.size == 0:
-        obs = _NO_OBSTACLES
+        obs = _no_obstacles()
     if obs.ndim != 2 or obs.shape[1] != 3:
         raise ShapeError(f"obstacles must be (m, 3) rows (x, y, r), got shape {obs.shape}")
     return _pose(start), _pose(goal), tpl, rad, obs

@@ -22,11 +22,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
-import numpy as np
-
+from .lazy import lazy_numpy
 from . import _core
 from .errors import NonFiniteError, ShapeError, VsfleetValueError
+
+np = lazy_numpy(globals())   # numpy on first use: the agent process never loads it (vsfleet.lazy)
 
 # magnitudes above this are refused (NonFiniteError): their squares would overflow
 _BIG = 1e150
@@ -199,7 +201,7 @@ def _as_given(pose, radius, nominal, base, vmax, obs, act, amax, prev, params):
         return None
     n = pose.shape[0]
     if obs is None:
-        obs = _NO_OBSTACLES
+        obs = _no_obstacles()
     ok = (_is_f8(pose, (n, 3)) and _is_f8(nominal, (n, 2)) and _is_f8(radius, (n,)) and _is_f8(base, (n,))
           and _is_f8(vmax, (n,)) and type(obs) is np.ndarray and obs.ndim == 2 and _is_f8(obs, (len(obs), 3))
           and (act is None or (type(act) is np.ndarray and act.dtype == np.bool_ and act.shape == (n,)
@@ -208,8 +210,12 @@ def _as_given(pose, radius, nominal, base, vmax, obs, act, amax, prev, params):
     return (pose, radius, nominal, base, vmax, obs, act, amax, prev) if ok else None
 
 
-_NO_OBSTACLES = np.zeros((0, 3))
-_NO_OBSTACLES.flags.writeable = False
+@lru_cache(maxsize=1)
+def _no_obstacles():
+    """(0, 3) obstacles, read-only: made on first use (numpy is not loaded at import, vsfleet.lazy)."""
+    a = np.zeros((0, 3))
+    a.flags.writeable = False
+    return a
 
 
 # --- the numpy reference of the compiled filter ---------------------------------------------------

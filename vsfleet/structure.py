@@ -8,19 +8,22 @@ chosen. :func:`room_field` builds (and memoises) a room's navigation function, P
 from __future__ import annotations
 
 import math
+from array import array
 from dataclasses import dataclass, replace
 from functools import lru_cache
 from typing import Callable
 
-import numpy as np
-
+from .lazy import lazy_numpy
 from . import _core
 from .coreconst import STEP_LOOKAHEAD_PER_REACH, STRUCTURE_STEP_ARGS
 from .advance import Goal, GoalPath, GoalPose, GoalTwist, Twist2, advance_structure_reference
+from .buffers import f64
 from .field import (Field, build_field, build_field_reference, field_headings, field_open_reference,
                     follow_field_reference)
 from .fit import fit_structure_reference
 from .geometry import Pose2, wrap_angle
+
+np = lazy_numpy(globals())   # numpy on first use: the agent process never loads it (vsfleet.lazy)
 
 #: clearance [m] the structure's planned way keeps between every robot body and every obstacle: beyond the
 #: safety filter's own margin (15 mm), so that on the plan the filter stays idle (docs/planning.md); the
@@ -36,17 +39,15 @@ def room_field(template: np.ndarray, radii, obstacles: np.ndarray, goal: Goal,
     if len(obstacles) == 0 or isinstance(goal, GoalTwist):
         return None
     target = goal.pose if isinstance(goal, GoalPose) else goal.waypoints[-1]
-    tpl = np.ascontiguousarray(template, dtype=float)
-    rad = np.ascontiguousarray(np.broadcast_to(np.asarray(radii, dtype=float), (len(tpl),)))
-    obs = np.ascontiguousarray(obstacles, dtype=float).reshape(-1, 3)
-    return _room_field(tpl.tobytes(), rad.tobytes(), obs.tobytes(), target.as_tuple(), build)
+    tpl = f64(template)
+    rad = array("d", [float(radii)] * (len(tpl) // 2)) if isinstance(radii, (int, float)) else f64(radii)
+    return _room_field(tpl.tobytes(), rad.tobytes(), f64(obstacles).tobytes(), target.as_tuple(), build)
 
 
 @lru_cache(maxsize=12)   # a few rooms and their shapes, the least recently used out: each field holds up to 8 MB
 def _room_field(tpl_bytes: bytes, rad_bytes: bytes, obs_bytes: bytes, target: tuple, build: Callable) -> Field:
     """room_field's build, by its key (the arrays' bytes): the lattice's heading count by the structure."""
-    tpl = np.frombuffer(tpl_bytes).reshape(-1, 2)
-    rad, obs = np.frombuffer(rad_bytes), np.frombuffer(obs_bytes).reshape(-1, 3)
+    tpl, rad, obs = array("d", tpl_bytes), array("d", rad_bytes), array("d", obs_bytes)
     return build(tpl, rad, PLAN_MARGIN_M, obs, Pose2(*target),
                  n_headings=field_headings(tpl, rad, PLAN_MARGIN_M, obs, target[:2]))
 

@@ -23,8 +23,8 @@ from functools import cached_property
 from typing import Any, Callable, Mapping
 
 import msgpack
-import numpy as np
 
+from .lazy import lazy_numpy
 from . import _core
 from .control import CONTROLLERS
 from .coreconst import (DECISION_KINDS, FAILURE_MODES, WIRE_MAX_ABS as MAX_ABS, WIRE_MAX_ABS_T as MAX_ABS_T,
@@ -33,6 +33,8 @@ from .coreconst import (DECISION_KINDS, FAILURE_MODES, WIRE_MAX_ABS as MAX_ABS, 
 from .errors import VsfleetValueError
 from .failure import FailurePolicy
 from .fit import METRICS  # noqa: F401 (a mission's metric: one of the fit's; re-exported)
+
+np = lazy_numpy(globals())   # numpy on first use: the agent process never loads it (vsfleet.lazy)
 
 NAME_RE = re.compile(r"^[A-Za-z0-9_-]+\Z")  # \Z, not $: $ also matches before a final newline ("cam1\n")
 MAX_PAYLOAD_BYTES = 4096          # pose, cmd, state, truth, fault, event
@@ -836,51 +838,37 @@ def check_clear_of_obstacles(robots: tuple[tuple[str, RobotSpec], ...],
     """
     if not obstacles or not robots or not poses:
         return
-    p = np.array([s.p for _, s in robots], dtype=float)
-    rad = np.array([0.0 if s.radius is None else s.radius for _, s in robots])
-    obs = np.array(obstacles, dtype=float)
-    reach = float(np.max(np.hypot(p[:, 0], p[:, 1]) + rad))  # every body lies within this of the pose
-    margin = 1e-6  # the filters below keep a margin for rounding: the last check is the exact one
-    tree = None
-    for w0 in range(0, len(poses), 1000):  # in chunks: bounded memory, and the first bad pose ends it
-        wp = np.array(poses[w0:w0 + 1000], dtype=float)
-        dx, dy = obs[None, :, 0] - wp[:, None, 0], obs[None, :, 1] - wp[:, None, 1]
-        # 1. only an obstacle within reach of a pose can hold a body there
-        ws, js = np.nonzero(np.hypot(dx, dy) < reach + obs[None, :, 2] + margin)
-        if not len(ws):
-            continue
-        # 2. the robots' points are fixed in the structure frame: find those near each obstacle there
-        if tree is None:
-            from scipy.spatial import cKDTree  # here: only missions with obstacles need it
-
-            tree = cKDTree(p)
-        c, s = np.cos(wp[ws, 2]), np.sin(wp[ws, 2])
-        q = np.column_stack((c * dx[ws, js] + s * dy[ws, js], c * dy[ws, js] - s * dx[ws, js]))
-        bound = obs[js, 2] + float(rad.max()) + margin
-        d1, _ = tree.query(q, k=1, distance_upper_bound=float(bound.max()))
-        close = np.flatnonzero(d1 < bound)
-        if not len(close):
-            continue
-        # 3. exactly, in the world frame, for the pairs left: distance < r + radius is inside
-        hits = []
-        for k in close:
-            w, j = int(ws[k]), int(js[k])
-            x, y, th = wp[w]
-            cw, sw = math.cos(th), math.sin(th)
-            for i in sorted(tree.query_ball_point(q[k], float(bound[k]))):
-                px, py = x + cw * p[i, 0] - sw * p[i, 1], y + sw * p[i, 0] + cw * p[i, 1]
-                d = math.hypot(px - obs[j, 0], py - obs[j, 1])
-                if d < obs[j, 2] + rad[i]:
-                    hits.append((w, j, i, px, py, d))
-        if hits:
-            w, j, i, px, py, d = min(hits)  # the first pose, then obstacle, then robot
+    pts = [s.p for _, s in robots]
+    rad = [0.0 if s.radius is None else s.radius for _, s in robots]
+    reach = max(math.hypot(x, y) + r for (x, y), r in zip(pts, rad))  # every body lies within this of the pose
+    margin = 1e-6  # the filter below keeps a margin for rounding: the last check is the exact one
+    # 1. only an obstacle within reach of a pose can hold a body there: the obstacles in a grid of cells at least
+    # that wide, so that a pose looks only at the 3 x 3 cells round its own
+    cell = reach + max(o[2] for o in obstacles) + margin
+    grid: dict[tuple[int, int], list[int]] = {}
+    for j, (ox, oy, _r) in enumerate(obstacles):
+        grid.setdefault((math.floor(ox / cell), math.floor(oy / cell)), []).append(j)
+    for w, (x, y, th) in enumerate(poses):
+        cx, cy = math.floor(x / cell), math.floor(y / cell)
+        near = sorted(j for dx in (-1, 0, 1) for dy in (-1, 0, 1) for j in grid.get((cx + dx, cy + dy), ()))
+        cw = sw = 0.0
+        for j in near:   # the first obstacle, then robot, of the first pose
             ox, oy, r = obstacles[j]
-            rid, spec = robots[i]
-            body = f"body radius {spec.radius:g} m" if spec.radius is not None else "a point robot"
-            raise WireError(
-                f"{what(w0 + w)} puts robot {rid!r} ({body}) inside obstacle {j} (x {ox:g}, y {oy:g}, r {r:g}): "
-                f"its point ({px:.4g}, {py:.4g}) is {d:.4g} m from the obstacle's centre, "
-                f"less than {r + float(rad[i]):.4g} m")
+            if not math.hypot(ox - x, oy - y) < reach + r + margin:
+                continue
+            if cw == sw == 0.0:
+                cw, sw = math.cos(th), math.sin(th)
+            # 2. exactly, in the world frame: distance < r + radius is inside
+            for i, ((qx, qy), ri) in enumerate(zip(pts, rad)):
+                px, py = x + cw * qx - sw * qy, y + sw * qx + cw * qy
+                d = math.hypot(px - ox, py - oy)
+                if d < r + ri:
+                    rid, spec = robots[i]
+                    body = f"body radius {spec.radius:g} m" if spec.radius is not None else "a point robot"
+                    raise WireError(
+                        f"{what(w)} puts robot {rid!r} ({body}) inside obstacle {j} (x {ox:g}, y {oy:g}, r {r:g}): "
+                        f"its point ({px:.4g}, {py:.4g}) is {d:.4g} m from the obstacle's centre, "
+                        f"less than {r + ri:.4g} m")
 
 
 def _bodies_apart(robots: tuple[tuple[str, RobotSpec], ...], points, what: str) -> None:

@@ -15,14 +15,15 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numpy as np
-
+from ..lazy import lazy_numpy
 from .. import _core
 from ..coreconst import FIT_MAX_ABS as MAX_ABS, METRIC_CODES as _CODES, METRICS
 from ..errors import NonFiniteError, ShapeError, UnknownMetricError, WeightError
 from ..geometry import Pose2, wrap_angle
 from . import certify, median, minimax, procrustes
 from .certify import CERT_TOL, Problem
+
+np = lazy_numpy(globals())   # numpy on first use: the agent process never loads it (vsfleet.lazy)
 
 __all__ = ["CERT_TOL", "METRICS", "FitResult", "fit_structure", "fit_structure_reference", "structure_cost",
            "structure_cost_reference"]
@@ -171,10 +172,8 @@ def _contiguous(p, r, w):
 
 def _clean(a) -> bool:
     """A C-contiguous float64 (n, 2) ndarray (the core reads it as it is)."""
-    return type(a) is np.ndarray and a.dtype == _F64 and a.ndim == 2 and a.shape[1] == 2 and a.flags.c_contiguous
+    return type(a) is np.ndarray and a.dtype.char == "d" and a.ndim == 2 and a.shape[1] == 2 and a.flags.c_contiguous
 
-
-_F64 = np.dtype(np.float64)
 
 
 def fit_structure_reference(template_xy, positions_xy, metric: str = "l2", weights=None) -> FitResult:

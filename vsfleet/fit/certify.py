@@ -8,15 +8,17 @@ search refines the circle until every cell's bound is within CERT_TOL of the bes
 from __future__ import annotations
 
 import math
+import sys
 from functools import cached_property
 
-import numpy as np
-
+from ..lazy import lazy_numpy
 from ..coreconst import FIT_CERT_TOL as CERT_TOL, FIT_MAX_ROUNDS as _MAX_ROUNDS  # vs_fit.h's
 from ..geometry import Pose2, wrap_angle
 
+np = lazy_numpy(globals())   # numpy on first use: the agent process never loads it (vsfleet.lazy)
+
 #: Certification tolerance of the l1 and linf searches [weighted m].
-EPS = float(np.finfo(float).eps)
+EPS = sys.float_info.epsilon   # numpy's finfo(float).eps: the same double
 _GRID = 8  # initial uniform grid of rotations
 _STENCIL = tuple(4.0 ** -k for k in range(1, 9))  # offsets around a cell's centre [x distance to its ends]
 _LOCAL = (1e-6, 1e-3, 4e-3, 1.6e-2, 6.4e-2)  # first batch: th0 and th0 +- these [rad]

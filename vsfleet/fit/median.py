@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-
+from ..lazy import lazy_numpy
 from ..coreconst import L1_NEWTON_N as NEWTON_N  # vs_fit_l1.h's: from this n the search starts at newton()'s rotation
 from .certify import EPS
+
+np = lazy_numpy(globals())   # numpy on first use: the agent process never loads it (vsfleet.lazy)
 
 _ITERS = 40  # inner iterations (Newton converges in a handful from a warm start)
 _ROUGH_ITERS = 1  # a first-pass solve: a valid but looser minorant

@@ -6,13 +6,14 @@ import math
 from functools import lru_cache
 from itertools import combinations
 
-import numpy as np
-
+from ..lazy import lazy_numpy
 from ..coreconst import LINF_SPLIT as SPLIT  # vs_fit_linf.h's
 from .certify import EPS
 
+np = lazy_numpy(globals())   # numpy on first use: the agent process never loads it (vsfleet.lazy)
+
 _WS = 6  # working-set size: the circle is solved exactly on these, then checked on every robot
-_NEXT = np.array([1, 2, 0])  # a basis member's successor (cross products of the radii)
+_NEXT = [1, 2, 0]  # a basis member's successor (cross products of the radii)
 # SPLIT: search end points in every uncertified cell (9 // n per end: 3 at n = 3, none from n = 10)
 
 
