@@ -12,6 +12,7 @@ import copy
 import dataclasses
 import json
 import math
+import random
 import tomllib
 from pathlib import Path
 
@@ -347,3 +348,37 @@ def test_the_room_scenarios_say_what_the_issue_asks():
     assert len({r.start[0] for r in row.robots}) == 1                 # in a row
     gaps = [b - a - 2 * 0.05 for a, b in zip(starts, starts[1:])]
     assert gaps == pytest.approx([0.02, 0.02])                        # 2 cm between bodies
+
+
+def test_the_check_finds_the_first_pose_obstacle_and_robot_that_every_pair_checked_in_turn_finds():
+    """The grids of check_clear_of_obstacles (obstacles by pose, points by obstacle) only skip pairs that cannot
+    touch: on random rooms its verdict and message are those of checking every pose, obstacle and robot in turn."""
+    rng = random.Random(7)
+
+    def brute(robots, obstacles, poses):
+        for w, (x, y, th) in enumerate(poses):
+            cw, sw = math.cos(th), math.sin(th)
+            for j, (ox, oy, r) in enumerate(obstacles):
+                for i, (_rid, s) in enumerate(robots):
+                    px, py = x + cw * s.p[0] - sw * s.p[1], y + sw * s.p[0] + cw * s.p[1]
+                    if math.hypot(px - ox, py - oy) < r + (s.radius or 0.0):
+                        return f"pose {w} puts robot {robots[i][0]!r}", f"inside obstacle {j} "
+        return None
+
+    verdicts = []
+    for _ in range(300):
+        n = rng.randint(1, 12)
+        robots = tuple((f"r{i}", RobotSpec((rng.uniform(-2, 2), rng.uniform(-2, 2)), 0.1, 0.3, 1.0,
+                                           radius=rng.choice([None, rng.uniform(0.01, 0.2)]))) for i in range(n))
+        obstacles = tuple((rng.uniform(-6, 6), rng.uniform(-6, 6), rng.uniform(0.01, 0.5))
+                          for _ in range(rng.randint(1, 30)))
+        poses = tuple((rng.uniform(-6, 6), rng.uniform(-6, 6), rng.uniform(-4, 4)) for _ in range(rng.randint(1, 20)))
+        want = brute(robots, obstacles, poses)
+        verdicts.append(want is not None)
+        if want is None:
+            check_clear_of_obstacles(robots, obstacles, poses)
+        else:
+            with pytest.raises(WireError) as err:
+                check_clear_of_obstacles(robots, obstacles, poses)
+            assert want[0] in str(err.value) and want[1] in str(err.value)
+    assert 50 < sum(verdicts) < 250   # both verdicts, many times

@@ -841,25 +841,35 @@ def check_clear_of_obstacles(robots: tuple[tuple[str, RobotSpec], ...],
     pts = [s.p for _, s in robots]
     rad = [0.0 if s.radius is None else s.radius for _, s in robots]
     reach = max(math.hypot(x, y) + r for (x, y), r in zip(pts, rad))  # every body lies within this of the pose
-    margin = 1e-6  # the filter below keeps a margin for rounding: the last check is the exact one
+    margin = 1e-6  # the filters below keep a margin for rounding: the last check is the exact one
     # 1. only an obstacle within reach of a pose can hold a body there: the obstacles in a grid of cells at least
     # that wide, so that a pose looks only at the 3 x 3 cells round its own
-    cell = reach + max(o[2] for o in obstacles) + margin
+    r_obs = max(o[2] for o in obstacles)
+    cell = reach + r_obs + margin
     grid: dict[tuple[int, int], list[int]] = {}
     for j, (ox, oy, _r) in enumerate(obstacles):
         grid.setdefault((math.floor(ox / cell), math.floor(oy / cell)), []).append(j)
+    # 2. only a robot whose point lies within r + its radius of an obstacle's centre (in the structure frame) can
+    # be inside it: the points in a grid of cells at least that wide
+    near_m = r_obs + max(rad) + margin
+    points: dict[tuple[int, int], list[int]] = {}
+    for i, (qx, qy) in enumerate(pts):
+        points.setdefault((math.floor(qx / near_m), math.floor(qy / near_m)), []).append(i)
     for w, (x, y, th) in enumerate(poses):
         cx, cy = math.floor(x / cell), math.floor(y / cell)
         near = sorted(j for dx in (-1, 0, 1) for dy in (-1, 0, 1) for j in grid.get((cx + dx, cy + dy), ()))
-        cw = sw = 0.0
+        turned = False
         for j in near:   # the first obstacle, then robot, of the first pose
             ox, oy, r = obstacles[j]
             if not math.hypot(ox - x, oy - y) < reach + r + margin:
                 continue
-            if cw == sw == 0.0:
-                cw, sw = math.cos(th), math.sin(th)
-            # 2. exactly, in the world frame: distance < r + radius is inside
-            for i, ((qx, qy), ri) in enumerate(zip(pts, rad)):
+            if not turned:
+                cw, sw, turned = math.cos(th), math.sin(th), True
+            bx, by = cw * (ox - x) + sw * (oy - y), cw * (oy - y) - sw * (ox - x)   # the centre, structure frame
+            px0, py0 = math.floor(bx / near_m), math.floor(by / near_m)
+            for i in sorted(i for dx in (-1, 0, 1) for dy in (-1, 0, 1) for i in points.get((px0 + dx, py0 + dy), ())):
+                # 3. exactly, in the world frame: distance < r + radius is inside
+                (qx, qy), ri = pts[i], rad[i]
                 px, py = x + cw * qx - sw * qy, y + sw * qx + cw * qy
                 d = math.hypot(px - ox, py - oy)
                 if d < r + ri:
