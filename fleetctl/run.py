@@ -162,6 +162,9 @@ def summarise(scenario: Scenario, mission: Mission, records, elapsed_s: float, c
 #: how `vsfleet run` and bench/loop.py start the agents: "fork" (from a fork server, vsfleet.zglue.forks) or
 #: "exec" (one python each)
 SPAWN_MODES = ("fork", "exec")
+#: what the fork server imports before it forks agents: the agent's program and nothing of numpy, which an agent does
+#: not load (issue 29; tests/integration/test_agent_numpy_free.py)
+AGENT_PRELOAD = ("vsfleet.fleetctl.cli", "vsfleet.agent.main")
 
 
 class Children:
@@ -191,8 +194,7 @@ class Children:
             return self.start(name, child_command("agent", *args), cwd=cwd)
         if spawn != "fork":
             raise ValueError(f"spawn must be one of {SPAWN_MODES}, got {spawn!r}")
-        return self.start_forked(name, "vsfleet.fleetctl.cli", ["agent", *args],
-                                 ["vsfleet.fleetctl.cli", "vsfleet.agent.main"], cwd=cwd,
+        return self.start_forked(name, "vsfleet.fleetctl.cli", ["agent", *args], list(AGENT_PRELOAD), cwd=cwd,
                                  title=child_command("agent", *args))
 
     def start(self, name: str, cmd: list[str], cwd: Path | None = None) -> subprocess.Popen:

@@ -53,3 +53,16 @@ def test_the_agent_processes_of_a_live_fleet_have_no_numpy_mapped(fleet):
         maps = Path(f"/proc/{proc.pid}/maps").read_text()
         assert "_core" in maps                      # the compiled core is there: the maps are the agent's
         assert "numpy" not in maps and "scipy" not in maps, name
+
+
+def test_the_fork_server_of_vsfleet_run_imports_what_it_preloads_for_agents_without_numpy():
+    """`vsfleet run` forks its agents from a server that imported AGENT_PRELOAD first: a forked agent holds what
+    the server imported, so that must not be numpy either."""
+    from vsfleet.fleetctl.run import AGENT_PRELOAD
+    code = ("import importlib, sys, numpy_free_agent\n"
+            "sys.meta_path.insert(0, numpy_free_agent._Refuse())\n"
+            f"for m in {list(AGENT_PRELOAD)!r}:\n    importlib.import_module(m)\n"
+            "print('numpy' in sys.modules, 'scipy' in sys.modules)")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=HERE)
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert run.stdout.split() == ["False", "False"]
