@@ -222,8 +222,9 @@ class Agent:
         merger.done = (out.t, out.seq)
         merger.heard[src] = max(out.t, merger.heard[src])
         self._fast_last = (key, payload)
-        self.put_cmd(out.cmd)
-        self.put_state(out.state)
+        if out.cmd is not None:   # None: no robot usable (every one dropped): no command, as the long way
+            self.put_cmd(out.cmd)
+            self.put_state(out.state)
         self.emit(out.notes, out.events, out.health)
         return True
 

@@ -503,3 +503,30 @@ def test_a_new_mission_with_a_room_is_prepared_off_the_frame_path_once_and_its_f
     finally:
         agentstate.build_field = original
     assert calls == []  # the step found the prepared field
+
+
+@pytest.mark.parametrize("fast", [True, False], ids=["one pass", "long way"])
+def test_with_every_robot_dropped_a_frame_sends_no_command_and_the_agent_goes_on(fast):
+    """Peers agree that every robot is dropped (on_failure drop): no robot is usable, so a frame answers with no
+    command and no state, in one pass as the long way (before, the one pass handed None to put_cmd, which zenoh
+    refuses: every agent of the fleet ended on that frame). The robot halts when its last command runs out."""
+    agent, cmds, states, clock = make_agent()
+    agent.on_message("mission", KEYS.mission, encode_mission(dataclasses.replace(MISSION, version=2,
+                                                                                 on_failure="drop")))
+    for seq in range(1, 4):
+        clock.t = 100.0 + seq / 30
+        agent.run_frame(KEYS.frame("sim"), encode_frame(FrameMsg(clock.t, seq, "sim", POSES)))
+    assert len(cmds) == 3
+    agent.state = dataclasses.replace(agent.state, phase=SyncPhase.RESYNCING)
+    all_dropped = HealthMsg(t=clock.t, seq=3, mission=2, failed=("r1", "r2", "r3"), dropped=("r1", "r2", "r3"),
+                            since=())
+    assert agent.on_health(KEYS.peer_health("r2"), encode_health(all_dropped), timers=False)
+    clock.t += 1 / 30
+    payload = encode_frame(FrameMsg(clock.t, 4, "sim", POSES))
+    if fast:
+        assert agent.fast_frame(KEYS.frame("sim"), payload)   # the one pass ran it
+    else:
+        agent.on_frame(KEYS.frame("sim"), payload, wake=False)
+        agent.poll()
+    assert len(cmds) == 3 and len(states) == 3 and agent.rejections.count == 0
+    decode_cmd(agent.stop_command())   # and it still stops cleanly

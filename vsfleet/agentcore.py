@@ -6,7 +6,7 @@ agent process is this module's: the mission's constants packed for the core once
 the core's configuration once per mission and robot (``agent_kernel``), the state's arrays as plain buffers
 (vsfleet.buffers) that the core advances in place, and one call into the core per frame (``vsfleet._core.agent_step``
 from a merged frame, ``vsfleet._core.agent_frame`` from a frame's payload bytes). numpy is never loaded on this path
-(tests/test_agent_numpy_free.py). A frame the core does not run (the reference implementation, a controller the core
+(tests/integration/test_agent_numpy_free.py). A frame the core does not run (the reference implementation, a controller the core
 does not have, an offline run that shares structures between its agents) goes to vsfleet.glue's numpy glue,
 imported then: the same decisions, bit for bit (tests/test_core_agent_step.py).
 """
@@ -344,7 +344,7 @@ def agent_payload_step(state: AgentState, mission: Mission | None, payload: byte
                             max_age_s, others_t)
     if got is None:
         return None
-    cmd, state_payload, t, seq, r = got
+    cmd, state_payload, t, seq, r = got   # cmd and state None: no robot usable (every one dropped)
     notes: list = []
     state, health_msg, events = _core_outcome(state, mission, cm, ctrl, t, seq, r, scalars, notes)
     return state, PayloadStep(cmd, state_payload, t, seq, health_msg, events, tuple(notes))

@@ -24,11 +24,15 @@ def f64(values) -> array | memoryview:
         out = array("d", values.astype("float64").ravel(order="C").tobytes())
     else:
         out = array("d")
-        for v in values:
-            if isinstance(v, (int, float)):
-                out.append(v)
-            else:
-                out.extend(map(float, v))
+        try:
+            rows = iter(values)
+        except TypeError:   # a bare number
+            rows = iter((values,))
+        for v in rows:
+            try:
+                out.append(v)   # a number (numpy's scalars too: array takes anything with __float__)
+            except TypeError:
+                out.extend(map(float, v))   # a row
     return out if len(out) else memoryview(array("d", (0.0,)))[:0]
 
 
@@ -43,11 +47,3 @@ def filled(typecode: str, shape: tuple[int, ...], value=0) -> memoryview:
     view = memoryview(store).cast("B")[:count * _ITEM[typecode]]
     return view.cast(typecode, shape) if count else view.cast(typecode)
 
-
-def copied(buf) -> memoryview:
-    """A writable copy of a buffer (a memoryview or a numpy array), its format and shape kept."""
-    src = memoryview(buf)
-    dst = memoryview(bytearray(src.nbytes if src.nbytes else 8))[:src.nbytes]
-    dst[:] = src.cast("B") if src.c_contiguous else memoryview(src.tobytes())
-    fmt = src.format.lstrip("<=@")
-    return dst.cast(fmt, src.shape) if src.nbytes else dst.cast(fmt)

@@ -19,6 +19,7 @@ rule judges by are the very commands each robot's own agent sends.
 from __future__ import annotations
 
 import math
+from array import array
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from itertools import chain, repeat
@@ -97,7 +98,7 @@ def core_mission(metric: str, template: np.ndarray, envelopes: Envelopes, goal: 
     packed = pack_mission(metric, template, envelopes.wheel_base_m, envelopes.wheel_speed_max_m_s,
                           envelopes.wheel_accel_max_m_s2, goal, limits, [0.0] * n if radii is None else radii,
                           obstacles, field, shapes, shape_fields)
-    return tuple(np.frombuffer(v).reshape(n, 2) if a == "template_xy" else np.frombuffer(v) if hasattr(v, "typecode")
+    return tuple(np.frombuffer(v).reshape(n, 2) if a == "template_xy" else np.frombuffer(v) if isinstance(v, (array, memoryview))
                  else v for a, v in zip(MISSION_ARGS, packed))
 
 

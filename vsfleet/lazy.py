@@ -6,7 +6,7 @@ beside the names the agent needs, so each binds ``np = lazy_numpy(globals())``: 
 first time one of its attributes is read, and then puts numpy itself in the module's namespace under the same
 name, so every later ``np.x`` in that module is the plain global lookup it always was. A module that uses numpy
 at import time (a constant array) must not: such a constant is built on first use instead.
-tests/test_agent_numpy_free.py runs an agent and checks that numpy was never loaded.
+tests/integration/test_agent_numpy_free.py runs an agent and checks that numpy was never loaded.
 """
 
 from __future__ import annotations

@@ -40,7 +40,9 @@ def room_field(template: np.ndarray, radii, obstacles: np.ndarray, goal: Goal,
         return None
     target = goal.pose if isinstance(goal, GoalPose) else goal.waypoints[-1]
     tpl = f64(template)
-    rad = array("d", [float(radii)] * (len(tpl) // 2)) if isinstance(radii, (int, float)) else f64(radii)
+    rad = f64(radii)
+    if len(rad) == 1:   # one radius for every body (as numpy broadcast it)
+        rad = array("d", [rad[0]] * (len(tpl) // 2))
     return _room_field(tpl.tobytes(), rad.tobytes(), f64(obstacles).tobytes(), target.as_tuple(), build)
 
 

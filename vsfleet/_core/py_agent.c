@@ -515,7 +515,7 @@ static PyObject *py_agent_frame(PyObject *mod, PyObject *const *a, Py_ssize_t na
     put_scalars(&sv);
     PyObject *r = result_of(&out, dec);
     if (r == NULL) goto done;
-    if (!out.ran) {   /* no robot usable: unreachable with every robot seen, kept for the shape of the answer */
+    if (!out.ran) {   /* no robot usable (every one dropped): no command, no state */
         result = Py_BuildValue("(OOdLN)", Py_None, Py_None, fr.t, (long long)fr.seq, r);
         goto done;
     }

@@ -172,7 +172,7 @@ def _contiguous(p, r, w):
 
 def _clean(a) -> bool:
     """A C-contiguous float64 (n, 2) ndarray (the core reads it as it is)."""
-    return type(a) is np.ndarray and a.dtype.char == "d" and a.ndim == 2 and a.shape[1] == 2 and a.flags.c_contiguous
+    return type(a) is np.ndarray and a.dtype.char == "d" and a.dtype.isnative and a.ndim == 2 and a.shape[1] == 2 and a.flags.c_contiguous
 
 
 
