@@ -4,8 +4,9 @@ core agent, and prints what it sent as JSON: the agent process must not need num
 
 The run: a mission of three point robots; frames in one pass (fast_frame) and frames the long way (a frame
 without one robot, a second tracker source for a while, a gap past the command's ttl and the resync after it);
-the peers' health adopted; a mission update with bodies and an obstacle (its room's field built) that fails a
-robot standing still; the stop command."""
+the peers' health adopted; a mission update with bodies and an obstacle (its room's field built on the prepare
+thread) that fails a robot standing still; a path under turn_then_go with the l-infinity fit, a twist under tracking
+with the l1 fit; the stop command."""
 
 from __future__ import annotations
 
@@ -28,7 +29,7 @@ class _Refuse(importlib.abc.MetaPathFinder):
 def drive(glue: bool = False) -> dict:
     """Every payload the agent sent (hex), in order by kind, and the ways its frames went. glue: every frame through
     vsfleet.step's numpy glue around the core's kernels (as an offline run that shares structures), the long way."""
-    from vsfleet.agent.main import Agent
+    from vsfleet.agent.main import Agent, prepare_mission
     from vsfleet.wire import FrameMsg, HealthMsg, Keys, Mission, RobotSpec, encode_frame, encode_health, \
         encode_mission
 
@@ -40,7 +41,8 @@ def drive(glue: bool = False) -> dict:
     sent: dict[str, list[str]] = {"cmd": [], "state": [], "event": []}
     agent = Agent("r1", keys, lambda b: sent["cmd"].append(b.hex()), lambda b: sent["state"].append(b.hex()),
                   clock=lambda: clock[0], put_event=lambda b: sent["event"].append(b.hex()),
-                  shared_structures={} if glue else None)
+                  shared_structures={} if glue else None,
+                  prepare=lambda m: prepare_mission(m).join(timeout=60.0))   # the room's field on its own thread
     agent.on_message("mission", keys.mission, encode_mission(mission))
     ways = {"fast": 0, "long": 0}
     pose = {"r1": [0.3, 0.0, 0.0], "r2": [-0.15, 0.26, 0.0], "r3": [-0.15, -0.26, 0.0]}
@@ -78,6 +80,18 @@ def drive(glue: bool = False) -> dict:
         frame(seq, t)
         if k == 5:   # resyncing since the gap: no peer answers, so the agent decides alone from now on
             agent.health_replies([])
+    t += 0.5   # a path under another controller, then a twist
+    path = Mission(3, "linf", specs, 0.08, 0.3, t + 0.2, path=((1.6, 0.9, 0.0), (2.0, 1.2, 0.5)),
+                   controller="turn_then_go")
+    agent.on_message("mission", keys.mission, encode_mission(path))
+    for _ in range(40):
+        seq, t = seq + 1, t + 1 / 30
+        frame(seq, t)
+    twist = Mission(4, "l1", specs, 0.08, 0.3, t + 0.2, twist=(0.05, 0.0, 0.1), controller="tracking")
+    agent.on_message("mission", keys.mission, encode_mission(twist))
+    for _ in range(40):
+        seq, t = seq + 1, t + 1 / 30
+        frame(seq, t)
     sent["stop"] = [agent.stop_command().hex()]
     return {"sent": sent, "ways": ways, "phase": agent.state.phase.value, "ticks": agent.ticks,
             "rejected": agent.rejections.count,
