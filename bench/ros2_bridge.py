@@ -22,7 +22,7 @@ from vsfleet.fleetctl import rmw_zenoh as rz
 from vsfleet.fleetctl.mission_cmd import stamp
 from vsfleet.fleetctl.router import free_loopback_port, wait_listening
 from vsfleet.zglue.scenario_file import load_scenario
-from tests.integration.harness import open_client
+from tests.integration.conftest import open_client
 from vsfleet.wire import CmdMsg, Keys, encode, encode_mission
 
 ROOT = Path(__file__).resolve().parents[1]
