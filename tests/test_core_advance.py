@@ -100,20 +100,14 @@ angle = st.floats(-4.0, 4.0, allow_nan=False)
 small = st.floats(-0.3, 0.3, allow_nan=False)
 
 
-# a template coordinate [m]: any, or one of a few shared values (points on one line, at the origin, 1e-12 apart)
-XY = st.one_of(st.floats(-2.0, 2.0, allow_nan=False), st.sampled_from([0.0, 0.3, -0.26, 1e-12]))
-# the envelope columns: wheel base, wheel speed max, wheel accel max
-ENV_COLUMNS = (st.floats(0.05, 0.5), st.floats(0.01, 1.0), st.floats(0.05, 5.0))
-
-
 @st.composite
 def fleets(draw, max_n=100):
-    """n template points (x0, y0, x1, y1, ...: a fixed-size list draws no size, so the choices are those of n
-    (x, y) tuples) and the envelopes, column by column; the strategies are built once, not per example."""
     n = draw(st.integers(1, max_n))
-    tpl = np.array(draw(st.lists(XY, min_size=2 * n, max_size=2 * n)), dtype=float).reshape(n, 2)
-    col = lambda c: np.array(draw(st.lists(c, min_size=n, max_size=n)), dtype=float)
-    env = Envelopes(*map(col, ENV_COLUMNS))
+    pick = st.sampled_from([0.0, 0.3, -0.26, 1e-12])
+    xy = st.one_of(st.floats(-2.0, 2.0, allow_nan=False), pick)
+    tpl = np.array(draw(st.lists(st.tuples(xy, xy), min_size=n, max_size=n)), dtype=float).reshape(n, 2)
+    col = lambda lo, hi: np.array(draw(st.lists(st.floats(lo, hi), min_size=n, max_size=n)), dtype=float)
+    env = Envelopes(col(0.05, 0.5), col(0.01, 1.0), col(0.05, 5.0))
     return tpl, env
 
 
