@@ -192,16 +192,25 @@ def test_sinc_v_and_wrap_angles_keep_the_shape_and_refuse_non_finite_values():
 # --------------------------------------------------------------------------- controllers
 
 
+def assert_close(a, b, err_msg: str) -> None:
+    """np.testing.assert_allclose(a, b, rtol=0, atol=TOL), not run where a and b are arrays of the same shape, dtype
+    and bytes (where it passes: the same values, NaN where NaN): about 1 us against its 80 us, and the closed loops
+    below compare seven arrays on each of ~7000 ticks, almost always bit for bit the same."""
+    if not (type(a) is np.ndarray and type(b) is np.ndarray and a.shape == b.shape and a.dtype == b.dtype
+            and a.tobytes() == b.tobytes()):
+        np.testing.assert_allclose(a, b, rtol=0, atol=TOL, err_msg=err_msg)
+
+
 def assert_same(core, ref, name):
     state_c, wheels_c = core
     state_r, wheels_r = ref
-    np.testing.assert_allclose(wheels_c, wheels_r, rtol=0, atol=TOL, err_msg=name)
+    assert_close(wheels_c, wheels_r, name)
     assert wheels_c.shape == wheels_r.shape and wheels_c.dtype == wheels_r.dtype
     if isinstance(state_c, PrecisionState):
         for f in STATE_FIELDS:
             a, b = getattr(state_c, f), getattr(state_r, f)
             assert a.shape == b.shape and a.dtype == b.dtype, f
-            np.testing.assert_allclose(a, b, rtol=0, atol=TOL, err_msg=f"{name}: {f}")
+            assert_close(a, b, f"{name}: {f}")
         assert np.array_equal(state_c.direction, state_r.direction)
         assert state_c.ready.dtype == state_r.ready.dtype == bool
         assert np.array_equal(state_c.ready, state_r.ready)

@@ -92,9 +92,28 @@ def test_moving_the_robots_rigidly_moves_the_fit_with_them(n, seed, g, metric):
 # ---------------------------------------------------------------- optimality
 
 
+def _cost_at(p, r, metric, weights=None):
+    """v -> structure_cost(p, r, (v[0], v[1], v[2]), metric, weights), the same number, for scipy's searches (tens of
+    thousands of calls a test): p, r and weights validated once, then the core's fit_cost at Pose2(x, y, th) as
+    structure_cost computes it (a pose it would refuse still goes to structure_cost, which raises as before)."""
+    from vsfleet import _core  # noqa: PLC0415
+    from vsfleet.fit import MAX_ABS, _CODES, _contiguous, _validate  # noqa: PLC0415 - structure_cost's own steps
+    pc, rc, wc = _contiguous(*_validate(p, r, metric, weights))
+    code = _CODES[metric]
+
+    def cost(v) -> float:
+        x, y, th = float(v[0]), float(v[1]), float(v[2])
+        if not (abs(x) <= MAX_ABS and abs(y) <= MAX_ABS and abs(th) <= MAX_ABS):   # NaN too
+            return structure_cost(p, r, (x, y, th), metric, weights)
+        pose = Pose2(x, y, th)
+        return _core.fit_cost(pc, rc, wc, code, pose.x, pose.y, pose.th)
+
+    return cost
+
+
 def _powell(p, r, metric, x0, weights=None):
     from scipy.optimize import minimize  # noqa: PLC0415 - here: scipy.optimize is 0.1-0.3 s of each worker's collection
-    cost = lambda x: structure_cost(p, r, (x[0], x[1], x[2]), metric, weights)  # noqa: E731
+    cost = _cost_at(p, r, metric, weights)
     return minimize(cost, x0, method="Powell", options={"xtol": 1e-12, "ftol": 1e-15}).fun
 
 
@@ -135,7 +154,7 @@ def test_the_l1_cost_is_never_above_a_perturbed_pose_or_a_multistart_search(n, s
             assert res.cost <= other + CERT_TOL  # the certified gap (the search stops there)
     from scipy.optimize import minimize  # noqa: PLC0415 - as in _powell
     x0 = fit_structure(p, r, "l2").pose.as_tuple()
-    cost = lambda v: structure_cost(p, r, (v[0], v[1], v[2]), "l1")  # noqa: E731
+    cost = _cost_at(p, r, "l1")
     best = _powell(p, r, "l1", x0)
     for k in range(8):  # Nelder-Mead restarts around the circle
         start = [x0[0], x0[1], x0[2] + 2.0 * math.pi * k / 8]

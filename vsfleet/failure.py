@@ -219,16 +219,15 @@ def _motion(policy: FailurePolicy, state: FailureState, t: float, fresh: np.ndar
     window_t, window_nm, head = state.window_t, state.window_nm, state.head
     in_window, sums, window_dev = state.in_window, state.sums_nm, state.window_dev_m
     expire = in_window & ~(window_t > t - policy.fail_after_s)   # items that left the window
-    rows = np.flatnonzero(had)
+    rows = had.nonzero()[0]
     slots = window_t.shape[1]
     at = head[rows] % slots                                     # a full ring overwrites its oldest item
     if rows.size:
         expire = expire.copy()
         expire[rows, at] |= in_window[rows, at]
     if expire.any() or rows.size:
-        sums, in_window = sums.copy(), in_window & ~expire
-        ii, jj = np.nonzero(expire)
-        np.subtract.at(sums, ii, window_nm[ii, jj])
+        in_window = in_window & ~expire
+        sums = sums - np.where(expire[:, :, None], window_nm, 0).sum(axis=1)   # int64: exact in any order
     if rows.size:
         window_t, window_nm, head, window_dev = window_t.copy(), window_nm.copy(), head.copy(), window_dev.copy()
         window_t[rows, at] = t
@@ -243,13 +242,14 @@ def _motion(policy: FailurePolicy, state: FailureState, t: float, fresh: np.ndar
     sx, sy, ox, oy = total[:, 0], total[:, 1], total[:, 2], total[:, 3]
     e2 = sx * sx + sy * sy
     times = np.where(in_window, window_t, np.inf)
-    first_t = np.min(times, axis=1)
+    oldest = times.argmin(axis=1)                                # the first slot of the earliest time
+    first_t = times[np.arange(len(times)), oldest]
     settled = had & (t - first_t >= FAILURE_SETTLED_RATIO * policy.fail_after_s)
     known = settled & (e2 >= policy.min_expected_m ** 2)
     ratio = np.where(known, (ox * sx + oy * sy) / np.where(known, e2, 1.0), np.nan)
     # the assembly phase: over a settled window its deviation shrank by more than min_approach_m
     # (from the oldest item's frame, the first slot of the earliest time, to this one)
-    first_dev = window_dev[np.arange(len(times)), np.argmin(times, axis=1)] if len(times) else np.zeros(0)
+    first_dev = window_dev[np.arange(len(times)), oldest]
     finite = np.isfinite(dev)
     approach = settled & finite & (first_dev - np.where(finite, dev, 0.0) > policy.min_approach_m)
     last_t = np.where(fresh, t, state.last_t)
@@ -331,7 +331,7 @@ def failure_step_reference(policy: FailurePolicy, state: FailureState, robots: S
                                        exp_m, step_s, max_gap_s, dev)
     since, failed, dropped = state.since_t.copy(), state.failed.copy(), state.dropped.copy()
     in_fit = seen & ~dropped
-    structure_off = int(in_fit.sum()) >= 2 and float(np.min(dev[in_fit])) > policy.fail_deviation_m
+    structure_off = np.count_nonzero(in_fit) >= 2 and float(dev[in_fit].min()) > policy.fail_deviation_m
     stuck = np.isfinite(ratio) & (ratio < policy.min_progress_ratio)
     # the assembly phase: a seen robot that approaches its point, or that the safety filter holds
     # back, is on its way: the deviation test does not judge it (the progress test still does)
@@ -358,7 +358,7 @@ def failure_step_reference(policy: FailurePolicy, state: FailureState, robots: S
     start = np.where(healthy & ~complies & np.isnan(since), t - np.where(stuck, policy.fail_after_s, 0.0), since)
     fail = healthy & ~complies & (t - start >= policy.fail_after_s)
     since = np.where(healthy, np.where(~complies & ~fail, start, np.nan), since)
-    for i in np.flatnonzero(back | recover | fail):    # decisions only: rare, never per frame
+    for i in (back | recover | fail).nonzero()[0]:    # decisions only: rare, never per frame
         r, d = robots[i], float(dev[i])
         if back[i]:
             decisions.append(Decision(t, r, "rejoin", d))

@@ -291,13 +291,13 @@ def _axis_index(u: float, lo: int, count: int) -> tuple[int, bool]:
         return 0, True
     if u >= lo + count:
         return count - 1, True
-    return _floor(u) - lo, False
+    return math.floor(u) - lo, False
 
 
 def _nearest(lat: Lattice, x: float, y: float, th: float) -> tuple[int, int, int, bool]:
     c, out_c = _axis_index((x - lat.gx) / lat.cell_m + 0.5, lat.ix_lo, lat.nx)
     r, out_r = _axis_index((y - lat.gy) / lat.cell_m + 0.5, lat.iy_lo, lat.ny)
-    k = _floor(_core.wrap_angle(th - lat.gth) / lat.dth_rad + 0.5) % lat.n_headings
+    k = math.floor(_core.wrap_angle(th - lat.gth) / lat.dth_rad + 0.5) % lat.n_headings
     return c, r, k, out_c or out_r
 
 
@@ -321,15 +321,18 @@ def _neighbours(lat: Lattice, s: int):
 
 
 def _descend(lat: Lattice, cost: np.ndarray, s: int):
-    cs = int(cost[s]) & COST_MASK
+    """The neighbour a descent from state s takes and its edge's weight (None, 0 at the goal or at a local minimum).
+    cost: _cost_view's (its items are Python ints)."""
+    vs = cost[s]
+    cs = vs & COST_MASK
     if cs == 0:
         return None, 0
     best, best_v, best_w = None, 0, 0
     for t, w in _neighbours(lat, s):
-        ct = int(cost[t])
+        ct = cost[t]
         if ct == WALL or (ct & COST_MASK) >= cs:
             continue
-        if (int(cost[s]) | ct) & TIGHT_BIT:
+        if (vs | ct) & TIGHT_BIT:
             w *= 2
         v = (ct & COST_MASK) + w
         if best is None or v < best_v:
@@ -424,11 +427,12 @@ def _segment_clear(lat: Lattice, cost: np.ndarray, a, b, want: int) -> bool:
     steps_xy = math.sqrt(dx * dx + dy * dy) / (0.5 * lat.cell_m)
     steps_th = abs(dth) / (0.5 * lat.dth_rad)
     m = _floor(max(steps_xy, steps_th)) + 1
-    plane = lat.nx * lat.ny
+    nx, plane = lat.nx, lat.nx * lat.ny
+    (ax, ay, ath), nearest = a, _nearest
     for i in range(m + 1):
         t = i / m
-        c, r, k, _ = _nearest(lat, a[0] + dx * t, a[1] + dy * t, a[2] + dth * t)
-        v = int(cost[k * plane + r * lat.nx + c])
+        c, r, k, _ = nearest(lat, ax + dx * t, ay + dy * t, ath + dth * t)
+        v = cost[k * plane + r * nx + c]   # a Python int (_cost_view)
         if v == WALL or (v & TIGHT_BIT) or (v & BLOCKED_BIT) != want:
             return False
     return True
