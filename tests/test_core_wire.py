@@ -15,7 +15,6 @@ import re
 import struct
 from dataclasses import dataclass
 
-import msgpack
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st

@@ -29,7 +29,6 @@ from vsfleet.wire import (
     check_clear_of_obstacles,
     decode_mission,
     encode_mission,
-    mission_from_dict,
 )
 from vsfleet.zglue.scenario_file import load_scenario
 

@@ -20,9 +20,10 @@ from itertools import chain, repeat
 from typing import Mapping
 
 from . import _core
-from .agentstate import (FAILURE_FIELDS, PRECISION_STATE_FIELDS, AgentState, Controller, CoreMission, Note, StepConfig, StepOutput, SyncPhase, _evolve,
-                         blocked_note, core_mission_of, failure_initial, failure_with_health, health_of,
-                         mission_controller, mission_policy, safety_params, shape_name, used_ids)
+from .agentstate import (FAILURE_FIELDS, PRECISION_STATE_FIELDS, AgentState, Controller, CoreMission, Note,
+                         StepConfig, StepOutput, SyncPhase, _evolve, blocked_note, core_mission_of, failure_initial,
+                         failure_with_health, health_of, mission_controller, mission_policy, safety_params, shape_name,
+                         used_ids)
 from .buffers import filled
 from .control import Arc, Held, Precision, PrecisionState, Tracking, TurnThenGo
 from .coreconst import (AGENT_CONTROLLERS, AGENT_SCRATCH_F64_PER_ROBOT, AGENT_SCRATCH_U8_PER_ROBOT, DECISION_KINDS,
@@ -143,7 +144,7 @@ def _decide(state: AgentState, mission: Mission | None, frame: Frame, now_s: flo
     if config.impl is core_impl and config.shared_structures is None:
         kernel = agent_kernel(cm, mission, state.robot, controller, config)
         if kernel is not None:   # the rest of the frame in one call into the core (vs_agent_step)
-            return _frame_in_core(kernel, state, mission, cm, frame, config, notes)
+            return _frame_in_core(kernel, state, mission, cm, controller, frame, config, notes)
     from .glue import decide_in_numpy   # the readable glue: the reference, or a controller the core lacks
     return decide_in_numpy(state, mission, controller, frame, config, notes)
 
@@ -273,13 +274,12 @@ def frame_buffers(ids: tuple[str, ...], poses: Mapping[str, tuple[float, float, 
     return pose, memoryview(seen).cast("?"), memoryview(now).cast("?")
 
 
-def _frame_in_core(kernel: Kernel, state: AgentState, mission: Mission, cm: CoreMission, frame: Frame,
-                   config: StepConfig, notes: list) -> tuple[AgentState, StepOutput]:
+def _frame_in_core(kernel: Kernel, state: AgentState, mission: Mission, cm: CoreMission, controller: Controller,
+                   frame: Frame, config: StepConfig, notes: list) -> tuple[AgentState, StepOutput]:
     """agent_step from the frame's poses on, in the core (vs_agent_step): the same bits as the numpy glue.
     The state's arrays (wheels, the controller's, the failure rule's) are advanced in place: the state passed in
     is consumed, and only the one returned is to be used."""
     n = len(cm.ids)
-    controller = config.controller or mission_controller(mission.controller, mission.controller_gains)
     pose, seen, fresh = frame_buffers(cm.ids, frame.poses, frame.fresh)
     ctrl, arrays_in, scalars = _core_inputs(kernel, state, controller, n)
     used = filled("?", (n,))
