@@ -99,6 +99,53 @@ done:
     return rc;
 }
 
+/* the x offset [m] of column c's body from the obstacle: ((gx + (c + ix_lo) h) + qx) - ox, as the raster's test
+ * has always computed it, in this order */
+#define RASTER_DX(c) (((gx + (double)((c) + ix_lo) * h) + qx) - ox)
+
+/* One row of one (heading, body, obstacle) raster: every column c in [c0, c1] whose body comes within the wall
+ * radius (d2 = dx^2 + dy2 < w2) becomes a wall, and within the tight radius (< t2) but not the wall's, tight.
+ * The same cells as testing every column: dx is non-decreasing in c (every rounding is monotone), so d2 falls,
+ * then rises, and each set {d2 < w2}, {d2 < t2} is one run of columns around the column of least |dx|.  The
+ * runs' ends are found by exact tests, stepping from a sqrt estimate, and the runs filled without tests. */
+static void raster_row_at(uint32_t *cost, unsigned char *tight, long long c0, long long c1, double gx, double qx,
+                          long long ix_lo, double h, double ox, double dy2, double w2, double t2)
+{
+#define D2(c) (RASTER_DX(c) * RASTER_DX(c) + dy2)
+    /* m: the column of least d2 (the last with dx <= 0, or the one after it, or c0 / c1) */
+    double est = (ox - (gx + qx)) / h - (double)ix_lo;   /* an estimate only: corrected by exact tests */
+    long long m = c0;
+    if (est > (double)c1) m = c1;
+    else if (est > (double)c0) m = (long long)est;
+    while (m > c0 && RASTER_DX(m) > 0.0) m--;
+    while (m < c1 && RASTER_DX(m + 1) <= 0.0) m++;
+    if (m < c1 && D2(m + 1) < D2(m)) m++;
+    double dm = D2(m);
+    if (!(dm < t2)) return;
+    /* the run {d2 < lim} around m: [*lo, *hi] */
+    long long lo_w = m, hi_w = m - 1;      /* empty wall run unless dm < w2 */
+    long long lo_t = m, hi_t = m;
+    for (int pass = 0; pass < 2; pass++) {
+        double lim = pass == 0 ? t2 : w2;
+        if (pass == 1 && !(dm < w2)) break;
+        double half = lim - dy2 > 0.0 ? sqrt(lim - dy2) / h : 0.0;
+        long long a = m - (long long)half, b = m + (long long)half;
+        if (a < c0) a = c0;
+        if (b > c1) b = c1;
+        if (D2(a) < lim) { while (a > c0 && D2(a - 1) < lim) a--; }
+        else { while (!(D2(a) < lim)) a++; }           /* stops at m at the latest */
+        if (D2(b) < lim) { while (b < c1 && D2(b + 1) < lim) b++; }
+        else { while (!(D2(b) < lim)) b--; }
+        if (pass == 0) { lo_t = a; hi_t = b; }
+        else { lo_w = a; hi_w = b; }
+    }
+    for (long long c = lo_t; c < lo_w; c++) tight[c] = 1;
+    for (long long c = lo_w; c <= hi_w; c++) cost[c] = VS_FIELD_WALL;
+    for (long long c = (hi_w >= lo_w ? hi_w + 1 : lo_w); c <= hi_t; c++) tight[c] = 1;
+#undef D2
+}
+#undef RASTER_DX
+
 /* an angle in [-pi, pi) as it is, any other wrapped (vs_wrap_angle is not the identity inside) */
 static double wrap_outside(double th)
 {
@@ -230,14 +277,8 @@ int vs_field_build(const double *template_xy, const double *radius_m, size_t n, 
                 for (long long r = r0; r <= r1; r++) {
                     double by = (f.gy + (double)(r + f.iy_lo) * h) + qy;
                     double dy = by - o[1];
-                    for (long long c = c0; c <= c1; c++) {
-                        double bx = (f.gx + (double)(c + f.ix_lo) * h) + qx;
-                        double dx = bx - o[0];
-                        double d2 = dx * dx + dy * dy;
-                        size_t idx = (size_t)r * f.nx + (size_t)c;
-                        if (d2 < w2) plane_cost[idx] = VS_FIELD_WALL;
-                        else if (d2 < t2) plane_tight[idx] = 1;
-                    }
+                    raster_row_at(plane_cost + (size_t)r * f.nx, plane_tight + (size_t)r * f.nx, c0, c1, f.gx, qx,
+                                  (long long)f.ix_lo, h, o[0], dy * dy, w2, t2);
                 }
             }
         }
