@@ -24,7 +24,7 @@ from vsfleet.simfleet.offline import run_offline
 from vsfleet.step import AgentState, StepConfig, agent_step
 from vsfleet.zglue.scenario_file import load_scenario
 
-from test_room import thin_wall, triangle_in_a_room
+from test_room import room_4, thin_wall, triangle_in_a_room
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -61,11 +61,18 @@ def test_every_controller(controller):
     assert_same(glue, core)
 
 
-def test_a_room_with_bodies_the_safety_filter_and_a_stall():
-    """The thin wall's 0.52 m gap with the triangle turned 0.5 rad: the filter holds a robot and the stall watch
+def test_a_room_with_bodies_the_safety_filter_the_clearance_barrier_and_a_stall():
+    """bench/room.py's room 4: the clearance barrier holds the structure on the field's way and the stall watch
     says 'blocked' (tests/test_room.py)."""
-    glue, core = both(triangle_in_a_room(thin_wall(0.52), phi_rad=0.5), 30.0, seed=1)
+    glue, core = both(room_4(), 20.0, seed=4)
     assert all(ds and ds[0].kind == "blocked" for ds in glue.decisions.values())
+    assert_same(glue, core)
+
+
+def test_a_room_threaded_with_the_clearance_barrier_at_work():
+    """The thin wall's 0.52 m gap with the triangle turned 0.5 rad, threaded: the barrier changes the twist on
+    the way (tests/test_room.py)."""
+    glue, core = both(triangle_in_a_room(thin_wall(0.52), phi_rad=0.5), 20.0, seed=1)
     assert_same(glue, core)
 
 

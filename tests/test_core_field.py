@@ -79,27 +79,45 @@ def test_the_core_and_the_reference_build_the_same_field_and_follow_it_the_same_
         assert np.array_equal(w_core, w_ref) and b_core == b_ref and l_core == l_ref
 
 
+def wall_bound_m(tpl, rad, obs, margin_m, lat):
+    """(n, m): the clearance [m] body i must keep from obstacle j at a free state (vs_field.h): the larger of a
+    move's bound sqrt(need^2 + h^2 / 2) and a turn's sqrt((need + arm dth^2 / 8)^2 + (arm dth)^2 / 4), less the
+    radii (need = the radii plus the margin; arm = |p_i|)."""
+    need = rad[:, None] + obs[None, :, 2] + margin_m
+    arm = np.hypot(tpl[:, 0], tpl[:, 1])[:, None]
+    h, dth = lat.cell_m, lat.dth_rad
+    move = np.sqrt(need * need + h * h / 2.0)
+    turn = np.sqrt((need + arm * dth * dth / 8.0) ** 2 + (arm * dth) ** 2 / 4.0)
+    return np.maximum(move, turn) - (rad[:, None] + obs[None, :, 2])
+
+
 @pytest.mark.parametrize("seed", range(4))
-def test_a_free_state_keeps_every_body_the_margin_and_the_inflation_from_every_obstacle_and_a_wall_does_not(seed):
+def test_a_free_state_keeps_every_body_its_edges_bound_from_every_obstacle_and_a_wall_does_not(seed):
     rng = np.random.default_rng(100 + seed)
     tpl, rad, obs, goal = random_room(rng)
     obs = np.r_[obs, [[goal.x + 0.7, goal.y, 0.2]]]
     f = build_field(tpl, rad, 0.02, obs, goal, **COARSE)
     lat, costs = f.lattice, np.asarray(f.costs)
-    need = 0.02 + lat.inflation_m
+    bound = wall_bound_m(tpl, rad, obs, 0.02, lat)          # (n, m)
+    assert bound.max() < 0.02 + lat.inflation_m              # never more than the old margin plus inflation
     picks = rng.integers(0, costs.size, 3000)
     k, rem = np.divmod(picks, lat.nx * lat.ny)
     row, col = np.divmod(rem, lat.nx)
-    gaps = clearances(tpl, rad, obs, lat.gx + (col + lat.ix_lo) * lat.cell_m, lat.gy + (row + lat.iy_lo) * lat.cell_m,
-                      [lat.gth + int(j) * lat.dth_rad for j in k])
+    xs = lat.gx + (col + lat.ix_lo) * lat.cell_m
+    ys = lat.gy + (row + lat.iy_lo) * lat.cell_m
     walls = frees = 0
-    for s, c in zip(picks, gaps):
+    for s, x, y, j in zip(picks, xs, ys, k):
+        th = lat.gth + int(j) * lat.dth_rad
+        bodies = bodies_at(tpl, x, y, th)
+        gap = np.hypot(bodies[:, None, 0] - obs[None, :, 0], bodies[:, None, 1] - obs[None, :, 1]) \
+            - (rad[:, None] + obs[None, :, 2])                  # (n, m)
+        spare = float((gap - bound).min())
         if costs.flat[s] == WALL:
             walls += 1
-            assert c < need + 1e-9
+            assert spare < 1e-9
         else:
             frees += 1
-            assert c >= need - 1e-9
+            assert spare >= -1e-9
     assert walls > 0 and frees > 0
 
 

@@ -53,6 +53,12 @@ STEP_PATH_M: float = _core.STEP_PATH_M
 STEP_PATH_CAP: int = _core.STEP_PATH_CAP
 #: following a field, the carrot runs at least this times the shape's reach ahead (vs_step.h)
 STEP_LOOKAHEAD_PER_REACH: float = _core.STEP_LOOKAHEAD_PER_REACH
+#: the structure's clearance barrier in a room (vs_clear.h): the clearance its points keep [m], the band [m] in
+#: which a point gets a row, the barrier's rate [1/s], the rows kept at most
+CLEAR_M: float = _core.CLEAR_M
+CLEAR_BAND_M: float = _core.CLEAR_BAND_M
+CLEAR_GAMMA_PER_S: float = _core.CLEAR_GAMMA_PER_S
+CLEAR_ROWS: int = _core.CLEAR_ROWS
 #: the assembly tie-break (vs_assembly.h): a seen robot farther than ASSEMBLING_M [m] from its point is on its way
 #: to it; a detour's waypoint lies DETOUR_CLEAR_M [m] beyond touching + margin beside the blocker, as far short of it
 ASSEMBLING_M: float = _core.ASSEMBLING_M

@@ -206,9 +206,19 @@ def build_field_reference(template_xy, radius_m, margin_m: float, obstacles, goa
     for i in range(len(tpl)):
         qx, qy = c * tpl[i, 0] - s * tpl[i, 1], s * tpl[i, 0] + c * tpl[i, 1]          # (K,)
         bx, by = lattice_x[None, :] + qx[:, None], lattice_y[None, :] + qy[:, None]    # (K, nx), (K, ny)
+        px, py = float(tpl[i, 0]), float(tpl[i, 1])
+        arm = math.sqrt(px * px + py * py)           # the body's arc radius when the structure turns
+        chord = arm * dth                            # >= a turn edge's chord
+        sagitta = (arm * (dth * dth)) / 8.0          # >= the arc's bulge beyond it
         for o in obs:
-            rho_wall = (rad[i] + o[2]) + (margin_m + infl)
-            rho_tight = rho_wall + COMFORT_M
+            # the exact bound of the edges: a move keeps `need` where both ends keep sqrt(need^2 + h^2 / 2), a turn
+            # where both keep sqrt((need + sagitta)^2 + chord^2 / 4)
+            need = (float(rad[i]) + float(o[2])) + margin_m
+            move2 = need * need + (h * h) / 2.0
+            bulge = need + sagitta
+            turn2 = bulge * bulge + (chord * chord) / 4.0
+            w2 = turn2 if turn2 > move2 else move2
+            rho_tight = math.sqrt(w2) + COMFORT_M
             r2 = rho_tight * rho_tight
             dx, dy = bx - o[0], by - o[1]
             # a state is a wall where d2 = dy^2 + dx^2 < rho_wall^2 (tight: < rho_tight^2). Only the window where
@@ -220,7 +230,7 @@ def build_field_reference(template_xy, radius_m, margin_m: float, obstacles, goa
             r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
             dxw, dyw = dx[:, c0:c1], dy[:, r0:r1]
             d2 = dyw[:, :, None] * dyw[:, :, None] + dxw[:, None, :] * dxw[:, None, :]   # (K, rows, cols)
-            wall[:, r0:r1, c0:c1] |= d2 < rho_wall * rho_wall
+            wall[:, r0:r1, c0:c1] |= d2 < w2
             tight[:, r0:r1, c0:c1] |= d2 < r2
     tight &= ~wall
     free = ~wall.ravel()

@@ -300,7 +300,7 @@ def decide_in_numpy(state: AgentState, mission: Mission, controller, frame: Fram
     events = tuple(EventMsg(t=d.t, seq=frame.seq, robot=d.robot, kind=d.kind, dev=d.deviation_m, by=state.robot)
                    for d in decisions)
     failed_any = arrays.field is not None and bool(np.count_nonzero(failure.failed))  # (stall_state's only use)
-    stall_since, stall_pose, stalled = stall_state(state, arrays, s, filtered, failed_any, frame.t)
+    stall_since, stall_pose, stalled = stall_state(state, arrays, s, filtered or s.cleared, failed_any, frame.t)
     was, now = state.blocked or state.stalled, s.blocked or stalled
     if now != was:  # the room: no path to the goal (stopping short) or stuck on the way, or going again
         short = s.left_m if s.blocked else _goal_distance(arrays, s.fit_pose)
@@ -325,8 +325,9 @@ def stall_state(state: AgentState, arrays: MissionArrays, s: Structure, filtered
     Watched while the structure is neither at the goal nor blocked, no robot is failed (the failure rule
     speaks for those) and every robot used is within the failure rule's deviation of its point (so not a
     fleet still assembling). Stuck: watched for STALL_S, the fitted structure all the while within
-    STALL_MOVE_M and STALL_TURN_RAD of where the watch began, and the safety filter changed some command on
-    some frame of it. The plan said go, the filter said no: without this the fleet stood still and said
+    STALL_MOVE_M and STALL_TURN_RAD of where the watch began, and the safety filter changed some command (or the
+    room's clearance barrier the structure's twist, ``filtered`` either way) on some frame of it. The plan said go,
+    the filter said no: without this the fleet stood still and said
     nothing (issue 28). Going again: the structure moved more than that within STALL_S of the watch's pose; a
     structure that only crawls (less than that each STALL_S) stays stuck, the watch's pose moving on with it every
     STALL_S, so a crawl is one `blocked`, not a `blocked`/`unblocked` pair each time it crosses the threshold. stall_watch:

@@ -18,6 +18,7 @@ from . import _core
 from .coreconst import STEP_LOOKAHEAD_PER_REACH, STRUCTURE_STEP_ARGS
 from .advance import Goal, GoalPath, GoalPose, GoalTwist, Twist2, advance_structure_reference
 from .buffers import f64
+from .clear import clearance_barrier_reference
 from .field import (Field, build_field, build_field_reference, field_headings, field_open_reference,
                     follow_field_reference)
 from .fit import fit_structure_reference
@@ -72,6 +73,7 @@ class Structure:
     blocked: bool = False   # obstacles: no path to the goal; the structure stops at the closest safe pose
     left_m: float = 0.0     # obstacles, blocked: how far [m] that pose is from the goal
     shape: int = 0          # reshape: the shape taken (0: the template; k: the mission's k-th, MissionArrays.shapes)
+    cleared: bool = False   # obstacles: the clearance barrier (vsfleet.clear) changed the advance's twist
 
 
 
@@ -121,6 +123,17 @@ def structure_step_reference(arrays, metric: str, pose_world: np.ndarray, seen: 
     adv = advance_fn(fit.pose, goal, dt_s, limits, template, arrays.envelopes,
                      elapsed_s=elapsed_s, headings_rad=np.where(used, pose_world[:, 2], np.nan),
                      deviations_m=np.where(used, dist, np.nan))
+    cleared = False
+    if field is not None and len(arrays.obstacles) > 0 and not adv.at_goal:
+        # the room's clearance barrier (vsfleet.clear): the points keep CLEAR_M from every obstacle
+        reach = math.sqrt(float(np.max(template[:, 0] * template[:, 0] + template[:, 1] * template[:, 1])))
+        t = adv.twist
+        (vx, vy, w), changed = clearance_barrier_reference(now_pts, fit.pose.x, fit.pose.y, arrays.radii,
+                                                           arrays.obstacles, reach, (t.vx_m_s, t.vy_m_s, t.w_rad_s))
+        cleared = changed
+        if changed:   # the pose one dt_s on, as the advance forms it
+            adv = replace(adv, pose=Pose2(fit.pose.x + vx * dt_s, fit.pose.y + vy * dt_s, fit.pose.th + w * dt_s),
+                          twist=Twist2(vx, vy, w))
     judges = used & ~judged_apart
     if 2 <= int(judges.sum()) < int(used.sum()):  # a rigid fit needs two points to fix the heading
         judged = fit_fn(template[judges], xy[judges], metric=metric).pose.apply(template)
@@ -128,7 +141,7 @@ def structure_step_reference(arrays, metric: str, pose_world: np.ndarray, seen: 
     return Structure(fit_pose=fit.pose, goal_pose=adv.pose, twist=adv.twist, cost=float(fit.cost),
                      at_goal=adv.at_goal and not blocked, used=used, points_now=now_pts,
                      points_next=adv.pose.apply(template), deviations_m=np.where(seen, dist, np.inf),
-                     blocked=blocked, left_m=left_m, shape=shape)
+                     blocked=blocked, left_m=left_m, shape=shape, cleared=cleared)
 
 
 
@@ -152,13 +165,13 @@ def structure_step_core(arrays, metric: str, pose_world: np.ndarray, seen: np.nd
                              used, now, nxt, dev, *c[_FRAME:])
     if r is None:
         return None
-    fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m, shape = r
+    fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m, shape, cleared = r
     return make_structure(fx, fy, wrap_angle(fth), gx, gy, wrap_angle(gth), vx, vy, w, cost, at_goal, used, now, nxt,
-                          dev, blocked, left_m, shape)
+                          dev, blocked, left_m, shape, cleared)
 
 
 def make_structure(fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, used, now, nxt, dev, blocked, left_m,
-                   shape) -> Structure:
+                   shape, cleared=False) -> Structure:
     """A Structure of the core's numbers, its headings fth and gth already wrapped (wrap_angle)."""
     # the frozen dataclasses filled without their __init__s (as advance._result and _evolve do), every field given
     # as __init__ would set it (Pose2: x and y as floats, th wrapped by wrap_angle): 2 Pose2, a Twist2 and the
@@ -169,7 +182,7 @@ def make_structure(fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, used, now
     _set(twist, "__dict__", {"vx_m_s": vx, "vy_m_s": vy, "w_rad_s": w})
     _set(out, "__dict__", {"fit_pose": fit, "goal_pose": goal, "twist": twist, "cost": cost, "at_goal": at_goal,
                            "used": used, "points_now": now, "points_next": nxt, "deviations_m": dev,
-                           "blocked": blocked, "left_m": left_m, "shape": shape})
+                           "blocked": blocked, "left_m": left_m, "shape": shape, "cleared": cleared})
     return out
 
 

@@ -5,6 +5,7 @@
 #include "py_util.h"
 #include "vscore.h"
 #include "vs_field.h"
+#include "vs_clear.h"
 
 #define FIELD_CAPSULE "vsfleet._core.field"
 
@@ -114,6 +115,36 @@ out:
     return result;
 }
 
+
+/* clearance_barrier(points_xy (n, 2), fx, fy, radius_m (n), obstacles (m, 3), reach_m, vx, vy, w)
+ * -> (vx, vy, w, changed): vs_clearance_barrier (vs_clear.h) */
+static PyObject *py_clearance_barrier(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
+{
+    (void)mod;
+    if (nargs != 9) { PyErr_SetString(PyExc_TypeError, "clearance_barrier takes 9 arguments"); return NULL; }
+    double fx = PyFloat_AsDouble(a[1]), fy = PyFloat_AsDouble(a[2]), reach = PyFloat_AsDouble(a[5]);
+    double t_in[3] = {PyFloat_AsDouble(a[6]), PyFloat_AsDouble(a[7]), PyFloat_AsDouble(a[8])}, t[3];
+    if (PyErr_Occurred()) return NULL;
+    Py_buffer b[3];
+    int got = 0;
+    PyObject *result = NULL;
+    if (vs_py_doubles(a[0], &b[got], -1, 0, "points_xy") < 0) goto out;
+    got++;
+    Py_ssize_t n2 = b[0].len / 8;
+    if (n2 % 2) { PyErr_SetString(vs_ValueError, "points_xy must be (n, 2)"); goto out; }
+    if (vs_py_doubles(a[3], &b[got], n2 / 2, 0, "radius_m") < 0) goto out;
+    got++;
+    if (vs_py_doubles(a[4], &b[got], -1, 0, "obstacles") < 0) goto out;
+    got++;
+    if ((b[2].len / 8) % 3) { PyErr_SetString(vs_ValueError, "obstacles must hold 3 k doubles"); goto out; }
+    int changed = vs_clearance_barrier(b[0].buf, fx, fy, b[1].buf, (size_t)(n2 / 2), b[2].buf,
+                                       (size_t)(b[2].len / 24), reach, t_in, t);
+    result = Py_BuildValue("dddN", t[0], t[1], t[2], PyBool_FromLong(changed));
+out:
+    for (int i = 0; i < got; i++) PyBuffer_Release(&b[i]);
+    return result;
+}
+
 PyMethodDef vs_py_field_methods[] = {
     {"field_build", (PyCFunction)(void (*)(void))py_field_build, METH_FASTCALL,
      "field_build(template_xy, radius_m, margin_m, obstacles, goal, cell_m, n_headings, max_states) -> field."},
@@ -121,4 +152,6 @@ PyMethodDef vs_py_field_methods[] = {
     {"field_costs", (PyCFunction)(void (*)(void))py_field_costs, METH_FASTCALL, "field_costs(field) -> bytes."},
     {"field_follow", (PyCFunction)(void (*)(void))py_field_follow, METH_FASTCALL,
      "field_follow(field, pose, path_m, waypoints_out) -> (n, blocked, left_m)."},
+    {"clearance_barrier", (PyCFunction)(void (*)(void))py_clearance_barrier, METH_FASTCALL,
+     "clearance_barrier(points_xy, fx, fy, radius_m, obstacles, reach_m, vx, vy, w) -> (vx, vy, w, changed)."},
     {NULL, NULL, 0, NULL}};

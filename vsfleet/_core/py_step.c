@@ -15,7 +15,8 @@ const vs_field *vs_py_field(PyObject *obj);   /* py_field.c: NULL for None (or w
  *                shapes_xy, shape_fields)
  * field: a capsule of field_build (the room's navigation function) or None.  shapes_xy: (k, n, 2) doubles (k = 0:
  * none), shape_fields: a tuple of k such capsules (reshape: vs_step.h).
- * -> None (no robot usable) or (fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m, shape). */
+ * -> None (no robot usable) or (fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m, shape,
+ * cleared). */
 enum { A_TEMPLATE, A_BASE, A_VMAX, A_AMAX, A_METRIC, A_KIND, A_GOAL, A_LIMITS, A_POSE, A_SEEN, A_EXCLUDED, A_JUDGED,
        A_ELAPSED, A_DT, A_USED, A_NOW, A_NEXT, A_DEV, A_RADIUS, A_OBSTACLES, A_MARGIN, A_FIELD, A_SHAPES,
        A_SHAPE_FIELDS, A_COUNT };
@@ -113,9 +114,10 @@ static PyObject *py_structure_step(PyObject *mod, PyObject *const *a, Py_ssize_t
     Py_END_ALLOW_THREADS
     if (rc != VS_OK) { vs_py_error(rc, "structure_step refused its inputs"); goto out; }
     if (!s.any_used) { result = Py_NewRef(Py_None); goto out; }
-    result = Py_BuildValue("(ddddddddddOOdi)", s.fit_x, s.fit_y, s.fit_th, s.goal_x, s.goal_y, s.goal_th, s.vx_m_s,
+    result = Py_BuildValue("(ddddddddddOOdiO)", s.fit_x, s.fit_y, s.fit_th, s.goal_x, s.goal_y, s.goal_th, s.vx_m_s,
                            s.vy_m_s, s.w_rad_s, s.cost, s.at_goal ? Py_True : Py_False,
-                           s.blocked ? Py_True : Py_False, s.left_m, s.shape);
+                           s.blocked ? Py_True : Py_False, s.left_m, s.shape,
+                           s.cleared ? Py_True : Py_False);
 out:
     for (int i = 0; i < got; i++) PyBuffer_Release(&b[i]);
     return result;

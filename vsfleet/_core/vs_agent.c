@@ -62,7 +62,8 @@ static double goal_distance(const vs_goal *g, double x, double y)
     return sqrt(dx * dx + dy * dy);
 }
 
-/* vsfleet.step.stall_state, in place on st (filtered: the safety filter changed a command in this frame) */
+/* vsfleet.step.stall_state, in place on st (filtered: the safety filter changed a command in this frame, or the
+ * room's clearance barrier the structure's twist) */
 static void stall_state(const vs_agent_config *cfg, vs_agent_state *st, const vs_structure *s,
                         const unsigned char *used, const double *dev, int filtered, int failed_any, double t)
 {
@@ -300,7 +301,7 @@ int vs_agent_step_ws(const vs_agent_config *cfg, vs_agent_state *st, const doubl
     if (m->field != NULL)
         for (size_t i = 0; i < n; i++) failed_any = failed_any || f->failed[i];
     int was = st->blocked || st->stalled;
-    stall_state(cfg, st, &s, used, dev, filtered, failed_any, t);
+    stall_state(cfg, st, &s, used, dev, filtered || s.cleared, failed_any, t);
     int is = s.blocked || st->stalled;
     if (is != was) {
         out->event = is ? 1 : 2;

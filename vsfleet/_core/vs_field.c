@@ -261,11 +261,21 @@ int vs_field_build(const double *template_xy, const double *radius_m, size_t n, 
         unsigned char *plane_tight = tight + k * plane;
         for (size_t i = 0; i < n; i++) {
             double qx = q[2 * i], qy = q[2 * i + 1];
+            double px = template_xy[2 * i], py = template_xy[2 * i + 1];
+            double arm = sqrt(px * px + py * py);          /* |p_i|: the body's arc radius when the structure turns */
+            double chord = arm * f.dth_rad;                /* >= the chord of a turn edge */
+            double sagitta = (arm * (f.dth_rad * f.dth_rad)) / 8.0;   /* >= the arc's bulge beyond that chord */
             for (size_t j = 0; j < n_obstacles; j++) {
                 const double *o = obstacles + 3 * j;
-                double rho_wall = (radius_m[i] + o[2]) + (margin_m + f.inflation_m);
-                double rho_tight = rho_wall + VS_FIELD_COMFORT_M;
-                double w2 = rho_wall * rho_wall, t2 = rho_tight * rho_tight;
+                /* the exact bound of the edges (vs_field.h): a move keeps need where both ends keep
+                 * sqrt(need^2 + h^2 / 2), a turn where both keep sqrt((need + sagitta)^2 + chord^2 / 4) */
+                double need = (radius_m[i] + o[2]) + margin_m;
+                double move2 = need * need + (h * h) / 2.0;
+                double bulge = need + sagitta;
+                double turn2 = bulge * bulge + (chord * chord) / 4.0;
+                double w2 = turn2 > move2 ? turn2 : move2;
+                double rho_tight = sqrt(w2) + VS_FIELD_COMFORT_M;
+                double t2 = rho_tight * rho_tight;
                 /* the body centre is (gx + ix h + qx, ...): near the obstacle for ix around (ox - qx - gx) / h */
                 double cx = (o[0] - qx) - f.gx, cy = (o[1] - qy) - f.gy;
                 long long c0 = ifloor((cx - rho_tight) / h) - 1 - f.ix_lo, c1 = ifloor((cx + rho_tight) / h) + 2 - f.ix_lo;

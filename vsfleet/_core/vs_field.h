@@ -5,10 +5,14 @@
  *
  * Lattice.  States (ix, iy, k): the structure pose (gx + ix h, gy + iy h, gth + k dth), dth = 2 pi / K,
  * aligned on the goal pose (gx, gy, gth), which is the state (0, 0, 0) exactly.  The lattice covers the
- * obstacles and the goal, padded so that its border band is free at every heading.  A state is FREE when
- * every robot body (its disc of radius r_i at its template point) keeps margin_m + inflation from every
- * obstacle, where inflation = max(h / sqrt 2, P dth / 2) (P: the template's largest |p_i|) is how far a
- * body can move along half an edge: so every pose on an edge between two free states keeps margin_m.
+ * obstacles and the goal, padded (by inflation = max(h / sqrt 2, P dth / 2), P the template's largest |p_i|,
+ * how far a body moves along half an edge) so that its border band is free at every heading.  A state is FREE
+ * when every robot body (its disc of radius r_i at its template point) keeps from every obstacle (radius R) the
+ * exact bound of its edges: with need = r_i + R + margin_m, its centre at least
+ *     sqrt(need^2 + h^2 / 2)                                   (a move: both ends so, the segment keeps need)
+ *     sqrt((need + a dth^2 / 8)^2 + (a dth)^2 / 4)             (a turn: a = |p_i|, the arc's chord and bulge)
+ * from the obstacle's centre, whichever is larger: so every pose on an edge between two free states keeps
+ * margin_m, and the states keep only 1-2 mm more than that (margin + inflation, 2-6 cm more, until 2026-12-05).
  * A free state is TIGHT when some body is within VS_FIELD_COMFORT_M more than that.
  * Edges: the 8 neighbours at the same heading (cost 10, diagonals 14) and the two neighbouring headings in
  * the same cell (cost w_rot = round(10 P dth / h), at least 1); an edge touching a tight state costs twice.
@@ -47,7 +51,7 @@ typedef struct {
     double cell_m;             /* h [m] (may be larger than asked: max_states) */
     double dth_rad;            /* 2 pi / K */
     double margin_m;           /* the clearance kept on every edge [m] */
-    double inflation_m;        /* added to the margin at the states [m] */
+    double inflation_m;        /* how far a body moves along half an edge [m]: the lattice's padding */
     size_t n_headings;         /* K */
     long ix_lo, iy_lo;         /* lattice index of column / row 0 (ix = ix_lo + column) */
     size_t nx, ny;

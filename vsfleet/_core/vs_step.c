@@ -3,6 +3,7 @@
 #include <stdlib.h>
 
 #include "vs_step.h"
+#include "vs_clear.h"
 
 void vs_apply_pose(double x, double y, double th, const double *p, size_t n, double *out)
 {
@@ -161,6 +162,30 @@ int vs_structure_step_ws(const vs_mission *m, const double *pose_world, const un
     rc = vs_advance(pose_fit, &goal, dt_s, &limits, tpl, m->wheel_base_m,
                     m->wheel_speed_max_m_s, m->wheel_accel_max_m_s2, n, NULL, &elapsed_s, head, devs, &adv);
     if (rc != VS_OK) goto done;
+    int cleared = 0;
+    if (goal.kind == VS_GOAL_PLAN && m->n_obstacles > 0 && !adv.at_goal) {
+        /* the room's clearance barrier (vs_clear.h): the points keep VS_CLEAR_M from every obstacle */
+        double reach2 = 0.0;
+        for (size_t i = 0; i < n; i++) {
+            double r2 = tpl[2 * i] * tpl[2 * i] + tpl[2 * i + 1] * tpl[2 * i + 1];
+            if (r2 > reach2) reach2 = r2;
+        }
+        const double t_in[3] = {adv.vx_m_s, adv.vy_m_s, adv.w_rad_s};
+        double t[3];
+        if (vs_clearance_barrier(points_now, fit.x, fit.y, m->radius_m, n, m->obstacles, m->n_obstacles,
+                                 sqrt(reach2), t_in, t)) {
+            cleared = 1;
+            /* the pose one dt_s on, as vs_advance forms it */
+            double th0 = (pose_fit[2] >= -VS_PI && pose_fit[2] < VS_PI) ? pose_fit[2] : vs_wrap_angle(pose_fit[2]);
+            adv.vx_m_s = t[0];
+            adv.vy_m_s = t[1];
+            adv.w_rad_s = t[2];
+            adv.x = pose_fit[0] + t[0] * dt_s;
+            adv.y = pose_fit[1] + t[1] * dt_s;
+            adv.th = vs_wrap_angle(th0 + t[2] * dt_s);
+            if (!(vs_isfinite(adv.x) && vs_isfinite(adv.y) && vs_isfinite(adv.th))) { rc = VS_ENONFINITE; goto done; }
+        }
+    }
     if (n_judges >= 2 && n_judges < n_used) {   /* a rigid fit needs two points to fix the heading */
         for (size_t i = 0; i < n; i++) mask[i] = (unsigned char)(mask[i] && !judged_apart[i]);
         vs_fit_result jf;
@@ -183,6 +208,7 @@ int vs_structure_step_ws(const vs_mission *m, const double *pose_world, const un
     out->blocked = blocked;
     out->left_m = left_m;
     out->shape = shape;
+    out->cleared = cleared;
 done:
     free(own);
     return rc;

@@ -60,10 +60,13 @@ typedef struct {
                                            closest safe pose (the plan's last waypoint) and stops there */
     double left_m;                      /* obstacles: distance [m] from the plan's end to the goal */
     int shape;                          /* the shape taken: 0 the template, k >= 1 shapes_xy's row k - 1 */
+    int cleared;                        /* the room's clearance barrier changed the advance's twist (vs_clear.h) */
 } vs_structure;
 
 /* With a field (a room) and a pose or path goal, the advance follows the field's descent from the fitted
- * pose (vs_field_follow, VS_STEP_PATH_M of it): the same pure function of the frame on every agent.
+ * pose (vs_field_follow, VS_STEP_PATH_M of it): the same pure function of the frame on every agent.  Its twist
+ * then passes the room's clearance barrier (vs_clear.h; not at the goal): the points on the structure keep
+ * VS_CLEAR_M from every obstacle, and a point already closer is moved out, held or not.
  * Shapes (n_shapes > 0, with a field): every shape (the template, then shapes_xy's rows in order) is fitted
  * to the robots; the robots are taken to be in the shape whose fit costs least (ties: the first).  The
  * structure takes the first shape whose field is open (vs_field_open) at its own fit and that is either the
