@@ -8,7 +8,9 @@ field (docs/planning.md, "Keeping the points clear").
 For each robot, the obstacle its point (at the fitted pose) is nearest to gives one row,
 ``n . (v + w x rho) >= -GAMMA_PER_S (c - CLEAR_M)`` (c: the point's clearance [m]), kept where
 c < CLEAR_M + BAND_M, the ROWS of least clearance. The twist becomes the nearest twist meeting every row, in the
-metric |dv|^2 + (reach dw)^2, by a fixed enumeration of the rows' planes, pairs' lines and triples' points.
+metric |dv|^2 + (reach dw)^2, by a fixed enumeration of the rows' planes, pairs' lines and triples' points; where
+none meets them all (points inside CLEAR_M on opposite sides), the rows only hold (no push-out); and it is never
+longer (in that metric) than the twist given or the push-out GAMMA_PER_S CLEAR_M.
 """
 
 from __future__ import annotations
@@ -36,7 +38,7 @@ def clearance_barrier_reference(points_xy, fx: float, fy: float, radius_m, obsta
     Returns (the barrier's twist, whether it differs from the one given)."""
     vx, vy, w = (float(v) for v in twist)
     if not reach_m > 0.0:
-        return (vx, vy, w), False
+        reach_m = 1.0   # every point at the origin: w moves none of them
     obs = [(float(o[0]), float(o[1]), float(o[2])) for o in obstacles]
     rows: list[tuple[tuple[float, float, float], float, float]] = []   # (a, b, clearance), by clearance
     for i, p in enumerate(points_xy):
@@ -61,7 +63,30 @@ def clearance_barrier_reference(points_xy, fx: float, fy: float, radius_m, obsta
     td = (vx, vy, w * reach_m)
     if _meets(rows, td):
         return (vx, vy, w), False
-    best_t, best_d = (0.0, 0.0, 0.0), None
+    t = _nearest(rows, td)
+    if t is None:   # no twist meets every row (points inside CLEAR_M on opposite sides): hold them, do not push out
+        rows = [(a, b if not b > 0.0 else 0.0, c) for a, b, c in rows]
+        t = _nearest(rows, td)
+        if t is None:
+            t = (0.0, 0.0, 0.0)
+    # never faster than the advance asked, or than the barrier's own push-out (CLEAR_GAMMA_PER_S CLEAR_M)
+    n_in = math.sqrt(td[0] * td[0] + td[1] * td[1] + td[2] * td[2])
+    n_out = math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
+    cap = CLEAR_GAMMA_PER_S * CLEAR_M
+    if n_in > cap:
+        cap = n_in
+    if n_out > cap:
+        f = cap / n_out
+        t = (f * t[0], f * t[1], f * t[2])
+    return (t[0], t[1], t[2] / reach_m), True
+
+
+def _nearest(rows, td):
+    """The nearest twist to td meeting every row (td itself, else each row's plane, each pair's line, each triple's
+    point: the least distance, the first on ties); None if none does."""
+    if _meets(rows, td):
+        return td
+    best_t, best_d = None, None
 
     def consider(t) -> None:
         nonlocal best_t, best_d
@@ -104,7 +129,7 @@ def clearance_barrier_reference(points_xy, fx: float, fy: float, radius_m, obsta
                 bp, bq, bs = rows[p][1], rows[q][1], rows[s][1]
                 consider(((bp * x0 + bq * y0 + bs * z0) / det, (bp * x1 + bq * y1 + bs * z1) / det,
                           (bp * x2 + bq * y2 + bs * z2) / det))
-    return (best_t[0], best_t[1], best_t[2] / reach_m), True
+    return best_t
 
 
 def clearance_barrier(points_xy, fx: float, fy: float, radius_m, obstacles, reach_m: float,

@@ -2,7 +2,7 @@
 
 A navigation function over a lattice of structure poses ``(gx + ix h, gy + iy h, gth + k dth)``, aligned
 on the goal pose: every state holds its integer cost to go (or WALL where some robot body would come
-closer than ``margin + inflation`` to an obstacle). Following it from any pose is a cheap descent, so
+closer to an obstacle than its edges' exact bound allows: every pose on an edge keeps ``margin``). Following it from any pose is a cheap descent, so
 the plan is made once per mission and never repaired: from wherever the structure is, the field says
 which way to go. It is a pure function of the mission, so every agent holds the same field.
 

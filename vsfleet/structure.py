@@ -28,7 +28,8 @@ np = lazy_numpy(globals())   # numpy on first use: the agent process never loads
 
 #: clearance [m] the structure's planned way keeps between every robot body and every obstacle: beyond the
 #: safety filter's own margin (15 mm), so that on the plan the filter stays idle (docs/planning.md); the
-#: field's states keep this plus its inflation (>= 21 mm), its edges this
+#: field's edges keep this, its states 1-2 mm more (the edges' exact bound); the clearance barrier (vsfleet.clear)
+#: keeps the structure's points CLEAR_M (22 mm) away
 PLAN_MARGIN_M = 0.02
 
 

@@ -13,10 +13,15 @@
  * inside VS_CLEAR_M is moved out at that rate, even while the advance holds the structure still.
  *
  * The twist (vx, vy, w) is replaced by its nearest twist that meets every row, in the metric
- * |dv|^2 + (reach dw)^2 (reach [m]: the shape's largest |p_i|), found exactly by a fixed enumeration: the twist
- * itself when it meets every row, else the best (least distance, the first in order on ties) of the
- * projections onto each row's plane, each pair's line and each triple's point that meets every row
- * (within 1e-12); none: the zero twist.  + - * / and sqrt only, fixed order: the same bits everywhere.
+ * |dv|^2 + (reach dw)^2 (reach [m]: the shape's largest |p_i|; 1 when it is 0), found exactly by a fixed
+ * enumeration: the twist itself when it meets every row, else the best (least distance, the first in order on
+ * ties) of the projections onto each row's plane, each pair's line and each triple's point that meets every row
+ * (within 1e-12).  None (points inside VS_CLEAR_M on opposite sides, as in a passage the field threads at its
+ * margin): the rows' positive bounds become 0 (hold, do not push out) and the enumeration runs again; none
+ * still: the zero twist.  Then, if that twist is longer (in the metric) than the one given and than the push-out
+ * VS_CLEAR_GAMMA_PER_S VS_CLEAR_M, it is scaled down to the larger of the two (the advance's envelope; a shorter
+ * twist in the same direction still meets every row of bound <= 0 and moves out along the others).
+ * + - * / and sqrt only, fixed order: the same bits everywhere.
  * Units and frames as vscore.h: [m], [rad], [s]; world frame. */
 #ifndef VS_CLEAR_H
 #define VS_CLEAR_H
@@ -29,8 +34,8 @@
 
 /* points_xy (n, 2) [m; world]: the robots' points at the fitted pose (fx, fy) [m]; radius_m (n) [m];
  * obstacles (m, 3) (x, y, R) [m; world]; reach_m > 0 [m]; twist_in (vx, vy, w) [m/s, m/s, rad/s; world].
- * twist_out: the barrier's twist.  Returns 1 when it differs from twist_in (bitwise), else 0 (twist_out = twist_in).
- * No allocation; O(n m) plus a fixed enumeration of at most 41 candidates. */
+ * twist_out: the barrier's twist.  Returns 0 when twist_in meets every row (twist_out = twist_in), else 1.
+ * No allocation; O(n m) plus a fixed enumeration of at most 2 x 42 candidates. */
 int vs_clearance_barrier(const double *points_xy, double fx, double fy, const double *radius_m, size_t n,
                          const double *obstacles, size_t m, double reach_m, const double twist_in[3],
                          double twist_out[3]);
