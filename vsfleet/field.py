@@ -2,9 +2,9 @@
 
 A navigation function over a lattice of structure poses ``(gx + ix h, gy + iy h, gth + k dth)``, aligned
 on the goal pose: every state holds its integer cost to go (or WALL where some robot body would come
-closer to an obstacle than its edges' exact bound allows: every pose on an edge keeps ``margin``). Following it from any pose is a cheap descent, so
-the plan is made once per mission and never repaired: from wherever the structure is, the field says
-which way to go. It is a pure function of the mission, so every agent holds the same field.
+closer to an obstacle than its edges' exact bound allows: every pose on an edge keeps ``margin``).
+Following it from any pose is a cheap descent, so the plan is made once per mission and never repaired:
+from wherever the structure is, the field says which way to go. It is a pure function of the mission, so every agent holds the same field.
 
 :func:`build_field` / :func:`follow_field` run the compiled core (vsfleet/_core/vs_field.c);
 :func:`build_field_reference` / :func:`follow_field_reference` are the readable reference (numpy and
@@ -221,7 +221,7 @@ def build_field_reference(template_xy, radius_m, margin_m: float, obstacles, goa
             rho_tight = math.sqrt(w2) + COMFORT_M
             r2 = rho_tight * rho_tight
             dx, dy = bx - o[0], by - o[1]
-            # a state is a wall where d2 = dy^2 + dx^2 < rho_wall^2 (tight: < rho_tight^2). Only the window where
+            # a state is a wall where d2 = dy^2 + dx^2 < w2 (tight: < rho_tight^2). Only the window where
             # dx^2 and dy^2 are each below rho_tight^2 at some heading can hold one: rounding is monotonic, so d2
             # is never below either term. The same bits as the whole lattice, at a fraction of the cost.
             cols, rows = np.flatnonzero((dx * dx < r2).any(axis=0)), np.flatnonzero((dy * dy < r2).any(axis=0))

@@ -117,8 +117,8 @@ def structure_step_reference(arrays, metric: str, pose_world: np.ndarray, seen: 
         way, blocked, left_m = follow_field_reference(field, fit.pose)
         goal = GoalPath(tuple(Pose2(*w) for w in way), synced=True)
         # the carrot at least STEP_LOOKAHEAD_PER_REACH times the shape's reach ahead (vs_step.h)
-        ahead = STEP_LOOKAHEAD_PER_REACH * math.sqrt(float(np.max(template[:, 0] * template[:, 0]
-                                                                  + template[:, 1] * template[:, 1])))
+        reach = math.sqrt(float(np.max(template[:, 0] * template[:, 0] + template[:, 1] * template[:, 1])))
+        ahead = STEP_LOOKAHEAD_PER_REACH * reach
         if ahead > limits.path_lookahead_m:
             limits = replace(limits, path_lookahead_m=ahead)
     adv = advance_fn(fit.pose, goal, dt_s, limits, template, arrays.envelopes,
@@ -127,7 +127,6 @@ def structure_step_reference(arrays, metric: str, pose_world: np.ndarray, seen: 
     cleared = False
     if field is not None and len(arrays.obstacles) > 0 and not adv.at_goal:
         # the room's clearance barrier (vsfleet.clear): the points keep CLEAR_M from every obstacle
-        reach = math.sqrt(float(np.max(template[:, 0] * template[:, 0] + template[:, 1] * template[:, 1])))
         t = adv.twist
         (vx, vy, w), changed = clearance_barrier_reference(now_pts, fit.pose.x, fit.pose.y, arrays.radii,
                                                            arrays.obstacles, reach, (t.vx_m_s, t.vy_m_s, t.w_rad_s))

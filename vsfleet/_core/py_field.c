@@ -115,7 +115,6 @@ out:
     return result;
 }
 
-
 /* clearance_barrier(points_xy (n, 2), fx, fy, radius_m (n), obstacles (m, 3), reach_m, vx, vy, w)
  * -> (vx, vy, w, changed): vs_clearance_barrier (vs_clear.h) */
 static PyObject *py_clearance_barrier(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)

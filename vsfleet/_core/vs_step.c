@@ -144,6 +144,7 @@ int vs_structure_step_ws(const vs_mission *m, const double *pose_world, const un
     double left_m = 0.0;
     vs_limits limits = m->limits;
     double plan[3 * VS_STEP_PATH_CAP];
+    double reach = 0.0;   /* following a field: the shape's largest |p_i| [m] (the carrot's reach, the barrier's metric) */
     if (field != NULL && goal.kind != VS_GOAL_TWIST && goal.n_poses > 0) {
         size_t n_way = 0;
         rc = vs_field_follow(field, pose_fit, VS_STEP_PATH_M, plan, VS_STEP_PATH_CAP, &n_way, &blocked, &left_m);
@@ -156,7 +157,8 @@ int vs_structure_step_ws(const vs_mission *m, const double *pose_world, const un
             double r2 = tpl[2 * i] * tpl[2 * i] + tpl[2 * i + 1] * tpl[2 * i + 1];
             if (r2 > reach2) reach2 = r2;
         }
-        double ahead = VS_STEP_LOOKAHEAD_PER_REACH * sqrt(reach2);
+        reach = sqrt(reach2);
+        double ahead = VS_STEP_LOOKAHEAD_PER_REACH * reach;
         if (ahead > limits.path_lookahead_m) limits.path_lookahead_m = ahead;
     }
     rc = vs_advance(pose_fit, &goal, dt_s, &limits, tpl, m->wheel_base_m,
@@ -165,15 +167,10 @@ int vs_structure_step_ws(const vs_mission *m, const double *pose_world, const un
     int cleared = 0;
     if (goal.kind == VS_GOAL_PLAN && m->n_obstacles > 0 && !adv.at_goal) {
         /* the room's clearance barrier (vs_clear.h): the points keep VS_CLEAR_M from every obstacle */
-        double reach2 = 0.0;
-        for (size_t i = 0; i < n; i++) {
-            double r2 = tpl[2 * i] * tpl[2 * i] + tpl[2 * i + 1] * tpl[2 * i + 1];
-            if (r2 > reach2) reach2 = r2;
-        }
         const double t_in[3] = {adv.vx_m_s, adv.vy_m_s, adv.w_rad_s};
         double t[3];
         if (vs_clearance_barrier(points_now, fit.x, fit.y, m->radius_m, n, m->obstacles, m->n_obstacles,
-                                 sqrt(reach2), t_in, t)) {
+                                 reach, t_in, t)) {
             cleared = 1;
             /* the pose one dt_s on, as vs_advance forms it */
             double th0 = (pose_fit[2] >= -VS_PI && pose_fit[2] < VS_PI) ? pose_fit[2] : vs_wrap_angle(pose_fit[2]);
