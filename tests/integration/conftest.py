@@ -276,6 +276,12 @@ def open_client(endpoint: str) -> zenoh.Session:
 #: ("<time> <logger> ERROR <message>"), or a Python traceback
 ERROR_LINE = re.compile(r"\bERROR\b|\bCRITICAL\b|^Traceback \(most recent call last\)")
 ANSI = re.compile(r"\x1b\[[0-9;]*m")   # zenoh colours its level ("\x1b[31mERROR"): no word boundary before it
+# zenoh's close race (docs/reliability.md): a session that closes can log this for a sample still on its way, even with
+# its subscriptions undeclared first (CI, 2026-12-05: agent r3 as the fleet stopped at the end of `vsfleet run`;
+# 2 lines in one 8 s run of sessions closing one after another beside a 2 kHz stream, 0 in two 30 s runs). Allowed only in a log
+# after the process said it was stopping (STOP_LINE): it never excuses the line in a running process.
+ZENOH_CLOSING = re.compile(r"zenoh::api::session\S*: Received Data for unknown key_expr: Remote resource \d+ not found")
+STOP_LINE = re.compile(r"signal SIG\w+: stopping|\bstopping (after|at) ")   # zglue.lifecycle's, and each program's
 
 
 class LoopbackFleet:
@@ -406,15 +412,19 @@ def closing(fleet: LoopbackFleet, request) -> None:
     fleet.close()
 
 
-def error_lines(root: Path, allowed=()) -> list[str]:
+def error_lines(root: Path, allowed=(), closing=(ZENOH_CLOSING,)) -> list[str]:
     """Every line of every *.log under root that reports an error (ERROR_LINE) and that no pattern of
-    ``allowed`` (regular expressions, searched in the line) covers, as "<file>: <line>"."""
+    ``allowed`` (regular expressions, searched in the line) covers, nor one of ``closing`` once that log has said
+    its process is stopping (STOP_LINE), as "<file>: <line>"."""
     patterns = [re.compile(p) if isinstance(p, str) else p for p in allowed]
     bad = []
     for f in sorted(root.rglob("*.log")):
+        stopping = False
         for line in f.read_text(errors="replace").splitlines():
             plain = ANSI.sub("", line)
-            if ERROR_LINE.search(plain) and not any(p.search(plain) for p in patterns):
+            stopping = stopping or bool(STOP_LINE.search(plain))
+            if (ERROR_LINE.search(plain) and not any(p.search(plain) for p in patterns)
+                    and not (stopping and any(p.search(plain) for p in closing))):
                 bad.append(f"{f.relative_to(root)}: {line}")
     return bad
 

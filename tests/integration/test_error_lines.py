@@ -30,3 +30,20 @@ def test_an_error_the_test_provokes_on_purpose_is_allowed_by_its_pattern(tmp_pat
     (root / "router.log").write_text(ZENOH + "\n" + OURS + "\n")
     assert error_lines(root, allowed=[r"unknown key_expr"]) == [f"router.log: {OURS}"]
     assert error_lines(root, allowed=[r"unknown key_expr", r"the step raised"]) == []
+
+
+AGENT_CLOSING = ("\x1b[2m2026-12-05T16:42:37.093659Z\x1b[0m \x1b[31mERROR\x1b[0m rx-1 ThreadId(07) "
+                 "\x1b[2mzenoh::api::session\x1b[0m\x1b[2m:\x1b[0m Received Data for unknown key_expr: Remote resource 5 "
+                 "not found at /root/.cargo/git/checkouts/zenoh-9c599d5ef3e0480e/cc83980/zenoh/src/api/session.rs:299.")
+SIGNALLED = "2026-12-05 16:42:37,080 vsfleet.zglue.lifecycle INFO signal SIGTERM: stopping"
+STOPPED = "2026-12-05 16:42:37,085 vsfleet.agent INFO agent r3 stopping after 1614 ticks, 0 rejected"
+
+
+def test_zenohs_close_race_line_is_allowed_only_once_the_process_said_it_was_stopping(tmp_path_factory):
+    root = tmp_path_factory.mktemp("logs")
+    (root / "agent-r3.log").write_text("\n".join([SIGNALLED, STOPPED, AGENT_CLOSING]) + "\n")   # CI, 2026-12-05
+    (root / "agent-r2.log").write_text("\n".join([STOPPED, AGENT_CLOSING]) + "\n")
+    (root / "agent-r1.log").write_text("\n".join([AGENT_CLOSING, SIGNALLED]) + "\n")  # while it ran: not excused
+    (root / "router.log").write_text("\n".join([SIGNALLED, ZENOH]) + "\n")   # another line of zenoh's: not excused
+    assert error_lines(root) == [f"agent-r1.log: {AGENT_CLOSING}", f"router.log: {ZENOH}"]
+    assert len(error_lines(root, closing=())) == 4
