@@ -161,7 +161,8 @@ AGENT_RUNS = (
      {50: ("gap", 33)}),
     ("room-pillar-facing", "room-pillar-facing", 6.0, {"seed": 1}, "r1", 100, 50, {30: ("drop", ("r2",))}),
     ("room-wall-gap", "room-wall-gap", 6.0, {"seed": 1}, "r2", 60, 50, {10: ("gap", 12)}),
-    ("room-4 stall", "room-4", 12.0, {"seed": 4}, "r01", 200, 40, {}),
+    ("room-4", "room-4", 12.0, {"seed": 4}, "r01", 200, 40, {}),
+    ("walled-in blocked", "walled-in", 3.0, {"seed": 1}, "r2", 0, 40, {20: ("drop", ("r3",))}),
     ("room-column-switch", "room-column-switch", 40.0, {"seed": 1}, "r1", 860, 40, {5: ("drop", ("r3",))}),
     ("crowd-10", "crowd-10", 3.0, {"seed": 3, "stop_at_goal": False}, "r03", 20, 30,
      {5: ("drop", ("r01", "r07")), 18: ("gap", 12)}),
@@ -174,9 +175,12 @@ def _scenario(name: str):
         from bench.crowd import crowd_doc
         from vsfleet.scenario import scenario_from_dict
         return scenario_from_dict(crowd_doc(int(name.split("-")[1]), 3, 6.0), name=f"{name}-shuffled")
-    if name == "room-4":   # tests/test_room.py: bench/room.py's room 4, where the clearance barrier holds the
-        from test_room import room_4   # structure on its way (a stall, 'blocked' at 7.4 s; until 2026-12-05 the
-        return room_4()               # triangle turned 0.5 rad before a thin wall's 0.52 m gap, now passed)
+    if name == "room-4":   # tests/test_room.py: bench/room.py's room 4, a thin wall's gap threaded close to the
+        from test_room import room_4   # wall (until 2026-12-05 the descent started in a sliver of the lattice there,
+        return room_4()               # and every agent said 'blocked' at 7.4 s)
+    if name == "walled-in":   # tests/test_room.py: a goal ringed with pillars, 'blocked' from the first frames
+        from test_room import walled_in
+        return walled_in()
     base, _, policy = name.partition("@")
     sc = load_scenario(Path(__file__).resolve().parent.parent / "scenarios" / f"{base}.toml")
     if policy:

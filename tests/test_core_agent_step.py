@@ -61,11 +61,11 @@ def test_every_controller(controller):
     assert_same(glue, core)
 
 
-def test_a_room_with_bodies_the_safety_filter_the_clearance_barrier_and_a_stall():
-    """bench/room.py's room 4: the clearance barrier holds the structure on the field's way and the stall watch
-    says 'blocked' (tests/test_room.py)."""
+def test_a_room_with_bodies_the_safety_filter_and_the_clearance_barrier_beside_a_wall():
+    """bench/room.py's room 4: the structure threads a thin wall's gap close to the wall, its fitted pose falling
+    between lattice states beside it (tests/test_room.py); until 2026-12-05 every agent said 'blocked' there."""
     glue, core = both(room_4(), 20.0, seed=4)
-    assert all(ds and ds[0].kind == "blocked" for ds in glue.decisions.values())
+    assert all(ds == [] for ds in glue.decisions.values()), glue.decisions
     assert_same(glue, core)
 
 

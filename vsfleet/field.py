@@ -351,12 +351,13 @@ def _descend(lat: Lattice, cost: np.ndarray, s: int):
 
 
 def _start_state(lat: Lattice, cost: np.ndarray, pose: Pose2) -> tuple[int | None, bool]:
-    """Where a descent from ``pose`` starts (vs_field.c start_state): the nearest state, else the cheapest free
-    state of the nearest ring around it (SEARCH_CELLS cells, two headings); None if none; and whether the pose
-    lies outside the lattice."""
+    """Where a descent from ``pose`` starts (vs_field.c start_state): the nearest state, else the best free
+    state of the nearest ring around it (SEARCH_CELLS cells, two headings): one the goal can be reached from
+    before one it cannot (whose cost is to its own component's end), then the cheaper; None if none; and whether
+    the pose lies outside the lattice."""
     plane = lat.nx * lat.ny
     c0, r0, k0, outside = _nearest(lat, pose.x, pose.y, pose.th)
-    start, start_v = None, 0
+    start, start_v, start_b = None, 0, 0
     for d in range(SEARCH_CELLS + 1):
         for dk in (0, 1, -1, 2, -2):
             k = (k0 + lat.n_headings + dk) % lat.n_headings
@@ -371,8 +372,9 @@ def _start_state(lat: Lattice, cost: np.ndarray, pose: Pose2) -> tuple[int | Non
                     if int(cost[s]) == WALL:
                         continue
                     v = int(cost[s]) & COST_MASK
-                    if start is None or v < start_v:
-                        start, start_v = s, v
+                    b = 1 if int(cost[s]) & BLOCKED_BIT else 0
+                    if start is None or b < start_b or (b == start_b and v < start_v):
+                        start, start_v, start_b = s, v, b
         if start is not None:
             break
     return start, outside

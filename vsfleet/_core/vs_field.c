@@ -457,7 +457,7 @@ static long start_state(const vs_field *f, const double pose[3], int *outside)
     size_t c0, r0, k0;
     nearest(f, pose, &c0, &r0, &k0, outside);
     long start = -1;
-    uint32_t start_v = 0;
+    uint32_t start_v = 0, start_b = 0;
     static const int DK[5] = {0, 1, -1, 2, -2};
     for (int d = 0; d <= VS_FIELD_SEARCH_CELLS && start < 0; d++) {
         for (int a = 0; a < 5; a++) {
@@ -469,8 +469,14 @@ static long start_state(const vs_field *f, const double pose[3], int *outside)
                     if (c < 0 || r < 0 || c >= (long)f->nx || r >= (long)f->ny) continue;
                     size_t s = k * plane + (size_t)r * f->nx + (size_t)c;
                     if (f->cost[s] == VS_FIELD_WALL) continue;
+                    /* a state the goal can be reached from before any the goal cannot (whose cost is to its own
+                     * component's end, often smaller), then the cheaper: a pose between states beside a wall starts
+                     * on the way to the goal, not in a sliver of the lattice that leads nowhere (bench room 4) */
                     uint32_t v = f->cost[s] & VS_FIELD_COST_MASK;
-                    if (start < 0 || v < start_v) { start = (long)s; start_v = v; }
+                    uint32_t b = (f->cost[s] & VS_FIELD_BLOCKED_BIT) != 0;
+                    if (start < 0 || b < start_b || (b == start_b && v < start_v)) {
+                        start = (long)s; start_v = v; start_b = b;
+                    }
                 }
             }
         }
