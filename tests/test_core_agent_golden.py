@@ -168,7 +168,7 @@ def test_each_agent_step_record_agrees_with_the_numpy_reference(k):
 
 
 def test_the_agent_step_records_cover_what_carries_over_between_frames():
-    """Decisions (fail, drop), a room's stall event, shapes taken, gaps past ttl and past the resync gap, frames
+    """Decisions (fail, drop), a room's 'blocked' flag (a goal walled in), shapes taken, gaps past ttl and past the resync gap, frames
     with no robot usable and frames without the agent's own robot."""
     frames = [f for k, (inputs, outs) in enumerate(RECORDS)
               for f in frame_outputs(outs, int(inputs[0]), AGENT_RUNS[k][6])[0]]

@@ -4,7 +4,7 @@ agent_step runs the per-frame part of a frame in the core whenever it can (the c
 structures shared between agents); offline runs that share structures between agents take the numpy glue. Both
 must decide the same: every command sent, every robot's truth, every decision and every shape, on the same
 frames. The scenarios cover the failure policies, the four controllers, a room with bodies (the safety filter,
-the assembly tie-break), a stall in a gap, reshaping, and gaps in the frames (past ttl and past the resync gap).
+the assembly tie-break), a thin wall threaded beside it, a goal walled in, reshaping, and gaps in the frames (past ttl and past the resync gap).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from vsfleet.simfleet.offline import run_offline
 from vsfleet.step import AgentState, StepConfig, agent_step
 from vsfleet.zglue.scenario_file import load_scenario
 
-from test_room import room_4, thin_wall, triangle_in_a_room
+from test_room import room_4, thin_wall, triangle_in_a_room, walled_in
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -61,11 +61,19 @@ def test_every_controller(controller):
     assert_same(glue, core)
 
 
-def test_a_room_with_bodies_the_safety_filter_and_the_clearance_barrier_beside_a_wall():
+def test_room_4_threaded_close_to_its_wall_without_a_word_in_core_and_glue_alike():
     """bench/room.py's room 4: the structure threads a thin wall's gap close to the wall, its fitted pose falling
     between lattice states beside it (tests/test_room.py); until 2026-12-05 every agent said 'blocked' there."""
     glue, core = both(room_4(), 20.0, seed=4)
     assert all(ds == [] for ds in glue.decisions.values()), glue.decisions
+    assert_same(glue, core)
+
+
+def test_a_goal_walled_in_blocked_in_core_and_glue_alike():
+    """A goal ringed with pillars: every agent says 'blocked' (the field's verdict) on the same frame, in the core and
+    in the glue (tests/test_room.py)."""
+    glue, core = both(walled_in(), 3.0, seed=1)
+    assert all([d.kind for d in ds] == ["blocked"] for ds in glue.decisions.values()), glue.decisions
     assert_same(glue, core)
 
 

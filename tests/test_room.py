@@ -206,6 +206,17 @@ def test_a_pose_beside_a_wall_starts_its_descent_on_the_way_to_the_goal_not_in_a
     core = build_field(room.template, room.radii, PLAN_MARGIN_M, room.obstacles, Pose2(*room.goal), n_headings=k)
     ref = build_field_reference(room.template, room.radii, PLAN_MARGIN_M, room.obstacles, Pose2(*room.goal),
                                 n_headings=k)
+    # the premise: the pose's own cell is a wall at every heading looked at, and the cheapest free state of the
+    # ring around it is one the goal cannot be reached from (what the old rule took)
+    from vsfleet.field import BLOCKED_BIT, COST_MASK, WALL, _cost_view, _nearest
+    lat, cost = ref.lattice, _cost_view(ref)
+    c0, r0, k0, _ = _nearest(lat, *ROOM_4_BESIDE_THE_WALL.as_tuple())
+    plane = lat.nx * lat.ny
+    heads = [(k0 + lat.n_headings + dk) % lat.n_headings for dk in (0, 1, -1, 2, -2)]
+    assert all(int(cost[k * plane + r0 * lat.nx + c0]) == WALL for k in heads)
+    ring = [int(cost[k * plane + (r0 + dr) * lat.nx + c0 + dc]) for k in heads for dr in (-1, 0, 1) for dc in (-1, 0, 1)
+            if (dr, dc) != (0, 0) and int(cost[k * plane + (r0 + dr) * lat.nx + c0 + dc]) != WALL]
+    assert min(ring, key=lambda v: v & COST_MASK) & BLOCKED_BIT
     way_core, blocked_core, _ = follow_field(core, ROOM_4_BESIDE_THE_WALL)
     way_ref, blocked_ref, _ = follow_field_reference(ref, ROOM_4_BESIDE_THE_WALL)
     assert not blocked_core and not blocked_ref

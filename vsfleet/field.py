@@ -351,10 +351,10 @@ def _descend(lat: Lattice, cost: np.ndarray, s: int):
 
 
 def _start_state(lat: Lattice, cost: np.ndarray, pose: Pose2) -> tuple[int | None, bool]:
-    """Where a descent from ``pose`` starts (vs_field.c start_state): the nearest state, else the best free
-    state of the nearest ring around it (SEARCH_CELLS cells, two headings): one the goal can be reached from
-    before one it cannot (whose cost is to its own component's end), then the cheaper; None if none; and whether
-    the pose lies outside the lattice."""
+    """Where a descent from ``pose`` starts (vs_field.c start_state): the best free state of the nearest ring
+    around it that has one (ring 0: the pose's own cell; SEARCH_CELLS cells, the nearest heading and two either
+    side): one the goal can be reached from before one it cannot (whose cost is to its own component's end), then
+    the cheaper; None if none; and whether the pose lies outside the lattice."""
     plane = lat.nx * lat.ny
     c0, r0, k0, outside = _nearest(lat, pose.x, pose.y, pose.th)
     start, start_v, start_b = None, 0, 0

@@ -448,9 +448,10 @@ static int segment_clear(const vs_field *f, const double *a, const double *b, ui
     return 1;
 }
 
-/* the state a descent from pose starts at: the nearest state, else the cheapest free state of the nearest ring
- * around it (within VS_FIELD_SEARCH_CELLS cells and two headings); -1 if none.  *outside: the pose lies outside
- * the lattice. */
+/* the state a descent from pose starts at: the best free state of the nearest ring around it that has one (ring 0:
+ * the pose's own cell; within VS_FIELD_SEARCH_CELLS cells, at the nearest heading and two either side): one the
+ * goal can be reached from before one it cannot, then the cheaper, then the first found; -1 if none.  *outside:
+ * the pose lies outside the lattice. */
 static long start_state(const vs_field *f, const double pose[3], int *outside)
 {
     size_t plane = f->nx * f->ny;
