@@ -67,8 +67,11 @@ BODY_GREY = fm.Color(r=0.55, g=0.55, b=0.55, a=0.35)
 PLAN_SWEPT = fm.Color(r=0.1, g=0.75, b=0.3, a=0.2)      # the plan's swept bodies (GREEN, faint) ...
 PLAN_SWEPT_BLOCKED = fm.Color(r=0.45, g=0.3, b=0.2, a=0.2)  # ... on a blocked plan (OBSTACLE, faint)
 
+# one level for every kind an event may carry (vsfleet.wire.EVENT_KINDS; tests/test_foxglove_live.py checks it):
+# 'blocked' was missing, and the first run to record one (a loaded CI rehearsal, 2026-12-05) crashed writing its MCAP
 EVENT_LEVEL = {"fail": fm.LogLevel.Warning, "drop": fm.LogLevel.Warning,
-               "recover": fm.LogLevel.Info, "rejoin": fm.LogLevel.Info}
+               "recover": fm.LogLevel.Info, "rejoin": fm.LogLevel.Info,
+               "blocked": fm.LogLevel.Warning, "unblocked": fm.LogLevel.Info}
 
 
 class View(NamedTuple):

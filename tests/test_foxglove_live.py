@@ -194,6 +194,20 @@ def test_the_scene_shows_obstacles_as_cylinders_and_robot_bodies_as_discs_of_the
     assert body["size"]["x"] == body["size"]["y"] == 0.1 and body["color"]["a"] < 1.0
 
 
+def test_every_event_kind_becomes_a_log_line_blocked_and_unblocked_included():
+    """A 'blocked' event crashed the MCAP writer of a loaded run (KeyError in EVENT_LEVEL, CI rehearsal 2026-12-05):
+    every kind the wire allows is logged now."""
+    from vsfleet.fleetctl.foxglove_views import FleetViews
+    from vsfleet.wire import EVENT_KINDS, EventMsg, encode_event
+
+    views = FleetViews()
+    views.on_message("vs/lab/mission", encode_mission(ROOM), seconds_to_ns(T0))
+    for seq, kind in enumerate(EVENT_KINDS, start=1):
+        out = views.on_message("vs/lab/event/r1", encode_event(EventMsg(T0 + seq, seq, "r1", kind, 0.5, "r1")), 0)
+        (log,) = [v for v in out if v.topic == "/foxglove/vs/lab/log"]
+        assert f"r1: {kind} at frame {seq}" in log.message.encode().decode("utf-8", "replace")
+
+
 def test_a_mission_without_a_room_draws_no_cylinders():
     from vsfleet.fleetctl.foxglove_views import FleetViews
 
