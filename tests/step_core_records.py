@@ -143,7 +143,8 @@ def assembly_records(seed: int = 29, count: int = 150) -> list[tuple[str, list[f
 
 #: the agent's whole step (vs_golden.c's ``agent_step``): runs of real scenarios offline, one agent's frames each
 #: (name, scenario, seconds, run_offline's keywords, robot, frames run before the record, the record's frames,
-#: edits: frame index -> ("drop", robot ids missing) or ("gap", frames skipped before it))
+#: edits: frame index -> ("drop", robot ids missing), ("gap", frames skipped before it) or ("still", frames skipped
+#: before it, the frame keeping the poses of the one before the gap: the whole fleet stood)
 AGENT_RUNS = (
     ("paper-triangle precision", "paper-triangle", 5.0, {"seed": 3, "stop_at_goal": False, "controller": "precision"}, "r1", 0, 40,
      {12: ("drop", ("r2",)), 13: ("drop", ("r2", "r3")), 25: ("gap", 11)}),
@@ -161,6 +162,8 @@ AGENT_RUNS = (
      {50: ("gap", 33)}),
     ("room-pillar-facing", "room-pillar-facing", 6.0, {"seed": 1}, "r1", 100, 50, {30: ("drop", ("r2",))}),
     ("room-wall-gap", "room-wall-gap", 6.0, {"seed": 1}, "r2", 60, 50, {10: ("gap", 12)}),
+    # a gap past the resync gap while the stall watch runs: the watch restarts with the failure timers (2026-12-05)
+    ("room-wall-gap resync", "room-wall-gap", 8.0, {"seed": 1}, "r2", 60, 50, {49: ("still", 100)}),
     ("room-4", "room-4", 12.0, {"seed": 4}, "r01", 200, 40, {}),
     ("walled-in blocked", "walled-in", 3.0, {"seed": 1}, "r2", 0, 40, {20: ("drop", ("r3",))}),
     ("room-column-switch", "room-column-switch", 40.0, {"seed": 1}, "r1", 860, 40, {5: ("drop", ("r3",))}),
@@ -214,14 +217,18 @@ def agent_run_frames(run) -> tuple:
     finally:
         agent_main.agent_step, agent_main.agent_payload_step = step_fn, payload_fn
     config = dataclasses.replace(configs[0], shared_structures=None)
-    need = warm + count + sum(arg for what, arg in edits.values() if what == "gap")
+    need = warm + count + sum(arg for what, arg in edits.values() if what in ("gap", "still"))
     assert len(took) >= need, f"{_name}: {len(took)} frames, {need} wanted"
     record, k = [], warm
     for j in range(count):
         what, arg = edits.get(j, (None, None))
-        if what == "gap":
+        if what in ("gap", "still"):
             k += arg
         mission, frame, now_s = took[k]
+        if what == "still":   # the whole fleet stood through the gap: the poses of the frame before it, at t
+            before = record[-1][1] if record else took[k - arg - 1][1]
+            frame = Frame(seq=frame.seq, t=frame.t, poses=before.poses, complete=before.complete, fresh=before.fresh,
+                          src=frame.src, sources=frame.sources)
         if what == "drop":
             frame = Frame(seq=frame.seq, t=frame.t, poses={r: p for r, p in frame.poses.items() if r not in arg},
                           complete=False, fresh=frozenset(r for r in frame.fresh if r not in arg), src=frame.src,

@@ -234,3 +234,17 @@ def test_the_binding_refuses_a_policy_mode_or_a_shape_that_is_not_a_code():
         with pytest.raises(VsfleetValueError):
             _core.agent_step(config, arrays_in, scalars, pose, seen, seen, 0.0, np.empty(n, dtype=bool),
                              kernel.scratch_f64, kernel.scratch_u8)
+
+
+def test_a_fleet_that_stood_through_a_frame_gap_is_not_stuck_in_core_and_glue_alike():
+    """Every agent stalls for 110 frames (3.7 s) twice on the thin wall's 0.52 m gap, the robots halting with their
+    commands' ttl. The stall watch restarts with the failure timers after such a gap, as the frames not run are no
+    time the structure stood still. Before (busy-loop rehearsal 68, 2026-12-05: an agent's 'stuck on the way' after
+    'no frame for 2.86 s', then 'on its way again' 35 ms later), every agent here said 'blocked' on the first frame
+    after the second gap (22.57 s, the watch begun before it and the barrier seen) and 'unblocked' at 23.8 s."""
+    from vsfleet.simfleet.offline import Overload
+
+    glue, core = both(triangle_in_a_room(thin_wall(0.52), phi_rad=0.5), 25.0, seed=1, stop_at_goal=False,
+                      overload=Overload(stall_p=0.005, stall_frames=110, stall_seed=1))
+    assert all(ds == [] for ds in glue.decisions.values()), glue.decisions
+    assert_same(glue, core)

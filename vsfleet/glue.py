@@ -244,6 +244,8 @@ def decide_in_numpy(state: AgentState, mission: Mission, controller, frame: Fram
                                      "restarting failure timers and asking peers for their failure state"))
         failure = restart_timers(failure)
         state = replace(state, phase=SyncPhase.RESYNCING)
+        if not state.stalled:   # and the stall watch: frames not run are no time the structure stood still
+            state = replace(state, stall_since_t=math.nan, stall_pose=None)
     state = _evolve(state, last_frame_t=frame.t, failure=failure)
 
     pose, seen, fresh = frame_arrays(arrays.ids, frame.poses, frame.fresh)

@@ -180,6 +180,10 @@ int vs_agent_step_ws(const vs_agent_config *cfg, vs_agent_state *st, const doubl
     /* a gap longer than resync_gap_s: restart the failure timers and the motion window */
     if (t - st->last_frame_t > cfg->resync_gap_s && st->last_frame_t > -INFINITY) {
         restart_timers(f);
+        if (!st->stalled) {   /* and the stall watch: a gap is no time the structure stood (glue.py) */
+            st->stall_since_t = NAN;
+            st->stall_watch = 0;
+        }
         out->resynced = 1;
     }
     st->last_frame_t = t;

@@ -6,7 +6,8 @@
  * events' wording stay in Python, which calls this once per frame):
  *   - a gap longer than ttl_s since the last command: every robot has halted, so the previous
  *     commands are zero and the controller starts afresh; a gap longer than resync_gap_s since the
- *     last frame: the failure timers and the motion window restart (out->resynced);
+ *     last frame: the failure timers, the motion window and (unless stalled) the stall watch restart
+ *     (out->resynced);
  *   - the structure step (vs_step.h): fit, plan, advance, shape, deviations;
  *   - with bodies, the assembly tie-break (vs_assembly_targets);
  *   - every robot's command by the mission's controller (vs_control.h), the deadband of Held
