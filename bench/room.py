@@ -25,7 +25,7 @@ fitted structure is within 5 mm of the goal's position AND 0.03 rad of its headi
 looks at the position only and ends the run there; when the heading is not there yet, the room's run is
 made again, to its end, and the first frame at the goal pose counts).
 
-    .venv/bin/python -m bench.room --rooms 200        # progress on stderr, tables on stdout
+    .venv/bin/python -m bench.room --rooms 200 --jobs 2   # progress on stderr, tables on stdout
     .venv/bin/python -m bench.room --rooms 8 --out /tmp/rooms   # rooms.json and rooms.png there
 
 Output: runs/bench/room/ unless --out DIR (or --docs: docs/bench/room/) holds rooms.json (every room's
@@ -611,6 +611,18 @@ def _commit() -> str:
         return "?"
 
 
+def _evaluated(seeds, ompl_checks: int, cap_s: float, jobs: int):
+    """evaluate() of every seed, each row as it is done: in this process (jobs 1), or in jobs worker processes."""
+    if jobs == 1:
+        for seed in seeds:
+            yield evaluate(seed, ompl_checks, cap_s)
+        return
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        for done in as_completed([pool.submit(evaluate, seed, ompl_checks, cap_s) for seed in seeds]):
+            yield done.result()
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rooms", type=int, default=200)
@@ -618,11 +630,16 @@ def main(argv=None) -> int:
     ap.add_argument("--ompl-checks", type=int, default=ompl_ref.MAX_CHECKS,
                     help="OMPL's budget per room: state validity checks")
     ap.add_argument("--cap-s", type=float, default=150.0, help="simulated seconds per room at most")
+    ap.add_argument("--jobs", type=int, default=1,
+                    help="rooms run at a time, in worker processes (each room is a pure function of its seed; the "
+                         "plan times are then measured beside the other jobs)")
     ap.add_argument("--picture", default=None, help="also draw scenarios/paper-triangle-obstacle.toml's run here")
     add_output_flags(ap, "room", DOCS / "bench" / "room", "rooms.json and rooms.png")
     ap.add_argument("--report", type=Path, default=None,
                     help="no runs: the tables (stdout) and rooms.png (next to it) of a rooms.json written before")
     a = ap.parse_args(argv)
+    if a.jobs < 1:
+        ap.error("--jobs must be at least 1")
     if a.picture:
         picture(a.picture, "scenarios/paper-triangle-obstacle.toml")
     if a.report is not None:
@@ -639,12 +656,12 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     meta = {"machine": f"{platform.machine()} {platform.processor() or ''}".strip(), "python": platform.python_version(),
             "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "rooms": a.rooms, "first": a.first,
-            "ompl_checks": a.ompl_checks, "cap_s": a.cap_s, "commit": _commit(),
+            "ompl_checks": a.ompl_checks, "cap_s": a.cap_s, "commit": _commit(), "jobs": a.jobs,
             "core_sha256": hashlib.sha256(Path(_core.__file__).read_bytes()).hexdigest()[:16]}
     rows, t0 = [], time.perf_counter()
-    for k in range(a.rooms):
-        r = evaluate(a.first + k, a.ompl_checks, a.cap_s)
+    for k, r in enumerate(_evaluated(range(a.first, a.first + a.rooms), a.ompl_checks, a.cap_s, a.jobs)):
         rows.append(r)
+        rows.sort(key=lambda row: row["seed"])
         (out / "rooms.json").write_text(json.dumps(_plain({"meta": {**meta, "done": k + 1}, "rooms": rows})))
         el = time.perf_counter() - t0
         print(f"[room {k + 1}/{a.rooms}] seed {r['seed']} {r['kind']:7s} {r['shape']:9s} obstacles {r['obstacles']:3d} | "

@@ -122,3 +122,25 @@ def test_the_validity_test_is_the_margin_from_every_body():
     assert valid(0.0, 0.0, 0.0)
     assert valid(0.0, 0.179, 0.0) and not valid(0.0, 0.181, 0.0)          # 0.2 - 0.18 = 0.02: the margin
     assert ompl_ref.path_length_m([(0, 0, 0), (3, 4, 1), (3, 4, 2)]) == pytest.approx(5.0)
+
+
+def fake_evaluate(seed: int, ompl_checks: int, cap_s: float) -> dict:
+    """evaluate()'s stand-in for the jobs test: who ran which seed with which arguments."""
+    import os
+    return {"seed": seed, "args": (ompl_checks, cap_s), "pid": os.getpid()}
+
+
+@pytest.mark.integration   # worker processes
+def test_rooms_run_in_worker_processes_give_every_seed_once_with_its_arguments(monkeypatch, tmp_path):
+    import os
+
+    import bench.room as room
+    monkeypatch.setattr(room, "evaluate", fake_evaluate)
+    serial = list(room._evaluated(range(3, 9), 7, 11.0, jobs=1))
+    assert [r["seed"] for r in serial] == list(range(3, 9)) and {r["pid"] for r in serial} == {os.getpid()}
+    pooled = list(room._evaluated(range(3, 9), 7, 11.0, jobs=2))
+    assert sorted(r["seed"] for r in pooled) == list(range(3, 9))
+    assert {r["args"] for r in pooled} == {(7, 11.0)} and os.getpid() not in {r["pid"] for r in pooled}
+    with pytest.raises(SystemExit):
+        room.main(["--rooms", "1", "--jobs", "0", "--out", str(tmp_path / "out")])
+    assert not (tmp_path / "out").exists()
