@@ -618,9 +618,12 @@ def _evaluated(seeds, ompl_checks: int, cap_s: float, jobs: int):
             yield evaluate(seed, ompl_checks, cap_s)
         return
     from concurrent.futures import ProcessPoolExecutor, as_completed
-    with ProcessPoolExecutor(max_workers=jobs) as pool:
+    pool = ProcessPoolExecutor(max_workers=jobs)
+    try:
         for done in as_completed([pool.submit(evaluate, seed, ompl_checks, cap_s) for seed in seeds]):
             yield done.result()
+    finally:   # an error (a room's, or the caller's) does not wait for the rooms still queued
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def main(argv=None) -> int:
@@ -632,7 +635,8 @@ def main(argv=None) -> int:
     ap.add_argument("--cap-s", type=float, default=150.0, help="simulated seconds per room at most")
     ap.add_argument("--jobs", type=int, default=1,
                     help="rooms run at a time, in worker processes (each room is a pure function of its seed; the "
-                         "plan times are then measured beside the other jobs)")
+                         "plan times, and OMPL's 30 s time limit behind its check budget, then share the host "
+                         "with the other jobs; rooms.json keeps the rows in seed order, those done so far)")
     ap.add_argument("--picture", default=None, help="also draw scenarios/paper-triangle-obstacle.toml's run here")
     add_output_flags(ap, "room", DOCS / "bench" / "room", "rooms.json and rooms.png")
     ap.add_argument("--report", type=Path, default=None,

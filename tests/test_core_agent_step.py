@@ -236,15 +236,60 @@ def test_the_binding_refuses_a_policy_mode_or_a_shape_that_is_not_a_code():
                              kernel.scratch_f64, kernel.scratch_u8)
 
 
-def test_a_fleet_that_stood_through_a_frame_gap_is_not_stuck_in_core_and_glue_alike():
+def test_a_fleet_that_stood_through_a_frame_gap_is_not_stuck_in_core_and_glue_alike(monkeypatch):
     """Every agent stalls for 110 frames (3.7 s) twice on the thin wall's 0.52 m gap, the robots halting with their
     commands' ttl. The stall watch restarts with the failure timers after such a gap, as the frames not run are no
     time the structure stood still. Before (busy-loop rehearsal 68, 2026-12-05: an agent's 'stuck on the way' after
     'no frame for 2.86 s', then 'on its way again' 35 ms later), every agent here said 'blocked' on the first frame
     after the second gap (22.57 s, the watch begun before it and the barrier seen) and 'unblocked' at 23.8 s."""
+    import vsfleet.agent.main as agent_main
     from vsfleet.simfleet.offline import Overload
 
+    watched_gaps = []   # the premise: frames after a gap past the resync gap, the stall watch running before them
+    real = agent_main.agent_step
+
+    def spy(state, mission, frame, now_s, config):
+        if mission is not None and frame.t - state.last_frame_t > config.resync_gap_s \
+                and not math.isnan(state.stall_since_t):
+            watched_gaps.append((state.robot, frame.seq))
+        return real(state, mission, frame, now_s, config)
+
+    monkeypatch.setattr(agent_main, "agent_step", spy)
+    monkeypatch.setattr(agent_main, "agent_payload_step", lambda *a, **k: None)   # every frame through agent_step
     glue, core = both(triangle_in_a_room(thin_wall(0.52), phi_rad=0.5), 25.0, seed=1, stop_at_goal=False,
                       overload=Overload(stall_p=0.005, stall_frames=110, stall_seed=1))
+    assert sorted({seq for _, seq in watched_gaps}) == [434, 678], watched_gaps
     assert all(ds == [] for ds in glue.decisions.values()), glue.decisions
     assert_same(glue, core)
+
+
+def test_a_resync_on_a_frame_with_no_robot_usable_restarts_the_stall_watch_in_core_and_glue_alike():
+    """The frame after a gap past the resync gap sees no robot (nothing to fit): both restart the stall watch there,
+    and the still frames after it keep the same watch. Until review (2026-12-05) the core's answer for such a frame
+    kept the watch from before the gap (agentcore took only last_frame_t back from it)."""
+    from step_core_records import AGENT_RUNS, agent_run_frames
+
+    run = next(r for r in AGENT_RUNS if r[0] == "room-wall-gap resync")
+    robot, config, warm, _record = agent_run_frames(run)
+    mission, last, _ = warm[-1]
+    frames = [Frame(seq=last.seq + 41, t=last.t + 41 / 30.0, poses={}, complete=False, fresh=frozenset(), src="sim")]
+    frames += [Frame(seq=last.seq + 42 + k, t=last.t + (42 + k) / 30.0, poses=last.poses, complete=last.complete,
+                     fresh=last.fresh, src="sim") for k in range(120)]
+    outs = {}
+    for glue in (True, False):
+        cfg = dataclasses.replace(config, shared_structures={} if glue else None)
+        state = AgentState(robot)
+        for m, f, now in warm:
+            state, _ = agent_step(state, m, f, now, cfg)
+        before = state.stall_since_t
+        got = []
+        for f in frames:
+            state, out = agent_step(state, mission, f, f.t + 0.01, cfg)
+            since = None if math.isnan(state.stall_since_t) else state.stall_since_t   # (nan != nan)
+            got.append((out.events, out.notes, since, state.stall_pose, state.stalled))
+        outs[glue] = got
+    assert not math.isnan(before)                           # the watch ran before the gap
+    assert any("no frame for" in n.text for n in outs[True][0][1])   # the first frame resynced
+    assert outs[True][0][2] is None and outs[True][0][3] is None   # and restarted the watch
+    assert outs[True][1][2] == frames[1].t                  # begun again on the first frame with robots
+    assert outs[True] == outs[False]

@@ -228,8 +228,9 @@ def _core_outcome(state: AgentState, mission: Mission, cm: CoreMission, ctrl, t:
         notes.append(Note("warning", f"frame {seq}: no frame for {t - state.last_frame_t:.2f} s; "
                                      "restarting failure timers and asking peers for their failure state"))
         state = replace(state, phase=SyncPhase.RESYNCING)
-    if len(r) == 1:   # no robot usable
-        return _evolve(state, last_frame_t=last_frame_t), None, ()
+    stall_pose = (scalars[6], scalars[7], scalars[8], bool(scalars[9])) if scalars[5] else None
+    if len(r) == 1:   # no robot usable (a resync restarted the stall watch all the same)
+        return _evolve(state, last_frame_t=last_frame_t, stall_since_t=scalars[4], stall_pose=stall_pose), None, ()
     blocked, shape, event, event_dev, shape_before, made = r[12], r[14], r[19], r[20], r[21], r[22]
     health = health_of(state.failure, cm.ids)
     health_msg = HealthMsg(t=t, seq=seq, mission=mission.version, failed=tuple(sorted(health.failed)),
@@ -249,7 +250,6 @@ def _core_outcome(state: AgentState, mission: Mission, cm: CoreMission, ctrl, t:
             notes.append(Note("info", f"frame {seq}: the structure takes {shape_name(cm, shape)}"))
         notes.extend(Note("warning", f"frame {seq}: robot {d.robot} {d.kind} (deviation {d.deviation_m:.3f} m, "
                                      f"on_failure={mission.on_failure})") for d in decisions)
-    stall_pose = (scalars[6], scalars[7], scalars[8], bool(scalars[9])) if scalars[5] else None
     state = _evolve(state, last_frame_t=last_frame_t, ctrl=ctrl, health=health, last_seq=seq, blocked=bool(blocked),
                     stall_since_t=scalars[4], stall_pose=stall_pose, stalled=bool(scalars[10]),
                     shape=int(shape), last_cmd_t=t, ticks=state.ticks + 1)

@@ -63,7 +63,8 @@ typedef struct {
     double dt_s;                         /* [s] > 0: the structure's advance per frame */
     double ttl_s;                        /* [s] the commands' time to live */
     double age_s;                        /* [s] observation -> command in effect, compensated */
-    double resync_gap_s;                 /* [s] a longer gap between frames restarts the failure timers */
+    double resync_gap_s;                 /* [s] a longer gap between frames restarts the failure timers and the
+                                          * stall watch */
     double effective_t;                  /* [s] the mission took effect (the advance's elapsed time) */
     int room;                            /* bodies or obstacles: the safety filter runs */
     int bodies;                          /* some body radius > 0: the assembly tie-break runs */
@@ -89,7 +90,7 @@ typedef struct {
 /* what one frame gives */
 typedef struct {
     int ran;                 /* 0: no robot usable: nothing below is written (the state's gap handling is) */
-    int resynced;            /* the gap since the last frame restarted the failure timers */
+    int resynced;            /* the gap since the last frame restarted the failure timers (and the watch) */
     vs_structure s;          /* the structure of this frame */
     double vl_m_s, vr_m_s;   /* this agent's command */
     int own_seen;            /* its robot was seen: err_m is written */
