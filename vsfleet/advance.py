@@ -22,7 +22,7 @@ from typing import Sequence, Union
 
 from .lazy import lazy_numpy
 from . import _core
-from .coreconst import GOAL_PATH, GOAL_PLAN, GOAL_POSE, GOAL_TWIST, LIMIT_FIELDS
+from .coreconst import ALIGN_FLOOR, ALIGN_POWER, GOAL_PATH, GOAL_PLAN, GOAL_POSE, GOAL_TWIST, LIMIT_FIELDS
 from .envelope import Envelope, Envelopes
 from .errors import ShapeError, VsfleetValueError
 from .geometry import Pose2, angle_diff
@@ -33,8 +33,6 @@ np = lazy_numpy(globals())   # numpy on first use: the agent process never loads
 # interval is far below double precision, so the result is converged and
 # bit-reproducible (a fixed count, no tolerance-dependent stopping).
 _SEARCH_ITERATIONS = 80
-ALIGN_FLOOR = 0.2
-ALIGN_POWER = 8.0
 
 
 class GoalError(VsfleetValueError):

@@ -54,7 +54,7 @@ typedef struct { const char *name; size_t offset; } member;   /* a struct's doub
 
 static const int_const ints[] = {
     {"GOAL_POSE", VS_GOAL_POSE}, {"GOAL_PATH", VS_GOAL_PATH}, {"GOAL_TWIST", VS_GOAL_TWIST},
-    {"GOAL_PLAN", VS_GOAL_PLAN},
+    {"GOAL_PLAN", VS_GOAL_PLAN}, {"ALIGN_POWER", VS_ALIGN_POWER},
     {"METRIC_L1", VS_METRIC_L1}, {"METRIC_L2", VS_METRIC_L2}, {"METRIC_LINF", VS_METRIC_LINF},
     {"FAILURE_HOLD", VS_FAILURE_HOLD}, {"FAILURE_DROP", VS_FAILURE_DROP}, {"FAILURE_REJOIN", VS_FAILURE_REJOIN},
     {"DECISION_FAIL", VS_DECISION_FAIL}, {"DECISION_DROP", VS_DECISION_DROP},
@@ -73,6 +73,7 @@ static const int_const ints[] = {
 };
 
 static const double_const doubles[] = {
+    {"ALIGN_FLOOR", VS_ALIGN_FLOOR},
     {"FAILURE_NM_PER_M", VS_FAILURE_NM_PER_M}, {"FAILURE_SETTLED_RATIO", VS_FAILURE_SETTLED_RATIO},
     {"FIELD_COMFORT_M", VS_FIELD_COMFORT_M}, {"FIELD_GROW", VS_FIELD_GROW}, {"STEP_PATH_M", VS_STEP_PATH_M},
     {"STEP_LOOKAHEAD_PER_REACH", VS_STEP_LOOKAHEAD_PER_REACH},

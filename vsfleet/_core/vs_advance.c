@@ -8,7 +8,9 @@
 #include <string.h>
 
 #define SEARCH_ITERATIONS 80   /* advance.py _SEARCH_ITERATIONS */
-#define ALIGN_FLOOR 0.2        /* advance.py ALIGN_FLOOR; ALIGN_POWER 8 is three squarings */
+#if VS_ALIGN_POWER != 4
+#error "alignment_scale computes VS_ALIGN_POWER 4 as two squarings"
+#endif
 
 static uint64_t bits(double x) { uint64_t u; memcpy(&u, &x, sizeof u); return u; }
 static double from_bits(uint64_t u) { double x; memcpy(&x, &u, sizeof x); return x; }
@@ -298,7 +300,7 @@ static double envelope_scale(const robots *r, twist3 xi, const double *xi0)
     return lo;
 }
 
-/* alignment_scale (floor 0.2, power 8) */
+/* alignment_scale (floor VS_ALIGN_FLOOR, power VS_ALIGN_POWER) */
 static double alignment_scale(const robots *r, twist3 t, const double *headings)
 {
     int any = 0;
@@ -314,8 +316,8 @@ static double alignment_scale(const robots *r, twist3 t, const double *headings)
         double sh, ch;
         vs_sincos(h, &sh, &ch);
         double cos_d = vs_fabs(ux * ch + uy * sh) / u;
-        double p2 = cos_d * cos_d, p4 = p2 * p2, p8 = p4 * p4;
-        double k = py_max(ALIGN_FLOOR, p8);
+        double p2 = cos_d * cos_d, p4 = p2 * p2;
+        double k = py_max(VS_ALIGN_FLOOR, p4);
         if (!any || k < k_min) k_min = k;
         any = 1;
     }

@@ -20,6 +20,12 @@
                              * straight way in SE(2), so the structure never turns ahead of the plan (a path
                              * turns and moves each on its own profile) */
 
+/* The cost-aware push's alignment throttle (paper 3.3.3; advance.py alignment_scale): per robot
+ * max(VS_ALIGN_FLOOR, |cos d|**VS_ALIGN_POWER), d the angle between its heading and its point's velocity.
+ * The power is an integer the core computes by squarings (4: two), so its bits need no libm pow. */
+#define VS_ALIGN_FLOOR 0.2
+#define VS_ALIGN_POWER 4
+
 /* As vsfleet.advance.StructureLimits: every field finite and >= 0, comply_stop_m > comply_full_m. */
 typedef struct {
     double speed_max_m_s, turn_rate_max_rad_s, position_tolerance_m, heading_tolerance_rad,
