@@ -22,7 +22,8 @@ from typing import Sequence, Union
 
 from .lazy import lazy_numpy
 from . import _core
-from .coreconst import ALIGN_FLOOR, ALIGN_POWER, GOAL_PATH, GOAL_PLAN, GOAL_POSE, GOAL_TWIST, LIMIT_FIELDS
+from .coreconst import (ALIGN_FLOOR, ALIGN_POWER, ALIGN_POWER_PLAN, GOAL_PATH, GOAL_PLAN, GOAL_POSE, GOAL_TWIST,
+                        LIMIT_FIELDS)
 from .envelope import Envelope, Envelopes
 from .errors import ShapeError, VsfleetValueError
 from .geometry import Pose2, angle_diff
@@ -301,7 +302,8 @@ def alignment_scale(twist: Twist2, rho_world: np.ndarray, headings_rad,
     velocity across it becomes error. Per robot the factor is max(floor, |cos d|**power), with d
     the angle between its heading and its point's velocity (either way: robots may reverse).
     The structure moves at the smallest factor; the floor keeps it creeping so robots turn.
-    headings_rad (n,) [rad], NaN (or None) for robots not seen, which are skipped.
+    headings_rad (n,) [rad], NaN (or None) for robots not seen, which are skipped. The advance passes
+    power ALIGN_POWER_PLAN on a room's plan and ALIGN_POWER (the default) on every other goal (vs_advance.h).
     """
     floor = ALIGN_FLOOR if floor is None else floor
     power = ALIGN_POWER if power is None else power
@@ -401,7 +403,8 @@ def advance_structure_reference(pose_fit: Pose2, goal: Goal, dt_s: float, limits
         k_w = min(1.0, alpha * ramp / abs(desired.w_rad_s)) if desired.w_rad_s != 0.0 else 1.0
         desired = Twist2(k_v * desired.vx_m_s, k_v * desired.vy_m_s, k_w * desired.w_rad_s)
     if headings_rad is not None:
-        k = alignment_scale(desired, rho, headings_rad)
+        plan = isinstance(goal, GoalPath) and goal.synced    # a room's plan (VS_GOAL_PLAN): vs_advance.h says why
+        k = alignment_scale(desired, rho, headings_rad, power=ALIGN_POWER_PLAN if plan else ALIGN_POWER)
         desired = Twist2(k * desired.vx_m_s, k * desired.vy_m_s, k * desired.w_rad_s)
     if deviations_m is not None:
         d = np.asarray(deviations_m, dtype=float)

@@ -15,9 +15,11 @@ GOAL_PATH: int = _core.GOAL_PATH
 GOAL_TWIST: int = _core.GOAL_TWIST
 GOAL_PLAN: int = _core.GOAL_PLAN
 
-#: the advance's alignment throttle (vs_advance.h VS_ALIGN_*): per robot max(ALIGN_FLOOR, |cos d|**ALIGN_POWER)
+#: the advance's alignment throttle (vs_advance.h VS_ALIGN_*): per robot max(ALIGN_FLOOR, |cos d|**power), the
+#: power ALIGN_POWER_PLAN following a room's plan (GOAL_PLAN), ALIGN_POWER on every other goal
 ALIGN_FLOOR: float = _core.ALIGN_FLOOR
 ALIGN_POWER: int = _core.ALIGN_POWER
+ALIGN_POWER_PLAN: int = _core.ALIGN_POWER_PLAN
 
 #: vsfleet.advance.StructureLimits' fields in vs_limits' order (vs_advance.h): the core takes them so
 LIMIT_FIELDS: tuple[str, ...] = _core.LIMIT_FIELDS

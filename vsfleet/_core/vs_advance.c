@@ -8,8 +8,8 @@
 #include <string.h>
 
 #define SEARCH_ITERATIONS 80   /* advance.py _SEARCH_ITERATIONS */
-#if VS_ALIGN_POWER != 4
-#error "alignment_scale computes VS_ALIGN_POWER 4 as two squarings"
+#if VS_ALIGN_POWER != 8 || VS_ALIGN_POWER_PLAN != 4
+#error "alignment_scale computes VS_ALIGN_POWER 8 and VS_ALIGN_POWER_PLAN 4 as three and two squarings"
 #endif
 
 static uint64_t bits(double x) { uint64_t u; memcpy(&u, &x, sizeof u); return u; }
@@ -300,8 +300,8 @@ static double envelope_scale(const robots *r, twist3 xi, const double *xi0)
     return lo;
 }
 
-/* alignment_scale (floor VS_ALIGN_FLOOR, power VS_ALIGN_POWER) */
-static double alignment_scale(const robots *r, twist3 t, const double *headings)
+/* alignment_scale (floor VS_ALIGN_FLOOR; power VS_ALIGN_POWER_PLAN on a plan, else VS_ALIGN_POWER) */
+static double alignment_scale(const robots *r, twist3 t, const double *headings, int plan)
 {
     int any = 0;
     double k_min = 1.0;
@@ -316,8 +316,8 @@ static double alignment_scale(const robots *r, twist3 t, const double *headings)
         double sh, ch;
         vs_sincos(h, &sh, &ch);
         double cos_d = vs_fabs(ux * ch + uy * sh) / u;
-        double p2 = cos_d * cos_d, p4 = p2 * p2;
-        double k = py_max(VS_ALIGN_FLOOR, p4);
+        double p2 = cos_d * cos_d, p4 = p2 * p2, p8 = p4 * p4;
+        double k = py_max(VS_ALIGN_FLOOR, plan ? p4 : p8);
         if (!any || k < k_min) k_min = k;
         any = 1;
     }
@@ -443,7 +443,7 @@ int vs_advance(const double pose_fit[3], const vs_goal *goal, double dt_s, const
         desired.w = k_w * desired.w;
     }
     if (headings_rad != NULL) {
-        double k = alignment_scale(&r, desired, headings_rad);
+        double k = alignment_scale(&r, desired, headings_rad, goal->kind == VS_GOAL_PLAN);
         desired.vx = k * desired.vx;
         desired.vy = k * desired.vy;
         desired.w = k * desired.w;

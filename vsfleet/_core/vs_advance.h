@@ -21,10 +21,16 @@
                              * turns and moves each on its own profile) */
 
 /* The cost-aware push's alignment throttle (paper 3.3.3; advance.py alignment_scale): per robot
- * max(VS_ALIGN_FLOOR, |cos d|**VS_ALIGN_POWER), d the angle between its heading and its point's velocity.
- * The power is an integer the core computes by squarings (4: two), so its bits need no libm pow. */
+ * max(VS_ALIGN_FLOOR, |cos d|**power), d the angle between its heading and its point's velocity, with power
+ * VS_ALIGN_POWER_PLAN following a room's plan (VS_GOAL_PLAN) and VS_ALIGN_POWER on every other goal.
+ * On a plan the structure turns in step with its move, so its points' velocities keep turning and the
+ * robots lag them by a steady angle: the softer power lets a square through a thin wall's gap in time
+ * instead of crawling at the floor (docs/benchmarks.md 8h). In open space the stiffer power keeps the
+ * start's precision (it eases the structure into motion while the robots still turn).
+ * The powers are integers the core computes by squarings (8: three, 4: two), so no libm pow is needed. */
 #define VS_ALIGN_FLOOR 0.2
-#define VS_ALIGN_POWER 4
+#define VS_ALIGN_POWER 8
+#define VS_ALIGN_POWER_PLAN 4
 
 /* As vsfleet.advance.StructureLimits: every field finite and >= 0, comply_stop_m > comply_full_m. */
 typedef struct {
