@@ -150,6 +150,24 @@ def test_robots_facing_across_their_path_slow_the_structure_but_never_stop_it():
     assert across.twist.vx_m_s == pytest.approx(0.05 * ALIGN_FLOOR)  # creeps so the robot can turn
 
 
+@pytest.mark.parametrize("advance", ["core", "reference"])
+def test_on_a_rooms_plan_the_alignment_throttle_is_the_softer_power(advance):
+    """|cos d|**ALIGN_POWER_PLAN following a plan (GoalPath synced: VS_GOAL_PLAN), **ALIGN_POWER on a mission's path."""
+    from vsfleet.advance import advance_structure_reference
+    from vsfleet.coreconst import ALIGN_POWER, ALIGN_POWER_PLAN
+
+    step = advance_structure if advance == "core" else advance_structure_reference
+    slow = StructureLimits(speed_max_m_s=0.05, turn_rate_max_rad_s=1.0)
+    cos_d = 0.9                                    # robot 1 faces acos(0.9) off its point's velocity (+x)
+    for synced, power in ((True, ALIGN_POWER_PLAN), (False, ALIGN_POWER)):
+        goal = GoalPath((Pose2(2.0, 0.0, 0.0),), synced=synced)
+        vx = [step(Pose2(0, 0, 0), goal, DT, slow, TRIANGLE, ENV, elapsed_s=5.0, headings_rad=h).twist.vx_m_s
+              for h in ([0.0, 0.0, 0.0], [0.0, math.acos(cos_d), 0.0])]
+        assert vx[0] == pytest.approx(0.05)
+        assert vx[1] / vx[0] == pytest.approx(cos_d ** power, rel=1e-12), synced
+    assert ALIGN_POWER_PLAN < ALIGN_POWER
+
+
 # --- arrays over robots, compliance, the mission's speed ----------------------------------
 
 

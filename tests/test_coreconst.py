@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from vsfleet import _core, coreconst
-from vsfleet.advance import GoalPose, StructureLimits
+from vsfleet.advance import GoalError, GoalPath, GoalPose, StructureLimits
 from vsfleet.control import ControlInput, Precision, PrecisionState, Tracking, _input_args
 from vsfleet.envelope import Envelope, Envelopes
 from vsfleet.failure import FailurePolicy
@@ -122,6 +122,19 @@ def test_the_bindings_argument_layouts_are_the_ones_python_packs():
         assert c["metric"] == coreconst.METRIC_CODES[metric] and c["goal_kind"] == coreconst.GOAL_POSE
         assert c["margin_m"] == PLAN_MARGIN_M and c["field"] is None and c["template_xy"].tolist() == template.tolist()
         assert c["limits"].tolist() == [getattr(StructureLimits(0.08, 0.3), f) for f in coreconst.LIMIT_FIELDS]
+
+
+def test_a_missions_path_is_packed_as_a_path_and_the_steps_plan_is_never_a_missions_goal():
+    """The goal kind decides the alignment throttle's power (vs_advance.h): a mission's path packs as GOAL_PATH, and a
+    synced path (the step's own plan, VS_GOAL_PLAN) is refused rather than packed as a path the core would throttle
+    otherwise than the reference."""
+    env = Envelopes.of([Envelope(0.12, 0.3, 0.8)] * 3)
+    template = np.array([[0.3, 0.0], [-0.15, 0.26], [-0.15, -0.26]])
+    way = (Pose2(1.0, 0.0, 0.0), Pose2(2.0, 0.5, 0.3))
+    c = dict(zip(MISSION_ARGS, core_mission("l2", template, env, GoalPath(way), StructureLimits(0.08, 0.3))))
+    assert c["goal_kind"] == coreconst.GOAL_PATH and c["goal"].tolist() == [v for w in way for v in w.as_tuple()]
+    with pytest.raises(GoalError):
+        core_mission("l2", template, env, GoalPath(way, synced=True), StructureLimits(0.08, 0.3))
 
 
 # ---------------------------------------------------------------- no number of the interface written again
@@ -242,6 +255,7 @@ def test_the_check_catches_the_copies_it_replaced():
         "plan": "ARC_STEP_RAD = math.pi / 12.0\n",
         "fit": "CERT_TOL = 1e-10\n_MAX_ROUNDS = 60\n",
         "wire": "MAX_FRAME_BYTES = 1 << 16\n",
+        "align": "ALIGN_FLOOR = 0.2\nALIGN_POWER = 8.0\n",
     }
     for what, text in old.items():
         assert copies(text), what

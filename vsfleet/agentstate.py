@@ -14,7 +14,7 @@ from functools import lru_cache
 from itertools import chain
 from typing import Callable, Mapping
 
-from .advance import Goal, GoalPath, GoalPose, GoalTwist, StructureLimits
+from .advance import Goal, GoalError, GoalPath, GoalPose, GoalTwist, StructureLimits
 from .buffers import f64, filled
 from .control import DEFAULT_CONTROLLER, PrecisionState, make_controller
 from .coreconst import AGENT_STALL_MOVE_M, AGENT_STALL_S, AGENT_STALL_TURN_RAD, GOAL_PATH, GOAL_POSE, GOAL_TWIST, \
@@ -79,6 +79,8 @@ def pack_mission(metric: str, template_xy, wheel_base_m, wheel_speed_max_m_s, wh
     if isinstance(goal, GoalPose):
         kind, poses = GOAL_POSE, [goal.pose.as_tuple()]
     elif isinstance(goal, GoalPath):
+        if goal.synced:   # the step's own goal on a room's plan (vs_step.c), never a mission's
+            raise GoalError("a mission's path turns on its own profile: GoalPath(synced=True) is the step's plan")
         kind, poses = GOAL_PATH, [w.as_tuple() for w in goal.waypoints]
     else:
         kind, poses = GOAL_TWIST, [(goal.vx_m_s, goal.vy_m_s, goal.w_rad_s)]
