@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 
 from numpy_free_agent import drive
+from vsfleet.wire import decode_event
 
 from .conftest import start_fleet
 
@@ -38,7 +39,9 @@ def test_an_agent_runs_missions_without_numpy_and_sends_the_bytes_of_the_numpy_g
     assert got["ticks"] == want["ticks"] > 250
     for kind in ("cmd", "state", "event", "stop"):
         assert got["sent"][kind] == want["sent"][kind], kind
-    assert len(got["sent"]["event"]) >= 4   # the adopted failure's recovery, then fails and drops in the room
+    # the adopted failure's recovery, then the robot standing still in the room failed and dropped
+    kinds = [(e.robot, e.kind) for e in (decode_event(bytes.fromhex(h)) for h in got["sent"]["event"])]
+    assert kinds[0] == ("r2", "recover") and ("r3", "fail") in kinds and ("r3", "drop") in kinds, kinds
 
 
 def test_the_agent_processes_of_a_live_fleet_have_no_numpy_mapped(fleet):
