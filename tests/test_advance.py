@@ -14,7 +14,10 @@ from vsfleet.advance import (
     GoalTwist,
     StructureLimits,
     Twist2,
+    _ln,
     advance_structure,
+    compliance_scale,
+    structure_limits,
     structure_points,
 )
 from vsfleet.envelope import Envelope
@@ -197,6 +200,58 @@ def test_the_structure_slows_as_a_robot_falls_behind_and_halts_before_it_is_left
     assert speeds[3] == speeds[4] == 0.0
     with pytest.raises(ValueError):
         StructureLimits(0.1, 0.3, comply_full_m=0.01, comply_stop_m=0.005)
+
+
+def test_the_compliance_band_of_three_robots_or_fewer_is_the_default_and_widens_with_the_fleet():
+    for n in (1, 2, 3):
+        assert structure_limits(0.1, 0.5, n) == StructureLimits(0.1, 0.5)
+    prev = StructureLimits(0.1, 0.5)
+    for n in (4, 5, 10, 30, 100):
+        lim = structure_limits(0.1, 0.5, n)
+        # the band moves out by 2 mm (sqrt(2 ln n) - sqrt(2 ln 3)), as wide as before, and further for more robots
+        shift = 0.002 * (math.sqrt(2 * math.log(n)) - math.sqrt(2 * math.log(3)))
+        assert lim.comply_full_m - 0.006 == pytest.approx(shift, abs=1e-10)   # _ln: within 1e-8 of libm's log
+        assert lim.comply_stop_m - lim.comply_full_m == pytest.approx(0.006, abs=1e-15)
+        assert lim.comply_full_m > prev.comply_full_m
+        assert (lim.speed_max_m_s, lim.turn_rate_max_rad_s) == (0.1, 0.5)
+        prev = lim
+    assert structure_limits(0.1, 0.5, 30).comply_full_m == pytest.approx(0.00825, abs=1e-5)
+    for x in (1.0, 2.0, 3.0, 4.0, 30.0, 100.0, 1000.0):
+        assert _ln(x) == pytest.approx(math.log(x), rel=1e-8, abs=1e-12)
+
+
+def test_the_widened_band_answers_a_lagging_robot_not_the_noise_of_a_larger_fleet():
+    """30 robots on their points under 2 mm tracker noise (each deviation Rayleigh, sigma 2 mm): the 3-robot band
+    slows the structure in about a third of the frames, the 30-robot band in a few; a robot 15 mm behind still
+    halts it, and one 12 mm behind still slows it."""
+    rng = np.random.default_rng(7)
+    dev = np.hypot(*rng.normal(0.0, 0.002, (2, 5000, 30)))
+    narrow, wide = StructureLimits(0.1, 0.5), structure_limits(0.1, 0.5, 30)
+    slowed_narrow = np.mean([compliance_scale(d, narrow) < 1.0 for d in dev])
+    slowed_wide = np.mean([compliance_scale(d, wide) < 1.0 for d in dev])
+    assert slowed_narrow > 0.25 and slowed_wide < 0.05
+    lag = dev[0].copy()
+    lag[4] = 0.015
+    assert compliance_scale(lag, wide) == 0.0
+    lag[4] = 0.012
+    assert 0.0 < compliance_scale(lag, wide) < 0.5
+
+
+def test_every_agent_packs_the_limits_of_its_fleets_size():
+    """The core's packed mission and the numpy glue's arrays carry structure_limits for the mission's robot count
+    (computed with sqrt alone: the same bits on every host)."""
+    from vsfleet.coreconst import LIMIT_FIELDS
+    from vsfleet.step import core_mission_of, mission_arrays
+    from vsfleet.structure import MISSION_ARGS
+    from vsfleet.wire import Mission, RobotSpec
+    for n in (3, 12):
+        robots = tuple((f"r{i:02d}", RobotSpec((0.3 * math.cos(i), 0.3 * math.sin(i)), 0.12, 0.3, 0.8))
+                       for i in range(n))
+        mission = Mission(1, "l2", robots, 0.08, 0.3, 0.0, goal=(1.0, 0.5, 0.0))
+        want = structure_limits(0.08, 0.3, n)
+        assert mission_arrays(mission).limits == want
+        packed = core_mission_of(mission).core[MISSION_ARGS.index("limits")]
+        assert list(packed) == [getattr(want, f) for f in LIMIT_FIELDS]
 
 
 def fly(goal, limits, seconds=40.0):

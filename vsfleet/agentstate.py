@@ -14,7 +14,7 @@ from functools import lru_cache
 from itertools import chain
 from typing import Callable, Mapping
 
-from .advance import Goal, GoalError, GoalPath, GoalPose, GoalTwist, StructureLimits
+from .advance import Goal, GoalError, GoalPath, GoalPose, GoalTwist, StructureLimits, structure_limits
 from .buffers import f64, filled
 from .control import DEFAULT_CONTROLLER, PrecisionState, make_controller
 from .coreconst import AGENT_STALL_MOVE_M, AGENT_STALL_S, AGENT_STALL_TURN_RAD, GOAL_PATH, GOAL_POSE, GOAL_TWIST, \
@@ -127,7 +127,7 @@ def core_mission_of(mission: Mission) -> CoreMission:
     template = [s.p for s in specs]
     radii = mission.radii
     goal = mission_goal(mission)
-    limits = StructureLimits(speed_max_m_s=mission.speed_max, turn_rate_max_rad_s=mission.turn_rate_max)
+    limits = structure_limits(mission.speed_max, mission.turn_rate_max, len(mission.robots))
     fld = room_field(template, radii, mission.obstacles, goal, build_field)   # the core's build
     shapes = mission_shape_points(mission) if fld is not None else ()
     shape_fields = tuple(room_field(p, radii, mission.obstacles, goal, build_field) for _, p in shapes)
