@@ -118,7 +118,10 @@ class FoxgloveClient:
         with self.cond:
             result = self.cond.wait_for(lambda: predicate(self), timeout=timeout_s)
         if not result:
-            raise TimeoutError(f"condition not met within {timeout_s} s; topics {sorted(self.topics())}")
+            with self.cond:
+                got = {t: len(m) for t, m in sorted(self.messages.items())}
+            raise TimeoutError(f"condition not met within {timeout_s} s; topics {sorted(self.topics())}; "
+                               f"messages per subscribed topic {got}")
         return result
 
     def topics(self) -> dict[str, dict]:
