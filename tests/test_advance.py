@@ -218,6 +218,12 @@ def test_the_compliance_band_of_three_robots_or_fewer_is_the_default_and_widens_
     assert structure_limits(0.1, 0.5, 30).comply_full_m == pytest.approx(0.00825, abs=1e-5)
     for x in (1.0, 2.0, 3.0, 4.0, 30.0, 100.0, 1000.0):
         assert _ln(x) == pytest.approx(math.log(x), rel=1e-8, abs=1e-12)
+    # the bits every host must pack (sqrt and IEEE operations alone; recorded on x86-64 on 2026-12-06): a libm log
+    # in the path, or a changed order of operations, changes them
+    for n, full, stop in ((4, "0x1.a12d3a5a631b8p-8", "0x1.9532431085859p-7"),
+                          (30, "0x1.0e640bee30b2ap-7", "0x1.d2ffb1d184aa6p-7")):
+        lim = structure_limits(0.08, 0.3, n)
+        assert (lim.comply_full_m.hex(), lim.comply_stop_m.hex()) == (full, stop)
 
 
 def test_the_widened_band_answers_a_lagging_robot_not_the_noise_of_a_larger_fleet():
@@ -239,7 +245,7 @@ def test_the_widened_band_answers_a_lagging_robot_not_the_noise_of_a_larger_flee
 
 def test_every_agent_packs_the_limits_of_its_fleets_size():
     """The core's packed mission and the numpy glue's arrays carry structure_limits for the mission's robot count
-    (computed with sqrt alone: the same bits on every host)."""
+    (its bits on every host: the test above)."""
     from vsfleet.coreconst import LIMIT_FIELDS
     from vsfleet.step import core_mission_of, mission_arrays
     from vsfleet.structure import MISSION_ARGS

@@ -126,17 +126,21 @@ class StructureLimits:
 # The tracker noise the compliance band allows for in each robot's deviation [m]: the fleets we measure on
 # (docs/benchmarks.md) have sigma 2 mm per axis.
 COMPLY_NOISE_M = 0.002
+# The fleet the band (StructureLimits' comply_full_m, comply_stop_m) was set on: the paper's triangle.
+COMPLY_BASE_ROBOTS = 3
+_LN_ROOTS = 24   # _ln's square roots
 
 
 def _ln(x: float) -> float:
-    """ln(x) for x > 0 from IEEE operations and sqrt alone (correctly rounded everywhere, unlike a libm's log), so
-    that every host gets the same bits: 24 square roots bring x within ln(x) / 2**24 of 1, where ln(1 + u) is
-    u - u**2/2 + u**3/3 to far below the rounding of u."""
+    """ln(x) for x > 0 from IEEE operations and sqrt alone, so that every host gets the same bits (a libm's log
+    may differ in its last bit from one host to another; sqrt is correctly rounded everywhere). Not correctly
+    rounded itself: within about 1e-8 of ln(x) (relative). 24 square roots bring x within ln(x) / 2**24 of 1,
+    where ln(1 + u) is u - u**2/2 + u**3/3 to far below the rounding of u."""
     y = x
-    for _ in range(24):
+    for _ in range(_LN_ROOTS):
         y = math.sqrt(y)
     u = y - 1.0
-    return (u - u * u / 2.0 + u * u * u / 3.0) * 16777216.0
+    return (u - u * u / 2.0 + u * u * u / 3.0) * 2.0 ** _LN_ROOTS
 
 
 def structure_limits(speed_max_m_s: float, turn_rate_max_rad_s: float, n_robots: int) -> StructureLimits:
@@ -147,15 +151,17 @@ def structure_limits(speed_max_m_s: float, turn_rate_max_rad_s: float, n_robots:
     under 2 mm noise it is about 5.2 mm, against 3.0 mm for the paper's 3. So the band (comply_full_m,
     comply_stop_m) is moved out by COMPLY_NOISE_M (sqrt(2 ln n) - sqrt(2 ln 3)) for n > 3 (2.25 mm for 30 robots,
     1.33 mm for 10, 0.37 mm for 4) and kept as it is for 3 robots or fewer, so that the throttle answers a robot
-    that lags, not the noise of a larger fleet. A pure function of the mission, computed with sqrt alone
+    that lags, not the noise of a larger fleet. n is the mission's robot count: robots dropped later keep the
+    band of the mission, as every agent does. A pure function of the mission, computed with sqrt alone
     (``_ln``): every agent on every host packs the same limits.
     """
-    shift = 0.0
-    if n_robots > 3:
-        shift = COMPLY_NOISE_M * (math.sqrt(2.0 * _ln(float(n_robots))) - math.sqrt(2.0 * _ln(3.0)))
+    shift_m = 0.0
+    if n_robots > COMPLY_BASE_ROBOTS:
+        shift_m = COMPLY_NOISE_M * (math.sqrt(2.0 * _ln(float(n_robots)))
+                                    - math.sqrt(2.0 * _ln(float(COMPLY_BASE_ROBOTS))))
     base = StructureLimits(speed_max_m_s=speed_max_m_s, turn_rate_max_rad_s=turn_rate_max_rad_s)
     return StructureLimits(speed_max_m_s=speed_max_m_s, turn_rate_max_rad_s=turn_rate_max_rad_s,
-                           comply_full_m=base.comply_full_m + shift, comply_stop_m=base.comply_stop_m + shift)
+                           comply_full_m=base.comply_full_m + shift_m, comply_stop_m=base.comply_stop_m + shift_m)
 
 
 @dataclass(frozen=True)
