@@ -346,3 +346,48 @@ def test_the_barrier_brings_room_149_round_its_bend():
     run = run_offline(to_scenario(room, 45.0), 45.0, seed=149)
     assert run.t_goal_s is not None
     assert all(not ds for ds in run.decisions.values())
+
+
+# Room 174's fitted pose at 47.17 s (seed 174, frame 1414; a line of 10 robots in a 0.25 m gap of a thin wall): the
+# pose's own cell is free at one heading of the five looked at, a sliver of one state the goal cannot be reached
+# from, and the way to the goal runs through the ring around it
+ROOM_174_IN_THE_GAP = Pose2(-1.8578983101497388, -1.2903424725525297, 1.1937063168145752)
+
+
+def test_a_sliver_in_the_poses_own_cell_does_not_hide_the_way_one_cell_away():
+    """Until 2026-12-06 the descent started in the nearest ring that had any free state, and took a state the goal
+    can be reached from only within that ring. In room 174 the pose's own cell held one free state, a sliver the goal
+    cannot be reached from, so at 47.2 s every agent said 'blocked, no path to the goal', 2.2 m short, and the line
+    stood in the gap for good (docs/benchmarks.md 8i). A state the goal can be reached from, in any ring within the
+    search, now comes before a blocked one of a nearer ring, in the core and the reference alike."""
+    from vsfleet.field import BLOCKED_BIT, WALL, _cost_view, _nearest, build_field, field_headings, follow_field
+    from vsfleet.field import field_open_reference, follow_field_reference
+    from vsfleet.structure import PLAN_MARGIN_M
+
+    import sys
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from bench.room import make_room
+
+    room = make_room(174)
+    k = field_headings(room.template, room.radii, PLAN_MARGIN_M, room.obstacles, room.goal)
+    core = build_field(room.template, room.radii, PLAN_MARGIN_M, room.obstacles, Pose2(*room.goal), n_headings=k)
+    lat, cost = core.lattice, _cost_view(core)
+    c0, r0, k0, _ = _nearest(lat, *ROOM_174_IN_THE_GAP.as_tuple())
+    plane = lat.nx * lat.ny
+    heads = [(k0 + lat.n_headings + dk) % lat.n_headings for dk in (0, 1, -1, 2, -2)]
+    # the premise: ring 0 holds free states the goal cannot reach and none it can; ring 1 holds some it can
+    own = [int(cost[kk * plane + r0 * lat.nx + c0]) for kk in heads]
+    own_free = [v for v in own if v != WALL]
+    assert own_free and all(v & BLOCKED_BIT for v in own_free)
+    ring1 = [int(cost[kk * plane + (r0 + dr) * lat.nx + c0 + dc]) for kk in heads for dr in (-1, 0, 1)
+             for dc in (-1, 0, 1) if (dr, dc) != (0, 0)]
+    assert any(v != WALL and not v & BLOCKED_BIT for v in ring1)
+    way_core, blocked_core, left_core = follow_field(core, ROOM_174_IN_THE_GAP)
+    way_ref, blocked_ref, left_ref = follow_field_reference(core, ROOM_174_IN_THE_GAP)
+    assert not blocked_core and not blocked_ref and left_core == left_ref == 0.0
+    assert field_open_reference(core, ROOM_174_IN_THE_GAP)[0]
+    np.testing.assert_array_equal(way_core, way_ref)
+    # the way leads on toward the goal: the descent's end is nearer the goal than the pose
+    gx, gy = room.goal[0], room.goal[1]
+    assert np.hypot(way_core[-1][0] - gx, way_core[-1][1] - gy) < np.hypot(ROOM_174_IN_THE_GAP.x - gx,
+                                                                            ROOM_174_IN_THE_GAP.y - gy) - 0.5

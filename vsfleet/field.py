@@ -351,13 +351,14 @@ def _descend(lat: Lattice, cost: np.ndarray, s: int):
 
 
 def _start_state(lat: Lattice, cost: np.ndarray, pose: Pose2) -> tuple[int | None, bool]:
-    """Where a descent from ``pose`` starts (vs_field.c start_state): the best free state of the nearest ring
-    around it that has one (ring 0: the pose's own cell; SEARCH_CELLS cells, the nearest heading and two either
-    side): one the goal can be reached from before one it cannot (whose cost is to its own component's end), then
-    the cheaper; None if none; and whether the pose lies outside the lattice."""
+    """Where a descent from ``pose`` starts (vs_field.c start_state), among the free states within SEARCH_CELLS
+    cells of it (ring 0: the pose's own cell), at the nearest heading and two either side: of the nearest ring that
+    has one the goal can be reached from, the cheapest such; else of the nearest ring that has any free state, the
+    cheapest (whose cost is to its own component's end); None if none; and whether the pose lies outside the
+    lattice."""
     plane = lat.nx * lat.ny
     c0, r0, k0, outside = _nearest(lat, pose.x, pose.y, pose.th)
-    start, start_v, start_b = None, 0, 0
+    start, start_v, start_b, start_d = None, 0, 0, 0
     for d in range(SEARCH_CELLS + 1):
         for dk in (0, 1, -1, 2, -2):
             k = (k0 + lat.n_headings + dk) % lat.n_headings
@@ -373,9 +374,11 @@ def _start_state(lat: Lattice, cost: np.ndarray, pose: Pose2) -> tuple[int | Non
                         continue
                     v = int(cost[s]) & COST_MASK
                     b = 1 if int(cost[s]) & BLOCKED_BIT else 0
+                    if start is not None and b and (not start_b or start_d < d):
+                        continue     # a reachable one, or a blocked one of a nearer ring, stands
                     if start is None or b < start_b or (b == start_b and v < start_v):
-                        start, start_v, start_b = s, v, b
-        if start is not None:
+                        start, start_v, start_b, start_d = s, v, b, d
+        if start is not None and not start_b:
             break
     return start, outside
 

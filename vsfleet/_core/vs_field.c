@@ -448,10 +448,10 @@ static int segment_clear(const vs_field *f, const double *a, const double *b, ui
     return 1;
 }
 
-/* the state a descent from pose starts at: the best free state of the nearest ring around it that has one (ring 0:
- * the pose's own cell; within VS_FIELD_SEARCH_CELLS cells, at the nearest heading and two either side): one the
- * goal can be reached from before one it cannot, then the cheaper, then the first found; -1 if none.  *outside:
- * the pose lies outside the lattice. */
+/* the state a descent from pose starts at, among the free states within VS_FIELD_SEARCH_CELLS cells of it (ring 0:
+ * the pose's own cell), at the nearest heading and two either side: of the nearest ring that has one the goal can be
+ * reached from, the cheapest such; else of the nearest ring that has any free state, the cheapest; then the first
+ * found; -1 if none.  *outside: the pose lies outside the lattice. */
 static long start_state(const vs_field *f, const double pose[3], int *outside)
 {
     size_t plane = f->nx * f->ny;
@@ -459,8 +459,9 @@ static long start_state(const vs_field *f, const double pose[3], int *outside)
     nearest(f, pose, &c0, &r0, &k0, outside);
     long start = -1;
     uint32_t start_v = 0, start_b = 0;
+    int start_d = 0;
     static const int DK[5] = {0, 1, -1, 2, -2};
-    for (int d = 0; d <= VS_FIELD_SEARCH_CELLS && start < 0; d++) {
+    for (int d = 0; d <= VS_FIELD_SEARCH_CELLS && (start < 0 || start_b); d++) {
         for (int a = 0; a < 5; a++) {
             size_t k = (size_t)((long)k0 + (long)f->n_headings + DK[a]) % f->n_headings;
             for (int dr = -d; dr <= d; dr++) {
@@ -471,11 +472,15 @@ static long start_state(const vs_field *f, const double pose[3], int *outside)
                     size_t s = k * plane + (size_t)r * f->nx + (size_t)c;
                     if (f->cost[s] == VS_FIELD_WALL) continue;
                     /* a state the goal can be reached from before any the goal cannot (whose cost is to its own
-                     * component's end, often smaller), then the cheaper: a pose between states beside a wall starts
-                     * on the way to the goal, not in a sliver of the lattice that leads nowhere (bench room 4) */
+                     * component's end, often smaller), in a farther ring too, then the cheaper: a pose between states
+                     * beside a wall starts on the way to the goal, not in a sliver of the lattice that leads nowhere
+                     * (bench room 4: a sliver in the pose's own ring; room 174: a sliver of one state in ring 0, at
+                     * two headings off, the way one cell away) */
                     uint32_t v = f->cost[s] & VS_FIELD_COST_MASK;
                     uint32_t b = (f->cost[s] & VS_FIELD_BLOCKED_BIT) != 0;
+                    if (start >= 0 && b && (start_b == 0 || start_d < d)) continue;   /* a nearer blocked one stands */
                     if (start < 0 || b < start_b || (b == start_b && v < start_v)) {
+                        start_d = d;
                         start = (long)s; start_v = v; start_b = b;
                     }
                 }
