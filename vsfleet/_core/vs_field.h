@@ -77,10 +77,10 @@ void vs_field_nearest(const vs_field *f, const double pose[3], size_t *col, size
 
 /* Follow the field from a pose (the fitted structure pose): waypoints[0] = the pose, then the nearest
  * usable state and its descent, until the goal state (then the last waypoint is the goal pose exactly),
- * the component's target, or path_m [m] of lattice steps, or cap waypoints.  A pose on no free state takes
- * the best free state within VS_FIELD_SEARCH_CELLS cells (and two headings) of it, one the goal can be reached
- * from before one it cannot, then the one of least cost (the pose's own cell first, at 5 headings); if none, the
- * waypoints are the pose alone and *blocked = 1.  *blocked: the goal cannot be reached from here (the
+ * the component's target, or path_m [m] of lattice steps, or cap waypoints.  The descent starts on a free
+ * state within VS_FIELD_SEARCH_CELLS cells (and two headings) of the pose (its own cell is ring 0, at 5 headings):
+ * the cheapest of the nearest ring that has one the goal can be reached from, else the cheapest of the nearest ring
+ * that has any; if none, the waypoints are the pose alone and *blocked = 1.  *blocked: the goal cannot be reached from here (the
  * descent ends at the closest safe pose); *left_m [m]: then, how far that pose is from the goal (0 when not
  * blocked).  cap >= 2.  No allocation; O(path_m / h) per call (plus the target's descent when blocked). */
 /* 1 when the descent from the pose (vs_field_follow) starts on a free state from which the goal can be reached,
