@@ -108,6 +108,7 @@ class CoreMission:
     room: bool
     bodies: bool
     core: tuple
+    limits: StructureLimits    # structure_limits for the mission's robot count: the one source of the glue's too
     field: Field | None = None
     shapes: tuple = ()         # ((name, points), ...): mission_shape_points, when the template has a field
     shape_fields: tuple = ()
@@ -136,7 +137,7 @@ def core_mission_of(mission: Mission) -> CoreMission:
                           radii, mission.obstacles, fld, shapes, shape_fields)
     bodies = any(r != 0.0 for r in radii)
     cm = CoreMission(ids=ids, index={r: i for i, r in enumerate(ids)}, goal=goal, policy=mission_policy(mission),
-                     room=bodies or len(mission.obstacles) > 0, bodies=bodies, core=packed, field=fld,
+                     room=bodies or len(mission.obstacles) > 0, bodies=bodies, core=packed, limits=limits, field=fld,
                      shapes=shapes, shape_fields=shape_fields)
     if len(_MISSIONS) >= 16:
         _MISSIONS.clear()

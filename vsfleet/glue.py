@@ -26,7 +26,7 @@ from itertools import chain, repeat
 from typing import Mapping
 
 from .lazy import lazy_numpy
-from .advance import Goal, GoalPath, GoalPose, StructureLimits, structure_limits
+from .advance import Goal, GoalPath, GoalPose, StructureLimits
 from .agentstate import (FAILURE_FIELDS, PRECISION_STATE_FIELDS, STALL_MOVE_M, STALL_S, STALL_TURN_RAD, AgentState,
                          Note, StepConfig, StepOutput, SyncPhase, _evolve, blocked_note, core_mission_of, health_of,
                          mission_shape_points, pack_mission, safety_params, shape_name, used_ids)
@@ -112,7 +112,7 @@ def mission_arrays(mission: Mission) -> MissionArrays:
         return hit[1]
     cm = core_mission_of(mission)   # the packed constants and the room's fields: the agent's very own
     template, envelopes = mission_template(mission), mission_envelope_arrays(mission)
-    limits = structure_limits(mission.speed_max, mission.turn_rate_max, len(mission.robots))
+    limits = cm.limits
     arrays = MissionArrays(ids=cm.ids, index=cm.index, template=template, envelopes=envelopes, goal=cm.goal,
                            limits=limits, policy=cm.policy, radii=np.array(mission.radii, dtype=float),
                            obstacles=np.array(mission.obstacles, dtype=float).reshape(-1, 3), core=cm.core,
