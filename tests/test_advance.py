@@ -171,6 +171,49 @@ def test_on_a_rooms_plan_the_alignment_throttle_is_the_softer_power(advance):
     assert ALIGN_POWER_PLAN < ALIGN_POWER
 
 
+def test_on_a_plan_a_robot_whose_point_moves_slower_than_the_missions_speed_holds_the_structure_back_by_that_share():
+    """alignment_scale with speed_ref_m_s: a robot whose point moves at u < speed_ref holds back by u / speed_ref of
+    its factor's shortfall (1 - (1 - k) u / speed_ref); at speed_ref or faster, and without it, by all of it."""
+    from vsfleet.advance import ALIGN_FLOOR, Twist2, alignment_scale
+
+    rho = np.array([[0.2, 0.0], [-0.1, 0.17], [-0.1, -0.17]])
+    across = [0.0, math.pi / 2, 0.0]          # robot 1 faces across its point's velocity (+x): factor ALIGN_FLOOR
+    half = Twist2(0.05, 0.0, 0.0)
+    assert alignment_scale(half, rho, across, power=4) == ALIGN_FLOOR
+    assert alignment_scale(half, rho, across, power=4, speed_ref_m_s=0.05) == ALIGN_FLOOR
+    assert alignment_scale(half, rho, across, power=4, speed_ref_m_s=0.1) == pytest.approx(1.0 - (1.0 - ALIGN_FLOOR) * 0.5)
+    assert alignment_scale(Twist2(0.0, 0.0, 0.0), rho, across, power=4, speed_ref_m_s=0.1) == 1.0   # no motion
+    # turning about a point 1 cm from robot 0's: its point moves at 3 mm/s, across its heading; the others face
+    # their points' motion. Without the share it holds the structure at the floor; with it, hardly at all
+    turn = Twist2(0.0, 0.0, 0.3)
+    about = rho - rho[0] + np.array([0.01, 0.0])
+    faced = [math.atan2(about[i, 0], -about[i, 1]) for i in range(3)]
+    heads = [faced[0] + math.pi / 2] + faced[1:]
+    assert alignment_scale(turn, about, heads, power=4) == pytest.approx(ALIGN_FLOOR)
+    assert alignment_scale(turn, about, heads, power=4, speed_ref_m_s=0.1) == pytest.approx(1.0 - (1.0 - ALIGN_FLOOR) * 0.03)
+
+
+@pytest.mark.parametrize("advance", ["core", "reference"])
+def test_on_a_plan_the_alignment_share_follows_the_points_speed_and_off_a_plan_it_does_not(advance):
+    """Through the advance: early in the ramp the structure's desired speed u is below the mission's; a robot facing
+    acos(0.9) off its point's velocity then holds a plan back by 1 - (1 - 0.9**4) u / speed_max, a mission's own
+    path by the whole 0.9**8 (as before)."""
+    from vsfleet.advance import advance_structure_reference
+    from vsfleet.coreconst import ALIGN_POWER, ALIGN_POWER_PLAN
+
+    step = advance_structure if advance == "core" else advance_structure_reference
+    lim = StructureLimits(speed_max_m_s=0.1, turn_rate_max_rad_s=1.0)
+    cos_d = 0.9
+    for synced in (True, False):
+        goal = GoalPath((Pose2(2.0, 0.0, 0.0),), synced=synced)
+        vx = [step(Pose2(0, 0, 0), goal, DT, lim, TRIANGLE, ENV, elapsed_s=0.2, headings_rad=h).twist.vx_m_s
+              for h in ([0.0, 0.0, 0.0], [0.0, math.acos(cos_d), 0.0])]
+        u = vx[0]
+        assert 0.0 < u < 0.1                      # the premise: in the ramp, below the mission's speed
+        want = 1.0 - (1.0 - cos_d ** ALIGN_POWER_PLAN) * (u / 0.1) if synced else cos_d ** ALIGN_POWER
+        assert vx[1] / vx[0] == pytest.approx(want, rel=1e-9), synced
+
+
 # --- arrays over robots, compliance, the mission's speed ----------------------------------
 
 

@@ -338,7 +338,8 @@ def _headings(headings_rad, n: int) -> np.ndarray:
 
 
 def alignment_scale(twist: Twist2, rho_world: np.ndarray, headings_rad,
-                    floor: float | None = None, power: float | None = None) -> float:
+                    floor: float | None = None, power: float | None = None,
+                    speed_ref_m_s: float | None = None) -> float:
     """The paper's cost-aware push (3.3.3): slow the structure while robots face across their path.
 
     A differential-drive robot moves only along its heading, so the part of its point's
@@ -347,6 +348,10 @@ def alignment_scale(twist: Twist2, rho_world: np.ndarray, headings_rad,
     The structure moves at the smallest factor; the floor keeps it creeping so robots turn.
     headings_rad (n,) [rad], NaN (or None) for robots not seen, which are skipped. The advance passes
     power ALIGN_POWER_PLAN on a room's plan and ALIGN_POWER (the default) on every other goal (vs_advance.h).
+    speed_ref_m_s (on a plan: the mission's speed): a robot whose point moves slower, at u, holds the structure
+    back only by that share, 1 - (1 - factor) u / speed_ref_m_s: a robot near the structure's centre of turning,
+    whose point barely moves, turns toward that motion only as fast as its point moves (offset-point tracking), so
+    throttling the structure for it slowed its own turn too (vs_advance.h says where it was measured).
     """
     floor = ALIGN_FLOOR if floor is None else floor
     power = ALIGN_POWER if power is None else power
@@ -360,6 +365,8 @@ def alignment_scale(twist: Twist2, rho_world: np.ndarray, headings_rad,
     hs = np.where(use, h, 0.0)
     cos_d = np.abs(ux * np.cos(hs) + uy * np.sin(hs)) / np.where(use, u, 1.0)
     k = np.maximum(floor, cos_d ** power)
+    if speed_ref_m_s is not None and speed_ref_m_s > 0.0:
+        k = np.where(u < speed_ref_m_s, 1.0 - (1.0 - k) * (u / speed_ref_m_s), k)
     return float(min(1.0, np.min(np.where(use, k, 1.0))))
 
 
@@ -447,7 +454,8 @@ def advance_structure_reference(pose_fit: Pose2, goal: Goal, dt_s: float, limits
         desired = Twist2(k_v * desired.vx_m_s, k_v * desired.vy_m_s, k_w * desired.w_rad_s)
     if headings_rad is not None:
         plan = isinstance(goal, GoalPath) and goal.synced    # a room's plan (VS_GOAL_PLAN): vs_advance.h says why
-        k = alignment_scale(desired, rho, headings_rad, power=ALIGN_POWER_PLAN if plan else ALIGN_POWER)
+        k = alignment_scale(desired, rho, headings_rad, power=ALIGN_POWER_PLAN if plan else ALIGN_POWER,
+                            speed_ref_m_s=limits.speed_max_m_s if plan else None)
         desired = Twist2(k * desired.vx_m_s, k * desired.vy_m_s, k * desired.w_rad_s)
     if deviations_m is not None:
         d = np.asarray(deviations_m, dtype=float)

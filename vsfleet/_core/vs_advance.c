@@ -301,7 +301,7 @@ static double envelope_scale(const robots *r, twist3 xi, const double *xi0)
 }
 
 /* alignment_scale (floor VS_ALIGN_FLOOR; power VS_ALIGN_POWER_PLAN on a plan, else VS_ALIGN_POWER) */
-static double alignment_scale(const robots *r, twist3 t, const double *headings, int plan)
+static double alignment_scale(const robots *r, twist3 t, const double *headings, int plan, double speed_ref)
 {
     int any = 0;
     double k_min = 1.0;
@@ -318,6 +318,7 @@ static double alignment_scale(const robots *r, twist3 t, const double *headings,
         double cos_d = vs_fabs(ux * ch + uy * sh) / u;
         double p2 = cos_d * cos_d, p4 = p2 * p2, p8 = p4 * p4;
         double k = py_max(VS_ALIGN_FLOOR, plan ? p4 : p8);
+        if (plan && speed_ref > 0.0 && u < speed_ref) k = 1.0 - (1.0 - k) * (u / speed_ref);
         if (!any || k < k_min) k_min = k;
         any = 1;
     }
@@ -443,7 +444,7 @@ int vs_advance(const double pose_fit[3], const vs_goal *goal, double dt_s, const
         desired.w = k_w * desired.w;
     }
     if (headings_rad != NULL) {
-        double k = alignment_scale(&r, desired, headings_rad, goal->kind == VS_GOAL_PLAN);
+        double k = alignment_scale(&r, desired, headings_rad, goal->kind == VS_GOAL_PLAN, limits->speed_max_m_s);
         desired.vx = k * desired.vx;
         desired.vy = k * desired.vy;
         desired.w = k * desired.w;
