@@ -181,7 +181,8 @@ def test_on_a_plan_a_robot_whose_point_moves_slower_than_the_missions_speed_hold
     half = Twist2(0.05, 0.0, 0.0)
     assert alignment_scale(half, rho, across, power=4) == ALIGN_FLOOR
     assert alignment_scale(half, rho, across, power=4, speed_ref_m_s=0.05) == ALIGN_FLOOR
-    assert alignment_scale(half, rho, across, power=4, speed_ref_m_s=0.1) == pytest.approx(1.0 - (1.0 - ALIGN_FLOOR) * 0.5)
+    assert alignment_scale(half, rho, across, power=4, speed_ref_m_s=0.1) == \
+        pytest.approx(1.0 - (1.0 - ALIGN_FLOOR) * 0.5)
     assert alignment_scale(Twist2(0.0, 0.0, 0.0), rho, across, power=4, speed_ref_m_s=0.1) == 1.0   # no motion
     # turning about a point 1 cm from robot 0's: its point moves at 3 mm/s, across its heading; the others face
     # their points' motion. Without the share it holds the structure at the floor; with it, hardly at all
@@ -190,7 +191,8 @@ def test_on_a_plan_a_robot_whose_point_moves_slower_than_the_missions_speed_hold
     faced = [math.atan2(about[i, 0], -about[i, 1]) for i in range(3)]
     heads = [faced[0] + math.pi / 2] + faced[1:]
     assert alignment_scale(turn, about, heads, power=4) == pytest.approx(ALIGN_FLOOR)
-    assert alignment_scale(turn, about, heads, power=4, speed_ref_m_s=0.1) == pytest.approx(1.0 - (1.0 - ALIGN_FLOOR) * 0.03)
+    assert alignment_scale(turn, about, heads, power=4, speed_ref_m_s=0.1) == \
+        pytest.approx(1.0 - (1.0 - ALIGN_FLOOR) * 0.03)
 
 
 @pytest.mark.parametrize("advance", ["core", "reference"])

@@ -30,9 +30,11 @@
  * On a plan, a robot whose point moves at u below the mission's speed (speed_max_m_s) holds the structure back
  * by that share only: its factor k becomes 1 - (1 - k) u / speed_max_m_s.  Offset-point tracking turns a robot
  * toward its point's motion only as fast as the point moves, so a robot near the structure's centre of turning,
- * its point barely moving and across its heading, held the structure at the floor and, with it, its own turn:
- * bench room 141 (a square) crawled at 1-2 cm/s for 3 s so, one robot 70-89 degrees off a point moving at
- * 1-5 cm/s while its deviation stayed within 6 mm (since 2026-12-06; docs/benchmarks.md 8j).
+ * its point barely moving and across its heading, held the structure at the floor and, with it, its own turn
+ * (bench room 141, a square: 1-2 cm/s for 3 s, one robot 70-89 degrees off a point moving at 1-5 cm/s, every
+ * deviation within 6 mm; since 2026-12-06, docs/benchmarks.md 8j).  u is the point's speed under the twist
+ * desired after the ramp, so the share also eases the throttle while a plan's structure speeds up at its start
+ * and slows down at its end; the compliance throttle still halts it for a robot that falls behind.
  * The powers are integers the core computes by squarings (8: three, 4: two), so no libm pow is needed. */
 #define VS_ALIGN_FLOOR 0.2
 #define VS_ALIGN_POWER 8

@@ -478,7 +478,8 @@ static long start_state(const vs_field *f, const double pose[3], int *outside)
                      * two headings off, the way one cell away) */
                     uint32_t v = f->cost[s] & VS_FIELD_COST_MASK;
                     uint32_t b = (f->cost[s] & VS_FIELD_BLOCKED_BIT) != 0;
-                    if (start >= 0 && b && (start_b == 0 || start_d < d)) continue;   /* a nearer blocked one stands */
+                    /* a reachable one, or a blocked one of a nearer ring, stands */
+                    if (start >= 0 && b && (start_b == 0 || start_d < d)) continue;
                     if (start < 0 || b < start_b || (b == start_b && v < start_v)) {
                         start_d = d;
                         start = (long)s; start_v = v; start_b = b;

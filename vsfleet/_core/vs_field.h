@@ -44,7 +44,7 @@
 #define VS_FIELD_GROW 1.25                 /* the cell grows by this factor until the lattice fits max_states */
 #define VS_FIELD_W_AXIS 10u
 #define VS_FIELD_W_DIAG 14u
-#define VS_FIELD_SEARCH_CELLS 4            /* a pose on no free state looks this many cells around for one */
+#define VS_FIELD_SEARCH_CELLS 4            /* a descent's start is looked for this many cells around the pose */
 
 typedef struct {
     double gx, gy, gth;        /* the goal pose [m, rad; world], gth wrapped to [-pi, pi) */
@@ -79,8 +79,9 @@ void vs_field_nearest(const vs_field *f, const double pose[3], size_t *col, size
  * usable state and its descent, until the goal state (then the last waypoint is the goal pose exactly),
  * the component's target, or path_m [m] of lattice steps, or cap waypoints.  The descent starts on a free
  * state within VS_FIELD_SEARCH_CELLS cells (and two headings) of the pose (its own cell is ring 0, at 5 headings):
- * the cheapest of the nearest ring that has one the goal can be reached from, else the cheapest of the nearest ring
- * that has any; if none, the waypoints are the pose alone and *blocked = 1.  *blocked: the goal cannot be reached from here (the
+ * the cheapest of the nearest ring that has one the goal can be reached from, else the cheapest of the nearest
+ * ring that has any (ties: the first found); if none, the waypoints are the pose alone and *blocked = 1.
+ * *blocked: the goal cannot be reached from here (the
  * descent ends at the closest safe pose); *left_m [m]: then, how far that pose is from the goal (0 when not
  * blocked).  cap >= 2.  No allocation; O(path_m / h) per call (plus the target's descent when blocked). */
 /* 1 when the descent from the pose (vs_field_follow) starts on a free state from which the goal can be reached,
