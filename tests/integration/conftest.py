@@ -35,7 +35,7 @@ from vsfleet.fleetctl.router import free_loopback_port, open_loopback_router
 from vsfleet.fleetctl.router import wait_listening as wait_port
 from vsfleet.fleetctl.run import child_command
 from vsfleet.zglue.scenario_file import load_scenario
-from vsfleet.zglue.zconf import RELIABLE_QOS, zenoh_flags
+from vsfleet.zglue.zconf import RECONNECT_RETRY, RELIABLE_QOS, zenoh_flags
 from vsfleet.wire import (
     FrameMsg,
     Keys,
@@ -269,6 +269,8 @@ def open_client(endpoint: str) -> zenoh.Session:
     conf.insert_json5("mode", '"client"')
     conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
     conf.insert_json5("scouting/multicast/enabled", "false")
+    # as our programs: back within 0.5 s of a restarted router (zenoh's default retries 1 s, 2 s, 4 s after)
+    conf.insert_json5("connect/retry", RECONNECT_RETRY)
     return zenoh.open(conf)
 
 
