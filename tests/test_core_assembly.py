@@ -16,7 +16,7 @@ import pytest
 
 from vsfleet import _core
 from vsfleet.assembly import assembly_targets, assembly_targets_reference
-from vsfleet.coreconst import ASSEMBLING_M, DETOUR_CLEAR_M
+from vsfleet.coreconst import ASSEMBLING_M, DETOUR_CLEAR_M, ESCAPE_M, PRESSED_M
 from vsfleet.errors import NonFiniteError, ShapeError, VsfleetValueError
 from vsfleet.frames import Frame
 from vsfleet.impl import core as core_impl, reference as reference_impl
@@ -121,9 +121,9 @@ def test_of_a_head_on_pair_the_higher_row_passes_the_other_on_its_right_at_the_d
 
 def test_of_blockers_tied_in_along_the_lower_row_is_the_one_gone_round():
     """numpy's argmin takes the first minimum: two robots mirrored about the way tie exactly."""
-    radii = np.full(3, 0.05)
-    pose = np.array([[0.0, 0.0, 0.0], [0.0625, 0.03125, 0.0], [0.0625, -0.03125, 0.0]])
-    points = np.array([[1.0, 0.0], [0.0625, 0.03125], [0.0625, -0.03125]])   # r2, r3 on their points
+    radii = np.full(3, 0.05)   # the blockers 0.25 m ahead: robot 0 is not pressed against them (not boxed in)
+    pose = np.array([[0.0, 0.0, 0.0], [0.25, 0.03125, 0.0], [0.25, -0.03125, 0.0]])
+    points = np.array([[1.0, 0.0], [0.25, 0.03125], [0.25, -0.03125]])   # r2, r3 on their points
     for order in ([0, 1, 2], [0, 2, 1]):
         args = (radii, pose[order], np.ones(3, bool), points[order], points[order], MARGIN)
         now, _, detoured = assembly_targets(*args)
@@ -132,6 +132,59 @@ def test_of_blockers_tied_in_along_the_lower_row_is_the_one_gone_round():
         assert detoured.tolist() == [True, False, False]
         # round row 1 on the side robot 0 is on (row 1 to its left: pass it on its right, y < 0; else y > 0)
         assert (now[0, 1] < 0.0) == (pose[order][1, 1] > 0.0)
+
+
+def _boxed_in(extra=()):
+    """Robot 0 (point 1 m ahead) pressed against robot 1 (5 mm beyond touching + margin), which stands dead ahead
+    on its point; robot 2 stands where robot 0's detour round robot 1 (to the right: -y) would go; extra robots
+    stand on their points."""
+    xy = [(0.0, 0.0), (0.12, 0.0), (0.0, -0.13), *extra]
+    n = len(xy)
+    pose = np.array([(x, y, 0.0) for x, y in xy])
+    points = np.array([(1.0, 0.0), *xy[1:]])
+    return np.full(n, 0.05), pose, np.ones(n, bool), points
+
+
+def _both(radii, pose, seen, points):
+    got = assembly_targets(radii, pose, seen, points, points, MARGIN)
+    want = assembly_targets_reference(radii, pose, seen, points, points, MARGIN)
+    assert all(np.array_equal(g, w) for g, w in zip(got, want))
+    return got
+
+
+def test_a_boxed_in_robot_backs_away_from_its_blocker():
+    radii, pose, seen, points = _boxed_in()
+    detour = (-0.025, -0.145)   # c = 0.145 to the right of the line to robot 1, and c short of it
+    assert assembly_targets(radii[:2], pose[:2], seen[:2], points[:2], points[:2], MARGIN)[0][0] == \
+        pytest.approx(detour, abs=1e-12)    # without robot 2: the plain detour
+    now, nxt, detoured = _both(radii, pose, seen, points)
+    assert detoured.tolist() == [True, False, False]
+    assert now[0].tolist() == nxt[0].tolist() == [0.0 - 1.0 * ESCAPE_M, 0.0 - 0.0 * ESCAPE_M]
+    pressed = (0.05 + 0.05 + MARGIN) + PRESSED_M + 1e-3   # robot 1 farther: not pressed, the plain detour
+    radii, pose, seen, points = _boxed_in()
+    pose[1, 0] = points[1, 0] = pressed
+    assert _both(radii, pose, seen, points)[0][0][1] < -0.1
+
+
+def test_a_boxed_in_robot_whose_way_back_is_barred_heads_out_of_the_crowd_away_from_the_centroid():
+    extra = [(-0.2, 0.0)] + [(0.45, -1.5)] * 4   # one robot behind; four far down on the right pull the centroid
+    radii, pose, seen, points = _boxed_in(extra)
+    now, nxt, detoured = _both(radii, pose, seen, points)
+    assert detoured.tolist() == [True] + [False] * 7
+    cx = cy = 0.0
+    for x, y, _ in pose:          # in row order, as the rule sums
+        cx, cy = cx + x, cy + y
+    cx, cy = cx / 8.0, cy / 8.0
+    ox, oy = 0.0 - cx, 0.0 - cy
+    out = math.sqrt(ox * ox + oy * oy)
+    assert ox < 0.0 and oy > 0.0   # up and to the left, clear of robots 1 and 3
+    assert now[0].tolist() == nxt[0].tolist() == [0.0 + (ox / out) * ESCAPE_M, 0.0 + (oy / out) * ESCAPE_M]
+
+
+def test_a_boxed_in_robot_with_every_way_barred_waits_where_it_stands():
+    radii, pose, seen, points = _boxed_in([(-0.12, 0.0), (0.0, 0.13), (-0.09, 0.09), (-0.09, -0.09)])
+    now, nxt, detoured = _both(radii, pose, seen, points)
+    assert detoured[0] and now[0].tolist() == nxt[0].tolist() == [0.0, 0.0]
 
 
 def test_robots_near_their_points_a_single_robot_and_no_robots_keep_their_targets():

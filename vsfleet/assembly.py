@@ -11,7 +11,7 @@ import math
 
 from .lazy import lazy_numpy
 from . import _core
-from .coreconst import ASSEMBLING_M, DETOUR_CLEAR_M
+from .coreconst import ASSEMBLING_M, DETOUR_CLEAR_M, ESCAPE_M, PRESSED_M
 from .errors import ShapeError
 
 np = lazy_numpy(globals())   # numpy on first use: the agent process never loads it (vsfleet.lazy)
@@ -49,7 +49,11 @@ def assembly_targets_reference(radii_m: np.ndarray, pose_world: np.ndarray, seen
     of the higher row (the later id) gives way and passes the other on its right; the other keeps its way. A
     robot barred by one that does not bar it passes it on the side it is already on (on the right when dead
     ahead). Passing j means heading for the waypoint c = width + DETOUR_CLEAR_M to that side of the line from
-    i to j and c short of j along it: never towards j while they touch, and round j as i goes. Every
+    i to j and c short of j along it: never towards j while they touch, and round j as i goes. A robot that
+    gives way but is boxed in (its centre less than width + PRESSED_M from j's, and its way to that
+    waypoint barred by a third robot) heads instead ESCAPE_M straight back from j if no robot bars that
+    way, else ESCAPE_M straight out of the crowd (away from the centroid of the seen robots, summed in row
+    order) if no robot bars that way, else waits where it stands (its target is its position). Every
     agent computes the same targets from the same frame (a pure function of it, in + - * / and sqrt, which
     IEEE 754 rounds alike everywhere: no libm function whose last bit could differ between hosts)."""
     n = len(pose_world)
@@ -70,6 +74,12 @@ def assembly_targets_reference(radii_m: np.ndarray, pose_world: np.ndarray, seen
     first = np.argmin(np.where(bars, along, np.inf), axis=1)
     rows = np.flatnonzero(bars.any(axis=1))
     now, nxt = points_now.copy(), points_next.copy()
+    cx = cy = count = 0.0
+    for k in range(n):                      # the centroid of the seen robots, summed in row order
+        if seen[k]:
+            cx, cy, count = cx + float(xy[k, 0]), cy + float(xy[k, 1]), count + 1.0
+    if count > 0.0:
+        cx, cy = cx / count, cy / count
     for i in rows:
         j = int(first[i])
         mutual = bool(bars[j, i])
@@ -81,7 +91,46 @@ def assembly_targets_reference(radii_m: np.ndarray, pose_world: np.ndarray, seen
         normal = np.array([-u[1], u[0]]) * left
         clear = width[i, j] + DETOUR_CLEAR_M      # round j: as far beside the line to j, and that much short of j
         way = xy[i] + normal * clear + u * (gap - clear)
+        if gap - width[i, j] < PRESSED_M and _way_barred(radii_m, xy, seen, margin_m, i, j, way):
+            way = _way_out(radii_m, xy, seen, margin_m, i, (cx, cy), u)   # boxed in
         now[i] = way
         nxt[i] = way
         detoured[i] = True
     return now, nxt, detoured
+
+
+def _way_barred(radii_m: np.ndarray, xy: np.ndarray, seen: np.ndarray, margin_m: float, i: int, skip: int,
+                way: np.ndarray) -> bool:
+    """Is robot i's straight way to ``way`` barred, as on the way to its point, by a seen robot other than i
+    and ``skip`` (-1: none)? A way of length 0 is not."""
+    tx, ty = float(way[0]) - float(xy[i, 0]), float(way[1]) - float(xy[i, 1])
+    length = math.sqrt(tx * tx + ty * ty)
+    if not length > 0.0:
+        return False
+    dx, dy = tx / length, ty / length
+    for k in range(len(xy)):
+        if k == i or k == skip or not seen[k]:
+            continue
+        rx, ry = float(xy[k, 0]) - float(xy[i, 0]), float(xy[k, 1]) - float(xy[i, 1])
+        along, lateral = rx * dx + ry * dy, dx * ry - dy * rx
+        width = (float(radii_m[i]) + float(radii_m[k])) + margin_m
+        if along > 0.0 and along < length + width and abs(lateral) < width:
+            return True
+    return False
+
+
+def _way_out(radii_m: np.ndarray, xy: np.ndarray, seen: np.ndarray, margin_m: float, i: int,
+             centroid: tuple[float, float], u: np.ndarray) -> np.ndarray:
+    """A boxed-in robot's target: ESCAPE_M back from its blocker (``u`` points at it) if that way is free, else
+    ESCAPE_M out of the crowd (away from ``centroid``) if that way is free, else its own position."""
+    x, y = float(xy[i, 0]), float(xy[i, 1])
+    way = np.array([x - float(u[0]) * ESCAPE_M, y - float(u[1]) * ESCAPE_M])
+    if not _way_barred(radii_m, xy, seen, margin_m, i, -1, way):
+        return way
+    ox, oy = x - centroid[0], y - centroid[1]
+    out = math.sqrt(ox * ox + oy * oy)
+    if out > 0.0:
+        way = np.array([x + (ox / out) * ESCAPE_M, y + (oy / out) * ESCAPE_M])
+        if not _way_barred(radii_m, xy, seen, margin_m, i, -1, way):
+            return way
+    return np.array([x, y])

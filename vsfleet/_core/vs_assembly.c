@@ -45,6 +45,23 @@ static int bars(const double *radius_m, const double *pose_world, double margin_
     return a > 0.0 && a < dist + w && vs_fabs(l) < w;
 }
 
+/* Is robot i's straight way to (wx, wy) barred (as bars() says) by a seen robot other than i and skip (n: none)?
+ * A way of length 0 is not barred. */
+static int way_barred(size_t n, const double *radius_m, const double *pose_world, const unsigned char *seen,
+                      double margin_m, size_t i, size_t skip, double wx, double wy)
+{
+    double tx = wx - pose_world[3 * i], ty = wy - pose_world[3 * i + 1];
+    double wd = sqrt(tx * tx + ty * ty);
+    if (!(wd > 0.0)) return 0;
+    double dx = tx / wd, dy = ty / wd;
+    for (size_t k = 0; k < n; k++) {
+        double along, lateral, width;
+        if (k == i || k == skip || !seen[k]) continue;
+        if (bars(radius_m, pose_world, margin_m, i, wd, dx, dy, k, &along, &lateral, &width)) return 1;
+    }
+    return 0;
+}
+
 int vs_assembly_targets(size_t n, const double *radius_m, const double *pose_world, const unsigned char *seen,
                         const double *points_now, const double *points_next, double margin_m, double *now_out,
                         double *next_out, unsigned char *detoured_out, size_t *n_detoured)
@@ -68,6 +85,18 @@ int vs_assembly_targets(size_t n, const double *radius_m, const double *pose_wor
     }
     size_t count = 0;
     for (size_t i = 0; i < n; i++) detoured_out[i] = 0;
+    /* the centroid of the seen robots, summed in row order: a boxed-in robot heads away from it */
+    double cx = 0.0, cy = 0.0, cn = 0.0;
+    for (size_t i = 0; i < n; i++) {
+        if (!seen[i]) continue;
+        cx = cx + pose_world[3 * i];
+        cy = cy + pose_world[3 * i + 1];
+        cn = cn + 1.0;
+    }
+    if (cn > 0.0) {
+        cx = cx / cn;
+        cy = cy / cn;
+    }
     for (size_t i = 0; i < n && n >= 2; i++) {
         double dist, dx, dy;
         if (!on_way(pose_world, seen, points_now, i, &dist, &dx, &dy)) continue;
@@ -99,6 +128,24 @@ int vs_assembly_targets(size_t n, const double *radius_m, const double *pose_wor
         double clear = width_j + VS_DETOUR_CLEAR_M;   /* round j: as far beside the line to j, that much short */
         double wx = (pose_world[3 * i] + nx * clear) + ux * (gap - clear);
         double wy = (pose_world[3 * i + 1] + ny * clear) + uy * (gap - clear);
+        if (way_barred(n, radius_m, pose_world, seen, margin_m, i, j, wx, wy)
+            && gap - width_j < VS_PRESSED_M) {    /* boxed in: back from j, else out of the crowd, else wait */
+            double ox = pose_world[3 * i] - cx, oy = pose_world[3 * i + 1] - cy;
+            double od = sqrt(ox * ox + oy * oy);
+            double ex = pose_world[3 * i] - ux * VS_ESCAPE_M, ey = pose_world[3 * i + 1] - uy * VS_ESCAPE_M;
+            int found = !way_barred(n, radius_m, pose_world, seen, margin_m, i, n, ex, ey);
+            if (!found && od > 0.0) {
+                ex = pose_world[3 * i] + (ox / od) * VS_ESCAPE_M;
+                ey = pose_world[3 * i + 1] + (oy / od) * VS_ESCAPE_M;
+                found = !way_barred(n, radius_m, pose_world, seen, margin_m, i, n, ex, ey);
+            }
+            if (!found) {
+                ex = pose_world[3 * i];
+                ey = pose_world[3 * i + 1];
+            }
+            wx = ex;
+            wy = ey;
+        }
         now_out[2 * i] = wx;
         now_out[2 * i + 1] = wy;
         next_out[2 * i] = wx;
