@@ -49,8 +49,8 @@ def assembly_targets_reference(radii_m: np.ndarray, pose_world: np.ndarray, seen
     of the higher row (the later id) gives way and passes the other on its right; the other keeps its way. A
     robot barred by one that does not bar it passes it on the side it is already on (on the right when dead
     ahead). Passing j means heading for the waypoint c = width + DETOUR_CLEAR_M to that side of the line from
-    i to j and c short of j along it: never towards j while they touch, and round j as i goes. A robot that
-    gives way but is boxed in (its centre less than width + PRESSED_M from j's, and its way to that
+    i to j and c short of j along it: never towards j while they touch, and round j as i goes. A robot sent
+    round j (either way above) that is boxed in (gap - width < PRESSED_M, and its way to that
     waypoint barred by a third robot) heads instead ESCAPE_M straight back from j if no robot bars that
     way, else ESCAPE_M straight out of the crowd (away from the centroid of the seen robots, summed in row
     order) if no robot bars that way, else waits where it stands (its target is its position). Every

@@ -69,9 +69,10 @@ CLEAR_ROWS: int = _core.CLEAR_ROWS
 #: to it; a detour's waypoint lies DETOUR_CLEAR_M [m] beyond touching + margin beside the blocker, as far short of it
 ASSEMBLING_M: float = _core.ASSEMBLING_M
 DETOUR_CLEAR_M: float = _core.DETOUR_CLEAR_M
-#: a boxed-in robot heads ESCAPE_M [m] out of the crowd, or back from its blocker (vs_assembly.h)
+#: a boxed-in robot heads ESCAPE_M [m] back from its blocker, or out of the crowd (vs_assembly.h)
 ESCAPE_M: float = _core.ESCAPE_M
-#: ... when pressed against its blocker: its centre less than touching + margin + PRESSED_M [m] from the blocker's
+#: ... when pressed against its blocker: its centre's distance from the blocker's less than PRESSED_M [m] beyond
+#: touching + margin
 PRESSED_M: float = _core.PRESSED_M
 
 # the structure's planner (vs_plan.h VS_PLAN_*)

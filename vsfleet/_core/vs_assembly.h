@@ -8,12 +8,12 @@
  * way and passes the other on its right; the other keeps its way.  A robot barred by one that does not bar
  * it passes it on the side it is already on (on the right when dead ahead).  Passing j means heading for
  * the waypoint c = width + VS_DETOUR_CLEAR_M to that side of the line from i to j and c short of j along
- * it.  A robot that gives way but is boxed in (pressed against j, its centre less than
- * width + VS_PRESSED_M from j's, and its way to that waypoint barred by a third robot) heads instead
- * VS_ESCAPE_M straight back from j, if no robot bars that way; else VS_ESCAPE_M straight out of the
- * crowd (away from the centroid of the seen robots, summed in row order), if no robot bars that way;
- * else it waits where it stands (its target is its own position).  Every agent computes the same targets
- * from the same frame.
+ * it.  A robot sent round its first blocker j (either way above) that is boxed in (pressed against j,
+ * gap - width < VS_PRESSED_M with gap its centre's distance from j's, and its way to that waypoint barred
+ * by a third robot) heads instead VS_ESCAPE_M straight back from j, if no robot bars that way; else
+ * VS_ESCAPE_M straight out of the crowd (away from the centroid of the seen robots, summed in row order),
+ * if no robot bars that way; else it waits where it stands (its target is its own position).  Every
+ * agent computes the same targets from the same frame.
  */
 #ifndef VS_ASSEMBLY_H
 #define VS_ASSEMBLY_H
@@ -23,9 +23,9 @@
 #define VS_ASSEMBLING_M 0.05   /* [m] a seen robot farther than this from its point is on its way to it */
 #define VS_DETOUR_CLEAR_M 0.03 /* [m] a detour's waypoint lies this far beyond touching + margin_m, beside
                                   the line to the blocker and as far short of it */
-#define VS_ESCAPE_M 0.15       /* [m] a boxed-in robot's way out of the crowd, or back from its blocker */
-#define VS_PRESSED_M 0.03      /* [m] a robot whose centre is less than width + this from its blocker's is pressed
-                                  against it */
+#define VS_ESCAPE_M 0.15       /* [m] a boxed-in robot's way back from its blocker, or out of the crowd */
+#define VS_PRESSED_M 0.03      /* [m] a robot whose centre is less than this beyond width from its blocker's
+                                  (gap - width < VS_PRESSED_M) is pressed against it */
 
 /* Every robot's targets after the tie-break, and which robots it sent round another.
  *   radius_m (n) [m] >= 0; pose_world (n, 3) [m, m, rad; world] (x and y read, the heading never);
