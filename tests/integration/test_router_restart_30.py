@@ -43,8 +43,9 @@ def test_thirty_agents_resume_within_2_s_of_a_restarted_router_and_agree_after(f
 
     a = fleet.observed.wait_for(after, timeout_s=30)
     seen = min(t for t, _, _ in fleet.observed.truth if t > t_restart)   # this test's own session back
-    print(f"router down {t_restart - t_kill:.2f} s; observer back {seen - t_restart:.2f} s after the restart; all 30 robots commanded again {t_all - t_restart:.2f} s after "
-          f"the restart (first {min(resumed.values()) - t_restart:.2f} s); agreement after: {a.identical}/{a.frames}")
+    print(f"router down {t_restart - t_kill:.2f} s; observer back {seen - t_restart:.2f} s after the restart; "
+          f"all 30 robots commanded again {t_all - t_restart:.2f} s after the restart "
+          f"(first {min(resumed.values()) - t_restart:.2f} s); agreement after: {a.identical}/{a.frames}")
     assert t_all - t_restart <= 2.0
     assert a.identical == a.frames
     fleet.observed.wait_for(at_goal(fleet, robots=robots), timeout_s=60)

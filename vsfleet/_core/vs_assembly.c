@@ -128,8 +128,8 @@ int vs_assembly_targets(size_t n, const double *radius_m, const double *pose_wor
         double clear = width_j + VS_DETOUR_CLEAR_M;   /* round j: as far beside the line to j, that much short */
         double wx = (pose_world[3 * i] + nx * clear) + ux * (gap - clear);
         double wy = (pose_world[3 * i + 1] + ny * clear) + uy * (gap - clear);
-        if (gap - width_j < VS_PRESSED_M
-            && way_barred(n, radius_m, pose_world, seen, margin_m, i, j, wx, wy)) {    /* boxed in: back from j, else out of the crowd, else wait */
+        /* boxed in: back from j, else out of the crowd, else wait */
+        if (gap - width_j < VS_PRESSED_M && way_barred(n, radius_m, pose_world, seen, margin_m, i, j, wx, wy)) {
             double ox = pose_world[3 * i] - cx, oy = pose_world[3 * i + 1] - cy;
             double od = sqrt(ox * ox + oy * oy);
             double ex = pose_world[3 * i] - ux * VS_ESCAPE_M, ey = pose_world[3 * i + 1] - uy * VS_ESCAPE_M;
