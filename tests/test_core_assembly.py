@@ -119,6 +119,50 @@ def test_of_a_head_on_pair_the_higher_row_passes_the_other_on_its_right_at_the_d
     assert detoured_s.tolist() == [False, True] and now_s[1, 1] < -0.1
 
 
+@pytest.mark.parametrize("fn", [assembly_targets, assembly_targets_reference], ids=["core", "reference"])
+def test_a_robot_barred_head_on_by_a_lower_and_a_higher_row_keeps_no_way(fn):
+    """Robot 1's first blocker is robot 2 (head on, a higher row): alone with it, robot 1 would keep its way.
+    Robot 0, a lower row, bars it head on too, farther along, so robot 1 passes robot 2 on its right."""
+    radii = np.full(3, 0.05)
+    pose = np.array([[0.5, 0.05, math.pi], [0.0, 0.0, 0.0], [0.25, 0.0, math.pi]])
+    points = np.array([[-1.0, 0.05], [1.0, 0.0], [-1.0, 0.0]])
+    seen = np.ones(3, bool)
+    assert not fn(radii[1:], pose[1:], seen[1:], points[1:], points[1:], MARGIN)[2][0]   # without robot 0: keeps
+    now, nxt, detoured = fn(radii, pose, seen, points, points, MARGIN)
+    assert detoured[1]
+    c = (0.05 + 0.05 + MARGIN) + DETOUR_CLEAR_M          # not pressed (0.25 - width > PRESSED_M): the plain detour
+    assert now[1].tolist() == nxt[1].tolist() == pytest.approx([0.25 - c, -c], abs=1e-15)
+
+
+def test_of_two_robots_that_bar_each_other_never_both_keep_their_way():
+    """On random crowds: every pair that bars each other head on (the rule's definition, written out here)
+    has at least one robot sent round."""
+    rng = np.random.default_rng(28)
+    pairs = 0
+    for k in range(400):
+        radii, pose, seen, points, nxt, margin = crowd(rng, KINDS[k % len(KINDS)])
+        detoured = assembly_targets(radii, pose, seen, points, nxt, margin)[2]
+        to = points - pose[:, :2]
+        dist = np.sqrt(to[:, 0] * to[:, 0] + to[:, 1] * to[:, 1])
+        n = len(radii)
+        for i in range(n):
+            for j in range(i + 1, n):
+                if not (seen[i] and seen[j] and dist[i] > ASSEMBLING_M and dist[j] > ASSEMBLING_M):
+                    continue
+                if all(_ahead(radii, pose, margin, a, b, to[a] / dist[a], dist[a]) for a, b in ((i, j), (j, i))):
+                    pairs += 1
+                    assert detoured[i] or detoured[j], (k, i, j)
+    assert pairs > 200, pairs
+
+
+def _ahead(radii, pose, margin, a, b, d, dist):
+    """Does robot b lie ahead on robot a's straight way (unit d, length dist), within the two bodies + margin?"""
+    rel = pose[b, :2] - pose[a, :2]
+    width = radii[a] + radii[b] + margin
+    along, lateral = rel[0] * d[0] + rel[1] * d[1], d[0] * rel[1] - d[1] * rel[0]
+    return 0.0 < along < dist + width and abs(lateral) < width
+
+
 def test_of_blockers_tied_in_along_the_lower_row_is_the_one_gone_round():
     """numpy's argmin takes the first minimum: two robots mirrored about the way tie exactly."""
     radii = np.full(3, 0.05)   # the blockers 0.25 m ahead: robot 0 is not pressed against them (not boxed in)

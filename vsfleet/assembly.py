@@ -46,7 +46,9 @@ def assembly_targets_reference(radii_m: np.ndarray, pose_world: np.ndarray, seen
     Robot i, seen and more than ASSEMBLING_M from its point, is barred by robot j (seen) when j's centre lies
     ahead on i's straight way to its point (0 < along < distance + width) within width = r_i + r_j + margin
     of that line; its first blocker is the nearest such j. Two robots that bar each other (head on): the one
-    of the higher row (the later id) gives way and passes the other on its right; the other keeps its way. A
+    of the higher row (the later id) gives way and passes the other on its right; the other keeps its way,
+    unless a robot of a lower row than its own bars it head on too (then it too passes its first blocker on
+    its right: two robots never both keep their way into each other). A
     robot barred by one that does not bar it passes it on the side it is already on (on the right when dead
     ahead). Passing j means heading for the waypoint c = width + DETOUR_CLEAR_M to that side of the line from
     i to j and c short of j along it: never towards j while they touch, and round j as i goes. A robot sent
@@ -83,8 +85,8 @@ def assembly_targets_reference(radii_m: np.ndarray, pose_world: np.ndarray, seen
     for i in rows:
         j = int(first[i])
         mutual = bool(bars[j, i])
-        if mutual and j > i:
-            continue                         # head on, and i has the lower row: i keeps its way
+        if mutual and j > i and not (bars[i, :i] & bars[:i, i]).any():
+            continue     # head on, i has the lower row, and no lower row bars it head on: i keeps its way
         left = 1.0 if (not mutual and lateral[i, j] < 0.0) else -1.0     # j on i's right: pass on its left
         gap = math.sqrt(rel[i, j, 0] * rel[i, j, 0] + rel[i, j, 1] * rel[i, j, 1])
         u = rel[i, j] / gap                                              # towards j

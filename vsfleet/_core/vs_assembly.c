@@ -119,7 +119,19 @@ int vs_assembly_targets(size_t n, const double *radius_m, const double *pose_wor
         double dist_j, dx_j, dy_j, along_ji, lat_ji, width_ji;
         int mutual = on_way(pose_world, seen, points_now, j, &dist_j, &dx_j, &dy_j)
                      && bars(radius_m, pose_world, margin_m, j, dist_j, dx_j, dy_j, i, &along_ji, &lat_ji, &width_ji);
-        if (mutual && j > i) continue;   /* head on, and i has the lower row: i keeps its way */
+        if (mutual && j > i) {
+            /* head on, and i has the lower row: i keeps its way, unless a lower row k bars i head on too */
+            int yields = 0;
+            for (size_t k = 0; k < i && !yields; k++) {
+                double along_ik, lat_ik, width_ik, dist_k, dx_k, dy_k, along_ki, lat_ki, width_ki;
+                if (!seen[k]) continue;
+                yields = bars(radius_m, pose_world, margin_m, i, dist, dx, dy, k, &along_ik, &lat_ik, &width_ik)
+                         && on_way(pose_world, seen, points_now, k, &dist_k, &dx_k, &dy_k)
+                         && bars(radius_m, pose_world, margin_m, k, dist_k, dx_k, dy_k, i, &along_ki, &lat_ki,
+                                 &width_ki);
+            }
+            if (!yields) continue;
+        }
         double left = (!mutual && lat_j < 0.0) ? 1.0 : -1.0;   /* j on i's right: pass on its left */
         double rx = pose_world[3 * j] - pose_world[3 * i], ry = pose_world[3 * j + 1] - pose_world[3 * i + 1];
         double gap = sqrt(rx * rx + ry * ry);

@@ -5,7 +5,9 @@
  * j (seen, j != i) when j's centre lies ahead on i's straight way to its point, 0 < along < dist + width,
  * within width = (r_i + r_j) + margin_m of that line; its first blocker is the nearest such j (the least
  * along; ties: the lowest row).  Two robots that bar each other (head on): the one of the higher row gives
- * way and passes the other on its right; the other keeps its way.  A robot barred by one that does not bar
+ * way and passes the other on its right; the other keeps its way, unless a robot of a lower row than its
+ * own bars it head on too (then it also passes its first blocker on its right: of two robots that bar each
+ * other, the higher row never keeps its way).  A robot barred by one that does not bar
  * it passes it on the side it is already on (on the right when dead ahead).  Passing j means heading for
  * the waypoint c = width + VS_DETOUR_CLEAR_M to that side of the line from i to j and c short of j along
  * it.  A robot sent round its first blocker j (either way above) that is boxed in (pressed against j,
