@@ -231,6 +231,23 @@ def test_a_boxed_in_robot_with_every_way_barred_waits_where_it_stands():
     assert detoured[0] and now[0].tolist() == nxt[0].tolist() == [0.0, 0.0]
 
 
+def test_a_robot_that_keeps_its_way_into_a_robot_that_waits_gives_way_in_turn():
+    """The waiting robot above, now on its way head on with robot 0 (a lower row, which keeps its way into it):
+    robot 1 is boxed in with every way barred and waits; so robot 0 goes round it on its right (+y, heading -x),
+    not pressed against a third robot there: the plain detour c = 0.145 m aside and c short of robot 1."""
+    xy = [(0.12, 0.0), (0.0, 0.0), (0.0, -0.13), (-0.12, 0.0), (0.0, 0.13), (-0.09, 0.09), (-0.09, -0.09)]
+    pose = np.array([(x, y, 0.0) for x, y in xy])
+    points = np.array([(-1.0, 0.0), (1.0, 0.0), *xy[2:]])
+    radii, seen = np.full(7, 0.05), np.ones(7, bool)
+    now, nxt, detoured = _both(radii, pose, seen, points)
+    assert detoured[1] and now[1].tolist() == [0.0, 0.0]                    # robot 1 waits
+    c = (0.05 + 0.05 + MARGIN) + DETOUR_CLEAR_M
+    assert detoured[0] and now[0].tolist() == nxt[0].tolist() == pytest.approx([0.12 - (0.12 - c), c], abs=1e-15)
+    # without the four robots behind robot 1, it backs away (boxed in, not waiting): robot 0 keeps its way
+    now, _, detoured = _both(radii[:3], pose[:3], seen[:3], points[:3])
+    assert detoured.tolist() == [False, True, False] and now[1].tolist() == [-ESCAPE_M, 0.0]
+
+
 def test_robots_near_their_points_a_single_robot_and_no_robots_keep_their_targets():
     radii, pose, seen, points, nxt, margin = _head_on()
     near = pose[:, :2] + np.array([[ASSEMBLING_M, 0.0], [-ASSEMBLING_M, 0.0]])   # exactly ASSEMBLING_M: not on its way

@@ -55,7 +55,9 @@ def assembly_targets_reference(radii_m: np.ndarray, pose_world: np.ndarray, seen
     round j (either way above) that is boxed in (gap - width < PRESSED_M, and its way to that
     waypoint barred by a third robot) heads instead ESCAPE_M straight back from j if no robot bars that
     way, else ESCAPE_M straight out of the crowd (away from the centroid of the seen robots, summed in row
-    order) if no robot bars that way, else waits where it stands (its target is its position). Every
+    order) if no robot bars that way, else waits where it stands (its target is its position). Then a robot
+    that kept its way (head on) into a first blocker that waits gives way in turn: it goes round that blocker
+    on its right, as above (boxed in or not); each row reads these first targets. Every
     agent computes the same targets from the same frame (a pure function of it, in + - * / and sqrt, which
     IEEE 754 rounds alike everywhere: no libm function whose last bit could differ between hosts)."""
     n = len(pose_world)
@@ -88,17 +90,33 @@ def assembly_targets_reference(radii_m: np.ndarray, pose_world: np.ndarray, seen
         if mutual and j > i and not (bars[i, :i] & bars[:i, i]).any():
             continue     # head on, i has the lower row, and no lower row bars it head on: i keeps its way
         left = 1.0 if (not mutual and lateral[i, j] < 0.0) else -1.0     # j on i's right: pass on its left
-        gap = math.sqrt(rel[i, j, 0] * rel[i, j, 0] + rel[i, j, 1] * rel[i, j, 1])
-        u = rel[i, j] / gap                                              # towards j
-        normal = np.array([-u[1], u[0]]) * left
-        clear = width[i, j] + DETOUR_CLEAR_M      # round j: as far beside the line to j, and that much short of j
-        way = xy[i] + normal * clear + u * (gap - clear)
-        if gap - width[i, j] < PRESSED_M and _way_barred(radii_m, xy, seen, margin_m, i, j, way):
-            way = _way_out(radii_m, xy, seen, margin_m, i, (cx, cy), u)   # boxed in
-        now[i] = way
-        nxt[i] = way
+        now[i] = nxt[i] = _round(radii_m, xy, seen, margin_m, i, j, left, width[i, j], (cx, cy))
         detoured[i] = True
+    # a robot that kept its way into a first blocker that waits (sent round, its target its own position)
+    # gives way in turn, round it on its right; each row reads the first pass's targets
+    waits = detoured & (now[:, 0] == xy[:, 0]) & (now[:, 1] == xy[:, 1])
+    kept = ~detoured
+    for i in rows:
+        j = int(first[i])
+        if kept[i] and waits[j]:
+            now[i] = nxt[i] = _round(radii_m, xy, seen, margin_m, i, j, -1.0, width[i, j], (cx, cy))
+            detoured[i] = True
     return now, nxt, detoured
+
+
+def _round(radii_m: np.ndarray, xy: np.ndarray, seen: np.ndarray, margin_m: float, i: int, j: int, left: float,
+           width: float, centroid: tuple[float, float]) -> np.ndarray:
+    """Robot i's target round its blocker j on the side ``left`` (1.0: pass on j's left), ``width`` = r_i + r_j +
+    margin: the detour's waypoint, or, boxed in, :func:`_way_out`."""
+    rel = xy[j] - xy[i]
+    gap = math.sqrt(rel[0] * rel[0] + rel[1] * rel[1])
+    u = rel / gap                                                    # towards j
+    normal = np.array([-u[1], u[0]]) * left
+    clear = width + DETOUR_CLEAR_M          # round j: as far beside the line to j, and that much short of j
+    way = xy[i] + normal * clear + u * (gap - clear)
+    if gap - width < PRESSED_M and _way_barred(radii_m, xy, seen, margin_m, i, j, way):
+        way = _way_out(radii_m, xy, seen, margin_m, i, centroid, u)   # boxed in
+    return way
 
 
 def _way_barred(radii_m: np.ndarray, xy: np.ndarray, seen: np.ndarray, margin_m: float, i: int, skip: int,

@@ -62,6 +62,64 @@ static int way_barred(size_t n, const double *radius_m, const double *pose_world
     return 0;
 }
 
+/* Robot i's first blocker on its way (dist, d): the least along among the seen robots that bar it, the
+ * first (lowest row) of equal ones; n if none.  Its lateral and width are set. */
+static size_t first_blocker(size_t n, const double *radius_m, const double *pose_world, const unsigned char *seen,
+                            double margin_m, size_t i, double dist, double dx, double dy, double *lat_j,
+                            double *width_j)
+{
+    size_t j = n;
+    double best = 0.0;
+    for (size_t k = 0; k < n; k++) {
+        double along, lateral, width;
+        if (k == i || !seen[k]) continue;
+        if (!bars(radius_m, pose_world, margin_m, i, dist, dx, dy, k, &along, &lateral, &width)) continue;
+        if (j == n || along < best) {
+            j = k;
+            best = along;
+            *lat_j = lateral;
+            *width_j = width;
+        }
+    }
+    return j;
+}
+
+/* Robot i's target round its blocker j, on the side left (1: j on i's right, pass on its left; -1: on its
+ * right), width_j = r_i + r_j + margin: the detour's waypoint, or, boxed in, back from j, else out of the
+ * crowd (away from (cx, cy)), else its own position. */
+static void round_blocker(size_t n, const double *radius_m, const double *pose_world, const unsigned char *seen,
+                          double margin_m, size_t i, size_t j, double left, double width_j, double cx, double cy,
+                          double *wx_out, double *wy_out)
+{
+    double rx = pose_world[3 * j] - pose_world[3 * i], ry = pose_world[3 * j + 1] - pose_world[3 * i + 1];
+    double gap = sqrt(rx * rx + ry * ry);
+    double ux = rx / gap, uy = ry / gap;                   /* towards j */
+    double nx = -uy * left, ny = ux * left;
+    double clear = width_j + VS_DETOUR_CLEAR_M;   /* round j: as far beside the line to j, that much short */
+    double wx = (pose_world[3 * i] + nx * clear) + ux * (gap - clear);
+    double wy = (pose_world[3 * i + 1] + ny * clear) + uy * (gap - clear);
+    /* boxed in: back from j, else out of the crowd, else wait */
+    if (gap - width_j < VS_PRESSED_M && way_barred(n, radius_m, pose_world, seen, margin_m, i, j, wx, wy)) {
+        double ox = pose_world[3 * i] - cx, oy = pose_world[3 * i + 1] - cy;
+        double od = sqrt(ox * ox + oy * oy);
+        double ex = pose_world[3 * i] - ux * VS_ESCAPE_M, ey = pose_world[3 * i + 1] - uy * VS_ESCAPE_M;
+        int found = !way_barred(n, radius_m, pose_world, seen, margin_m, i, n, ex, ey);
+        if (!found && od > 0.0) {
+            ex = pose_world[3 * i] + (ox / od) * VS_ESCAPE_M;
+            ey = pose_world[3 * i + 1] + (oy / od) * VS_ESCAPE_M;
+            found = !way_barred(n, radius_m, pose_world, seen, margin_m, i, n, ex, ey);
+        }
+        if (!found) {
+            ex = pose_world[3 * i];
+            ey = pose_world[3 * i + 1];
+        }
+        wx = ex;
+        wy = ey;
+    }
+    *wx_out = wx;
+    *wy_out = wy;
+}
+
 int vs_assembly_targets(size_t n, const double *radius_m, const double *pose_world, const unsigned char *seen,
                         const double *points_now, const double *points_next, double margin_m, double *now_out,
                         double *next_out, unsigned char *detoured_out, size_t *n_detoured)
@@ -98,22 +156,9 @@ int vs_assembly_targets(size_t n, const double *radius_m, const double *pose_wor
         cy = cy / cn;
     }
     for (size_t i = 0; i < n && n >= 2; i++) {
-        double dist, dx, dy;
+        double dist, dx, dy, lat_j = 0.0, width_j = 0.0;
         if (!on_way(pose_world, seen, points_now, i, &dist, &dx, &dy)) continue;
-        /* the first blocker: the least along among the robots that bar i, the first of equal ones */
-        size_t j = n;
-        double best = 0.0, lat_j = 0.0, width_j = 0.0;
-        for (size_t k = 0; k < n; k++) {
-            double along, lateral, width;
-            if (k == i || !seen[k]) continue;
-            if (!bars(radius_m, pose_world, margin_m, i, dist, dx, dy, k, &along, &lateral, &width)) continue;
-            if (j == n || along < best) {
-                j = k;
-                best = along;
-                lat_j = lateral;
-                width_j = width;
-            }
-        }
+        size_t j = first_blocker(n, radius_m, pose_world, seen, margin_m, i, dist, dx, dy, &lat_j, &width_j);
         if (j == n) continue;
         /* head on: j bars i too (j on its way, i ahead on it) */
         double dist_j, dx_j, dy_j, along_ji, lat_ji, width_ji;
@@ -133,31 +178,28 @@ int vs_assembly_targets(size_t n, const double *radius_m, const double *pose_wor
             if (!yields) continue;
         }
         double left = (!mutual && lat_j < 0.0) ? 1.0 : -1.0;   /* j on i's right: pass on its left */
-        double rx = pose_world[3 * j] - pose_world[3 * i], ry = pose_world[3 * j + 1] - pose_world[3 * i + 1];
-        double gap = sqrt(rx * rx + ry * ry);
-        double ux = rx / gap, uy = ry / gap;                   /* towards j */
-        double nx = -uy * left, ny = ux * left;
-        double clear = width_j + VS_DETOUR_CLEAR_M;   /* round j: as far beside the line to j, that much short */
-        double wx = (pose_world[3 * i] + nx * clear) + ux * (gap - clear);
-        double wy = (pose_world[3 * i + 1] + ny * clear) + uy * (gap - clear);
-        /* boxed in: back from j, else out of the crowd, else wait */
-        if (gap - width_j < VS_PRESSED_M && way_barred(n, radius_m, pose_world, seen, margin_m, i, j, wx, wy)) {
-            double ox = pose_world[3 * i] - cx, oy = pose_world[3 * i + 1] - cy;
-            double od = sqrt(ox * ox + oy * oy);
-            double ex = pose_world[3 * i] - ux * VS_ESCAPE_M, ey = pose_world[3 * i + 1] - uy * VS_ESCAPE_M;
-            int found = !way_barred(n, radius_m, pose_world, seen, margin_m, i, n, ex, ey);
-            if (!found && od > 0.0) {
-                ex = pose_world[3 * i] + (ox / od) * VS_ESCAPE_M;
-                ey = pose_world[3 * i + 1] + (oy / od) * VS_ESCAPE_M;
-                found = !way_barred(n, radius_m, pose_world, seen, margin_m, i, n, ex, ey);
-            }
-            if (!found) {
-                ex = pose_world[3 * i];
-                ey = pose_world[3 * i + 1];
-            }
-            wx = ex;
-            wy = ey;
-        }
+        double wx, wy;
+        round_blocker(n, radius_m, pose_world, seen, margin_m, i, j, left, width_j, cx, cy, &wx, &wy);
+        now_out[2 * i] = wx;
+        now_out[2 * i + 1] = wy;
+        next_out[2 * i] = wx;
+        next_out[2 * i + 1] = wy;
+        detoured_out[i] = 1;
+        count++;
+    }
+    /* a robot that kept its way (barred, not sent round: head on with a higher row) into a first blocker that
+     * waits (sent round, its target its own position) gives way in turn: round it on its right.  Rows in
+     * order; a row changed here is a keeper, never a robot that waits, so each row reads the first pass's
+     * targets. */
+    for (size_t i = 0; i < n && n >= 2; i++) {
+        double dist, dx, dy, lat_j = 0.0, width_j = 0.0;
+        if (detoured_out[i] || !on_way(pose_world, seen, points_now, i, &dist, &dx, &dy)) continue;
+        size_t j = first_blocker(n, radius_m, pose_world, seen, margin_m, i, dist, dx, dy, &lat_j, &width_j);
+        if (j == n || !detoured_out[j] || now_out[2 * j] != pose_world[3 * j]
+            || now_out[2 * j + 1] != pose_world[3 * j + 1])
+            continue;
+        double wx, wy;
+        round_blocker(n, radius_m, pose_world, seen, margin_m, i, j, -1.0, width_j, cx, cy, &wx, &wy);
         now_out[2 * i] = wx;
         now_out[2 * i + 1] = wy;
         next_out[2 * i] = wx;
