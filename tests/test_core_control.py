@@ -9,16 +9,17 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from vsfleet.control import ControlInput, Held, Precision, PrecisionState, make_controller
-from vsfleet.envelope import Envelopes
+from vsfleet.envelope import Envelope, Envelopes
 from vsfleet.errors import NonFiniteError
 from vsfleet.kinematics import (
     TimeStepError,
     integrate_arcs,
     integrate_arcs_reference,
+    limit_wheels,
     limit_wheels_v,
     limit_wheels_v_reference,
     sinc_v,
@@ -155,6 +156,26 @@ def test_limit_wheels_v_takes_every_branch_of_the_rule_as_the_reference():
     assert np.array_equal(got == u, expected == u)          # the same rows left unchanged
 
 
+def test_two_corners_on_one_ray_from_the_origin_tie_and_the_nearer_to_the_command_is_taken():
+    """A wheel braking to zero in one tick: its bound p - a dt is -5.6e-17, so the box's corners (0.3229, -5.6e-17)
+    and (0.4634, -5.6e-17) differ in angle to the command by less than an ulp of it. Two commands an ulp apart (the
+    core's and the reference's in a closed loop) once took different corners, 0.14 m/s apart; within
+    CORNER_TIE_RAD they tie, and both take the corner nearer to the command, by either implementation."""
+    prev = np.array([[float.fromhex("0x1.a05d38c7ae9f5p-2"), float.fromhex("0x1.56fa2bef9adb4p-4")]])
+    dt, vmax = float.fromhex("0x1.1111111111111p-5"), np.array([float.fromhex("0x1.da90a16e81332p-2")])
+    amax = np.array([float.fromhex("0x1.418a8930a12ddp+1")])
+    outs = []
+    commands = (("0x1.4afeef4a48defp-1", "-0x1.d2f491a379b44p+0"),    # the reference's
+                ("0x1.4afeef4a48deep-1", "-0x1.d2f491a379b45p+0"))    # the core's: each wheel an ulp off
+    for vl, vr in commands:
+        u = np.array([[float.fromhex(vl), float.fromhex(vr)]])
+        outs += [limit_wheels_v(u, prev, dt, vmax, amax), limit_wheels_v_reference(u, prev, dt, vmax, amax),
+                 np.array([limit_wheels(float(u[0, 0]), float(u[0, 1]), tuple(prev[0]), dt,
+                                        Envelope(0.1, float(vmax[0]), float(amax[0])))])]
+    for out in outs:
+        assert out[0].tolist() == [vmax[0], prev[0, 1] - amax[0] * dt]   # the corner nearer to u, at the speed cap
+
+
 def test_limit_wheels_v_refuses_non_finite_commands_and_a_bad_tick_with_the_typed_errors():
     ok = (np.zeros((1, 2)), np.zeros((1, 2)), DT, np.full(1, 0.3), np.full(1, 1.0))
     for i, bad in ((0, np.array([[math.nan, 0.0]])), (1, np.array([[0.0, math.inf]])), (3, np.array([math.inf])),
@@ -236,6 +257,10 @@ def loops(draw):
 
 @LOOPS
 @given(loops())
+# hypothesis found it (2026-12-06): at tick 11 robot 3 brakes a wheel to zero, two corners of its box lie on one ray
+# from the origin, and the core's command, an ulp off the reference's, chose the other corner (CORNER_TIE_RAD)
+@example(case={"name": "precision", "n": 5, "seed": 6917, "age": 1.0, "deadband": 0.0, "ticks": 50, "noise": 0.003,
+               "path": "circle"})
 def test_every_controller_in_a_closed_loop_computes_the_references_wheels_and_state(case):
     """50-200 ticks of a noisy closed loop with random envelopes, robots going inactive and coming back;
     the core and the reference each carry their own state the whole way."""

@@ -95,6 +95,8 @@ LINF_SPLIT: int = _core.LINF_SPLIT
 
 #: sinc's series below this |x| (vs_kin.h VS_SINC_SERIES_BELOW)
 SINC_SERIES_BELOW: float = _core.SINC_SERIES_BELOW
+#: the wheel limit's corners whose angles to the command differ by at most this [rad] tie (vs_kin.h VS_CORNER_TIE_RAD)
+CORNER_TIE_RAD: float = _core.CORNER_TIE_RAD
 
 # a frame's limits, as the core's decoder checks them (vs_wire.h VS_WIRE_*)
 WIRE_MAX_FRAME_BYTES: int = _core.WIRE_MAX_FRAME_BYTES

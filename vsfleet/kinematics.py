@@ -17,7 +17,7 @@ from functools import lru_cache
 
 from .lazy import lazy_numpy
 from . import _core
-from .coreconst import SINC_SERIES_BELOW as _SINC_SERIES_BELOW  # vs_kin.h's
+from .coreconst import CORNER_TIE_RAD, SINC_SERIES_BELOW as _SINC_SERIES_BELOW  # vs_kin.h's
 from .envelope import Envelope
 from .errors import NonFiniteError, ShapeError, VsfleetValueError
 from .geometry import Pose2
@@ -183,7 +183,8 @@ def _reachable_toward(u: tuple[float, float], box) -> tuple[float, float]:
 
     1. On the ray {s u, s >= 0}: the largest s <= 1, else the smallest s > 1 (curvature kept).
     2. Else, if some point of the box lies within 90 deg of u: the box corner at the smallest
-       angle to u (turn as far toward the commanded curvature as one tick allows).
+       angle to u (turn as far toward the commanded curvature as one tick allows); corners whose
+       angles differ by at most CORNER_TIE_RAD tie, and the one nearer to u is taken.
     3. Else (u points away from everything reachable, e.g. a reversal): the point nearest zero.
     :func:`limit_wheels` then bounds each wheel between zero and its command (or, if the box lies
     beyond, at the box's point nearest zero): after 1 at s > 1 this is each wheel braking toward
@@ -206,7 +207,14 @@ def _reachable_toward(u: tuple[float, float], box) -> tuple[float, float]:
     def angle_to_u(x: tuple[float, float]) -> float:
         return abs(math.atan2(u[0] * x[1] - u[1] * x[0], u[0] * x[0] + u[1] * x[1]))
 
-    best = min(corners, key=lambda x: (angle_to_u(x), math.hypot(x[0] - u[0], x[1] - u[1])))
+    def dist_to_u(x: tuple[float, float]) -> float:
+        return math.hypot(x[0] - u[0], x[1] - u[1])
+
+    best = corners[0]      # the smallest angle; angles within CORNER_TIE_RAD tie, and the nearer to u is taken
+    for x in corners[1:]:
+        if angle_to_u(x) < angle_to_u(best) - CORNER_TIE_RAD or (
+                abs(angle_to_u(x) - angle_to_u(best)) <= CORNER_TIE_RAD and dist_to_u(x) < dist_to_u(best)):
+            best = x
     if u != (0.0, 0.0) and angle_to_u(best) < 0.5 * math.pi:
         return best
     return (min(max(0.0, box[0][0]), box[0][1]), min(max(0.0, box[1][0]), box[1][1]))
@@ -381,7 +389,7 @@ def _limit_rows(u: np.ndarray, p: np.ndarray, vmax: np.ndarray, step: np.ndarray
     s = np.where(s_lo <= 1.0, np.minimum(s_hi, 1.0), s_lo)
     with np.errstate(invalid="ignore"):
         ray = np.where(on_ray[:, None], np.where(np.isfinite(s), s, 0.0)[:, None] * u, 0.0)
-    # 2. the corner at the smallest angle to u (ties: nearest to u), if within 90 deg
+    # 2. the corner at the smallest angle to u (ties, angles within CORNER_TIE_RAD: nearest to u), if within 90 deg
     cx = columns(lo[:, 0], lo[:, 0], hi[:, 0], hi[:, 0])
     cy = columns(lo[:, 1], hi[:, 1], lo[:, 1], hi[:, 1])
     # the angles with the core's own atan2, not numpy's: two corners on one ray from the origin tie exactly,
@@ -391,8 +399,9 @@ def _limit_rows(u: np.ndarray, p: np.ndarray, vmax: np.ndarray, step: np.ndarray
     dist = np.hypot(cx - u[:, :1], cy - u[:, 1:])
     best = np.zeros(len(u), dtype=int)
     for j in range(1, 4):  # first minimum by (angle, distance), as min() over the corners
-        better = (ang[:, j] < ang[np.arange(len(u)), best]) | (
-            (ang[:, j] == ang[np.arange(len(u)), best]) & (dist[:, j] < dist[np.arange(len(u)), best]))
+        held = ang[np.arange(len(u)), best]
+        better = (ang[:, j] < held - CORNER_TIE_RAD) | (
+            (np.abs(ang[:, j] - held) <= CORNER_TIE_RAD) & (dist[:, j] < dist[np.arange(len(u)), best]))
         best = np.where(better, j, best)
     rows = np.arange(len(u))
     corner = columns(cx[rows, best], cy[rows, best])

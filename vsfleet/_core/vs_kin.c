@@ -122,7 +122,8 @@ void vs_limit_row(double u0, double u1, double p0, double p1, double vmax, doubl
         r[0] = s * u[0];
         r[1] = s * u[1];
     } else {
-        /* 2. the corner at the smallest angle to u (ties: nearest to u), if within 90 deg */
+        /* 2. the corner at the smallest angle to u (ties, within VS_CORNER_TIE_RAD: nearest to u), if within
+         * 90 deg */
         double cx[4] = {lo[0], lo[0], hi[0], hi[0]}, cy[4] = {lo[1], hi[1], lo[1], hi[1]};
         double ang[4], dist[4];
         for (int j = 0; j < 4; j++) {
@@ -131,7 +132,9 @@ void vs_limit_row(double u0, double u1, double p0, double p1, double vmax, doubl
         }
         int best = 0;
         for (int j = 1; j < 4; j++)
-            if (ang[j] < ang[best] || (ang[j] == ang[best] && dist[j] < dist[best])) best = j;
+            if (ang[j] < ang[best] - VS_CORNER_TIE_RAD
+                || (vs_fabs(ang[j] - ang[best]) <= VS_CORNER_TIE_RAD && dist[j] < dist[best]))
+                best = j;
         if ((u[0] != 0.0 || u[1] != 0.0) && ang[best] < 0.5 * VS_PI) {
             r[0] = cx[best];
             r[1] = cy[best];
