@@ -120,6 +120,15 @@ static void round_blocker(size_t n, const double *radius_m, const double *pose_w
     *wy_out = wy;
 }
 
+/* Robot i, its waypoint already in now_out: the same in next_out, marked detoured, counted. */
+static void send_round(size_t i, const double *now_out, double *next_out, unsigned char *detoured_out, size_t *count)
+{
+    next_out[2 * i] = now_out[2 * i];
+    next_out[2 * i + 1] = now_out[2 * i + 1];
+    detoured_out[i] = 1;
+    *count = *count + 1;
+}
+
 int vs_assembly_targets(size_t n, const double *radius_m, const double *pose_world, const unsigned char *seen,
                         const double *points_now, const double *points_next, double margin_m, double *now_out,
                         double *next_out, unsigned char *detoured_out, size_t *n_detoured)
@@ -178,14 +187,9 @@ int vs_assembly_targets(size_t n, const double *radius_m, const double *pose_wor
             if (!yields) continue;
         }
         double left = (!mutual && lat_j < 0.0) ? 1.0 : -1.0;   /* j on i's right: pass on its left */
-        double wx, wy;
-        round_blocker(n, radius_m, pose_world, seen, margin_m, i, j, left, width_j, cx, cy, &wx, &wy);
-        now_out[2 * i] = wx;
-        now_out[2 * i + 1] = wy;
-        next_out[2 * i] = wx;
-        next_out[2 * i + 1] = wy;
-        detoured_out[i] = 1;
-        count++;
+        round_blocker(n, radius_m, pose_world, seen, margin_m, i, j, left, width_j, cx, cy, &now_out[2 * i],
+                      &now_out[2 * i + 1]);
+        send_round(i, now_out, next_out, detoured_out, &count);
     }
     /* a robot that kept its way (barred, not sent round: head on with a higher row) into a first blocker that
      * waits (sent round, its target its own position) gives way in turn: round it on its right.  Rows in
@@ -198,14 +202,9 @@ int vs_assembly_targets(size_t n, const double *radius_m, const double *pose_wor
         if (j == n || !detoured_out[j] || now_out[2 * j] != pose_world[3 * j]
             || now_out[2 * j + 1] != pose_world[3 * j + 1])
             continue;
-        double wx, wy;
-        round_blocker(n, radius_m, pose_world, seen, margin_m, i, j, -1.0, width_j, cx, cy, &wx, &wy);
-        now_out[2 * i] = wx;
-        now_out[2 * i + 1] = wy;
-        next_out[2 * i] = wx;
-        next_out[2 * i + 1] = wy;
-        detoured_out[i] = 1;
-        count++;
+        round_blocker(n, radius_m, pose_world, seen, margin_m, i, j, -1.0, width_j, cx, cy, &now_out[2 * i],
+                      &now_out[2 * i + 1]);
+        send_round(i, now_out, next_out, detoured_out, &count);
     }
     if (n_detoured != NULL) *n_detoured = count;
     return VS_OK;
