@@ -398,7 +398,7 @@ def _limit_rows(u: np.ndarray, p: np.ndarray, vmax: np.ndarray, step: np.ndarray
     ang = np.abs(_atan2_ufunc()(u[:, :1] * cy - u[:, 1:] * cx, u[:, :1] * cx + u[:, 1:] * cy).astype(float))
     dist = np.hypot(cx - u[:, :1], cy - u[:, 1:])
     best = np.zeros(len(u), dtype=int)
-    for j in range(1, 4):  # first minimum by (angle, distance), as min() over the corners
+    for j in range(1, 4):  # in corner order: a smaller angle, or a tie within CORNER_TIE_RAD and nearer to u
         held = ang[np.arange(len(u)), best]
         better = (ang[:, j] < held - CORNER_TIE_RAD) | (
             (np.abs(ang[:, j] - held) <= CORNER_TIE_RAD) & (dist[:, j] < dist[np.arange(len(u)), best]))
