@@ -233,8 +233,9 @@ def test_a_boxed_in_robot_with_every_way_barred_waits_where_it_stands():
 
 def test_a_robot_that_keeps_its_way_into_a_robot_that_waits_gives_way_in_turn():
     """The waiting robot above, now on its way head on with robot 0 (a lower row, which keeps its way into it):
-    robot 1 is boxed in with every way barred and waits; so robot 0 goes round it on its right (+y, heading -x),
-    not pressed against a third robot there: the plain detour c = 0.145 m aside and c short of robot 1."""
+    robot 1 is boxed in with every way barred and waits; so robot 0 goes round it on its right (+y, heading -x).
+    It is pressed against robot 1, but no third robot bars its way to the waypoint: the plain detour, c = 0.145 m
+    aside and c short of robot 1."""
     xy = [(0.12, 0.0), (0.0, 0.0), (0.0, -0.13), (-0.12, 0.0), (0.0, 0.13), (-0.09, 0.09), (-0.09, -0.09)]
     pose = np.array([(x, y, 0.0) for x, y in xy])
     points = np.array([(-1.0, 0.0), (1.0, 0.0), *xy[2:]])

@@ -1,9 +1,9 @@
 /* vs_assembly.c - the assembly tie-break (see vs_assembly.h).
  *
  * The numpy reference (vsfleet/assembly.py) computes (n, n) tables of along, lateral and bars and
- * then walks the barred rows in order; here the same numbers are computed where they are needed,
- * with no table: robot i's row of the tables in one pass over j, and bars[j][i] (head on or not)
- * again from robot j's own way.  Every number is the reference's expression, in its order:
+ * then walks the barred rows in order, twice (the second pass below); here the same numbers are
+ * computed where they are needed, with no table: robot i's row of the tables in one pass over j, and
+ * bars[j][i] (head on or not) again from robot j's own way.  Every number is the reference's expression, in its order:
  *     to = point - xy, dist = sqrt(to.x to.x + to.y to.y), d = to / dist,
  *     rel = xy_j - xy_i, along = rel.x d.x + rel.y d.y, lateral = d.x rel.y - d.y rel.x,
  *     width = (r_i + r_j) + margin, gap = sqrt(rel.x rel.x + rel.y rel.y), u = rel / gap,
@@ -192,9 +192,9 @@ int vs_assembly_targets(size_t n, const double *radius_m, const double *pose_wor
         send_round(i, now_out, next_out, detoured_out, &count);
     }
     /* a robot that kept its way (barred, not sent round: head on with a higher row) into a first blocker that
-     * waits (sent round, its target its own position) gives way in turn: round it on its right.  Rows in
-     * order; a row changed here is a keeper, never a robot that waits, so each row reads the first pass's
-     * targets. */
+     * waits (sent round, its target its own position) gives way in turn: round it on its right.  Each row
+     * reads the first pass's targets: a keeper's first blocker j is a higher row (j > i), read before row j
+     * is changed here, and a row's own outputs are written only at that row. */
     for (size_t i = 0; i < n && n >= 2; i++) {
         double dist, dx, dy, lat_j = 0.0, width_j = 0.0;
         if (detoured_out[i] || !on_way(pose_world, seen, points_now, i, &dist, &dx, &dy)) continue;

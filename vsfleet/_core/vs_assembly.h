@@ -14,7 +14,9 @@
  * gap - width < VS_PRESSED_M with gap its centre's distance from j's, and its way to that waypoint barred
  * by a third robot) heads instead VS_ESCAPE_M straight back from j, if no robot bars that way; else
  * VS_ESCAPE_M straight out of the crowd (away from the centroid of the seen robots, summed in row order),
- * if no robot bars that way; else it waits where it stands (its target is its own position).  Every
+ * if no robot bars that way; else it waits where it stands (its target is its own position).  Then, in a
+ * second pass that reads these targets, a robot that kept its way head on into a first blocker that waits
+ * goes round that blocker on its right in turn, boxed in or not as above.  Every
  * agent computes the same targets from the same frame.
  */
 #ifndef VS_ASSEMBLY_H

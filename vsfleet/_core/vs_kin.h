@@ -18,10 +18,11 @@
 /* Below this |x| vs_sinc uses the series 1 - x^2/6 (1 - x^2/20) (error < 1e-24 there). */
 #define VS_SINC_SERIES_BELOW 1e-4
 
-/* The wheel limit's corners (vs_limit_wheels_v, rule 2) whose angles to the command differ by at most this [rad]
- * tie, and the nearer to the command is taken: two corners on one ray from the origin (a wheel braking to zero
- * in one tick, its bound p - a dt a rounding away from 0) differ in angle by less than an ulp of it, and a
- * command one ulp off (the core's and the reference's, within 1e-9 of each other) chose the other corner. */
+/* The wheel limit's corners (vs_limit_wheels, rule 2, in its rows' vs_limit_row) whose angles to the command
+ * differ by at most this [rad] tie, and the nearer to the command is taken: two corners on one ray from the
+ * origin (a wheel braking to zero in one tick, its bound p - a dt a rounding away from 0) differ in angle by
+ * less than an ulp of it, and a command one ulp off (the core's and the reference's, within 1e-9 of each
+ * other) chose the other corner. */
 #define VS_CORNER_TIE_RAD 1e-9
 
 /* sin(x)/x, smooth through 0 (no check: x finite). */
