@@ -3,11 +3,13 @@ agent follows the same one, so the copies stay bit-identical, and each agent say
 
 from __future__ import annotations
 
+import inspect
 import threading
 import time
 
 import pytest
 
+from agent.main import Agent
 from vsfleet.wire import WireError, decode_frame
 
 from .conftest import at_goal, start_fleet
@@ -15,8 +17,14 @@ from .conftest import at_goal, start_fleet
 pytestmark = pytest.mark.integration
 
 
+# cam2 silent this long before a frame lets sim's frame be run (the agent's default max_age_s)
+MAX_AGE_S = inspect.signature(Agent.__init__).parameters["max_age_s"].default
+
+
 def test_with_two_trackers_of_the_same_robots_every_agent_follows_the_same_one_and_the_copies_agree(fleet):
     published: dict[tuple[float, int], str] = {}     # (t, seq) -> the source that published that frame
+    arrived: dict[tuple[float, int], int] = {}       # (t, seq) -> its place in the order frames reached this test
+    cam2_seen: list[float] = []                      # t of cam2's frames, in the order they reached this test
     lock = threading.Lock()
 
     def on_frame(sample):
@@ -26,6 +34,13 @@ def test_with_two_trackers_of_the_same_robots_every_agent_follows_the_same_one_a
             return
         with lock:
             published[(msg.t, msg.seq)] = msg.src
+            arrived[(msg.t, msg.seq)] = len(cam2_seen)   # how many cam2 frames had arrived before this one
+            if msg.src == "cam2":
+                cam2_seen.append(msg.t)
+
+    def cam2_silent_before(key: tuple[float, int]) -> bool:
+        """No cam2 frame within MAX_AGE_S before this one had reached the router's subscribers when it did."""
+        return all(not key[0] - MAX_AGE_S <= t <= key[0] for t in cam2_seen[:arrived[key]])
 
     frames_sub = fleet.router.declare_subscriber(f"{fleet.keys.prefix}/frame/*", on_frame)
     start_fleet(fleet)
@@ -49,9 +64,15 @@ def test_with_two_trackers_of_the_same_robots_every_agent_follows_the_same_one_a
           f"by every agent: {len(by_all)}; identical: {len(identical)}")
     with lock:
         sources = {published.get(key, "?") for key in runs}
+        taken_over = [key for key in runs if published.get(key) != "cam2"]
+        unexplained = [key for key in taken_over if key not in arrived or not cam2_silent_before(key)]
     frames_sub.undeclare()
-    print(f"sources of the frames run: {sorted(sources)}")
-    assert sources == {"cam2"}                      # one tracker's (first in sort order), for every agent ...
+    print(f"sources of the frames run: {sorted(sources)}; not cam2's: {len(taken_over)}, "
+          f"of which with cam2 heard within {MAX_AGE_S} s before: {len(unexplained)}")
+    # one tracker's (first in sort order), for every agent; the other's only where cam2 fell silent for max_age_s
+    # (docs/protocol.md, "Frames": the documented failover, seen when a loaded host stalls cam2's process)
+    assert "cam2" in sources and sources <= {"cam2", "sim"}
+    assert not unexplained, unexplained[:5]
     assert len(by_all) >= 0.99 * len(runs)          # ... every agent ran them ...
     assert len(identical) == len(by_all)            # ... and computed the same bits on each
     fleet.observed.wait_for(at_goal(fleet), timeout_s=40)
