@@ -198,6 +198,13 @@ class Fleet:
                 for i, rid in enumerate(self.ids)}
 
 
+#: simfleet's session keeps 16 batches (zenoh's most; 2 by default) in its transmit queue of priority data, which
+#: carries the truth/<robot> bursts. Lazily allocated, 64 KiB each, only while the link is behind. Measured with
+#: tests/integration/test_truth_burst.py run twice at once beside a busy loop (2026-12-06): with 2 batches, 9
+#: ticks of 1,834 reached the test in part, 5 of 322 in one run, and a second subscriber of truth alone lost the
+#: same robots of the same ticks (so they were dropped before the router fanned them out); with 16, 0 of 2,440.
+SIM_ZENOH_DEFAULTS = (("transport/link/tx/queue/size/data", "16"),)
+
 WHY = ("idle", "commanded", "expired", "fault")  # what sets a robot's wheels (truth's ``why``):
 IDLE, COMMANDED, EXPIRED, FAULT = range(4)       # never commanded / fresh / outlived its ttl / a fault alters it
 
@@ -265,7 +272,7 @@ def main(args: argparse.Namespace) -> int:
         if args.engine is not None:
             scenario = dataclasses.replace(scenario, sim=dataclasses.replace(scenario.sim, engine=args.engine))
         check_engine(scenario.sim.engine)  # its package is there (else one line: how to install it)
-    run_sim(zenoh_config(args), scenario)
+    run_sim(zenoh_config(args, SIM_ZENOH_DEFAULTS), scenario)
     return 0
 
 

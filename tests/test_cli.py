@@ -246,3 +246,27 @@ def test_without_a_config_file_sessions_retry_a_lost_router_quickly_and_announce
     path.write_text('{mode: "client"}')
     conf = zenoh_config(parser.parse_args(["--config", str(path)]))
     assert json.loads(conf.get_json("transport/shared_memory/enabled")) is True   # zenoh's own default
+
+
+def test_simfleet_keeps_a_deep_transmit_queue_for_its_truth_bursts_unless_a_config_file_or_cfg_says_otherwise(
+        tmp_path):
+    """simfleet's own zenoh default (SIM_ZENOH_DEFAULTS: 16 batches of priority data, where truth/<robot> goes;
+    2 dropped part of a tick's 100 truths on a loaded host) is taken like zconf's: not over a --config file's
+    settings, and under --cfg. Another program keeps zenoh's 2."""
+    import json
+
+    from vsfleet.simfleet.main import SIM_ZENOH_DEFAULTS, build_parser
+    from vsfleet.zglue.zconf import zenoh_config
+
+    key = "transport/link/tx/queue/size/data"
+
+    def batches(*flags: str, defaults=SIM_ZENOH_DEFAULTS) -> int:
+        conf = zenoh_config(build_parser().parse_args(["scenario.toml", *flags]), defaults)
+        return json.loads(conf.get_json(key))
+
+    assert batches() == 16
+    assert batches("--cfg", f"{key}:4") == 4
+    path = tmp_path / "z.json5"
+    path.write_text('{mode: "client"}')
+    assert batches("--config", str(path)) == 2
+    assert batches(defaults=()) == 2

@@ -80,8 +80,11 @@ RECONNECT_RETRY = "{period_init_ms: 250, period_max_ms: 500, period_increase_fac
 # 100 robots is 4 KiB): the network path costs them nothing that matters.
 
 
-def zenoh_config(args: argparse.Namespace) -> zenoh.Config:
-    """Build a zenoh.Config from parsed flags (file, then flags, then --cfg overrides)."""
+def zenoh_config(args: argparse.Namespace, defaults: tuple[tuple[str, str], ...] = ()) -> zenoh.Config:
+    """Build a zenoh.Config from parsed flags (file, then flags, then --cfg overrides).
+
+    ``defaults``: a program's own (key, JSON5 value) settings, taken like ours above: only without a --config
+    file, and under the flags and --cfg."""
     try:
         conf = zenoh.Config.from_file(args.config) if args.config else zenoh.Config()
     except zenoh.ZError as exc:
@@ -92,6 +95,7 @@ def zenoh_config(args: argparse.Namespace) -> zenoh.Config:
     if not args.config:  # a file's own settings stand; --cfg overrides either
         settings.append(("(default)", "connect/retry", RECONNECT_RETRY))
         settings.append(("(default)", "transport/shared_memory/enabled", "false"))
+        settings.extend(("(default)", key, value) for key, value in defaults)
     if args.connect:
         settings.append(("--connect", "connect/endpoints", json.dumps(args.connect)))
     if args.listen:
