@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from agent.main import Agent
+from vsfleet.agent.main import Agent
 from vsfleet.wire import WireError, decode_frame
 
 from .conftest import at_goal, start_fleet
