@@ -40,7 +40,7 @@ from vsfleet.zglue.zconf import (
 )
 from vsfleet.errors import VsfleetValueError
 from vsfleet.failure import Decision
-from vsfleet.frames import Frame, FrameMerger, MissionBook
+from vsfleet.frames import MAX_AGE_S, Frame, FrameMerger, MissionBook
 from vsfleet.quorum import majority
 from vsfleet.agentcore import (  # the agent's step, in the core and without numpy (issue 29)
     AgentState,
@@ -100,7 +100,7 @@ class Agent:
 
     def __init__(self, robot: str, keys: Keys, put_cmd: Callable[[bytes], None],
                  put_state: Callable[[bytes], None], dt_s: float = DEFAULT_DT_S,
-                 ttl_s: float = DEFAULT_TTL_S, deadline_s: float | None = None, max_age_s: float = 0.25,
+                 ttl_s: float = DEFAULT_TTL_S, deadline_s: float | None = None, max_age_s: float = MAX_AGE_S,
                  clock: Callable[[], float] = wall_clock,
                  put_event: Callable[[bytes], None] = lambda payload: None,
                  controller: Controller | None = None, command_age_s: float | None = None,

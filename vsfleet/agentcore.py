@@ -29,7 +29,7 @@ from .control import Arc, Held, Precision, PrecisionState, Tracking, TurnThenGo
 from .coreconst import (AGENT_CONTROLLERS, AGENT_SCRATCH_F64_PER_ROBOT, AGENT_SCRATCH_U8_PER_ROBOT, DECISION_KINDS,
                         FAILURE_MODES, PRECISION_HISTORY)
 from .failure import Decision, FailurePolicy, Health
-from .frames import Frame
+from .frames import MAX_AGE_S, Frame
 from .impl import core as core_impl
 from .wire import CmdMsg, EventMsg, HealthMsg, Mission, StateMsg
 
@@ -320,7 +320,8 @@ class PayloadStep:
 
 def agent_payload_step(state: AgentState, mission: Mission | None, payload: bytes, src: str, now_s: float,
                        config: StepConfig, done: tuple[float, int], max_future_s: float, rejected: int,
-                       max_age_s: float = 0.25, others_t: float = -math.inf) -> tuple[AgentState, PayloadStep] | None:
+                       max_age_s: float = MAX_AGE_S,
+                       others_t: float = -math.inf) -> tuple[AgentState, PayloadStep] | None:
     """One pass from a frame's payload to the command's and the state's payloads (vsfleet._core.agent_frame), for
     the agent's common case: a frame of one source that lists exactly the robots of the mission in force, which
     this state already runs, newer than the last frame run (done: its (t, seq)), neither stale against now_s nor

@@ -53,6 +53,11 @@ class Frame:
     sources: frozenset[str] = frozenset()   # the sources whose poses this frame runs with
 
 
+#: [s] a pose older than this before a frame's t is left out, and a source silent this long is no longer heard
+#: (the other takes over): FrameMerger's default, the agent's (agent.main.Agent) and agentcore's
+MAX_AGE_S = 0.25
+
+
 class FrameMerger:
     """The freshest pose per robot across sources, and the rule for when a frame runs.
 
@@ -64,7 +69,7 @@ class FrameMerger:
 
     MAX_SOURCES = 16
 
-    def __init__(self, robots: tuple[str, ...] = (), deadline_s: float = 0.02, max_age_s: float = 0.25,
+    def __init__(self, robots: tuple[str, ...] = (), deadline_s: float = 0.02, max_age_s: float = MAX_AGE_S,
                  max_future_s: float = 1.0) -> None:
         self.deadline_s = deadline_s
         self.max_age_s = max_age_s

@@ -283,6 +283,11 @@ ANSI = re.compile(r"\x1b\[[0-9;]*m")   # zenoh colours its level ("\x1b[31mERROR
 # 2 lines in one 8 s run of sessions closing one after another beside a 2 kHz stream, 0 in two 30 s runs). Allowed only in a log
 # after the process said it was stopping (STOP_LINE): it never excuses the line in a running process.
 ZENOH_CLOSING = re.compile(r"zenoh::api::session\S*: Received Data for unknown key_expr: Remote resource \d+ not found")
+# The same race one layer down, in the routing tables of a session that closes with samples still queued on its input:
+# the sim tracker behind on its truth when stopped (test_zenoh_errors, two copies at once beside a busy loop,
+# 2026-12-06: in 12 of 80 runs, 55-292 lines; in the four logs kept, every line after the tracker's stopping lines;
+# with simfleet's transmit queue at zenoh's default 4 of 30 runs, at 16 batches 8 of 50). Allowed as ZENOH_CLOSING is.
+ZENOH_ROUTE_CLOSING = re.compile(r"zenoh::net::routing::dispatcher::pubsub\S*: \S+ Route data with unknown scope \d+!")
 # zglue.lifecycle's line on SIGTERM or SIGINT, or a program's own stopping line, as our logging formats them (an INFO
 # line; a rejection that quotes a payload is a WARNING). Per log file: a process restarted under the same name after a
 # SIGTERM would have its running lines excused too (no test does that: restarts follow a SIGKILL). Tools that end by
@@ -418,7 +423,7 @@ def closing(fleet: LoopbackFleet, request) -> None:
     fleet.close()
 
 
-def error_lines(root: Path, allowed=(), closing=(ZENOH_CLOSING,)) -> list[str]:
+def error_lines(root: Path, allowed=(), closing=(ZENOH_CLOSING, ZENOH_ROUTE_CLOSING)) -> list[str]:
     """Every line of every *.log under root that reports an error (ERROR_LINE) and that no pattern of
     ``allowed`` (regular expressions, searched in the line) covers, nor one of ``closing`` once that log has said
     its process is stopping (STOP_LINE), as "<file>: <line>"."""

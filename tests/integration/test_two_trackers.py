@@ -3,13 +3,12 @@ agent follows the same one, so the copies stay bit-identical, and each agent say
 
 from __future__ import annotations
 
-import inspect
 import threading
 import time
 
 import pytest
 
-from vsfleet.agent.main import Agent
+from vsfleet import frames
 from vsfleet.wire import WireError, decode_frame
 
 from .conftest import at_goal, start_fleet
@@ -18,7 +17,7 @@ pytestmark = pytest.mark.integration
 
 
 # cam2 silent this long before a frame lets sim's frame be run (the agent's default max_age_s)
-MAX_AGE_S = inspect.signature(Agent.__init__).parameters["max_age_s"].default
+MAX_AGE_S = frames.MAX_AGE_S
 
 
 def test_with_two_trackers_of_the_same_robots_every_agent_follows_the_same_one_and_the_copies_agree(fleet):

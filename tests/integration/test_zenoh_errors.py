@@ -18,7 +18,9 @@ needed. The session is closed with nothing undeclared before, while the children
 samples reach the closing session every time and not only when the host is slow enough: with the
 plain key every close printed errors (8 of 8, 6 to 384 lines, 2026-12-05). It runs in a child
 process of its own, logging as every vsfleet program does, and every line any of the processes
-prints is read for ERROR.
+prints is read for ERROR. A child's log may hold zenoh's closing-race lines once it said it was
+stopping, as every multi-process test allows (conftest.error_lines): the sim tracker, behind on the
+truth the router released at its close, logged them in 12 of 80 runs beside a busy loop (2026-12-06).
 """
 
 from __future__ import annotations
@@ -32,6 +34,8 @@ import uuid
 from pathlib import Path
 
 import pytest
+
+from .conftest import error_lines
 
 pytestmark = pytest.mark.integration
 
@@ -123,7 +127,7 @@ def run_driver(log_dir: Path) -> tuple[dict, str]:
 
 
 def test_the_embedded_router_closes_behind_its_input_without_zenoh_errors(tmp_path):
-    printed: dict[str, str] = {}
+    bad: list[str] = []
     for cycle in range(CYCLES):
         log_dir = tmp_path / f"cycle{cycle}"
         log_dir.mkdir()
@@ -131,10 +135,9 @@ def test_the_embedded_router_closes_behind_its_input_without_zenoh_errors(tmp_pa
         assert result["behind"], f"the recorder never fell behind (no samples?):\n{out[-3000:]}"
         assert result["closed"] > result["held"], f"nothing was queued at the close: {result}"
         assert result["codes"] == [0, 0], f"simfleet and the tracker did not stop cleanly: {result}"
-        printed[f"cycle {cycle}: the driver (the embedded router)"] = out
-        printed.update({f"cycle {cycle}: {p.name}": p.read_text(errors="replace")
-                        for p in sorted(log_dir.glob("*.log"))})
-    errors = {name: [line for line in text.splitlines() if "ERROR" in line] for name, text in printed.items()}
-    errors = {name: lines for name, lines in errors.items() if lines}
-    assert not errors, "zenoh or vsfleet logged errors:\n" + "\n".join(
-        f"{name}: {len(lines)} ERROR lines, first: {lines[0]}" for name, lines in errors.items())
+        # the driver (the embedded router, which closes behind its input): no ERROR line at all
+        bad += [f"cycle {cycle}: the driver: {line}" for line in out.splitlines() if "ERROR" in line]
+        # the children's logs: none either, but zenoh's closing race once a child said it was stopping, as in every
+        # multi-process test (conftest.error_lines): the sim tracker, behind on its truth when stopped, can log it
+        bad += [f"cycle {cycle}: {line}" for line in error_lines(log_dir)]
+    assert not bad, f"zenoh or vsfleet logged {len(bad)} error lines, the first:\n" + "\n".join(bad[:5])
