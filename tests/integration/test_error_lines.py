@@ -52,7 +52,8 @@ def test_zenohs_close_race_line_is_allowed_only_once_the_process_said_it_was_sto
 TRACKER_CLOSING = ("\x1b[2m2026-12-06T14:22:15.739191Z\x1b[0m \x1b[31mERROR\x1b[0m rx-1 ThreadId(07) "
                    "\x1b[2mzenoh::net::routing::dispatcher::pubsub\x1b[0m\x1b[2m:\x1b[0m north/98694581:1 Route data "
                    "with unknown scope 3!")
-TRACKER_STOPPED = "2026-12-06 14:22:15,737 vsfleet.tracker INFO tracker stopping after 270 frames (0 dropped), 0 rejected"
+TRACKER_STOPPED = ("2026-12-06 14:22:15,737 vsfleet.tracker INFO tracker stopping after 270 frames (0 dropped), "
+                   "0 rejected")
 
 
 def test_the_routing_tables_close_race_line_is_allowed_only_once_the_process_said_it_was_stopping(tmp_path_factory):
