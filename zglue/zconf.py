@@ -90,12 +90,13 @@ def zenoh_config(args: argparse.Namespace, defaults: tuple[tuple[str, str], ...]
     except zenoh.ZError as exc:
         raise ZenohConfigError(f"cannot read the zenoh config {args.config}: {_zenoh_reason(exc)}") from None
     settings = []
+    if not args.config:  # the program's own first: every flag below, and --cfg, override them
+        settings.extend(("(default)", key, value) for key, value in defaults)
     if args.mode is not None or not args.config:
         settings.append(("--mode", "mode", json.dumps(args.mode or "client")))
     if not args.config:  # a file's own settings stand; --cfg overrides either
         settings.append(("(default)", "connect/retry", RECONNECT_RETRY))
         settings.append(("(default)", "transport/shared_memory/enabled", "false"))
-        settings.extend(("(default)", key, value) for key, value in defaults)
     if args.connect:
         settings.append(("--connect", "connect/endpoints", json.dumps(args.connect)))
     if args.listen:

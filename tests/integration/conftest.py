@@ -286,7 +286,8 @@ ZENOH_CLOSING = re.compile(r"zenoh::api::session\S*: Received Data for unknown k
 # The same race one layer down, in the routing tables of a session that closes with samples still queued on its input:
 # the sim tracker behind on its truth when stopped (test_zenoh_errors, two copies at once beside a busy loop,
 # 2026-12-06: in 12 of 80 runs, 55-292 lines; in the four logs kept, every line after the tracker's stopping lines;
-# with simfleet's transmit queue at zenoh's default 4 of 30 runs, at 16 batches 8 of 50). Allowed as ZENOH_CLOSING is.
+# with simfleet's transmit queue at zenoh's default (2 batches) 4 of 30 runs, at 16 batches 8 of 50). Allowed as
+# ZENOH_CLOSING is.
 ZENOH_ROUTE_CLOSING = re.compile(r"zenoh::net::routing::dispatcher::pubsub\S*: \S+ Route data with unknown scope \d+!")
 # zglue.lifecycle's line on SIGTERM or SIGINT, or a program's own stopping line, as our logging formats them (an INFO
 # line; a rejection that quotes a payload is a WARNING). Per log file: a process restarted under the same name after a
