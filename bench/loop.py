@@ -532,7 +532,8 @@ def compare(sizes: list[int], rate_hz: float, frames: int, out: Path | None = No
         row = {"n": n, "spawn": spawn}
         for kind, r in runs.items():
             p = percentiles_s(r.latency_s) if r.latency_s.size else {"p50": math.nan, "p99": math.nan, "max": math.nan}
-            row[kind] = {"missed": r.missed, "pairs": r.frames * n, "p50_ms": 1e3 * p["p50"], "p99_ms": 1e3 * p["p99"],
+            row[kind] = {"missed": r.missed, "frames_missed": r.frames_missed, "late": r.late, "pairs": r.frames * n,
+                         "p50_ms": 1e3 * p["p50"], "p99_ms": 1e3 * p["p99"],
                          "max_ms": 1e3 * p["max"], "cpu_ms_per_tick": 1e3 * float(r.agent_cpu_s_per_tick.mean()),
                          "agreed": r.agreed_frames, "all_ran": r.all_ran_frames, "startup_s": r.startup_s,
                          "alive_s": r.alive_s, "startup_cpu_ms_per_agent": 1e3 * r.startup_cpu_s_per_agent,
@@ -540,7 +541,8 @@ def compare(sizes: list[int], rate_hz: float, frames: int, out: Path | None = No
                          "rss_mib_total": float(r.agent_rss_mib.sum()), "others_cores": r.others_cores}
         t, v = row["trivial"], row["vsfleet"]
         row["ratio_p50"], row["ratio_p99"] = v["p50_ms"] / t["p50_ms"], v["p99_ms"] / t["p99_ms"]
-        log(f"[compare] N={n}: vsfleet missed {v['missed']}/{v['pairs']}, p50 {v['p50_ms']:.1f} ms "
+        log(f"[compare] N={n}: vsfleet missed {v['missed']}/{v['pairs']} (in {v['frames_missed']} frames; the "
+            f"trivial fleet {t['missed']} in {t['frames_missed']}), p50 {v['p50_ms']:.1f} ms "
             f"({row['ratio_p50']:.2f}x the trivial fleet's {t['p50_ms']:.1f}), p99 {v['p99_ms']:.1f} ms "
             f"({row['ratio_p99']:.2f}x {t['p99_ms']:.1f}), cpu/tick {v['cpu_ms_per_tick']:.2f} vs "
             f"{t['cpu_ms_per_tick']:.2f} ms, agree {v['agreed']}/{v['all_ran']}, start-up {v['startup_s']:.1f} s "
