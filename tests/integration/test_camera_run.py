@@ -101,8 +101,13 @@ def test_vsfleet_run_with_the_camera_tracker_reaches_the_goal_in_formation(tmp_p
     missing_elsewhere = sum(b - a - 1 for a, b in zip(seqs, seqs[1:]) if b - a > 1 and not burst[a])
     assert seqs[0] - 1 + missing_elsewhere <= 0.1 * max(seqs), (len(seqs), max(seqs), burst)
     by_seq = {f.seq: f for _, f in frames}
-    matched = [(robot, p) for robot, p in poses if p.seq in by_seq]
-    assert len(matched) >= 0.9 * len(poses)
+    # a pose whose frame was dropped in such a burst has no frame to match (poses are batched, not express: they
+    # were not dropped with it): a busy-loop run (2026-12-06) recorded 813 poses, 150 without their frame, 135 of
+    # them in the burst hole 86-129 and 15 in the hole 132-136; the rest stay within the 10 %
+    in_bursts = {s for a, b in zip(seqs, seqs[1:]) if b - a > 1 and burst[a] for s in range(a + 1, b)}
+    kept = [(robot, p) for robot, p in poses if p.seq not in in_bursts]
+    matched = [(robot, p) for robot, p in kept if p.seq in by_seq]
+    assert len(matched) >= 0.9 * len(kept), (len(matched), len(kept), len(poses))
     for robot, p in matched:  # each pose published is its frame's entry for that robot
         assert by_seq[p.seq].poses[robot] == (p.x, p.y, p.th) and by_seq[p.seq].t == p.t
     assert sum(len(f.poses) == 3 for f in by_seq.values()) > 0.9 * len(by_seq)
