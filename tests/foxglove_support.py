@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import base64
 import json
+import re
 import struct
 import threading
 from collections import defaultdict
@@ -22,6 +23,15 @@ from websockets.sync.client import connect
 # foxglove-sdk servers (0.30) accept only "foxglove.sdk.v1", which is foxglove.websocket.v1 renamed
 # (lichtblick-suite/lichtblick PR 819); older servers speak "foxglove.websocket.v1". Offer both.
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
+# foxglove-sdk's server sends a client the advertise of a channel, then adds the channel to that client's map
+# (rust/foxglove/src/websocket/connected_client.rs, advertise_channels, since PR 523). A client that subscribes the
+# moment the advertise arrives can be handled in between: the server logs "attempted to subscribe to unknown
+# channel", answers with this error status and drops the subscription (a quiet CI rehearsal got 0 messages so,
+# 2026-12-06). The client sends such a subscription again, at most this many times.
+UNKNOWN_CHANNEL = re.compile(r"Unknown channel ID: (\d+)")
+RESUBSCRIBE_MAX = 5
+# the server's log line for it (a multi-process test allows it: the client has sent the subscription again)
+UNKNOWN_CHANNEL_LOG = r"foxglove\S* ERROR .*attempted to subscribe to unknown channel: \d+"
 
 
 def protobuf_class(schema_name: str, fds_bytes: bytes):
@@ -52,6 +62,8 @@ class FoxgloveClient:
         self.messages: dict[str, list[tuple[int, Any]]] = defaultdict(list)  # topic -> [(timestamp ns, decoded)]
         self.times: list[int] = []
         self.errors: list[str] = []
+        self.statuses: list[dict] = []               # the server's status messages, in order
+        self.resubscribed = 0
         self._classes: dict[int, Any] = {}
         self._next_sub = 1
         self._thread = threading.Thread(target=self._read, daemon=True)
@@ -83,6 +95,15 @@ class FoxgloveClient:
             elif m.get("op") == "unadvertise":
                 for cid in m["channelIds"]:
                     self.channels.pop(cid, None)
+            elif m.get("op") == "status":
+                self.statuses.append(m)
+                again = UNKNOWN_CHANNEL.fullmatch(str(m.get("message", "")))
+                if again is not None and self.resubscribed < RESUBSCRIBE_MAX:
+                    cid = int(again.group(1))
+                    subs = [{"id": sid, "channelId": c} for sid, c in self.subs.items() if c == cid]
+                    if subs and cid in self.channels:  # ours, and still advertised
+                        self.resubscribed += 1
+                        self.ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
             self.cond.notify_all()
 
     def _decode(self, ch: dict, data: bytes) -> Any:
