@@ -496,12 +496,12 @@ def test_a_new_mission_with_a_room_is_prepared_off_the_frame_path_once_and_its_f
     built = step_mod.mission_arrays(agent.missions.latest())
     assert built.field is not None
     calls = []
-    original = agentstate.build_field
-    agentstate.build_field = lambda *a, **k: calls.append(1) or original(*a, **k)
+    original = agentstate.build_field_deferred
+    agentstate.build_field_deferred = lambda *a, **k: calls.append(1) or original(*a, **k)
     try:
         frame(agent, Clock(100.0), 1, 100.0, POSES)  # the agent's own clock object is not this one: t is fresh
     finally:
-        agentstate.build_field = original
+        agentstate.build_field_deferred = original
     assert calls == []  # the step found the prepared field
 
 

@@ -10,11 +10,13 @@ import math
 import numpy as np
 import pytest
 
+from vsfleet import _core
 from vsfleet.errors import NonFiniteError, VsfleetValueError
 from vsfleet.field import (
     BLOCKED_BIT,
     COST_MASK,
     TIGHT_BIT,
+    UNRESOLVED,
     WALL,
     build_field,
     build_field_reference,
@@ -173,6 +175,74 @@ def test_the_descent_from_anywhere_in_the_goals_component_ends_at_the_goal_pose_
             for t in np.linspace(0.0, 1.0, 5):
                 th_t = a[2] + t * math.remainder(b[2] - a[2], 2 * math.pi)
                 assert clearance(tpl, rad, obs, a[0] + t * (b[0] - a[0]), a[1] + t * (b[1] - a[1]), th_t) >= 0.02 - 1e-9
+
+
+def random_pose_in(lat, rng) -> Pose2:
+    """A pose anywhere on the lattice's extent (most such poses lie in components the goal cannot reach)."""
+    x0, y0 = lat.gx + lat.ix_lo * lat.cell_m, lat.gy + lat.iy_lo * lat.cell_m
+    return Pose2(float(rng.uniform(x0, x0 + lat.nx * lat.cell_m)), float(rng.uniform(y0, y0 + lat.ny * lat.cell_m)),
+                 float(rng.uniform(-3.2, 3.2)))
+
+
+def sealed_room(rng):
+    """A random room whose goal sits in a ring of obstacles (a component of its own), with pillars outside."""
+    tpl, rad, obs, goal = random_room(rng)
+    ring = [(goal.x + math.cos(a) * 1.1, goal.y + math.sin(a) * 1.1, 0.2)
+            for a in np.linspace(0.0, 2 * math.pi, 28, endpoint=False)]
+    return tpl, rad, np.vstack([obs, ring]), goal
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_a_deferred_field_descends_bit_for_bit_as_the_whole_build_and_resolves_to_the_same_costs(seed):
+    """vs_field_build_deferred leaves the components the goal cannot reach for later; each descent (and each
+    open test) resolves the ones it reads. Every answer is the whole build's, bit for bit, on poses all over the
+    lattice (in the goal's component, in pockets, outside a sealed ring); what is left unresolved is resolved to
+    the whole build's costs."""
+    rng = np.random.default_rng(seed)
+    tpl, rad, obs, goal = sealed_room(rng) if seed % 2 else random_room(rng)
+    whole = build_field(tpl, rad, 0.02, obs, goal, **COARSE)
+    deferred = build_field(tpl, rad, 0.02, obs, goal, **COARSE, deferred=True)
+    assert deferred.lattice == whole.lattice
+    costs = np.asarray(whole.costs)
+    left = np.frombuffer(_core.field_costs(deferred.handle), dtype=np.uint32).reshape(costs.shape)
+    blocked = (costs != WALL) & ((costs & BLOCKED_BIT) > 0)
+    # the goal's component and the walls as the whole build has them; every other free state unresolved, its bits kept
+    assert np.array_equal(left[~blocked], costs[~blocked])
+    assert ((left[blocked] & COST_MASK) == UNRESOLVED).all()
+    flags = np.uint32(BLOCKED_BIT | TIGHT_BIT)
+    assert np.array_equal(left[blocked] & flags, costs[blocked] & flags)
+    if seed % 2:
+        assert blocked.any()
+    n_blocked = 0
+    for _ in range(60):
+        pose = random_pose_in(whole.lattice, rng)
+        a, b = follow_field(whole, pose, path_m=5.0, cap=600), follow_field(deferred, pose, path_m=5.0, cap=600)
+        assert np.array_equal(a[0], b[0]) and a[1] == b[1] and a[2] == b[2], pose
+        n_blocked += bool(a[1])
+    if seed % 2:
+        assert n_blocked > 0
+    _core.field_resolve_all(deferred.handle)
+    assert np.array_equal(np.frombuffer(_core.field_costs(deferred.handle), dtype=np.uint32).reshape(costs.shape),
+                          costs)
+
+
+def test_a_deferred_fields_shape_test_answers_as_the_whole_builds():
+    """vs_field_open (whether a shape can take its way from the fitted pose: vs_step.c chooses a mission's shape by
+    it) answers on a deferred field (the agent's) as on the whole build, open or not, tight or not, from poses in
+    sealed rooms inside and out."""
+    rng = np.random.default_rng(5)
+    n_open = n_shut = 0
+    for _ in range(40):
+        tpl, rad, obs, goal = sealed_room(rng)
+        whole = build_field(tpl, rad, 0.02, obs, goal, **COARSE)
+        deferred = build_field(tpl, rad, 0.02, obs, goal, **COARSE, deferred=True)
+        for _ in range(10):
+            pose = np.array(random_pose_in(whole.lattice, rng).as_tuple())
+            answers = (_core.field_open(whole.handle, pose), _core.field_open(deferred.handle, pose))
+            assert answers[0] == answers[1], pose
+            n_open += answers[0][0]
+            n_shut += not answers[0][0]
+    assert n_open > 0 and n_shut > 0
 
 
 def test_a_goal_walled_in_is_blocked_from_outside_and_the_descent_stops_at_the_closest_safe_pose():

@@ -21,7 +21,7 @@ from .coreconst import AGENT_STALL_MOVE_M, AGENT_STALL_S, AGENT_STALL_TURN_RAD, 
     LIMIT_FIELDS, METRIC_CODES
 from .errors import VsfleetValueError
 from .failure import FailurePolicy, FailureState, Health
-from .field import Field, build_field
+from .field import Field, build_field_deferred
 from .geometry import Pose2
 from .impl import Impl, choose as choose_impl, core as core_impl
 from .safety import SafetyParams
@@ -129,9 +129,10 @@ def core_mission_of(mission: Mission) -> CoreMission:
     radii = mission.radii
     goal = mission_goal(mission)
     limits = structure_limits(mission.speed_max, mission.turn_rate_max, len(mission.robots))
-    fld = room_field(template, radii, mission.obstacles, goal, build_field)   # the core's build
+    # the core's build, its blocked components resolved when a descent first needs one (vs_field_build_deferred)
+    fld = room_field(template, radii, mission.obstacles, goal, build_field_deferred)
     shapes = mission_shape_points(mission) if fld is not None else ()
-    shape_fields = tuple(room_field(p, radii, mission.obstacles, goal, build_field) for _, p in shapes)
+    shape_fields = tuple(room_field(p, radii, mission.obstacles, goal, build_field_deferred) for _, p in shapes)
     packed = pack_mission(mission.metric, template, [s.wheel_base for s in specs],
                           [s.wheel_speed_max for s in specs], [s.wheel_accel_max for s in specs], goal, limits,
                           radii, mission.obstacles, fld, shapes, shape_fields)

@@ -49,6 +49,8 @@ FIELD_WALL: int = _core.FIELD_WALL
 FIELD_BLOCKED_BIT: int = _core.FIELD_BLOCKED_BIT
 FIELD_TIGHT_BIT: int = _core.FIELD_TIGHT_BIT
 FIELD_COST_MASK: int = _core.FIELD_COST_MASK
+#: a deferred build's blocked state whose component is not resolved yet (its cost bits; vs_field_build_deferred)
+FIELD_UNRESOLVED: int = _core.FIELD_UNRESOLVED
 FIELD_COMFORT_M: float = _core.FIELD_COMFORT_M
 FIELD_GROW: float = _core.FIELD_GROW
 FIELD_W_AXIS: int = _core.FIELD_W_AXIS

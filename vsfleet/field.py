@@ -25,6 +25,7 @@ from .coreconst import (  # the core's (vs_field.h, vs_step.h), under the names 
     FIELD_GROW as GROW,
     FIELD_SEARCH_CELLS as SEARCH_CELLS,
     FIELD_TIGHT_BIT as TIGHT_BIT,
+    FIELD_UNRESOLVED as UNRESOLVED,
     FIELD_W_AXIS as W_AXIS,
     FIELD_W_DIAG as W_DIAG,
     FIELD_WALL as WALL,
@@ -131,12 +132,20 @@ class Field:
 
 
 def build_field(template_xy, radius_m, margin_m: float, obstacles, goal: Pose2, cell_m: float = CELL_M,
-                n_headings: int = HEADINGS, max_states: int = MAX_STATES) -> Field:
-    """The compiled core's field (vs_field_build); costs read back lazily by tests only."""
+                n_headings: int = HEADINGS, max_states: int = MAX_STATES, deferred: bool = False) -> Field:
+    """The compiled core's field (vs_field_build); costs read back lazily by tests only. deferred: the components
+    the goal cannot reach are resolved when a descent first needs one (vs_field_build_deferred): every descent the
+    same, the build several times faster in rooms with walls."""
     handle = _core.field_build(f64(template_xy), f64(radius_m), float(margin_m), f64(obstacles), f64(goal.as_tuple()),
-                               float(cell_m), int(n_headings), int(max_states))
+                               float(cell_m), int(n_headings), int(max_states), bool(deferred))
     lat = Lattice(*_core.field_info(handle))
     return Field(lat, _CoreCosts(handle, lat), handle)
+
+
+def build_field_deferred(template_xy, radius_m, margin_m: float, obstacles, goal: Pose2, cell_m: float = CELL_M,
+                         n_headings: int = HEADINGS, max_states: int = MAX_STATES) -> Field:
+    """build_field(deferred=True): the agent's build (vsfleet.agentstate)."""
+    return build_field(template_xy, radius_m, margin_m, obstacles, goal, cell_m, n_headings, max_states, deferred=True)
 
 
 class _CoreCosts:

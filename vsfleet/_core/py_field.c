@@ -26,11 +26,14 @@ const vs_field *vs_py_field(PyObject *obj)
     return f;
 }
 
-/* field_build(template_xy, radius_m, margin_m, obstacles, goal(3), cell_m, n_headings, max_states) -> capsule */
+/* field_build(template_xy, radius_m, margin_m, obstacles, goal(3), cell_m, n_headings, max_states[, deferred])
+ * -> capsule (deferred true: vs_field_build_deferred) */
 static PyObject *py_field_build(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
 {
     (void)mod;
-    if (nargs != 8) { PyErr_SetString(PyExc_TypeError, "field_build takes 8 arguments"); return NULL; }
+    if (nargs != 8 && nargs != 9) { PyErr_SetString(PyExc_TypeError, "field_build takes 8 or 9 arguments"); return NULL; }
+    int deferred = nargs == 9 ? PyObject_IsTrue(a[8]) : 0;
+    if (deferred < 0) return NULL;
     Py_buffer b[4];
     int got = 0;
     PyObject *result = NULL;
@@ -54,8 +57,9 @@ static PyObject *py_field_build(PyObject *mod, PyObject *const *a, Py_ssize_t na
     if (f == NULL) { PyErr_NoMemory(); goto out; }
     int rc;
     Py_BEGIN_ALLOW_THREADS
-    rc = vs_field_build(b[0].buf, b[1].buf, (size_t)n, margin, b[2].buf, (size_t)(b[2].len / 24), b[3].buf, cell,
-                        (size_t)heads, (size_t)max_states, f);
+    rc = (deferred ? vs_field_build_deferred : vs_field_build)(b[0].buf, b[1].buf, (size_t)n, margin, b[2].buf,
+                                                              (size_t)(b[2].len / 24), b[3].buf, cell, (size_t)heads,
+                                                              (size_t)max_states, f);
     Py_END_ALLOW_THREADS
     if (rc != VS_OK) { PyMem_Free(f); vs_py_error(rc, "field_build refused its inputs"); goto out; }
     result = PyCapsule_New(f, FIELD_CAPSULE, field_destroy);
@@ -63,6 +67,18 @@ static PyObject *py_field_build(PyObject *mod, PyObject *const *a, Py_ssize_t na
 out:
     for (int i = 0; i < got; i++) PyBuffer_Release(&b[i]);
     return result;
+}
+
+/* field_resolve_all(field) -> None: vs_field_resolve_all (a deferred field's components, every one) */
+static PyObject *py_field_resolve_all(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
+{
+    (void)mod;
+    if (nargs != 1) { PyErr_SetString(PyExc_TypeError, "field_resolve_all(field)"); return NULL; }
+    vs_field *f = a[0] == Py_None ? NULL : PyCapsule_GetPointer(a[0], FIELD_CAPSULE);
+    if (f == NULL) { if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "not a field"); return NULL; }
+    int rc = vs_field_resolve_all(f);
+    if (rc != VS_OK) return vs_py_error(rc, "field_resolve_all failed");
+    Py_RETURN_NONE;
 }
 
 /* field_info(field) -> (gx, gy, gth, cell_m, dth_rad, inflation_m, n_headings, ix_lo, iy_lo, nx, ny, w_rot, goal_free) */
@@ -115,6 +131,26 @@ out:
     return result;
 }
 
+/* field_open(field, pose(3)) -> (open, tight): vs_field_open (whether a shape can take its way from the pose) */
+static PyObject *py_field_open(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
+{
+    (void)mod;
+    if (nargs != 2) { PyErr_SetString(PyExc_TypeError, "field_open(field, pose)"); return NULL; }
+    const vs_field *f = vs_py_field(a[0]);
+    if (f == NULL) { if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "not a field"); return NULL; }
+    Py_buffer b;
+    if (vs_py_doubles(a[1], &b, 3, 0, "pose") < 0) return NULL;
+    const double *p = b.buf;
+    PyObject *result = NULL;
+    if (!(vs_isfinite(p[0]) && vs_isfinite(p[1]) && vs_isfinite(p[2]))) vs_py_error(VS_ENONFINITE, "field_open: pose");
+    else {
+        int tight = 0, open = vs_field_open(f, p, &tight);
+        result = Py_BuildValue("(OO)", open ? Py_True : Py_False, tight ? Py_True : Py_False);
+    }
+    PyBuffer_Release(&b);
+    return result;
+}
+
 /* clearance_barrier(points_xy (n, 2), fx, fy, radius_m (n), obstacles (m, 3), reach_m, vx, vy, w)
  * -> (vx, vy, w, changed): vs_clearance_barrier (vs_clear.h) */
 static PyObject *py_clearance_barrier(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
@@ -146,9 +182,14 @@ out:
 
 PyMethodDef vs_py_field_methods[] = {
     {"field_build", (PyCFunction)(void (*)(void))py_field_build, METH_FASTCALL,
-     "field_build(template_xy, radius_m, margin_m, obstacles, goal, cell_m, n_headings, max_states) -> field."},
+     "field_build(template_xy, radius_m, margin_m, obstacles, goal, cell_m, n_headings, max_states[, deferred]) "
+     "-> field."},
+    {"field_resolve_all", (PyCFunction)(void (*)(void))py_field_resolve_all, METH_FASTCALL,
+     "field_resolve_all(field): resolve every component a deferred build left."},
     {"field_info", (PyCFunction)(void (*)(void))py_field_info, METH_FASTCALL, "field_info(field) -> lattice tuple."},
     {"field_costs", (PyCFunction)(void (*)(void))py_field_costs, METH_FASTCALL, "field_costs(field) -> bytes."},
+    {"field_open", (PyCFunction)(void (*)(void))py_field_open, METH_FASTCALL,
+     "field_open(field, pose) -> (open, tight)."},
     {"field_follow", (PyCFunction)(void (*)(void))py_field_follow, METH_FASTCALL,
      "field_follow(field, pose, path_m, waypoints_out) -> (n, blocked, left_m)."},
     {"clearance_barrier", (PyCFunction)(void (*)(void))py_clearance_barrier, METH_FASTCALL,

@@ -159,9 +159,9 @@ static int finite3(const double *v, size_t n)
     return 1;
 }
 
-int vs_field_build(const double *template_xy, const double *radius_m, size_t n, double margin_m,
-                   const double *obstacles, size_t n_obstacles, const double goal[3], double cell_m,
-                   size_t n_headings, size_t max_states, vs_field *out)
+static int build(const double *template_xy, const double *radius_m, size_t n, double margin_m,
+                 const double *obstacles, size_t n_obstacles, const double goal[3], double cell_m,
+                 size_t n_headings, size_t max_states, int defer, vs_field *out)
 {
     if (n == 0 || n_obstacles > VS_FIELD_MAX_OBSTACLES || n_headings < 4 || n_headings > 1024 ||
         max_states < 1024 || max_states > VS_FIELD_MAX_STATES || 9 * n_headings > max_states)
@@ -303,9 +303,10 @@ int vs_field_build(const double *template_xy, const double *radius_m, size_t n, 
         for (size_t s = 0; s < total; s++)
             if (dist[s] != VS_FIELD_WALL) tight[s] |= 2u;   /* reached from the goal */
     }
-    /* the components the goal cannot reach: each one's target is its state nearest the goal */
+    /* the components the goal cannot reach: each one's target is its state nearest the goal (deferred: later, one
+     * component at a time, when a descent needs it: resolve_component) */
     size_t n_src = 0;
-    for (size_t s = 0; s < total; s++) {
+    for (size_t s = 0; s < total && !defer; s++) {
         if (f.cost[s] == VS_FIELD_WALL || dist[s] != VS_FIELD_WALL) continue;
         /* breadth-first over the component, marking it (dist = WALL - 1: seen) */
         size_t head = 0, tail = 0, best = s;
@@ -346,7 +347,9 @@ int vs_field_build(const double *template_xy, const double *radius_m, size_t n, 
     }
     for (size_t s = 0; s < total; s++) {
         if (f.cost[s] == VS_FIELD_WALL) continue;
-        f.cost[s] = dist[s] | ((tight[s] & 1u) ? VS_FIELD_TIGHT_BIT : 0u) | ((tight[s] & 2u) ? 0u : VS_FIELD_BLOCKED_BIT);
+        /* deferred, a state the goal cannot reach is not reached by pass 2 either (dist WALL): VS_FIELD_UNRESOLVED */
+        uint32_t d = dist[s] == VS_FIELD_WALL ? VS_FIELD_UNRESOLVED : dist[s];
+        f.cost[s] = d | ((tight[s] & 1u) ? VS_FIELD_TIGHT_BIT : 0u) | ((tight[s] & 2u) ? 0u : VS_FIELD_BLOCKED_BIT);
     }
     free(tight);
     free(dist);
@@ -361,6 +364,114 @@ fail:
     free(q);
     free(f.cost);
     return rc;
+}
+
+int vs_field_build(const double *template_xy, const double *radius_m, size_t n, double margin_m,
+                   const double *obstacles, size_t n_obstacles, const double goal[3], double cell_m,
+                   size_t n_headings, size_t max_states, vs_field *out)
+{
+    return build(template_xy, radius_m, n, margin_m, obstacles, n_obstacles, goal, cell_m, n_headings, max_states, 0,
+                 out);
+}
+
+int vs_field_build_deferred(const double *template_xy, const double *radius_m, size_t n, double margin_m,
+                            const double *obstacles, size_t n_obstacles, const double goal[3], double cell_m,
+                            size_t n_headings, size_t max_states, vs_field *out)
+{
+    return build(template_xy, radius_m, n, margin_m, obstacles, n_obstacles, goal, cell_m, n_headings, max_states, 1,
+                 out);
+}
+
+/* a free state the goal cannot reach whose cost a deferred build left for later */
+static int unresolved(uint32_t v)
+{
+    return v != VS_FIELD_WALL && (v & VS_FIELD_COST_MASK) == VS_FIELD_UNRESOLVED;
+}
+
+/* The component of the unresolved state s0, as vs_field_build's second pass leaves it: its target is its state
+ * nearest the goal (squared lattice distance, then the lowest index), and every state's cost is its exact integer
+ * distance to that target (Dial's buckets).  The component's states are found breadth first and marked SEEN (a
+ * cost beyond any distance, so Dial takes it for "not reached"); no state outside the component is touched (its
+ * free neighbours are all in it: the goal's component and the others are apart from it).  Writes through f->cost
+ * only: the lattice is f's, the same for every caller. */
+#define SEEN (VS_FIELD_UNRESOLVED - 1u)
+static int resolve_component(const vs_field *f, size_t s0)
+{
+    if (!unresolved(f->cost[s0])) return VS_OK;
+    const size_t plane = f->nx * f->ny;
+    uint32_t *cost = f->cost;
+    bucket comp = {NULL, 0, 0};
+    int rc = VS_OK;
+    size_t best = s0;
+    long long best_d2 = -1;
+    cost[s0] = (cost[s0] & ~VS_FIELD_COST_MASK) | SEEN;
+    if ((rc = bucket_push(&comp, (uint32_t)s0)) != VS_OK) goto done;
+    for (size_t head = 0; head < comp.len; head++) {
+        size_t u = comp.items[head];
+        size_t rem = u % plane;
+        long long c = (long long)(rem % f->nx) + f->ix_lo, r = (long long)(rem / f->nx) + f->iy_lo;
+        long long d2 = c * c + r * r;
+        if (best_d2 < 0 || d2 < best_d2 || (d2 == best_d2 && u < best)) { best_d2 = d2; best = u; }
+        size_t nbr[10];
+        uint32_t wts[10];
+        int cnt = neighbours_of(f, u, nbr, wts);
+        for (int j = 0; j < cnt; j++) {
+            if (!unresolved(cost[nbr[j]])) continue;
+            cost[nbr[j]] = (cost[nbr[j]] & ~VS_FIELD_COST_MASK) | SEEN;
+            if ((rc = bucket_push(&comp, (uint32_t)nbr[j])) != VS_OK) goto done;
+        }
+    }
+    {   /* Dial from the target, over the component (costs SEEN: not reached) */
+        uint32_t wmax = 2 * (f->w_rot > VS_FIELD_W_DIAG ? f->w_rot : VS_FIELD_W_DIAG);
+        size_t nb = (size_t)wmax + 1, pending = 1;
+        bucket *bk = calloc(nb, sizeof(bucket));
+        if (bk == NULL) { rc = VS_ENOMEM; goto done; }
+        cost[best] &= ~VS_FIELD_COST_MASK;   /* distance 0 */
+        if ((rc = bucket_push(&bk[0], (uint32_t)best)) != VS_OK) pending = 0;
+        for (uint32_t d = 0; pending > 0; d++) {
+            bucket *b = &bk[d % nb];
+            for (size_t q = 0; q < b->len && rc == VS_OK; q++) {
+                uint32_t s = b->items[q];
+                pending--;
+                if ((cost[s] & VS_FIELD_COST_MASK) != d) continue;   /* a stale entry */
+                size_t t[10];
+                uint32_t w[10];
+                int c = neighbours_of(f, s, t, w);
+                for (int j = 0; j < c; j++) {
+                    uint32_t ct = cost[t[j]];
+                    if (ct == VS_FIELD_WALL) continue;
+                    uint32_t nd = d + (((cost[s] | ct) & VS_FIELD_TIGHT_BIT) ? 2 * w[j] : w[j]);
+                    if (nd < (ct & VS_FIELD_COST_MASK)) {
+                        cost[t[j]] = (ct & ~VS_FIELD_COST_MASK) | nd;
+                        if ((rc = bucket_push(&bk[nd % nb], (uint32_t)t[j])) != VS_OK) break;
+                        pending++;
+                    }
+                }
+            }
+            b->len = 0;
+            if (rc != VS_OK) break;
+        }
+        for (size_t i = 0; i < nb; i++) free(bk[i].items);
+        free(bk);
+    }
+done:
+    if (rc != VS_OK)   /* leave the component unresolved, as it was: a later call starts again */
+        for (size_t i = 0; i < comp.len; i++)
+            cost[comp.items[i]] = (cost[comp.items[i]] & ~VS_FIELD_COST_MASK) | VS_FIELD_UNRESOLVED;
+    free(comp.items);
+    return rc;
+}
+#undef SEEN
+
+int vs_field_resolve_all(vs_field *f)
+{
+    if (f == NULL || f->cost == NULL) return VS_EVALUE;
+    size_t total = f->nx * f->ny * f->n_headings;
+    for (size_t s = 0; s < total; s++) {
+        int rc = resolve_component(f, s);
+        if (rc != VS_OK) return rc;
+    }
+    return VS_OK;
 }
 
 void vs_field_free(vs_field *f)
@@ -491,9 +602,49 @@ static long start_state(const vs_field *f, const double pose[3], int *outside)
     return start;
 }
 
+/* A deferred field (vs_field_build_deferred): the components the start's choice compares costs in are resolved.
+ * That is only when no state within the search can be reached from the goal: then the start is the cheapest
+ * free state of the nearest ring that has one, and its component's descent follows (start_state). */
+static int prepare_start(const vs_field *f, const double pose[3])
+{
+    size_t plane = f->nx * f->ny;
+    size_t c0, r0, k0;
+    int outside;
+    nearest(f, pose, &c0, &r0, &k0, &outside);
+    static const int DK[5] = {0, 1, -1, 2, -2};
+    int ring = -1;   /* the nearest ring with a free state */
+    for (int pass = 0; pass < 2; pass++) {   /* pass 0: look; pass 1: resolve that ring's components */
+        for (int d = 0; d <= VS_FIELD_SEARCH_CELLS; d++) {
+            if (pass == 1 && d != ring) continue;
+            for (int a = 0; a < 5; a++) {
+                size_t k = (size_t)((long)k0 + (long)f->n_headings + DK[a]) % f->n_headings;
+                for (int dr = -d; dr <= d; dr++) {
+                    for (int dc = -d; dc <= d; dc++) {
+                        if (dr != -d && dr != d && dc != -d && dc != d) continue;
+                        long c = (long)c0 + dc, r = (long)r0 + dr;
+                        if (c < 0 || r < 0 || c >= (long)f->nx || r >= (long)f->ny) continue;
+                        size_t s = k * plane + (size_t)r * f->nx + (size_t)c;
+                        uint32_t v = f->cost[s];
+                        if (v == VS_FIELD_WALL) continue;
+                        if (pass == 0 && !(v & VS_FIELD_BLOCKED_BIT)) return VS_OK;   /* the start can reach the goal */
+                        if (pass == 0 && ring < 0) ring = d;
+                        if (pass == 1) {
+                            int rc = resolve_component(f, s);
+                            if (rc != VS_OK) return rc;
+                        }
+                    }
+                }
+            }
+        }
+        if (ring < 0) return VS_OK;   /* no free state near: the start is none */
+    }
+    return VS_OK;
+}
+
 int vs_field_open(const vs_field *f, const double pose[3], int *tight)
 {
     int outside;
+    if (prepare_start(f, pose) != VS_OK) { *tight = 0; return 0; }
     long start = start_state(f, pose, &outside);
     *tight = start >= 0 && (f->cost[start] & VS_FIELD_TIGHT_BIT) != 0;
     return start >= 0 && !(f->cost[start] & VS_FIELD_BLOCKED_BIT);
@@ -505,7 +656,8 @@ int vs_field_follow(const vs_field *f, const double pose[3], double path_m, doub
     if (f == NULL || f->cost == NULL || cap < 2) return VS_EVALUE;
     if (!finite3(pose, 3) || !vs_isfinite(path_m)) return VS_ENONFINITE;
     size_t plane = f->nx * f->ny;
-    int outside;
+    int outside, rc = prepare_start(f, pose);
+    if (rc != VS_OK) return rc;
     long start = start_state(f, pose, &outside);
     waypoints[0] = pose[0];
     waypoints[1] = pose[1];

@@ -37,6 +37,9 @@
 #define VS_FIELD_BLOCKED_BIT 0x80000000u   /* a state the goal cannot reach: its cost leads to its target */
 #define VS_FIELD_TIGHT_BIT 0x40000000u     /* a free state within the comfort band of an obstacle */
 #define VS_FIELD_COST_MASK 0x3FFFFFFFu     /* the cost to go itself */
+#define VS_FIELD_UNRESOLVED 0x3FFFFFFEu    /* deferred build: a blocked state whose component is not resolved yet
+                                              (costs stay far below: a lattice of 1e9 states, edges of at most
+                                              2 w_rot) */
 #define VS_FIELD_COMFORT_M 0.10            /* [m] beyond the margin: closer costs twice (the filter stays idle) */
 #define VS_FIELD_MAX_ABS_M 1e6             /* larger coordinates or radii are refused (VS_EVALUE) */
 #define VS_FIELD_MAX_OBSTACLES 4096
@@ -70,6 +73,22 @@ int vs_field_build(const double *template_xy, const double *radius_m, size_t n, 
                    const double *obstacles, size_t n_obstacles, const double goal[3], double cell_m,
                    size_t n_headings, size_t max_states, vs_field *out);
 
+/* The same field, built faster: the components the goal cannot reach are left for later (their states hold
+ * VS_FIELD_BLOCKED_BIT | VS_FIELD_UNRESOLVED, with their tight bit), and each one is resolved (its target, its
+ * costs) the first time vs_field_follow or vs_field_open needs it: only when no state within the descent's search
+ * can reach the goal.  Every answer of vs_field_follow and vs_field_open is the same as on vs_field_build's field,
+ * bit for bit, and a resolved component's costs are the same; so is the whole cost array after
+ * vs_field_resolve_all.  Those resolutions write into the field's cost array (one caller at a time) and allocate a
+ * component's scratch, freed before they return (VS_ENOMEM: the component stays unresolved).  Why: in bench/room.py's
+ * rooms those components (the room's outside, pockets between obstacles) held 75-95 % of the free states, and a
+ * build spent 60-80 % of its time on them (docs/planning.md, "Cost of a build"). */
+int vs_field_build_deferred(const double *template_xy, const double *radius_m, size_t n, double margin_m,
+                            const double *obstacles, size_t n_obstacles, const double goal[3], double cell_m,
+                            size_t n_headings, size_t max_states, vs_field *out);
+
+/* Resolve every component a deferred build left (a no-op on vs_field_build's field). */
+int vs_field_resolve_all(vs_field *f);
+
 void vs_field_free(vs_field *f);
 
 /* The state nearest a pose (clamped into the lattice): its column, row and heading index. */
@@ -83,11 +102,13 @@ void vs_field_nearest(const vs_field *f, const double pose[3], size_t *col, size
  * ring that has any (ties: the first found); if none, the waypoints are the pose alone and *blocked = 1.
  * *blocked: the goal cannot be reached from here (the
  * descent ends at the closest safe pose); *left_m [m]: then, how far that pose is from the goal (0 when not
- * blocked).  cap >= 2.  No allocation; O(path_m / h) per call (plus the target's descent when blocked). */
+ * blocked).  cap >= 2.  No allocation; O(path_m / h) per call (plus the target's descent when blocked); on a
+ * deferred field, the first call that needs a component resolves it (vs_field_build_deferred). */
 /* 1 when the descent from the pose (vs_field_follow) starts on a free state from which the goal can be reached,
  * else 0 (no free state near, or a component the goal cannot reach): whether a shape can take its way from
  * this pose (vs_step.c chooses among a mission's shapes).  *tight: that start state lies in the comfort band
- * (VS_FIELD_TIGHT_BIT; 0 when there is none).  pose finite; no allocation. */
+ * (VS_FIELD_TIGHT_BIT; 0 when there is none).  pose finite; no allocation (on a deferred field: as
+ * vs_field_follow; a resolution that fails leaves 0, not open). */
 int vs_field_open(const vs_field *f, const double pose[3], int *tight);
 
 int vs_field_follow(const vs_field *f, const double pose[3], double path_m, double *waypoints, size_t cap,

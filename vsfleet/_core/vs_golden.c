@@ -169,7 +169,8 @@ static long g_safety_filter(const double *in, long n_in, double *out, long cap)
 
 /* field_build: n, m, margin, cell, headings, max states, goal 3, 2n template, n radii, 3m obstacles
  * -> nx, ny, ix_lo, iy_lo, cell, inflation, w_rot, goal_free, then the FNV-1a hash of the cost array (64 bits,
- * as two 32-bit halves), the count of walls, of blocked and of tight states */
+ * as two 32-bit halves), the count of walls, of blocked and of tight states.  The deferred build
+ * (vs_field_build_deferred), its every component resolved, must give the same cost array: else refused (-1) */
 static long g_field_build(const double *in, long n_in, double *out, long cap)
 {
     if (n_in < 9 || cap < 13) return -1;
@@ -177,10 +178,19 @@ static long g_field_build(const double *in, long n_in, double *out, long cap)
          max_states = count_of(in[5], 1024, 100000000);
     if (n < 0 || m < 0 || heads < 0 || max_states < 0 || n_in != 9 + 2 * n + n + 3 * m) return -1;
     const double *goal = in + 6, *tpl = in + 9, *radii = tpl + 2 * n, *obs = radii + n;
-    vs_field f;
+    vs_field f, d;
     if (vs_field_build(tpl, radii, (size_t)n, in[2], obs, (size_t)m, goal, in[3], (size_t)heads, (size_t)max_states,
                        &f) != VS_OK)
         return -1;
+    if (vs_field_build_deferred(tpl, radii, (size_t)n, in[2], obs, (size_t)m, goal, in[3], (size_t)heads,
+                                (size_t)max_states, &d) != VS_OK) {
+        vs_field_free(&f);
+        return -1;
+    }
+    int same = vs_field_resolve_all(&d) == VS_OK && d.nx == f.nx && d.ny == f.ny && d.n_headings == f.n_headings
+               && memcmp(d.cost, f.cost, sizeof(uint32_t) * f.nx * f.ny * f.n_headings) == 0;
+    vs_field_free(&d);
+    if (!same) { vs_field_free(&f); return -1; }
     uint64_t hash = 1469598103934665603ull;
     double walls = 0.0, blocked = 0.0, tight = 0.0;
     size_t total = f.nx * f.ny * f.n_headings;
@@ -205,7 +215,7 @@ static long g_field_build(const double *in, long n_in, double *out, long cap)
 }
 
 /* field_follow: field_build's inputs, then pose 3 and path_m -> n waypoints, blocked, left, 3n waypoints
- * (at most 64) */
+ * (at most 64).  The same descent on the deferred build (vs_field_build_deferred), bit for bit: else refused (-1) */
 static long g_field_follow(const double *in, long n_in, double *out, long cap)
 {
     if (n_in < 13 || cap < 3 + 3 * 64) return -1;
@@ -223,6 +233,19 @@ static long g_field_follow(const double *in, long n_in, double *out, long cap)
     int rc = vs_field_follow(&f, pose, pose[3], out + 3, 64, &nw, &blocked, &left);
     vs_field_free(&f);
     if (rc != VS_OK) return -1;
+    vs_field d;
+    if (vs_field_build_deferred(tpl, radii, (size_t)n, in[2], obs, (size_t)m, goal, in[3], (size_t)heads,
+                                (size_t)max_states, &d) != VS_OK)
+        return -1;
+    double dw[3 * 64];
+    size_t d_nw = 0;
+    int d_blocked = 0;
+    double d_left = 0.0;
+    rc = vs_field_follow(&d, pose, pose[3], dw, 64, &d_nw, &d_blocked, &d_left);
+    vs_field_free(&d);
+    if (rc != VS_OK || d_nw != nw || d_blocked != blocked || memcmp(&d_left, &left, sizeof left) != 0
+        || memcmp(dw, out + 3, sizeof(double) * 3 * nw) != 0)
+        return -1;
     out[0] = (double)nw;
     out[1] = (double)blocked;
     out[2] = left;
