@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 
 from vsfleet import _core
+from vsfleet.coreconst import FIELD_UNRESOLVED as UNRESOLVED
 from vsfleet.errors import NonFiniteError, VsfleetValueError
 from vsfleet.field import (
     BLOCKED_BIT,
     COST_MASK,
     TIGHT_BIT,
-    UNRESOLVED,
     WALL,
     build_field,
     build_field_reference,

@@ -25,7 +25,6 @@ from .coreconst import (  # the core's (vs_field.h, vs_step.h), under the names 
     FIELD_GROW as GROW,
     FIELD_SEARCH_CELLS as SEARCH_CELLS,
     FIELD_TIGHT_BIT as TIGHT_BIT,
-    FIELD_UNRESOLVED as UNRESOLVED,
     FIELD_W_AXIS as W_AXIS,
     FIELD_W_DIAG as W_DIAG,
     FIELD_WALL as WALL,

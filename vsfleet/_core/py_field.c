@@ -31,7 +31,10 @@ const vs_field *vs_py_field(PyObject *obj)
 static PyObject *py_field_build(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
 {
     (void)mod;
-    if (nargs != 8 && nargs != 9) { PyErr_SetString(PyExc_TypeError, "field_build takes 8 or 9 arguments"); return NULL; }
+    if (nargs != 8 && nargs != 9) {
+        PyErr_SetString(PyExc_TypeError, "field_build takes 8 or 9 arguments");
+        return NULL;
+    }
     int deferred = nargs == 9 ? PyObject_IsTrue(a[8]) : 0;
     if (deferred < 0) return NULL;
     Py_buffer b[4];
