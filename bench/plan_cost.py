@@ -1,0 +1,145 @@
+"""The plan's cost in the two cases issue 28 names: 3 robots among 64 obstacles, 30 robots among 256.
+
+Each case is a square room of round pillars (radius 0.05-0.15 m) scattered at random, with the structure's start
+and goal in opposite corners, every body clear of every pillar there by 5 cm (pillars that would not be are drawn
+again). The fleets: the paper triangle (side 0.5 m, bodies of 0.09 m) in a room of 6 m; a 5 x 6 grid (spacing 0.3 m,
+bodies of 0.05-0.09 m) in a room of 12 m. For each room, on the compiled core:
+
+- ``plan``: what an agent does before its structure moves: the deferred build (vsfleet.field.build_field_deferred,
+  the lattice's headings by the structure as the agents choose them) and the first frame's descent from the start
+  (which resolves the start's component when the goal cannot be reached from it);
+- ``whole``: the whole build (every component the goal cannot reach resolved up front), as before 2026-12-06;
+- ``follow``: one frame's descent (vsfleet.field.follow_field, 2 m of it), timed along the way from the start.
+
+Times are wall-clock on this host, the best of 3 for builds (median of the frames for follow). Progress on stderr.
+
+    .venv/bin/python -m bench.plan_cost --rooms 10
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import platform
+import statistics
+import sys
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+
+from vsfleet.field import build_field, field_headings, follow_field
+from vsfleet.geometry import Pose2
+from vsfleet.step import PLAN_MARGIN_M
+
+CASES = {3: (64, 6.0), 30: (256, 12.0)}   # robots: (pillars, room side [m])
+
+
+def fleet(n: int, rng) -> tuple[np.ndarray, np.ndarray]:
+    """(template (n, 2) [m; structure frame], radii (n,) [m]), centred on the centroid."""
+    if n == 3:
+        a = np.array([0.0, 2 * math.pi / 3, 4 * math.pi / 3])
+        tpl = 0.5 / math.sqrt(3.0) * np.c_[np.cos(a), np.sin(a)]
+        return tpl, np.full(3, 0.09)
+    g = np.array([(0.3 * c, 0.3 * r) for r in range(5) for c in range(6)], dtype=float)
+    return g - g.mean(axis=0), rng.uniform(0.05, 0.09, n)
+
+
+def bodies(tpl: np.ndarray, pose) -> np.ndarray:
+    c, s = math.cos(pose[2]), math.sin(pose[2])
+    return np.c_[pose[0] + c * tpl[:, 0] - s * tpl[:, 1], pose[1] + s * tpl[:, 0] + c * tpl[:, 1]]
+
+
+def room(n: int, seed: int):
+    """A room of the case for n robots: (template, radii, obstacles (m, 3), start, goal)."""
+    rng = np.random.default_rng([seed, n, 20261206])
+    tpl, rad = fleet(n, rng)
+    m, side = CASES[n]
+    reach = float(np.max(np.hypot(tpl[:, 0], tpl[:, 1]) + rad))
+    start = (reach + 0.1, reach + 0.1, float(rng.uniform(-math.pi, math.pi)))
+    goal = (side - reach - 0.1, side - reach - 0.1, float(rng.uniform(-math.pi, math.pi)))
+    keep = np.vstack([bodies(tpl, start), bodies(tpl, goal)])
+    kept_r = np.concatenate([rad, rad])
+    obs = []
+    while len(obs) < m:
+        x, y, r = rng.uniform(0.0, side), rng.uniform(0.0, side), rng.uniform(0.05, 0.15)
+        if np.all(np.hypot(keep[:, 0] - x, keep[:, 1] - y) - kept_r - r >= 0.05):
+            obs.append((x, y, r))
+    return tpl, rad, np.array(obs), start, goal
+
+
+def best_of(fn, times: int = 3) -> tuple[float, object]:
+    best, out = math.inf, None
+    for _ in range(times):
+        t0 = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t0)
+    return best, out
+
+
+def measure(n: int, seed: int) -> dict:
+    tpl, rad, obs, start, goal = room(n, seed)
+    heads = field_headings(tpl, rad, PLAN_MARGIN_M, obs, goal[:2])
+    args = (tpl, rad, PLAN_MARGIN_M, obs, Pose2(*goal))
+
+    def plan():
+        f = build_field(*args, n_headings=heads, deferred=True)
+        return f, follow_field(f, Pose2(*start))
+
+    plan_s, (fld, first) = best_of(plan)
+    whole_s, _ = best_of(lambda: build_field(*args, n_headings=heads))
+    way, blocked, _ = follow_field(fld, Pose2(*start), path_m=1e9, cap=200000)
+    follow_us = []
+    for k in range(0, len(way), max(1, len(way) // 50)):   # about 50 frames along the way
+        t0 = time.perf_counter()
+        follow_field(fld, Pose2(*way[k]))
+        follow_us.append(1e6 * (time.perf_counter() - t0))
+    lat = fld.lattice
+    return {"n": n, "seed": seed, "obstacles": len(obs), "headings": heads, "cell_m": lat.cell_m,
+            "states": lat.nx * lat.ny * lat.n_headings, "way": not blocked, "plan_ms": 1e3 * plan_s,
+            "whole_ms": 1e3 * whole_s, "follow_us": statistics.median(follow_us)}
+
+
+def cpu() -> str:
+    """The CPU's model name (/proc/cpuinfo), else the machine's architecture."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.machine()
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--rooms", type=int, default=10, help="rooms per case (seeds 0..rooms-1)")
+    args = ap.parse_args(argv)
+    rows = []
+    for n in CASES:
+        for seed in range(args.rooms):
+            r = measure(n, seed)
+            rows.append(r)
+            print(f"[{n} robots, room {seed + 1}/{args.rooms}] {r['obstacles']} obstacles, {r['states']:,} states, "
+                  f"{'a way' if r['way'] else 'blocked'}: plan {r['plan_ms']:.1f} ms, "
+                  f"whole build {r['whole_ms']:.1f} ms, follow {r['follow_us']:.1f} us", file=sys.stderr, flush=True)
+    print(f"bench/plan_cost.py, {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC, {cpu()}, {os.cpu_count()} cores, "
+          f"Python {platform.python_version()}\n")
+    print("| robots | obstacles | rooms (a way) | states | plan: deferred build + first descent, median / max | "
+          "whole build, median / max | follow a frame, median / max |")
+    print("|---|---|---|---|---|---|---|")
+    for n, (m, _side) in CASES.items():
+        sel = [r for r in rows if r["n"] == n]
+        plan, whole, fol = ([r[k] for r in sel] for k in ("plan_ms", "whole_ms", "follow_us"))
+        states = [r["states"] for r in sel]
+        print(f"| {n} | {m} | {len(sel)} ({sum(r['way'] for r in sel)}) | {min(states):,}-{max(states):,} | "
+              f"{statistics.median(plan):.1f} / {max(plan):.1f} ms | "
+              f"{statistics.median(whole):.1f} / {max(whole):.1f} ms | "
+              f"{statistics.median(fol):.1f} / {max(fol):.1f} us |")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
