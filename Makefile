@@ -65,7 +65,9 @@ test-noalloc:
 	build/noalloc
 
 # The core under AddressSanitizer and UBSan: the golden vectors, then a fuzz of every C entry point, then the
-# frames without allocation (each workspace exactly its size: ASan sees a kernel write past it)
+# frames without allocation (each workspace exactly its size: ASan sees a kernel write past it), then a deferred
+# field whose resolution runs out of memory at each of its allocations in turn (tests/cdriver/field_nomem_driver.c)
+NOMEM_WRAP := -Wl,--wrap=malloc,--wrap=calloc,--wrap=realloc
 SAN := -fsanitize=address,undefined -fno-sanitize-recover=all -fno-omit-frame-pointer -g
 test-sanitize:
 	mkdir -p build
@@ -75,6 +77,8 @@ test-sanitize:
 	ASAN_OPTIONS=detect_leaks=1 build/fuzz-san 20000
 	gcc $(CORE_CFLAGS) $(SAN) $(NOALLOC_WRAP) -o build/noalloc-san $(CORE_C) tests/cdriver/noalloc_driver.c -lm
 	ASAN_OPTIONS=detect_leaks=1 build/noalloc-san
+	gcc $(CORE_CFLAGS) $(SAN) $(NOMEM_WRAP) -o build/field-nomem-san $(CORE_C) tests/cdriver/field_nomem_driver.c -lm
+	ASAN_OPTIONS=detect_leaks=1 build/field-nomem-san
 
 bench-fit: $(STAMP) $(CORE_SO)
 	$(BIN)/python bench/fit.py

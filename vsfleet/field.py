@@ -148,7 +148,8 @@ def build_field_deferred(template_xy, radius_m, margin_m: float, obstacles, goal
 
 
 class _CoreCosts:
-    """The core's cost array, copied out on first use (tests, plots)."""
+    """The core's cost array, copied out on first use (tests, plots). A deferred field's copy is as of that use: the
+    components a descent resolved later are not in it (vsfleet._core.field_costs reads them afresh)."""
 
     def __init__(self, handle, lat: Lattice):
         self._handle, self._lat, self._a = handle, lat, None

@@ -48,7 +48,10 @@ def room_field(template: np.ndarray, radii, obstacles: np.ndarray, goal: Goal,
     return _room_field(tpl.tobytes(), rad.tobytes(), f64(obstacles).tobytes(), target.as_tuple(), build)
 
 
-@lru_cache(maxsize=12)   # a few rooms and their shapes, the least recently used out: each field holds up to 8 MB
+# A few rooms and their shapes, the least recently used out: each field holds up to 8 MB. A deferred field (the
+# agents') is written by the descents that resolve its components (vs_field_build_deferred), so one field must not be
+# followed by two threads at once: an agent runs its frames one at a time, and its prepare thread only builds.
+@lru_cache(maxsize=12)
 def _room_field(tpl_bytes: bytes, rad_bytes: bytes, obs_bytes: bytes, target: tuple, build: Callable) -> Field:
     """room_field's build, by its key (the arrays' bytes): the lattice's heading count by the structure."""
     tpl, rad, obs = array("d", tpl_bytes), array("d", rad_bytes), array("d", obs_bytes)

@@ -385,7 +385,7 @@ int vs_field_build_deferred(const double *template_xy, const double *radius_m, s
 /* a free state the goal cannot reach whose cost a deferred build left for later */
 static int unresolved(uint32_t v)
 {
-    return v != VS_FIELD_WALL && (v & VS_FIELD_COST_MASK) == VS_FIELD_UNRESOLVED;
+    return v != VS_FIELD_WALL && (v & VS_FIELD_BLOCKED_BIT) && (v & VS_FIELD_COST_MASK) == VS_FIELD_UNRESOLVED;
 }
 
 /* The component of the unresolved state s0, as vs_field_build's second pass leaves it: its target is its state
@@ -404,8 +404,9 @@ static int resolve_component(const vs_field *f, size_t s0)
     int rc = VS_OK;
     size_t best = s0;
     long long best_d2 = -1;
-    cost[s0] = (cost[s0] & ~VS_FIELD_COST_MASK) | SEEN;
+    /* listed, then marked: a state marked SEEN is always in comp, so a failure restores every one of them */
     if ((rc = bucket_push(&comp, (uint32_t)s0)) != VS_OK) goto done;
+    cost[s0] = (cost[s0] & ~VS_FIELD_COST_MASK) | SEEN;
     for (size_t head = 0; head < comp.len; head++) {
         size_t u = comp.items[head];
         size_t rem = u % plane;
@@ -417,8 +418,8 @@ static int resolve_component(const vs_field *f, size_t s0)
         int cnt = neighbours_of(f, u, nbr, wts);
         for (int j = 0; j < cnt; j++) {
             if (!unresolved(cost[nbr[j]])) continue;
-            cost[nbr[j]] = (cost[nbr[j]] & ~VS_FIELD_COST_MASK) | SEEN;
             if ((rc = bucket_push(&comp, (uint32_t)nbr[j])) != VS_OK) goto done;
+            cost[nbr[j]] = (cost[nbr[j]] & ~VS_FIELD_COST_MASK) | SEEN;
         }
     }
     {   /* Dial from the target, over the component (costs SEEN: not reached) */

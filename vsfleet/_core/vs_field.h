@@ -37,9 +37,10 @@
 #define VS_FIELD_BLOCKED_BIT 0x80000000u   /* a state the goal cannot reach: its cost leads to its target */
 #define VS_FIELD_TIGHT_BIT 0x40000000u     /* a free state within the comfort band of an obstacle */
 #define VS_FIELD_COST_MASK 0x3FFFFFFFu     /* the cost to go itself */
-#define VS_FIELD_UNRESOLVED 0x3FFFFFFEu    /* deferred build: a blocked state whose component is not resolved yet
-                                              (costs stay far below: a lattice of 1e9 states, edges of at most
-                                              2 w_rot) */
+#define VS_FIELD_UNRESOLVED 0x3FFFFFFEu    /* deferred build: a blocked state whose component is not resolved yet.
+                                              Costs must stay below it (and below 2^30 for the whole build's flags):
+                                              a way of k lattice edges costs at most 2 k max(14, w_rot), far below
+                                              in any room the agents plan (bench rooms: under 10^5) */
 #define VS_FIELD_COMFORT_M 0.10            /* [m] beyond the margin: closer costs twice (the filter stays idle) */
 #define VS_FIELD_MAX_ABS_M 1e6             /* larger coordinates or radii are refused (VS_EVALUE) */
 #define VS_FIELD_MAX_OBSTACLES 4096

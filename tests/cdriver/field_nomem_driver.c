@@ -1,0 +1,103 @@
+/* field_nomem_driver.c - a deferred field (vs_field_build_deferred) that runs out of memory while a descent resolves
+ * a component stays as it was: the descent returns VS_ENOMEM, and a later descent, with memory, answers as on the
+ * whole build (vs_field_build), bit for bit, and resolves to the same costs.
+ *
+ * Built with -Wl,--wrap=malloc,--wrap=calloc,--wrap=realloc (tests/test_core_field_nomem.py, and `make
+ * test-sanitize` under ASan): while armed, the k-th allocation fails, for k = 1, 2, ... until a resolution no longer
+ * reaches its k-th allocation.  The room: a ring of obstacles around the goal (a component of its own) and a pose
+ * outside it, so the descent must resolve the ring's outside; its scratch grows by realloc past 256 states, so the
+ * failures fall in the breadth-first listing as well as in Dial's buckets.
+ * Exit 0 and "ok" when every failure left the field as it was; 1 otherwise.
+ */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "vscore.h"
+#include "vs_field.h"
+
+static long armed = -1;   /* >= 1: the allocation that fails, counted down; -1: none fails */
+
+void *__real_malloc(size_t size);
+void *__real_calloc(size_t count, size_t size);
+void *__real_realloc(void *p, size_t size);
+void *__wrap_malloc(size_t size);
+void *__wrap_calloc(size_t count, size_t size);
+void *__wrap_realloc(void *p, size_t size);
+
+static int fails(void)
+{
+    return armed > 0 && --armed == 0;
+}
+
+void *__wrap_malloc(size_t size) { return fails() ? NULL : __real_malloc(size); }
+void *__wrap_calloc(size_t count, size_t size) { return fails() ? NULL : __real_calloc(count, size); }
+void *__wrap_realloc(void *p, size_t size) { return fails() ? NULL : __real_realloc(p, size); }
+
+#define RING 24
+#define CAP 400
+
+int main(void)
+{
+    const double tpl[6] = {0.2, 0.0, -0.1, 0.17, -0.1, -0.17}, rad[3] = {0.05, 0.05, 0.05};
+    double obs[3 * RING], goal[3] = {0.0, 0.0, 0.0}, pose[3] = {2.0, 0.4, 1.0};
+    for (int i = 0; i < RING; i++) {
+        double a = 2.0 * VS_PI * (double)i / (double)RING;
+        obs[3 * i] = 0.9 * cos(a);
+        obs[3 * i + 1] = 0.9 * sin(a);
+        obs[3 * i + 2] = 0.15;
+    }
+    vs_field whole;
+    if (vs_field_build(tpl, rad, 3, 0.02, obs, RING, goal, 0.05, 16, 200000, &whole) != VS_OK) {
+        printf("whole build failed\n");
+        return 1;
+    }
+    double w_ref[3 * CAP], w[3 * CAP], left_ref, left;
+    size_t n_ref, n;
+    int b_ref, b;
+    if (vs_field_follow(&whole, pose, 50.0, w_ref, CAP, &n_ref, &b_ref, &left_ref) != VS_OK || !b_ref) {
+        printf("the whole build's descent is not blocked\n");
+        return 1;
+    }
+    size_t total = whole.nx * whole.ny * whole.n_headings;
+    long failed = 0;
+    for (long k = 1;; k++) {
+        vs_field d;
+        if (vs_field_build_deferred(tpl, rad, 3, 0.02, obs, RING, goal, 0.05, 16, 200000, &d) != VS_OK) {
+            printf("deferred build failed\n");
+            return 1;
+        }
+        uint32_t *before = malloc(sizeof(uint32_t) * total);
+        if (before == NULL) return 1;
+        memcpy(before, d.cost, sizeof(uint32_t) * total);
+        armed = k;
+        int rc = vs_field_follow(&d, pose, 50.0, w, CAP, &n, &b, &left);
+        int hit = armed == 0;   /* the k-th allocation was reached, and failed */
+        armed = -1;
+        if (hit) {
+            failed++;
+            if (rc != VS_ENOMEM || memcmp(before, d.cost, sizeof(uint32_t) * total) != 0) {
+                printf("allocation %ld failed: rc %d, the field %s\n", k, rc,
+                       memcmp(before, d.cost, sizeof(uint32_t) * total) ? "changed" : "as it was");
+                return 1;
+            }
+            rc = vs_field_follow(&d, pose, 50.0, w, CAP, &n, &b, &left);   /* again, with memory */
+        }
+        if (rc != VS_OK || n != n_ref || b != b_ref || memcmp(&left, &left_ref, sizeof left) != 0 ||
+            memcmp(w, w_ref, sizeof(double) * 3 * n) != 0) {
+            printf("allocation %ld: the descent differs from the whole build's\n", k);
+            return 1;
+        }
+        if (vs_field_resolve_all(&d) != VS_OK || memcmp(d.cost, whole.cost, sizeof(uint32_t) * total) != 0) {
+            printf("allocation %ld: resolved costs differ from the whole build's\n", k);
+            return 1;
+        }
+        free(before);
+        vs_field_free(&d);
+        if (!hit) break;   /* this resolution needs fewer than k allocations: every one has failed once */
+    }
+    vs_field_free(&whole);
+    printf("field_nomem: %ld failed allocations, each left the field as it was; ok\n", failed);
+    return failed > 2 ? 0 : 1;   /* the listing and Dial's buckets both allocate */
+}
