@@ -99,6 +99,51 @@ done:
     return rc;
 }
 
+/* Dial's algorithm in the cost array itself, from the one state src: a state not reached holds, in its cost bits, a
+ * value above any distance (VS_FIELD_UNRESOLVED or SEEN), walls hold VS_FIELD_WALL; a state reached gets
+ * (its bits & keep) | its distance, so keep says which of the tight and blocked bits stay.  The same distances as
+ * dial() over separate arrays (exact integers, whatever the order), one array read a neighbour instead of three.
+ * VS_ENOMEM: the states written so far keep their distances (the callers start again or fail). */
+static int dial_in_place(const vs_field *f, size_t src, uint32_t keep)
+{
+    uint32_t *cost = f->cost;
+    uint32_t wmax = 2 * (f->w_rot > VS_FIELD_W_DIAG ? f->w_rot : VS_FIELD_W_DIAG);
+    size_t nb = (size_t)wmax + 1, pending = 0;
+    bucket *bk = calloc(nb, sizeof(bucket));
+    if (bk == NULL) return VS_ENOMEM;
+    int rc = bucket_push(&bk[0], (uint32_t)src);
+    if (rc == VS_OK) {
+        cost[src] &= keep;   /* distance 0 */
+        pending = 1;
+    }
+    for (uint32_t d = 0; pending > 0 && rc == VS_OK; d++) {
+        bucket *b = &bk[d % nb];
+        for (size_t q = 0; q < b->len && rc == VS_OK; q++) {
+            uint32_t s = b->items[q];
+            pending--;
+            uint32_t cs = cost[s];
+            if ((cs & VS_FIELD_COST_MASK) != d) continue;   /* a stale entry: reached cheaper since */
+            size_t t[10];
+            uint32_t w[10];
+            int c = neighbours_of(f, s, t, w);
+            for (int j = 0; j < c; j++) {
+                uint32_t ct = cost[t[j]];
+                if (ct == VS_FIELD_WALL) continue;
+                uint32_t nd = d + (((cs | ct) & VS_FIELD_TIGHT_BIT) ? 2 * w[j] : w[j]);
+                if (nd < (ct & VS_FIELD_COST_MASK)) {
+                    cost[t[j]] = (ct & keep) | nd;
+                    if ((rc = bucket_push(&bk[nd % nb], (uint32_t)t[j])) != VS_OK) break;
+                    pending++;
+                }
+            }
+        }
+        b->len = 0;
+    }
+    for (size_t i = 0; i < nb; i++) free(bk[i].items);
+    free(bk);
+    return rc;
+}
+
 /* the x offset [m] of column c's body from the obstacle: ((gx + (c + ix_lo) h) + qx) - ox, as the raster's test
  * has always computed it, in this order */
 #define RASTER_DX(c) (((gx + (double)((c) + ix_lo) * h) + qx) - ox)
@@ -237,15 +282,19 @@ static int build(const double *template_xy, const double *radius_m, size_t n, do
     }
     size_t plane = f.nx * f.ny, total = plane * n_headings;
     unsigned char *tight = calloc(total, 1);
-    uint32_t *dist = malloc(sizeof(uint32_t) * total);
-    uint32_t *queue = malloc(sizeof(uint32_t) * total);
+    /* deferred: the goal's Dijkstra runs in the cost array (dial_in_place), and the components wait */
+    uint32_t *dist = defer ? NULL : malloc(sizeof(uint32_t) * total);
+    uint32_t *queue = defer ? NULL : malloc(sizeof(uint32_t) * total);
     double *q = malloc(sizeof(double) * 2 * n);
     f.cost = malloc(sizeof(uint32_t) * total);
     int rc = VS_OK;
-    if (tight == NULL || dist == NULL || queue == NULL || q == NULL || f.cost == NULL) { rc = VS_ENOMEM; goto fail; }
+    if (tight == NULL || (!defer && (dist == NULL || queue == NULL)) || q == NULL || f.cost == NULL) {
+        rc = VS_ENOMEM;
+        goto fail;
+    }
     for (size_t s = 0; s < total; s++) {
         f.cost[s] = 0u;          /* 0: free, not yet reached (below: the raster marks walls) */
-        dist[s] = VS_FIELD_WALL;
+        if (!defer) dist[s] = VS_FIELD_WALL;
     }
 
     /* the raster: for each heading, each body and each obstacle, the lattice points within reach */
@@ -297,6 +346,16 @@ static int build(const double *template_xy, const double *radius_m, size_t n, do
     /* pass 1: from the goal state */
     size_t goal_state = (size_t)(-f.iy_lo) * f.nx + (size_t)(-f.ix_lo);
     f.goal_free = f.cost[goal_state] != VS_FIELD_WALL;
+    if (defer) {   /* every free state unresolved and blocked (its tight bit kept) until the goal's Dijkstra reaches it */
+        for (size_t s = 0; s < total; s++)
+            if (f.cost[s] != VS_FIELD_WALL)
+                f.cost[s] = VS_FIELD_UNRESOLVED | VS_FIELD_BLOCKED_BIT | ((tight[s] & 1u) ? VS_FIELD_TIGHT_BIT : 0u);
+        if (f.goal_free && (rc = dial_in_place(&f, goal_state, VS_FIELD_TIGHT_BIT)) != VS_OK) goto fail;
+        free(tight);
+        free(q);
+        *out = f;
+        return VS_OK;
+    }
     if (f.goal_free) {
         uint32_t src = (uint32_t)goal_state;
         if ((rc = dial(&f, tight, &src, 1, dist)) != VS_OK) goto fail;
@@ -306,7 +365,7 @@ static int build(const double *template_xy, const double *radius_m, size_t n, do
     /* the components the goal cannot reach: each one's target is its state nearest the goal (deferred: later, one
      * component at a time, when a descent needs it: resolve_component) */
     size_t n_src = 0;
-    for (size_t s = 0; s < total && !defer; s++) {
+    for (size_t s = 0; s < total; s++) {
         if (f.cost[s] == VS_FIELD_WALL || dist[s] != VS_FIELD_WALL) continue;
         /* breadth-first over the component, marking it (dist = WALL - 1: seen) */
         size_t head = 0, tail = 0, best = s;
@@ -347,9 +406,7 @@ static int build(const double *template_xy, const double *radius_m, size_t n, do
     }
     for (size_t s = 0; s < total; s++) {
         if (f.cost[s] == VS_FIELD_WALL) continue;
-        /* deferred, a state the goal cannot reach is not reached by pass 2 either (dist WALL): VS_FIELD_UNRESOLVED */
-        uint32_t d = dist[s] == VS_FIELD_WALL ? VS_FIELD_UNRESOLVED : dist[s];
-        f.cost[s] = d | ((tight[s] & 1u) ? VS_FIELD_TIGHT_BIT : 0u) | ((tight[s] & 2u) ? 0u : VS_FIELD_BLOCKED_BIT);
+        f.cost[s] = dist[s] | ((tight[s] & 1u) ? VS_FIELD_TIGHT_BIT : 0u) | ((tight[s] & 2u) ? 0u : VS_FIELD_BLOCKED_BIT);
     }
     free(tight);
     free(dist);
@@ -422,39 +479,8 @@ static int resolve_component(const vs_field *f, size_t s0)
             cost[nbr[j]] = (cost[nbr[j]] & ~VS_FIELD_COST_MASK) | SEEN;
         }
     }
-    {   /* Dial from the target, over the component (costs SEEN: not reached) */
-        uint32_t wmax = 2 * (f->w_rot > VS_FIELD_W_DIAG ? f->w_rot : VS_FIELD_W_DIAG);
-        size_t nb = (size_t)wmax + 1, pending = 1;
-        bucket *bk = calloc(nb, sizeof(bucket));
-        if (bk == NULL) { rc = VS_ENOMEM; goto done; }
-        cost[best] &= ~VS_FIELD_COST_MASK;   /* distance 0 */
-        if ((rc = bucket_push(&bk[0], (uint32_t)best)) != VS_OK) pending = 0;
-        for (uint32_t d = 0; pending > 0; d++) {
-            bucket *b = &bk[d % nb];
-            for (size_t q = 0; q < b->len && rc == VS_OK; q++) {
-                uint32_t s = b->items[q];
-                pending--;
-                if ((cost[s] & VS_FIELD_COST_MASK) != d) continue;   /* a stale entry */
-                size_t t[10];
-                uint32_t w[10];
-                int c = neighbours_of(f, s, t, w);
-                for (int j = 0; j < c; j++) {
-                    uint32_t ct = cost[t[j]];
-                    if (ct == VS_FIELD_WALL) continue;
-                    uint32_t nd = d + (((cost[s] | ct) & VS_FIELD_TIGHT_BIT) ? 2 * w[j] : w[j]);
-                    if (nd < (ct & VS_FIELD_COST_MASK)) {
-                        cost[t[j]] = (ct & ~VS_FIELD_COST_MASK) | nd;
-                        if ((rc = bucket_push(&bk[nd % nb], (uint32_t)t[j])) != VS_OK) break;
-                        pending++;
-                    }
-                }
-            }
-            b->len = 0;
-            if (rc != VS_OK) break;
-        }
-        for (size_t i = 0; i < nb; i++) free(bk[i].items);
-        free(bk);
-    }
+    /* Dial from the target, over the component (costs SEEN: not reached; the blocked and tight bits kept) */
+    rc = dial_in_place(f, best, VS_FIELD_TIGHT_BIT | VS_FIELD_BLOCKED_BIT);
 done:
     if (rc != VS_OK)   /* leave the component unresolved, as it was: a later call starts again */
         for (size_t i = 0; i < comp.len; i++)
