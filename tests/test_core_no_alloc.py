@@ -30,14 +30,21 @@ def core_cflags() -> list[str]:
     return [f"-I{CORE}" if f.startswith("-I") else f for f in shlex.split(match.group(1))]
 
 
-@pytest.mark.integration  # starts gcc and the driver
-@pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
-def test_no_frame_of_the_agent_allocates_once_its_mission_is_adopted(tmp_path):
-    exe = tmp_path / "noalloc"
-    subprocess.run(["gcc", *core_cflags(), WRAP, "-o", str(exe), *map(str, PURE_C), str(DRIVER), "-lm"],
+def run_wrapped_driver(tmp_path: Path, driver: Path, wrap: str) -> subprocess.CompletedProcess:
+    """A C driver built with the core's sources, CORE_CFLAGS and the linker's --wrap list ``wrap``, then run; it must
+    exit 0 (its output is in the message otherwise)."""
+    exe = tmp_path / driver.stem
+    subprocess.run(["gcc", *core_cflags(), wrap, "-o", str(exe), *map(str, PURE_C), str(driver), "-lm"],
                    check=True, capture_output=True, timeout=180)
     run = subprocess.run([str(exe)], capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stdout + run.stderr
+    return run
+
+
+@pytest.mark.integration  # starts gcc and the driver
+@pytest.mark.skipif(shutil.which("gcc") is None, reason="needs gcc")
+def test_no_frame_of_the_agent_allocates_once_its_mission_is_adopted(tmp_path):
+    run = run_wrapped_driver(tmp_path, DRIVER, WRAP)
     summary = re.search(r"24 runs, 2160 frames counted: 0 allocations, 0 sorts; 0 frames failed \([1-9]\d* decisions, "
                         r"(\d+) frames in the second shape", run.stdout)
     assert summary, run.stdout

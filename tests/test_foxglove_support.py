@@ -42,12 +42,22 @@ def scripted_server(refusals: int):
     return server, received
 
 
-def test_a_subscription_the_server_calls_unknown_is_sent_again_and_its_messages_arrive():
-    server, received = scripted_server(refusals=1)
+def subscribed_client(server) -> FoxgloveClient:
+    """A client of the scripted server, subscribed to its channel once it is advertised."""
     client = FoxgloveClient(f"ws://127.0.0.1:{server.socket.getsockname()[1]}")
     try:
         client.wait_for(lambda c: "/t" in c.topics(), 10)
         client.subscribe(["/t"])
+    except BaseException:
+        client.close()
+        raise
+    return client
+
+
+def test_a_subscription_the_server_calls_unknown_is_sent_again_and_its_messages_arrive():
+    server, received = scripted_server(refusals=1)
+    client = subscribed_client(server)
+    try:
         client.wait_for(lambda c: len(c.messages["/t"]) == 1, 10)
         assert client.messages["/t"] == [(5, {"x": 1})]
         assert client.resubscribed == 1
@@ -60,10 +70,8 @@ def test_a_subscription_the_server_calls_unknown_is_sent_again_and_its_messages_
 
 def test_a_server_that_keeps_refusing_gets_the_subscription_a_bounded_number_of_times():
     server, received = scripted_server(refusals=100)
-    client = FoxgloveClient(f"ws://127.0.0.1:{server.socket.getsockname()[1]}")
+    client = subscribed_client(server)
     try:
-        client.wait_for(lambda c: "/t" in c.topics(), 10)
-        client.subscribe(["/t"])
         client.wait_for(lambda c: len(c.statuses) == 1 + RESUBSCRIBE_MAX, 10)
         assert client.resubscribed == RESUBSCRIBE_MAX
         assert len(received) == 1 + RESUBSCRIBE_MAX and not client.messages["/t"]
