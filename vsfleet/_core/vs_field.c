@@ -55,50 +55,6 @@ static int bucket_push(bucket *b, uint32_t v)
     return VS_OK;
 }
 
-/* Dial's algorithm over the free states (f->cost != WALL) from the sources src (distance 0): dist holds
- * VS_FIELD_WALL where not yet reached, and the exact integer distance where reached (the same whatever
- * the expansion order).  tight: per state, bit 0 set within the comfort band (edges touching it cost 2x). */
-static int dial(const vs_field *f, const unsigned char *tight, const uint32_t *src, size_t n_src, uint32_t *dist)
-{
-    uint32_t wmax = 2 * (f->w_rot > VS_FIELD_W_DIAG ? f->w_rot : VS_FIELD_W_DIAG);
-    size_t nb = (size_t)wmax + 1;
-    bucket *bk = calloc(nb, sizeof(bucket));
-    if (bk == NULL) return VS_ENOMEM;
-    int rc = VS_OK;
-    size_t pending = 0;
-    for (size_t i = 0; i < n_src; i++) {
-        dist[src[i]] = 0;
-        if ((rc = bucket_push(&bk[0], src[i])) != VS_OK) goto done;
-        pending++;
-    }
-    for (uint32_t d = 0; pending > 0; d++) {
-        bucket *b = &bk[d % nb];
-        for (size_t q = 0; q < b->len; q++) {  /* b may grow while we read it (zero-weight edges: none) */
-            uint32_t s = b->items[q];
-            pending--;
-            if (dist[s] != d) continue;        /* a stale entry: reached cheaper since */
-            size_t t[10];
-            uint32_t w[10];
-            int c = neighbours_of(f, s, t, w);
-            unsigned char ts = tight[s];
-            for (int j = 0; j < c; j++) {
-                if (f->cost[t[j]] == VS_FIELD_WALL) continue;
-                uint32_t nd = d + (((ts | tight[t[j]]) & 1u) ? 2 * w[j] : w[j]);
-                if (nd < dist[t[j]]) {
-                    dist[t[j]] = nd;
-                    if ((rc = bucket_push(&bk[nd % nb], (uint32_t)t[j])) != VS_OK) goto done;
-                    pending++;
-                }
-            }
-        }
-        b->len = 0;
-    }
-done:
-    for (size_t i = 0; i < nb; i++) free(bk[i].items);
-    free(bk);
-    return rc;
-}
-
 /* Dial's algorithm in the cost array itself, from the one state src: a state not reached holds, in its cost bits, a
  * value above any distance (VS_FIELD_UNRESOLVED or SEEN), walls hold VS_FIELD_WALL; a state reached gets
  * (its bits & keep) | its distance, so keep says which of the tight and blocked bits stay.  The same distances as
@@ -282,20 +238,11 @@ static int build(const double *template_xy, const double *radius_m, size_t n, do
     }
     size_t plane = f.nx * f.ny, total = plane * n_headings;
     unsigned char *tight = calloc(total, 1);
-    /* deferred: the goal's Dijkstra runs in the cost array (dial_in_place), and the components wait */
-    uint32_t *dist = defer ? NULL : malloc(sizeof(uint32_t) * total);
-    uint32_t *queue = defer ? NULL : malloc(sizeof(uint32_t) * total);
     double *q = malloc(sizeof(double) * 2 * n);
     f.cost = malloc(sizeof(uint32_t) * total);
     int rc = VS_OK;
-    if (tight == NULL || (!defer && (dist == NULL || queue == NULL)) || q == NULL || f.cost == NULL) {
-        rc = VS_ENOMEM;
-        goto fail;
-    }
-    for (size_t s = 0; s < total; s++) {
-        f.cost[s] = 0u;          /* 0: free, not yet reached (below: the raster marks walls) */
-        if (!defer) dist[s] = VS_FIELD_WALL;
-    }
+    if (tight == NULL || q == NULL || f.cost == NULL) { rc = VS_ENOMEM; goto fail; }
+    for (size_t s = 0; s < total; s++) f.cost[s] = 0u;   /* 0: free (below: the raster marks walls) */
 
     /* the raster: for each heading, each body and each obstacle, the lattice points within reach */
     for (size_t k = 0; k < n_headings; k++) {
@@ -343,81 +290,25 @@ static int build(const double *template_xy, const double *radius_m, size_t n, do
         }
     }
 
-    /* pass 1: from the goal state */
+    /* pass 1, from the goal state, in the cost array: every free state unresolved and blocked (its tight bit kept)
+     * until the goal's Dijkstra reaches it */
     size_t goal_state = (size_t)(-f.iy_lo) * f.nx + (size_t)(-f.ix_lo);
     f.goal_free = f.cost[goal_state] != VS_FIELD_WALL;
-    if (defer) {   /* every free state unresolved and blocked (its tight bit kept) until the goal's Dijkstra reaches it */
-        for (size_t s = 0; s < total; s++)
-            if (f.cost[s] != VS_FIELD_WALL)
-                f.cost[s] = VS_FIELD_UNRESOLVED | VS_FIELD_BLOCKED_BIT | ((tight[s] & 1u) ? VS_FIELD_TIGHT_BIT : 0u);
-        if (f.goal_free && (rc = dial_in_place(&f, goal_state, VS_FIELD_TIGHT_BIT)) != VS_OK) goto fail;
-        free(tight);
-        free(q);
-        *out = f;
-        return VS_OK;
-    }
-    if (f.goal_free) {
-        uint32_t src = (uint32_t)goal_state;
-        if ((rc = dial(&f, tight, &src, 1, dist)) != VS_OK) goto fail;
-        for (size_t s = 0; s < total; s++)
-            if (dist[s] != VS_FIELD_WALL) tight[s] |= 2u;   /* reached from the goal */
-    }
-    /* the components the goal cannot reach: each one's target is its state nearest the goal (deferred: later, one
-     * component at a time, when a descent needs it: resolve_component) */
-    size_t n_src = 0;
-    for (size_t s = 0; s < total; s++) {
-        if (f.cost[s] == VS_FIELD_WALL || dist[s] != VS_FIELD_WALL) continue;
-        /* breadth-first over the component, marking it (dist = WALL - 1: seen) */
-        size_t head = 0, tail = 0, best = s;
-        long long best_d2 = -1;
-        dist[s] = VS_FIELD_WALL - 1u;
-        queue[tail++] = (uint32_t)s;
-        while (head < tail) {
-            size_t u = queue[head++];
-            size_t rem = u % plane;
-            long long c = (long long)(rem % f.nx) + f.ix_lo, r = (long long)(rem / f.nx) + f.iy_lo;
-            long long d2 = c * c + r * r;
-            if (best_d2 < 0 || d2 < best_d2 || (d2 == best_d2 && u < best)) { best_d2 = d2; best = u; }
-            size_t nbr[10];
-            uint32_t wts[10];
-            int cnt = neighbours_of(&f, u, nbr, wts);
-            for (int j = 0; j < cnt; j++) {
-                size_t t = nbr[j];
-                if (f.cost[t] == VS_FIELD_WALL || dist[t] != VS_FIELD_WALL) continue;
-                dist[t] = VS_FIELD_WALL - 1u;
-                queue[tail++] = (uint32_t)t;
-            }
-        }
-        queue[total - 1 - n_src] = (uint32_t)best;   /* targets from the queue's end (never overrun: */
-        n_src++;                                      /* one per component, each of >= 1 state) */
-        (void)head;
-    }
-    if (n_src > 0) {
-        uint32_t *src = malloc(sizeof(uint32_t) * n_src);   /* the targets, in the order found */
-        if (src == NULL) { rc = VS_ENOMEM; goto fail; }
-        for (size_t i = 0; i < n_src; i++) src[i] = queue[total - 1 - i];
-        for (size_t s = 0; s < total; s++)                  /* reopen the components for pass 2 */
-            if (dist[s] == VS_FIELD_WALL - 1u) dist[s] = VS_FIELD_WALL;
-        /* pass 2, from every target at once: the components are apart from the goal's (and from one
-         * another), so it never touches a state of pass 1 */
-        rc = dial(&f, tight, src, n_src, dist);
-        free(src);
-        if (rc != VS_OK) goto fail;
-    }
-    for (size_t s = 0; s < total; s++) {
-        if (f.cost[s] == VS_FIELD_WALL) continue;
-        f.cost[s] = dist[s] | ((tight[s] & 1u) ? VS_FIELD_TIGHT_BIT : 0u) | ((tight[s] & 2u) ? 0u : VS_FIELD_BLOCKED_BIT);
-    }
+    for (size_t s = 0; s < total; s++)
+        if (f.cost[s] != VS_FIELD_WALL)
+            f.cost[s] = VS_FIELD_UNRESOLVED | VS_FIELD_BLOCKED_BIT | ((tight[s] & 1u) ? VS_FIELD_TIGHT_BIT : 0u);
+    if (f.goal_free && (rc = dial_in_place(&f, goal_state, VS_FIELD_TIGHT_BIT)) != VS_OK) goto fail;
     free(tight);
-    free(dist);
-    free(queue);
     free(q);
+    tight = NULL;
+    q = NULL;
+    /* the components the goal cannot reach, each from its target (resolve_component): now, or (deferred) when a
+     * descent first needs one */
+    if (!defer && (rc = vs_field_resolve_all(&f)) != VS_OK) goto fail;
     *out = f;
     return VS_OK;
 fail:
     free(tight);
-    free(dist);
-    free(queue);
     free(q);
     free(f.cost);
     return rc;

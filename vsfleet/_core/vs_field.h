@@ -17,11 +17,12 @@
  * Edges: the 8 neighbours at the same heading (cost 10, diagonals 14) and the two neighbouring headings in
  * the same cell (cost w_rot = round(10 P dth / h), at least 1); an edge touching a tight state costs twice.
  *
- * Cost to go.  Integer Dijkstra (Dial's buckets) from the goal state: exact integer distances, the same
- * whatever the order of expansion, so every host and the reference agree bit for bit.  Free states the goal
- * cannot reach form components; each gets its own target, the state nearest the goal (squared lattice
- * distance, then the lowest index) and a second Dijkstra from all those targets at once: their costs carry
- * VS_FIELD_BLOCKED_BIT.  Non-free states hold VS_FIELD_WALL.
+ * Cost to go.  Integer Dijkstra (Dial's buckets, run in the cost array itself) from the goal state: exact integer
+ * distances, the same whatever the order of expansion, so every host and the reference agree bit for bit.  Free
+ * states the goal cannot reach form components; each gets its own target, the state nearest the goal (squared
+ * lattice distance, then the lowest index), and its own Dijkstra from it (the components are apart, so this is the
+ * same as one from all targets at once): their costs carry VS_FIELD_BLOCKED_BIT.  Non-free states hold
+ * VS_FIELD_WALL.  (Since 2026-12-06 the whole build is the deferred build with every component resolved.)
  *
  * Units and frames as vscore.h: lengths [m], poses (x, y, th) [m, m, rad; world].
  */
