@@ -58,7 +58,8 @@ static int bucket_push(bucket *b, uint32_t v)
 /* Dial's algorithm in the cost array itself, from the one state src: a state not reached holds, in its cost bits, a
  * value above any distance (VS_FIELD_UNRESOLVED or SEEN), walls hold VS_FIELD_WALL; a state reached gets
  * (its bits & keep) | its distance, so keep says which of the tight and blocked bits stay.  The same distances as
- * dial() over separate arrays (exact integers, whatever the order), one array read a neighbour instead of three.
+ * the former Dijkstra over separate distance and tight arrays (exact integers, whatever the order), with one array
+ * read a neighbour instead of three.
  * VS_ENOMEM: the states written so far keep their distances (the callers start again or fail). */
 static int dial_in_place(const vs_field *f, size_t src, uint32_t keep)
 {
