@@ -169,8 +169,9 @@ static long g_safety_filter(const double *in, long n_in, double *out, long cap)
 
 /* field_build: n, m, margin, cell, headings, max states, goal 3, 2n template, n radii, 3m obstacles
  * -> nx, ny, ix_lo, iy_lo, cell, inflation, w_rot, goal_free, then the FNV-1a hash of the cost array (64 bits,
- * as two 32-bit halves), the count of walls, of blocked and of tight states.  The deferred build
- * (vs_field_build_deferred), its every component resolved, must give the same cost array: else refused (-1) */
+ * as two 32-bit halves), the count of walls, of blocked and of tight states.  (vs_field_build is the deferred
+ * build with every component resolved: the hash, recorded by the former whole build, holds both to its bits;
+ * field_follow checks a deferred field's descents, which resolve on demand.) */
 static long g_field_build(const double *in, long n_in, double *out, long cap)
 {
     if (n_in < 9 || cap < 13) return -1;
@@ -178,19 +179,10 @@ static long g_field_build(const double *in, long n_in, double *out, long cap)
          max_states = count_of(in[5], 1024, 100000000);
     if (n < 0 || m < 0 || heads < 0 || max_states < 0 || n_in != 9 + 2 * n + n + 3 * m) return -1;
     const double *goal = in + 6, *tpl = in + 9, *radii = tpl + 2 * n, *obs = radii + n;
-    vs_field f, d;
+    vs_field f;
     if (vs_field_build(tpl, radii, (size_t)n, in[2], obs, (size_t)m, goal, in[3], (size_t)heads, (size_t)max_states,
                        &f) != VS_OK)
         return -1;
-    if (vs_field_build_deferred(tpl, radii, (size_t)n, in[2], obs, (size_t)m, goal, in[3], (size_t)heads,
-                                (size_t)max_states, &d) != VS_OK) {
-        vs_field_free(&f);
-        return -1;
-    }
-    int same = vs_field_resolve_all(&d) == VS_OK && d.nx == f.nx && d.ny == f.ny && d.n_headings == f.n_headings
-               && memcmp(d.cost, f.cost, sizeof(uint32_t) * f.nx * f.ny * f.n_headings) == 0;
-    vs_field_free(&d);
-    if (!same) { vs_field_free(&f); return -1; }
     uint64_t hash = 1469598103934665603ull;
     double walls = 0.0, blocked = 0.0, tight = 0.0;
     size_t total = f.nx * f.ny * f.n_headings;
