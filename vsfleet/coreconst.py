@@ -77,16 +77,6 @@ ESCAPE_M: float = _core.ESCAPE_M
 #: touching + margin
 PRESSED_M: float = _core.PRESSED_M
 
-# the structure's planner (vs_plan.h VS_PLAN_*)
-PLAN_OK: int = _core.PLAN_OK
-PLAN_BLOCKED: int = _core.PLAN_BLOCKED
-PLAN_MAX_OBSTACLES: int = _core.PLAN_MAX_OBSTACLES
-PLAN_MAX_ABS_M: float = _core.PLAN_MAX_ABS_M
-PLAN_SLACK: float = _core.PLAN_SLACK
-PLAN_ARC_STEP_RAD: float = _core.PLAN_ARC_STEP_RAD
-PLAN_SIDE_BIAS: float = _core.PLAN_SIDE_BIAS
-PLAN_GOAL_TIE_M: float = _core.PLAN_GOAL_TIE_M
-
 # the fit (vs_fit.h, vs_fit_l1.h, vs_fit_linf.h): the certified gap, the search's rounds, the largest magnitude,
 # from which n l1 starts at Newton's rotation, linf's end points per cell
 FIT_CERT_TOL: float = _core.FIT_CERT_TOL

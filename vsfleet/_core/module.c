@@ -21,7 +21,6 @@
 #include "vs_fit_linf.h"
 #include "vs_kin.h"
 #include "vs_math.h"
-#include "vs_plan.h"
 #include "vs_step.h"
 #include "vs_wire.h"
 
@@ -33,14 +32,13 @@ extern PyMethodDef vs_py_failure_methods[];
 extern PyMethodDef vs_py_step_methods[];
 extern PyMethodDef vs_py_golden_methods[];
 extern PyMethodDef vs_py_safety_methods[];
-extern PyMethodDef vs_py_plan_methods[];
 extern PyMethodDef vs_py_field_methods[];
 extern PyMethodDef vs_py_wire_methods[];
 extern PyMethodDef vs_py_agent_methods[];
 
 static PyMethodDef *tables[] = {vs_py_math_methods, vs_py_fit_methods, vs_py_advance_methods,
                                 vs_py_control_methods, vs_py_failure_methods, vs_py_step_methods,
-                                vs_py_golden_methods, vs_py_safety_methods, vs_py_plan_methods,
+                                vs_py_golden_methods, vs_py_safety_methods,
                                 vs_py_field_methods, vs_py_wire_methods, vs_py_agent_methods};
 
 /* ------------------------------------------------------------------ the interface's constants
@@ -66,7 +64,6 @@ static const int_const ints[] = {
     {"FIELD_UNRESOLVED", VS_FIELD_UNRESOLVED},
     {"FIELD_W_AXIS", VS_FIELD_W_AXIS}, {"FIELD_W_DIAG", VS_FIELD_W_DIAG}, {"FIELD_SEARCH_CELLS", VS_FIELD_SEARCH_CELLS},
     {"STEP_PATH_CAP", VS_STEP_PATH_CAP}, {"CLEAR_ROWS", VS_CLEAR_ROWS},
-    {"PLAN_OK", VS_PLAN_OK}, {"PLAN_BLOCKED", VS_PLAN_BLOCKED}, {"PLAN_MAX_OBSTACLES", VS_PLAN_MAX_OBSTACLES},
     {"FIT_MAX_ROUNDS", VS_FIT_MAX_ROUNDS}, {"L1_NEWTON_N", VS_L1_NEWTON_N}, {"LINF_SPLIT", VS_LINF_SPLIT},
     {"WIRE_MAX_FRAME_BYTES", VS_WIRE_MAX_FRAME_BYTES}, {"WIRE_MAX_ROBOTS", VS_WIRE_MAX_ROBOTS},
     {"WIRE_PROTOCOL_V", VS_WIRE_PROTOCOL_V},
@@ -82,8 +79,6 @@ static const double_const doubles[] = {
     {"CLEAR_M", VS_CLEAR_M}, {"CLEAR_BAND_M", VS_CLEAR_BAND_M}, {"CLEAR_GAMMA_PER_S", VS_CLEAR_GAMMA_PER_S},
     {"ASSEMBLING_M", VS_ASSEMBLING_M}, {"DETOUR_CLEAR_M", VS_DETOUR_CLEAR_M},
     {"ESCAPE_M", VS_ESCAPE_M}, {"PRESSED_M", VS_PRESSED_M},
-    {"PLAN_MAX_ABS_M", VS_PLAN_MAX_ABS_M}, {"PLAN_SLACK", VS_PLAN_SLACK}, {"PLAN_ARC_STEP_RAD", VS_PLAN_ARC_STEP_RAD},
-    {"PLAN_SIDE_BIAS", VS_PLAN_SIDE_BIAS}, {"PLAN_GOAL_TIE_M", VS_PLAN_GOAL_TIE_M},
     {"FIT_CERT_TOL", VS_FIT_CERT_TOL}, {"FIT_MAX_ABS", VS_FIT_MAX_ABS}, {"SINC_SERIES_BELOW", VS_SINC_SERIES_BELOW},
     {"CORNER_TIE_RAD", VS_CORNER_TIE_RAD},
     {"WIRE_MAX_ABS", VS_WIRE_MAX_ABS}, {"WIRE_MAX_ABS_T", VS_WIRE_MAX_ABS_T},
