@@ -101,21 +101,33 @@ static int dial_in_place(const vs_field *f, size_t src, uint32_t keep)
     return rc;
 }
 
+/* rows of fewer columns than this are tested column by column: cheaper than finding the runs' ends (the 30 robots'
+ * rooms of bench/plan_cost.py, cells of 9 cm: rows of about 10 columns) */
+#define VS_RASTER_SHORT_ROW 24
+
 /* the x offset [m] of column c's body from the obstacle: ((gx + (c + ix_lo) h) + qx) - ox, as the raster's test
- * has always computed it, in this order */
-#define RASTER_DX(c) (((gx + (double)((c) + ix_lo) * h) + qx) - ox)
+ * has always computed it, in this order; xs[c] = gx + (c + ix_lo) h, the column's x, computed once per build */
+#define RASTER_DX(c) ((xs[c] + qx) - ox)
 
 /* One row of one (heading, body, obstacle) raster: every column c in [c0, c1] whose body comes within the wall
  * radius (d2 = dx^2 + dy2 < w2) becomes a wall, and within the tight radius (< t2) but not the wall's, tight.
  * The same cells as testing every column: dx is non-decreasing in c (every rounding is monotone), so d2 falls,
  * then rises, and each set {d2 < w2}, {d2 < t2} is one run of columns around the column of least |dx|.  The
  * runs' ends are found by exact tests, stepping from a sqrt estimate, and the runs filled without tests. */
-static void raster_row_at(uint32_t *cost, unsigned char *tight, long long c0, long long c1, double gx, double qx,
-                          long long ix_lo, double h, double ox, double dy2, double w2, double t2)
+static void raster_row_at(uint32_t *cost, unsigned char *tight, long long c0, long long c1, const double *xs,
+                          double qx, double ox, double est, double inv_h, double dy2, double w2, double t2)
 {
 #define D2(c) (RASTER_DX(c) * RASTER_DX(c) + dy2)
-    /* m: the column of least d2 (the last with dx <= 0, or the one after it, or c0 / c1) */
-    double est = (ox - (gx + qx)) / h - (double)ix_lo;   /* an estimate only: corrected by exact tests */
+    if (c1 - c0 < VS_RASTER_SHORT_ROW) {   /* a short row: every column tested, as the runs below stand for */
+        for (long long c = c0; c <= c1; c++) {   /* branch-free: a wall ORs in every bit (VS_FIELD_WALL); a wall's */
+            double d2 = D2(c);                    /* tight flag is never read */
+            cost[c] |= (uint32_t)0 - (uint32_t)(d2 < w2);
+            tight[c] |= (unsigned char)(d2 < t2);
+        }
+        return;
+    }
+    /* m: the column of least d2 (the last with dx <= 0, or the one after it, or c0 / c1); est (the column where dx
+     * is about 0) and inv_h = 1 / h serve estimates only, which exact tests then correct */
     long long m = c0;
     if (est > (double)c1) m = c1;
     else if (est > (double)c0) m = (long long)est;
@@ -130,7 +142,7 @@ static void raster_row_at(uint32_t *cost, unsigned char *tight, long long c0, lo
     for (int pass = 0; pass < 2; pass++) {
         double lim = pass == 0 ? t2 : w2;
         if (pass == 1 && !(dm < w2)) break;
-        double half = lim - dy2 > 0.0 ? sqrt(lim - dy2) / h : 0.0;
+        double half = lim - dy2 > 0.0 ? sqrt(lim - dy2) * inv_h : 0.0;
         long long a = m - (long long)half, b = m + (long long)half;
         if (a < c0) a = c0;
         if (b > c1) b = c1;
@@ -239,13 +251,16 @@ static int build(const double *template_xy, const double *radius_m, size_t n, do
     }
     size_t plane = f.nx * f.ny, total = plane * n_headings;
     unsigned char *tight = calloc(total, 1);
-    double *q = malloc(sizeof(double) * 2 * n);
+    double *q = malloc(sizeof(double) * (2 * n + f.nx));   /* the bodies' offsets, then the columns' x (xs) */
     f.cost = malloc(sizeof(uint32_t) * total);
     int rc = VS_OK;
     if (tight == NULL || q == NULL || f.cost == NULL) { rc = VS_ENOMEM; goto fail; }
     for (size_t s = 0; s < total; s++) f.cost[s] = 0u;   /* 0: free (below: the raster marks walls) */
 
     /* the raster: for each heading, each body and each obstacle, the lattice points within reach */
+    const double inv_h = 1.0 / h;
+    double *xs = q + 2 * n;
+    for (size_t c = 0; c < f.nx; c++) xs[c] = f.gx + (double)((long long)c + (long long)f.ix_lo) * h;
     for (size_t k = 0; k < n_headings; k++) {
         double th = f.gth + (double)k * f.dth_rad;
         double sn = vs_sin(th), cs = vs_cos(th);
@@ -281,11 +296,14 @@ static int build(const double *template_xy, const double *radius_m, size_t n, do
                 if (r0 < 0) r0 = 0;
                 if (c1 > (long long)f.nx - 1) c1 = (long long)f.nx - 1;
                 if (r1 > (long long)f.ny - 1) r1 = (long long)f.ny - 1;
+                double est = (o[0] - (f.gx + qx)) * inv_h - (double)f.ix_lo;   /* the column nearest: an estimate */
                 for (long long r = r0; r <= r1; r++) {
                     double by = (f.gy + (double)(r + f.iy_lo) * h) + qy;
                     double dy = by - o[1];
-                    raster_row_at(plane_cost + (size_t)r * f.nx, plane_tight + (size_t)r * f.nx, c0, c1, f.gx, qx,
-                                  (long long)f.ix_lo, h, o[0], dy * dy, w2, t2);
+                    double dy2 = dy * dy;
+                    if (!(dy2 < t2)) continue;   /* no column of this row: dx * dx + dy2 >= dy2 (rounding is monotone) */
+                    raster_row_at(plane_cost + (size_t)r * f.nx, plane_tight + (size_t)r * f.nx, c0, c1, xs, qx,
+                                  o[0], est, inv_h, dy2, w2, t2);
                 }
             }
         }
