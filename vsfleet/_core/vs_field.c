@@ -301,7 +301,7 @@ static int build(const double *template_xy, const double *radius_m, size_t n, do
                     double by = (f.gy + (double)(r + f.iy_lo) * h) + qy;
                     double dy = by - o[1];
                     double dy2 = dy * dy;
-                    if (!(dy2 < t2)) continue;   /* no column of this row: dx * dx + dy2 >= dy2 (rounding is monotone) */
+                    if (!(dy2 < t2)) continue;   /* no column of this row: dx * dx + dy2 >= dy2 (monotone rounding) */
                     raster_row_at(plane_cost + (size_t)r * f.nx, plane_tight + (size_t)r * f.nx, c0, c1, xs, qx,
                                   o[0], est, inv_h, dy2, w2, t2);
                 }
