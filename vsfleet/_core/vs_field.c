@@ -114,15 +114,14 @@ static int dial_in_place(const vs_field *f, size_t src, uint32_t keep)
  * The same cells as testing every column: dx is non-decreasing in c (every rounding is monotone), so d2 falls,
  * then rises, and each set {d2 < w2}, {d2 < t2} is one run of columns around the column of least |dx|.  The
  * runs' ends are found by exact tests, stepping from a sqrt estimate, and the runs filled without tests. */
-static void raster_row_at(uint32_t *cost, unsigned char *tight, long long c0, long long c1, const double *xs,
+static void raster_row_at(uint32_t *cost, long long c0, long long c1, const double *xs,
                           double qx, double ox, double est, double inv_h, double dy2, double w2, double t2)
 {
 #define D2(c) (RASTER_DX(c) * RASTER_DX(c) + dy2)
     if (c1 - c0 < VS_RASTER_SHORT_ROW) {   /* a short row: every column tested, as the runs below stand for */
-        for (long long c = c0; c <= c1; c++) {   /* branch-free: a wall ORs in every bit (VS_FIELD_WALL); a wall's */
-            double d2 = D2(c);                    /* tight flag is never read */
-            cost[c] |= (uint32_t)0 - (uint32_t)(d2 < w2);
-            tight[c] |= (unsigned char)(d2 < t2);
+        for (long long c = c0; c <= c1; c++) {   /* branch-free: a wall ORs in every bit (VS_FIELD_WALL), tight */
+            double d2 = D2(c);                    /* the tight bit (a wall's is never read) */
+            cost[c] |= ((uint32_t)0 - (uint32_t)(d2 < w2)) | ((uint32_t)(d2 < t2) * VS_FIELD_TIGHT_BIT);
         }
         return;
     }
@@ -153,9 +152,9 @@ static void raster_row_at(uint32_t *cost, unsigned char *tight, long long c0, lo
         if (pass == 0) { lo_t = a; hi_t = b; }
         else { lo_w = a; hi_w = b; }
     }
-    for (long long c = lo_t; c < lo_w; c++) tight[c] = 1;
+    for (long long c = lo_t; c < lo_w; c++) cost[c] |= VS_FIELD_TIGHT_BIT;
     for (long long c = lo_w; c <= hi_w; c++) cost[c] = VS_FIELD_WALL;
-    for (long long c = (hi_w >= lo_w ? hi_w + 1 : lo_w); c <= hi_t; c++) tight[c] = 1;
+    for (long long c = (hi_w >= lo_w ? hi_w + 1 : lo_w); c <= hi_t; c++) cost[c] |= VS_FIELD_TIGHT_BIT;
 #undef D2
 }
 #undef RASTER_DX
@@ -250,11 +249,10 @@ static int build(const double *template_xy, const double *radius_m, size_t n, do
         f.w_rot = w < 1 ? 1u : (uint32_t)w;
     }
     size_t plane = f.nx * f.ny, total = plane * n_headings;
-    unsigned char *tight = calloc(total, 1);
     double *q = malloc(sizeof(double) * (2 * n + f.nx));   /* the bodies' offsets, then the columns' x (xs) */
     f.cost = malloc(sizeof(uint32_t) * total);
     int rc = VS_OK;
-    if (tight == NULL || q == NULL || f.cost == NULL) { rc = VS_ENOMEM; goto fail; }
+    if (q == NULL || f.cost == NULL) { rc = VS_ENOMEM; goto fail; }
     for (size_t s = 0; s < total; s++) f.cost[s] = 0u;   /* 0: free (below: the raster marks walls) */
 
     /* the raster: for each heading, each body and each obstacle, the lattice points within reach */
@@ -270,7 +268,6 @@ static int build(const double *template_xy, const double *radius_m, size_t n, do
             q[2 * i + 1] = sn * px + cs * py;
         }
         uint32_t *plane_cost = f.cost + k * plane;
-        unsigned char *plane_tight = tight + k * plane;
         for (size_t i = 0; i < n; i++) {
             double qx = q[2 * i], qy = q[2 * i + 1];
             double px = template_xy[2 * i], py = template_xy[2 * i + 1];
@@ -302,8 +299,7 @@ static int build(const double *template_xy, const double *radius_m, size_t n, do
                     double dy = by - o[1];
                     double dy2 = dy * dy;
                     if (!(dy2 < t2)) continue;   /* no column of this row: dx * dx + dy2 >= dy2 (monotone rounding) */
-                    raster_row_at(plane_cost + (size_t)r * f.nx, plane_tight + (size_t)r * f.nx, c0, c1, xs, qx,
-                                  o[0], est, inv_h, dy2, w2, t2);
+                    raster_row_at(plane_cost + (size_t)r * f.nx, c0, c1, xs, qx, o[0], est, inv_h, dy2, w2, t2);
                 }
             }
         }
@@ -315,11 +311,9 @@ static int build(const double *template_xy, const double *radius_m, size_t n, do
     f.goal_free = f.cost[goal_state] != VS_FIELD_WALL;
     for (size_t s = 0; s < total; s++)
         if (f.cost[s] != VS_FIELD_WALL)
-            f.cost[s] = VS_FIELD_UNRESOLVED | VS_FIELD_BLOCKED_BIT | ((tight[s] & 1u) ? VS_FIELD_TIGHT_BIT : 0u);
+            f.cost[s] = VS_FIELD_UNRESOLVED | VS_FIELD_BLOCKED_BIT | (f.cost[s] & VS_FIELD_TIGHT_BIT);
     if (f.goal_free && (rc = dial_in_place(&f, goal_state, VS_FIELD_TIGHT_BIT)) != VS_OK) goto fail;
-    free(tight);
     free(q);
-    tight = NULL;
     q = NULL;
     /* the components the goal cannot reach, each from its target (resolve_component): now, or (deferred) when a
      * descent first needs one */
@@ -327,7 +321,6 @@ static int build(const double *template_xy, const double *radius_m, size_t n, do
     *out = f;
     return VS_OK;
 fail:
-    free(tight);
     free(q);
     free(f.cost);
     return rc;
