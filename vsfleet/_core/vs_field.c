@@ -285,10 +285,13 @@ static int build(const double *template_xy, const double *radius_m, size_t n, do
                 double w2 = turn2 > move2 ? turn2 : move2;
                 double rho_tight = sqrt(w2) + VS_FIELD_COMFORT_M;
                 double t2 = rho_tight * rho_tight;
-                /* the body centre is (gx + ix h + qx, ...): near the obstacle for ix around (ox - qx - gx) / h */
+                /* the body centre is (gx + ix h + qx, ...): within rho_tight of the obstacle only for ix in
+                 * ((cx - rho_tight) / h, (cx + rho_tight) / h), cx = ox - qx - gx; the floor of the low end and the
+                 * floor of the high end + 1 hold that range and a column more (rounding moves the ends by less than
+                 * 1e-9 of a cell: coordinates <= 1e6 m, cells >= 1e-3 m).  Likewise the rows. */
                 double cx = (o[0] - qx) - f.gx, cy = (o[1] - qy) - f.gy;
-                long long c0 = ifloor((cx - rho_tight) / h) - 1 - f.ix_lo, c1 = ifloor((cx + rho_tight) / h) + 2 - f.ix_lo;
-                long long r0 = ifloor((cy - rho_tight) / h) - 1 - f.iy_lo, r1 = ifloor((cy + rho_tight) / h) + 2 - f.iy_lo;
+                long long c0 = ifloor((cx - rho_tight) / h) - f.ix_lo, c1 = ifloor((cx + rho_tight) / h) + 1 - f.ix_lo;
+                long long r0 = ifloor((cy - rho_tight) / h) - f.iy_lo, r1 = ifloor((cy + rho_tight) / h) + 1 - f.iy_lo;
                 if (c0 < 0) c0 = 0;
                 if (r0 < 0) r0 = 0;
                 if (c1 > (long long)f.nx - 1) c1 = (long long)f.nx - 1;
