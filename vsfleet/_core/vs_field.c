@@ -101,7 +101,7 @@ static int dial_in_place(const vs_field *f, size_t src, uint32_t keep)
     return rc;
 }
 
-/* rows of fewer columns than this are tested column by column: cheaper than finding the runs' ends (the 30 robots'
+/* rows of this many columns or fewer (c1 - c0 < this) are tested column by column: cheaper than finding the runs' ends (the 30 robots'
  * rooms of bench/plan_cost.py, cells of 9 cm: rows of about 10 columns) */
 #define VS_RASTER_SHORT_ROW 24
 
@@ -253,7 +253,7 @@ static int build(const double *template_xy, const double *radius_m, size_t n, do
     f.cost = malloc(sizeof(uint32_t) * total);
     int rc = VS_OK;
     if (q == NULL || f.cost == NULL) { rc = VS_ENOMEM; goto fail; }
-    for (size_t s = 0; s < total; s++) f.cost[s] = 0u;   /* 0: free (below: the raster marks walls) */
+    for (size_t s = 0; s < total; s++) f.cost[s] = 0u;   /* 0: free (the raster ORs in walls, tight bits) */
 
     /* the raster: for each heading, each body and each obstacle, the lattice points within reach */
     const double inv_h = 1.0 / h;
@@ -287,8 +287,8 @@ static int build(const double *template_xy, const double *radius_m, size_t n, do
                 double t2 = rho_tight * rho_tight;
                 /* the body centre is (gx + ix h + qx, ...): within rho_tight of the obstacle only for ix in
                  * ((cx - rho_tight) / h, (cx + rho_tight) / h), cx = ox - qx - gx; the floor of the low end and the
-                 * floor of the high end + 1 hold that range and a column more (rounding moves the ends by less than
-                 * 1e-9 of a cell: coordinates <= 1e6 m, cells >= 1e-3 m).  Likewise the rows. */
+                 * floor of the high end + 1 hold that range and a column more (rounding moves the ends by about
+                 * 1e-5 of a cell at most: coordinates <= 1e6 m, cells >= 1e-3 m).  Likewise the rows. */
                 double cx = (o[0] - qx) - f.gx, cy = (o[1] - qy) - f.gy;
                 long long c0 = ifloor((cx - rho_tight) / h) - f.ix_lo, c1 = ifloor((cx + rho_tight) / h) + 1 - f.ix_lo;
                 long long r0 = ifloor((cy - rho_tight) / h) - f.iy_lo, r1 = ifloor((cy + rho_tight) / h) + 1 - f.iy_lo;
