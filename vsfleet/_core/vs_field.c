@@ -101,8 +101,8 @@ static int dial_in_place(const vs_field *f, size_t src, uint32_t keep)
     return rc;
 }
 
-/* rows of this many columns or fewer (c1 - c0 < this) are tested column by column: cheaper than finding the runs' ends (the 30 robots'
- * rooms of bench/plan_cost.py, cells of 9 cm: rows of about 10 columns) */
+/* rows of this many columns or fewer (c1 - c0 < this) are tested column by column: cheaper than finding the runs'
+ * ends (the 30 robots' rooms of bench/plan_cost.py, cells of 9 cm: rows of about 10 columns) */
 #define VS_RASTER_SHORT_ROW 24
 
 /* the x offset [m] of column c's body from the obstacle: ((gx + (c + ix_lo) h) + qx) - ox, as the raster's test
