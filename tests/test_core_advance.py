@@ -183,14 +183,14 @@ def cases(draw, max_n=100):
 # --- the core equals the reference ------------------------------------------------------------
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=150, deadline=None)
 @given(case=cases())
 def test_the_core_advance_equals_the_reference_on_random_fleets_goals_and_options(case):
     args, kwargs = case
     both(*args, **kwargs)
 
 
-@settings(max_examples=150, deadline=None)
+@settings(max_examples=75, deadline=None)
 @given(case=cases(max_n=5), steps=st.integers(1, 40))
 def test_the_core_advance_follows_the_reference_over_a_run_toward_the_goal(case, steps):
     (pose, goal, dt, lim, tpl, env), kwargs = case

@@ -32,8 +32,8 @@ TOL = 1e-9
 DT = 1.0 / 30.0
 NAMES = ("precision", "tracking", "arc", "turn_then_go")
 STATE_FIELDS = ("pose_world", "gains", "history_m_s", "target_world", "feed_m_s", "turn_rad_s")
-CHEAP = settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-LOOPS = settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+CHEAP = settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+LOOPS = settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 finite = st.floats(-50.0, 50.0, allow_nan=False)
 speeds = st.floats(-1.0, 1.0, allow_nan=False)

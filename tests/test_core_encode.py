@@ -69,7 +69,7 @@ def plain_state(used=("r1", "r2", "r3"), **changes) -> StateMsg:
 # ---------------------------------------------------------------- the same bytes
 
 
-@settings(max_examples=400, deadline=None)
+@settings(max_examples=200, deadline=None)
 @given(floats, uints, floats, floats, floats)
 @example(0.0, 0, 0.0, 0.0, 0.0)
 @example(-0.0, 2**64 - 1, -0.0, math.inf, math.nan)
@@ -89,7 +89,7 @@ def test_encode_cmd_writes_every_float_by_its_bits(v):
     assert got.count(b"\xcb" + struct.pack(">d", v)) >= 4
 
 
-@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(states())
 def test_encode_state_writes_wire_encodes_bytes(msg):
     assert _core.encode_state(*state_args(msg)) == encode(msg)

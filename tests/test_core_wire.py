@@ -299,7 +299,7 @@ def valid_frames(draw):
     return dict(fields), draw(st.integers(0, 2**32))
 
 
-@settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(valid_frames())
 def test_a_random_valid_frame_in_any_msgpack_form_decodes_to_the_same_bits(case):
     obj, seed = case
@@ -307,7 +307,7 @@ def test_a_random_valid_frame_in_any_msgpack_form_decodes_to_the_same_bits(case)
         assert agree(pack(obj, rng)) == "ok"
 
 
-@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(valid_frames(), st.lists(st.tuples(st.integers(0, 2**16), st.integers(0, 255)), min_size=1, max_size=4))
 def test_a_random_frame_with_bytes_overwritten_gets_the_same_verdict(case, edits):
     obj, seed = case

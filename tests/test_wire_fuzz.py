@@ -19,7 +19,7 @@ from vsfleet.wire import (
     encode_mission,
 )
 
-SETTINGS = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+SETTINGS = settings(max_examples=75, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 # msgpack-able values, with the numbers a fuzzer would pick: NaN, inf, huge, negative zero
 scalars = st.one_of(st.none(), st.booleans(), st.integers(min_value=-2**63, max_value=2**64 - 1),
