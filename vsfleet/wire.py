@@ -19,7 +19,7 @@ import math
 import operator
 import re
 from dataclasses import dataclass, fields
-from functools import cached_property
+from functools import cached_property, lru_cache
 from typing import Any, Callable, Mapping
 
 import msgpack
@@ -209,6 +209,12 @@ def _opt_int(m: Mapping[str, Any], name: str, default: int) -> int:
     return _int(m, name)
 
 
+@lru_cache(maxsize=None)
+def _field_names(cls) -> frozenset[str]:
+    """A message class's field names (dataclasses.fields walked once per class, not once per message)."""
+    return frozenset(f.name for f in fields(cls))
+
+
 def check_known(m: Mapping[str, Any], known, what: str) -> None:
     """Raise UnknownFieldError naming every key of ``m`` not in ``known`` (with a close match, if any)."""
     extra = sorted((k for k in m if k not in known), key=repr)
@@ -228,7 +234,7 @@ def _version(m: Mapping[str, Any], cls: type, what: str) -> int:
     if isinstance(v, bool) or not isinstance(v, int) or not (1 <= v < 2**31):
         raise WireError(f"field 'v' (protocol version) must be an integer >= 1, got {v!r}")
     if v <= PROTOCOL_V:
-        check_known(m, {f.name for f in fields(cls)}, f"{what} (v{v})")
+        check_known(m, _field_names(cls), f"{what} (v{v})")
     return v
 
 
@@ -595,7 +601,7 @@ def decode_frame_core(payload: bytes, src: str | None = None) -> FrameMsg:
 
 def decode_cmd(payload: bytes) -> CmdMsg:
     m = unpack_map(payload)
-    check_known(m, {f.name for f in fields(CmdMsg)}, "a command")
+    check_known(m, _field_names(CmdMsg), "a command")
     ttl = _pos(m, "ttl")
     if ttl > MAX_TTL_S:
         raise WireError(f"field 'ttl' must be <= {MAX_TTL_S} s, got {ttl}")
