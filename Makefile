@@ -7,7 +7,7 @@ STAMP := $(VENV)/.installed
 # PYTHONDONTWRITEBYTECODE=1, so each one compiled the project again: ~0.3 s of CPU per process).
 unexport PYTHONDONTWRITEBYTECODE
 
-.PHONY: demo test test-unit test-integration bench bench-fit clean core test-cross test-sanitize test-noalloc
+.PHONY: demo test test-unit test-fleet test-integration bench bench-fit clean core test-cross test-sanitize test-noalloc
 
 CORE_SRC := $(wildcard vsfleet/_core/*.c vsfleet/_core/*.h) setup.py
 
@@ -29,16 +29,21 @@ core: $(CORE_SO)
 demo: $(STAMP) $(CORE_SO)
 	$(BIN)/vsfleet run scenarios/paper-triangle.toml
 
-# the whole suite (CI: .ci/run): the unit tier on both cores, then the multi-process tests two files
-# at a time (each file's tests in one worker, in order); test-unit: every test that starts no process.
-# The unit tier runs --dist worksteal: plain load scheduling hands a worker one chunk of consecutive
-# tests (all of tests/test_closed_loop.py's offline runs) that the idle worker cannot take back
+# the whole suite (CI: .ci/run): the unit tier and the fleet tier (closed-loop runs of a simulated fleet in
+# process: tests/conftest.py's FLEET_MODULES) on both cores, then the multi-process tests two files at a time
+# (each file's tests in one worker, in order). test-unit: every test that starts no process and runs no fleet.
+# Those tiers run --dist worksteal: plain load scheduling hands a worker one chunk of consecutive tests (all of
+# tests/test_closed_loop.py's offline runs) that the idle worker cannot take back
 test: $(STAMP) $(CORE_SO)
-	$(BIN)/python -m pytest -q -m "not integration" -n 2 --dist worksteal
+	$(BIN)/python -m pytest -q -m "not integration and not fleet" -n 2 --dist worksteal
+	$(BIN)/python -m pytest -q -m fleet -n 2 --dist worksteal
 	$(BIN)/python -m pytest -q -m integration -n 2 --dist loadfile
 
 test-unit: $(STAMP) $(CORE_SO)
-	$(BIN)/python -m pytest -q -m "not integration" -n 2 --dist worksteal
+	$(BIN)/python -m pytest -q -m "not integration and not fleet" -n 2 --dist worksteal
+
+test-fleet: $(STAMP) $(CORE_SO)
+	$(BIN)/python -m pytest -q -m fleet -n 2 --dist worksteal
 
 test-integration: $(STAMP) $(CORE_SO)
 	$(BIN)/python -m pytest -q -m integration -n 2 --dist loadfile
