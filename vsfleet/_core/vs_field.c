@@ -6,6 +6,10 @@
 
 #include "vs_field.h"
 
+#if defined(__SSE2__) && defined(__x86_64__)
+#include <emmintrin.h>
+#endif
+
 /* floor for |v| < 2^62 (the lattice's indices are far smaller: coordinates <= 1e6 m, cells >= 1e-3 m) */
 static long long ifloor(double v)
 {
@@ -119,7 +123,27 @@ static void raster_row_at(uint32_t *cost, long long c0, long long c1, const doub
 {
 #define D2(c) (RASTER_DX(c) * RASTER_DX(c) + dy2)
     if (c1 - c0 < VS_RASTER_SHORT_ROW) {   /* a short row: every column tested, as the runs below stand for */
-        for (long long c = c0; c <= c1; c++) {   /* branch-free: a wall ORs in every bit (VS_FIELD_WALL), tight */
+        long long c = c0;
+#if defined(__SSE2__) && defined(__x86_64__)
+        /* two columns at a time: the same operations in each lane (IEEE add, subtract, multiply and compare, no
+         * fused multiply-add), so the same bits as the scalar loop below, which finishes the row */
+        const __m128d vqx = _mm_set1_pd(qx), vox = _mm_set1_pd(ox), vdy2 = _mm_set1_pd(dy2);
+        const __m128d vw2 = _mm_set1_pd(w2), vt2 = _mm_set1_pd(t2);
+        const __m128i vtb = _mm_set1_epi32((int)VS_FIELD_TIGHT_BIT);
+        for (; c < c1; c += 2) {
+            __m128d dx = _mm_sub_pd(_mm_add_pd(_mm_loadu_pd(xs + c), vqx), vox);
+            __m128d d2 = _mm_add_pd(_mm_mul_pd(dx, dx), vdy2);
+            /* each lane's all-ones or zero, its low 32 bits taken (shuffle 0, 2): the two columns' words */
+            __m128i wall = _mm_shuffle_epi32(_mm_castpd_si128(_mm_cmplt_pd(d2, vw2)), _MM_SHUFFLE(2, 0, 2, 0));
+            __m128i tight = _mm_shuffle_epi32(_mm_castpd_si128(_mm_cmplt_pd(d2, vt2)), _MM_SHUFFLE(2, 0, 2, 0));
+            __m128i bits = _mm_or_si128(wall, _mm_and_si128(tight, vtb));
+            uint64_t two;   /* cost[c], cost[c + 1] ORed with their bits (memcpy: no alignment asked of cost) */
+            memcpy(&two, cost + c, sizeof two);
+            two |= (uint64_t)_mm_cvtsi128_si64(bits);
+            memcpy(cost + c, &two, sizeof two);
+        }
+#endif
+        for (; c <= c1; c++) {   /* branch-free: a wall ORs in every bit (VS_FIELD_WALL), tight */
             double d2 = D2(c);                    /* the tight bit (a wall's is never read) */
             cost[c] |= ((uint32_t)0 - (uint32_t)(d2 < w2)) | ((uint32_t)(d2 < t2) * VS_FIELD_TIGHT_BIT);
         }
@@ -249,7 +273,11 @@ static int build(const double *template_xy, const double *radius_m, size_t n, do
         f.w_rot = w < 1 ? 1u : (uint32_t)w;
     }
     size_t plane = f.nx * f.ny, total = plane * n_headings;
-    double *q = malloc(sizeof(double) * (2 * n + f.nx));   /* the bodies' offsets, then the columns' x (xs) */
+    /* the bodies' offsets, then the columns' x (xs), the rows' y (ys), and each (body i, obstacle j)'s squared wall
+     * and tight radii and tight radius (radii2[3 (i m + j) ...]: the same at every heading, computed once) */
+    double *q = NULL;
+    if (n <= (SIZE_MAX / sizeof(double) - f.nx - f.ny) / (2 + 3 * (size_t)n_obstacles))
+        q = malloc(sizeof(double) * (2 * n + f.nx + f.ny + 3 * n * n_obstacles));
     f.cost = malloc(sizeof(uint32_t) * total);
     int rc = VS_OK;
     if (q == NULL || f.cost == NULL) { rc = VS_ENOMEM; goto fail; }
@@ -257,8 +285,29 @@ static int build(const double *template_xy, const double *radius_m, size_t n, do
 
     /* the raster: for each heading, each body and each obstacle, the lattice points within reach */
     const double inv_h = 1.0 / h;
-    double *xs = q + 2 * n;
+    double *xs = q + 2 * n, *ys = xs + f.nx, *radii2 = ys + f.ny;
     for (size_t c = 0; c < f.nx; c++) xs[c] = f.gx + (double)((long long)c + (long long)f.ix_lo) * h;
+    for (size_t r = 0; r < f.ny; r++) ys[r] = f.gy + (double)((long long)r + (long long)f.iy_lo) * h;
+    for (size_t i = 0; i < n; i++) {
+        double px = template_xy[2 * i], py = template_xy[2 * i + 1];
+        double arm = sqrt(px * px + py * py);          /* |p_i|: the body's arc radius when the structure turns */
+        double chord = arm * f.dth_rad;                /* >= the chord of a turn edge */
+        double sagitta = (arm * (f.dth_rad * f.dth_rad)) / 8.0;   /* >= the arc's bulge beyond that chord */
+        for (size_t j = 0; j < n_obstacles; j++) {
+            /* the exact bound of the edges (vs_field.h): a move keeps need where both ends keep
+             * sqrt(need^2 + h^2 / 2), a turn where both keep sqrt((need + sagitta)^2 + chord^2 / 4) */
+            double need = (radius_m[i] + obstacles[3 * j + 2]) + margin_m;
+            double move2 = need * need + (h * h) / 2.0;
+            double bulge = need + sagitta;
+            double turn2 = bulge * bulge + (chord * chord) / 4.0;
+            double w2 = turn2 > move2 ? turn2 : move2;
+            double rho_tight = sqrt(w2) + VS_FIELD_COMFORT_M;
+            double *b = radii2 + 3 * (i * n_obstacles + j);
+            b[0] = w2;
+            b[1] = rho_tight * rho_tight;
+            b[2] = rho_tight;
+        }
+    }
     for (size_t k = 0; k < n_headings; k++) {
         double th = f.gth + (double)k * f.dth_rad;
         double sn = vs_sin(th), cs = vs_cos(th);
@@ -270,21 +319,10 @@ static int build(const double *template_xy, const double *radius_m, size_t n, do
         uint32_t *plane_cost = f.cost + k * plane;
         for (size_t i = 0; i < n; i++) {
             double qx = q[2 * i], qy = q[2 * i + 1];
-            double px = template_xy[2 * i], py = template_xy[2 * i + 1];
-            double arm = sqrt(px * px + py * py);          /* |p_i|: the body's arc radius when the structure turns */
-            double chord = arm * f.dth_rad;                /* >= the chord of a turn edge */
-            double sagitta = (arm * (f.dth_rad * f.dth_rad)) / 8.0;   /* >= the arc's bulge beyond that chord */
             for (size_t j = 0; j < n_obstacles; j++) {
                 const double *o = obstacles + 3 * j;
-                /* the exact bound of the edges (vs_field.h): a move keeps need where both ends keep
-                 * sqrt(need^2 + h^2 / 2), a turn where both keep sqrt((need + sagitta)^2 + chord^2 / 4) */
-                double need = (radius_m[i] + o[2]) + margin_m;
-                double move2 = need * need + (h * h) / 2.0;
-                double bulge = need + sagitta;
-                double turn2 = bulge * bulge + (chord * chord) / 4.0;
-                double w2 = turn2 > move2 ? turn2 : move2;
-                double rho_tight = sqrt(w2) + VS_FIELD_COMFORT_M;
-                double t2 = rho_tight * rho_tight;
+                const double *b = radii2 + 3 * (i * n_obstacles + j);
+                double w2 = b[0], t2 = b[1], rho_tight = b[2];
                 /* the body centre is (gx + ix h + qx, ...): within rho_tight of the obstacle only for ix in
                  * ((cx - rho_tight) / h, (cx + rho_tight) / h), cx = ox - qx - gx; the floor of the low end and the
                  * floor of the high end + 1 hold that range and a column more (rounding moves the ends by about
@@ -298,7 +336,7 @@ static int build(const double *template_xy, const double *radius_m, size_t n, do
                 if (r1 > (long long)f.ny - 1) r1 = (long long)f.ny - 1;
                 double est = (o[0] - (f.gx + qx)) * inv_h - (double)f.ix_lo;   /* the column nearest: an estimate */
                 for (long long r = r0; r <= r1; r++) {
-                    double by = (f.gy + (double)(r + f.iy_lo) * h) + qy;
+                    double by = ys[r] + qy;   /* (gy + (r + iy_lo) h) + qy, as the raster has always computed it */
                     double dy = by - o[1];
                     double dy2 = dy * dy;
                     if (!(dy2 < t2)) continue;   /* no column of this row: dx * dx + dy2 >= dy2 (monotone rounding) */
