@@ -8,6 +8,7 @@
 
 #if defined(__SSE2__) && defined(__x86_64__)
 #include <emmintrin.h>
+#define VS_LOW_WORDS _MM_SHUFFLE(2, 0, 2, 0)   /* 32-bit words 0 and 2: each 64-bit lane's low word */
 #endif
 
 /* floor for |v| < 2^62 (the lattice's indices are far smaller: coordinates <= 1e6 m, cells >= 1e-3 m) */
@@ -125,17 +126,31 @@ static void raster_row_at(uint32_t *cost, long long c0, long long c1, const doub
     if (c1 - c0 < VS_RASTER_SHORT_ROW) {   /* a short row: every column tested, as the runs below stand for */
         long long c = c0;
 #if defined(__SSE2__) && defined(__x86_64__)
-        /* two columns at a time: the same operations in each lane (IEEE add, subtract, multiply and compare, no
-         * fused multiply-add), so the same bits as the scalar loop below, which finishes the row */
+        /* four, then two columns at a time: the same operations in each lane (IEEE add, subtract, multiply and
+         * compare, no fused multiply-add), so the same bits as the scalar loop below, which finishes the row */
         const __m128d vqx = _mm_set1_pd(qx), vox = _mm_set1_pd(ox), vdy2 = _mm_set1_pd(dy2);
         const __m128d vw2 = _mm_set1_pd(w2), vt2 = _mm_set1_pd(t2);
         const __m128i vtb = _mm_set1_epi32((int)VS_FIELD_TIGHT_BIT);
+        for (; c + 3 <= c1; c += 4) {   /* four columns: two pairs, their words in one 16-byte or */
+            __m128d dxa = _mm_sub_pd(_mm_add_pd(_mm_loadu_pd(xs + c), vqx), vox);
+            __m128d dxb = _mm_sub_pd(_mm_add_pd(_mm_loadu_pd(xs + c + 2), vqx), vox);
+            __m128d d2a = _mm_add_pd(_mm_mul_pd(dxa, dxa), vdy2), d2b = _mm_add_pd(_mm_mul_pd(dxb, dxb), vdy2);
+            /* each lane's all-ones or zero, its low 32 bits taken (shuffle 0, 2 of each pair): columns c..c + 3 */
+            __m128i wall = _mm_castps_si128(_mm_shuffle_ps(_mm_castpd_ps(_mm_cmplt_pd(d2a, vw2)),
+                                                           _mm_castpd_ps(_mm_cmplt_pd(d2b, vw2)), VS_LOW_WORDS));
+            __m128i tight = _mm_castps_si128(_mm_shuffle_ps(_mm_castpd_ps(_mm_cmplt_pd(d2a, vt2)),
+                                                            _mm_castpd_ps(_mm_cmplt_pd(d2b, vt2)), VS_LOW_WORDS));
+            __m128i four;   /* cost[c..c + 3] ORed with their bits (memcpy: no alignment asked of cost) */
+            memcpy(&four, cost + c, sizeof four);
+            four = _mm_or_si128(four, _mm_or_si128(wall, _mm_and_si128(tight, vtb)));
+            memcpy(cost + c, &four, sizeof four);
+        }
         for (; c < c1; c += 2) {
             __m128d dx = _mm_sub_pd(_mm_add_pd(_mm_loadu_pd(xs + c), vqx), vox);
             __m128d d2 = _mm_add_pd(_mm_mul_pd(dx, dx), vdy2);
             /* each lane's all-ones or zero, its low 32 bits taken (shuffle 0, 2): the two columns' words */
-            __m128i wall = _mm_shuffle_epi32(_mm_castpd_si128(_mm_cmplt_pd(d2, vw2)), _MM_SHUFFLE(2, 0, 2, 0));
-            __m128i tight = _mm_shuffle_epi32(_mm_castpd_si128(_mm_cmplt_pd(d2, vt2)), _MM_SHUFFLE(2, 0, 2, 0));
+            __m128i wall = _mm_shuffle_epi32(_mm_castpd_si128(_mm_cmplt_pd(d2, vw2)), VS_LOW_WORDS);
+            __m128i tight = _mm_shuffle_epi32(_mm_castpd_si128(_mm_cmplt_pd(d2, vt2)), VS_LOW_WORDS);
             __m128i bits = _mm_or_si128(wall, _mm_and_si128(tight, vtb));
             uint64_t two;   /* cost[c], cost[c + 1] ORed with their bits (memcpy: no alignment asked of cost) */
             memcpy(&two, cost + c, sizeof two);
