@@ -70,7 +70,8 @@ typedef struct {
  * goal (x, y, th); cell_m > 0 [m] (at least 1e-3), n_headings in [4, 1024], max_states in [1024,
  * VS_FIELD_MAX_STATES] and >= 9 n_headings (a lattice of 3 x 3 cells at least).
  * VS_ENONFINITE / VS_EVALUE on bad inputs, VS_ENOMEM if allocation fails; on VS_OK *out owns its cost
- * array: release it with vs_field_free.  Cost: O(K n m (r / h)^2 + K nx ny) (once per mission). */
+ * array: release it with vs_field_free.  Cost: O(K n m (r / h)^2 + K nx ny) (once per mission); scratch memory
+ * while it builds: 8 (2 n + nx + ny + 3 n m) bytes (each body and obstacle's radii, computed once). */
 int vs_field_build(const double *template_xy, const double *radius_m, size_t n, double margin_m,
                    const double *obstacles, size_t n_obstacles, const double goal[3], double cell_m,
                    size_t n_headings, size_t max_states, vs_field *out);
