@@ -36,6 +36,10 @@ SLOW_FIRST = (
     "tests/test_core_step.py::test_the_core_step_agrees_with_the_numpy_reference_on_the_same_frames",
     "tests/test_reshape.py::test_the_core_and_the_reference_choose_the_same_shape_and_structure_bit_for_bit",
     "tests/test_core_agent_golden.py::test_each_agent_step_record_agrees_with_the_numpy_reference",
+    # the same records' other two checks on the same worker, which then runs each record's fleet offline once
+    # (run_frames is cached in the worker: 0.2-0.8 s a record, 14 records)
+    "tests/test_core_agent_golden.py::test_each_agent_step_record_is_what_the_python_glue_decides_bit_for_bit",
+    "tests/test_core_agent_golden.py::test_each_agent_step_record_is_its_run",
     "tests/test_core_wire.py::test_a_random_valid_frame_in_any_msgpack_form_decodes_to_the_same_bits",
     "tests/test_core_control.py::test_every_controller_in_a_closed_loop_computes_the_references_wheels_and_state",
     "tests/test_core_wire.py::test_a_random_frame_with_bytes_overwritten_gets_the_same_verdict",
