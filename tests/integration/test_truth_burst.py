@@ -49,7 +49,7 @@ pubs = [s.declare_publisher("{prefix}/state/x%03d" % i, express=True) for i in r
 while True:
     for p in pubs:
         p.put(b"x" * 2000)
-    time.sleep(1 / 30)
+    time.sleep(1 / 30)   # the flood's rate (30 Hz, as ring-100's agents publish): load, not a wait for anything
 """
 
 
