@@ -262,7 +262,7 @@ def agent_step_inputs(robot, config, warm, record) -> list[float]:
         state = step.enter_mission(state, mission, arrays.policy, config)
     got = []
     make = _core.agent_config
-    agentcore._KERNELS.clear()
+    agentcore.core_mission_of(mission).kernels.clear()
     _core.agent_config = lambda *a: got.append(a) or make(*a)
     try:
         kernel = agentcore.agent_kernel(agentcore.core_mission_of(mission), mission, robot, controller, config)

@@ -149,6 +149,9 @@ def _decide(state: AgentState, mission: Mission | None, frame: Frame, now_s: flo
     return decide_in_numpy(state, mission, controller, frame, config, notes)
 
 
+KERNELS_HELD = 1024   # a mission's agent steps held: one per robot of an offline fleet (vsfleet.agentstate.CoreMission)
+
+
 @dataclass(frozen=True)
 class Kernel:
     """A mission's and an agent's constants for vs_agent_step (vsfleet._core.agent_config), and its scratch."""
@@ -158,9 +161,6 @@ class Kernel:
     scratch_u8: memoryview
     stateless: tuple            # Precision's buffers standing in for a controller that keeps no state
     precision: bool             # the controller keeps Precision's state (PrecisionState)
-
-
-_KERNELS: dict[tuple, tuple[CoreMission, Kernel]] = {}
 
 
 def precision_initial(n: int) -> PrecisionState:
@@ -174,9 +174,9 @@ def agent_kernel(cm: CoreMission, mission: Mission, robot: str, controller: Cont
                  config: StepConfig) -> Kernel | None:
     """The core's agent step for this mission, robot, controller and config (built once; None: a controller the
     core does not run, whose frames then go through vsfleet.glue's numpy glue)."""
-    key = (id(cm), robot, id(controller), config.dt_s, config.ttl_s, config.age_s, config.resync_gap_s)
-    hit = _KERNELS.get(key)
-    if hit is not None and hit[0] is cm:
+    key = (robot, id(controller), config.dt_s, config.ttl_s, config.age_s, config.resync_gap_s)
+    hit = cm.kernels.get(key)   # held by the mission: one per robot of an offline run, one in an agent process
+    if hit is not None and hit[0] is controller:
         return hit[1]
     inner, deadband, still = controller, 0.0, 0.0
     if isinstance(controller, Held):
@@ -198,9 +198,9 @@ def agent_kernel(cm: CoreMission, mission: Mission, robot: str, controller: Cont
     kernel = Kernel(capsule, filled("d", (AGENT_SCRATCH_F64_PER_ROBOT * n,)),
                     filled("?", (AGENT_SCRATCH_U8_PER_ROBOT * n,)),
                     tuple(getattr(stateless, k) for k in PRECISION_STATE_FIELDS), name == "precision")
-    if len(_KERNELS) >= 16:
-        _KERNELS.clear()
-    _KERNELS[key] = (cm, kernel)
+    if len(cm.kernels) >= KERNELS_HELD:
+        cm.kernels.clear()
+    cm.kernels[key] = (controller, kernel)
     return kernel
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import enum
 import math
 from dataclasses import dataclass, field, fields
+from dataclasses import field as dataclass_field   # CoreMission has a member named field
 from functools import lru_cache
 from itertools import chain
 from typing import Callable, Mapping
@@ -112,17 +113,47 @@ class CoreMission:
     field: Field | None = None
     shapes: tuple = ()         # ((name, points), ...): mission_shape_points, when the template has a field
     shape_fields: tuple = ()
+    # the agent steps built on it (vsfleet.agentcore.agent_kernel), by robot, controller and config: they live as
+    # long as the mission is held
+    kernels: dict = dataclass_field(default_factory=dict, repr=False)
 
 
+# CoreMissions held: by the mission object (the fast path, one dict lookup a frame) and by its content, so that
+# equal missions share one (the agents of an offline run each decode their own copy: 30 or 100 of them used to
+# rebuild theirs every frame, past the 16 held). Every CoreMission alive is in _BY_VALUE: both are cleared together,
+# so at most MISSIONS_HELD are held (each holds its room's fields, up to 8 MB each).
+MISSIONS_HELD = 16
 _MISSIONS: dict[int, tuple[Mission, CoreMission]] = {}
+_BY_VALUE: dict[Mission, CoreMission] = {}
 
 
 def core_mission_of(mission: Mission) -> CoreMission:
-    """A mission's CoreMission, built once per mission object (memoised: a pure function). Building it builds the
-    room's fields (a plan: run_agent does it on a thread of its own when the mission arrives)."""
+    """A mission's CoreMission, built once per mission (memoised: a pure function of the mission's content, so equal
+    missions share one). Building it builds the room's fields (a plan: run_agent does it on a thread of its own when
+    the mission arrives)."""
     hit = _MISSIONS.get(id(mission))
     if hit is not None and hit[0] is mission:
         return hit[1]
+    try:
+        cm = _BY_VALUE.get(mission)
+    except TypeError:   # a mission that cannot be hashed (none can be decoded so): built for this object alone
+        cm = None
+    if cm is None:
+        cm = _build_core_mission(mission)
+        if len(_BY_VALUE) >= MISSIONS_HELD:
+            _BY_VALUE.clear()
+            _MISSIONS.clear()
+        try:
+            _BY_VALUE[mission] = cm
+        except TypeError:
+            return cm
+    if len(_MISSIONS) >= 64 * MISSIONS_HELD:
+        _MISSIONS.clear()
+    _MISSIONS[id(mission)] = (mission, cm)
+    return cm
+
+
+def _build_core_mission(mission: Mission) -> CoreMission:
     ids = mission.robot_ids
     specs = [s for _, s in mission.robots]
     template = [s.p for s in specs]
@@ -137,13 +168,9 @@ def core_mission_of(mission: Mission) -> CoreMission:
                           [s.wheel_speed_max for s in specs], [s.wheel_accel_max for s in specs], goal, limits,
                           radii, mission.obstacles, fld, shapes, shape_fields)
     bodies = any(r != 0.0 for r in radii)
-    cm = CoreMission(ids=ids, index={r: i for i, r in enumerate(ids)}, goal=goal, policy=mission_policy(mission),
-                     room=bodies or len(mission.obstacles) > 0, bodies=bodies, core=packed, limits=limits, field=fld,
-                     shapes=shapes, shape_fields=shape_fields)
-    if len(_MISSIONS) >= 16:
-        _MISSIONS.clear()
-    _MISSIONS[id(mission)] = (mission, cm)
-    return cm
+    return CoreMission(ids=ids, index={r: i for i, r in enumerate(ids)}, goal=goal, policy=mission_policy(mission),
+                       room=bodies or len(mission.obstacles) > 0, bodies=bodies, core=packed, limits=limits,
+                       field=fld, shapes=shapes, shape_fields=shape_fields)
 
 
 def mission_policy(mission: Mission) -> FailurePolicy:
