@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from bench import ompl_ref
-from bench.room import CLEAR_M, FLEETS, KINDS, MAX_OBSTACLES, assembled_starts, make_room, obs_gap_m, to_scenario
+from bench.room import (CLEAR_M, FLEETS, KINDS, MAX_OBSTACLES, assembled_starts, has_way, make_room, obs_gap_m, pooled,
+                        to_scenario)
 from vsfleet.field import build_field, follow_field
 from vsfleet.fit import fit_structure
 from vsfleet.geometry import Pose2
@@ -144,3 +145,16 @@ def test_rooms_run_in_worker_processes_give_every_seed_once_with_its_arguments(m
     with pytest.raises(SystemExit):
         room.main(["--rooms", "1", "--jobs", "0", "--out", str(tmp_path / "out")])
     assert not (tmp_path / "out").exists()
+
+
+def test_a_room_our_fleet_drove_through_without_contact_has_a_way_even_where_ompl_found_none():
+    def row(ompl, t_goal, gap, blocked=False):
+        return {"ompl": {"success": ompl, "length_m": 2.0 if ompl else None, "time_s": 1.0},
+                "ours": {"success": True, "length_m": 2.0, "build_s": 0.01}, "t_goal_s": t_goal, "gap_m": gap,
+                "in_time": t_goal is not None, "ended_blocked": blocked, "ref_s": 20.0}
+
+    driven, touched, stuck, ompl_only = row(False, 30.0, 0.02), row(False, 30.0, -0.001), row(False, None, 0.02, True), \
+        row(True, None, 0.02, True)
+    assert [has_way(r) for r in (driven, touched, stuck, ompl_only)] == [True, False, False, True]
+    p = pooled([driven, touched, stuck, ompl_only])
+    assert (p["way"], p["ompl_way"], p["noway"], p["noway_blocked"], p["way_blocked"]) == (2, 1, 2, 1, 1)
