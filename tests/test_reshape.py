@@ -222,3 +222,43 @@ def test_a_large_structure_follows_its_plan_with_a_carrot_a_third_of_its_reach_a
             short = structure_step_reference(*args)
         differ += short.goal_pose.as_tuple() != ref.goal_pose.as_tuple()
     assert differ > 0   # where the way turns, the longer carrot changes where the structure heads (3 of 12 here)
+
+
+def test_where_the_barrier_holds_a_large_structures_move_back_it_follows_with_the_missions_own_lookahead(monkeypatch):
+    """vs_step.h: where the clearance barrier keeps less than HELD_BACK of the move the advance asked for, the
+    advance runs again with the mission's own lookahead (a long carrot cut round the obstacle the plan goes round,
+    and the barrier held a line of 10 head on against a wall's disc for 23 s: bench room 162). Poses beside a pillar,
+    the core and the reference alike; where the rule acts, the step is the short carrot's, elsewhere the long one's
+    (the rule acts at 2 of the 80 poses)."""
+    import vsfleet.structure as structure_module
+
+    d = scenario_with(shapes=None).mission.to_dict()
+    for spec in d["robots"].values():
+        spec["p"] = [2.2 * v for v in spec["p"]]   # reach 0.64 m: the carrot 0.19 m ahead, not 0.15 m
+    mission = mission_from_dict({**d, "obstacles": [[1.0, 0.4, 0.15]]})
+    arrays = mission_arrays(mission)
+    rng = np.random.default_rng(7)
+    acted = kept = 0
+    for k in range(80):
+        th = rng.uniform(-math.pi, math.pi)
+        c, s = math.cos(th), math.sin(th)
+        centre = np.array([1.0, 0.4]) + rng.uniform(0.45, 0.75) * np.array([math.cos(k), math.sin(k)])
+        xy = centre + arrays.template @ np.array([[c, s], [-s, c]]) + rng.normal(0, 0.002, arrays.template.shape)
+        pose = np.column_stack([xy, np.full(3, th)])
+        args = (arrays, mission.metric, pose, np.ones(3, bool), np.zeros(3, bool), np.zeros(3, bool), 5.0, 1 / 30)
+        core, ref = structure_step(*args), structure_step_reference(*args)
+        if ref is None:
+            continue
+        # the core and the reference alike, within the advance's own agreement (advance_structure: 1e-9)
+        assert np.allclose(core.goal_pose.as_tuple(), ref.goal_pose.as_tuple(), rtol=0.0, atol=1e-9), k
+        with monkeypatch.context() as mp:
+            mp.setattr(structure_module, "HELD_BACK", -math.inf)   # the rule off
+            long_only = structure_step_reference(*args)
+            mp.setattr(structure_module, "STEP_LOOKAHEAD_PER_REACH", 0.0)
+            short = structure_step_reference(*args)
+        if ref.goal_pose.as_tuple() != long_only.goal_pose.as_tuple():
+            acted += 1
+            assert ref.goal_pose.as_tuple() == short.goal_pose.as_tuple(), k
+        else:
+            kept += 1
+    assert acted > 0 and kept > 0

@@ -31,6 +31,7 @@ np = lazy_numpy(globals())   # numpy on first use: the agent process never loads
 #: field's edges keep this, its states 1-2 mm more (the edges' exact bound); the clearance barrier (vsfleet.clear)
 #: keeps the structure's points CLEAR_M (22 mm) away
 PLAN_MARGIN_M = 0.02
+HELD_BACK = 0.5   # vs_step.c: the barrier keeps less than this share of the move asked for
 
 
 def room_field(template: np.ndarray, radii, obstacles: np.ndarray, goal: Goal,
@@ -130,9 +131,22 @@ def structure_step_reference(arrays, metric: str, pose_world: np.ndarray, seen: 
     cleared = False
     if field is not None and len(arrays.obstacles) > 0 and not adv.at_goal:
         # the room's clearance barrier (vsfleet.clear): the points keep CLEAR_M from every obstacle
-        t = adv.twist
-        (vx, vy, w), changed = clearance_barrier_reference(now_pts, fit.pose.x, fit.pose.y, arrays.radii,
-                                                           arrays.obstacles, reach, (t.vx_m_s, t.vy_m_s, t.w_rad_s))
+        def through_barrier(t):
+            return clearance_barrier_reference(now_pts, fit.pose.x, fit.pose.y, arrays.radii, arrays.obstacles, reach,
+                                               (t.vx_m_s, t.vy_m_s, t.w_rad_s))
+
+        (vx, vy, w), changed = through_barrier(adv.twist)
+        ask = adv.twist
+        ask2 = ask.vx_m_s * ask.vx_m_s + ask.vy_m_s * ask.vy_m_s
+        if (changed and limits.path_lookahead_m > arrays.limits.path_lookahead_m and ask2 > 0.0
+                and vx * ask.vx_m_s + vy * ask.vy_m_s < HELD_BACK * ask2):
+            # the barrier holds a large structure's move back head on: the mission's own lookahead (vs_step.h)
+            adv = advance_fn(fit.pose, goal, dt_s, arrays.limits, template, arrays.envelopes,
+                             elapsed_s=elapsed_s, headings_rad=np.where(used, pose_world[:, 2], np.nan),
+                             deviations_m=np.where(used, dist, np.nan))
+            changed = False
+            if not adv.at_goal:
+                (vx, vy, w), changed = through_barrier(adv.twist)
         cleared = changed
         if changed:   # the pose one dt_s on, as the advance forms it
             adv = replace(adv, pose=Pose2(fit.pose.x + vx * dt_s, fit.pose.y + vy * dt_s, fit.pose.th + w * dt_s),

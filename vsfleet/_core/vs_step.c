@@ -48,6 +48,23 @@ size_t vs_structure_step_work_f64(size_t n, int metric)
     return fit + 9 * n + (n + sizeof(double) - 1) / sizeof(double);
 }
 
+/* the advance's twist through the room's clearance barrier (vs_clear.h) into t; 1 when the barrier changed it */
+static int clear_twist(const vs_mission *m, const double *points_now, const vs_fit_result *fit, size_t n,
+                       double reach, const vs_advance_result *adv, double t[3])
+{
+    const double t_in[3] = {adv->vx_m_s, adv->vy_m_s, adv->w_rad_s};
+    return vs_clearance_barrier(points_now, fit->x, fit->y, m->radius_m, n, m->obstacles, m->n_obstacles, reach,
+                                t_in, t);
+}
+
+#define HELD_BACK 0.5
+/* the barrier's twist t keeps less than half the move the advance asked for (along it) */
+static int held_back(const vs_advance_result *adv, const double t[3])
+{
+    double ask2 = adv->vx_m_s * adv->vx_m_s + adv->vy_m_s * adv->vy_m_s;
+    return ask2 > 0.0 && t[0] * adv->vx_m_s + t[1] * adv->vy_m_s < HELD_BACK * ask2;
+}
+
 int vs_structure_step(const vs_mission *m, const double *pose_world, const unsigned char *seen,
                       const unsigned char *excluded, const unsigned char *judged_apart, double elapsed_s,
                       double dt_s, vs_structure *out, unsigned char *used, double *points_now,
@@ -167,11 +184,17 @@ int vs_structure_step_ws(const vs_mission *m, const double *pose_world, const un
     int cleared = 0;
     if (goal.kind == VS_GOAL_PLAN && m->n_obstacles > 0 && !adv.at_goal) {
         /* the room's clearance barrier (vs_clear.h): the points keep VS_CLEAR_M from every obstacle */
-        const double t_in[3] = {adv.vx_m_s, adv.vy_m_s, adv.w_rad_s};
         double t[3];
-        if (vs_clearance_barrier(points_now, fit.x, fit.y, m->radius_m, n, m->obstacles, m->n_obstacles,
-                                 reach, t_in, t)) {
-            cleared = 1;
+        cleared = clear_twist(m, points_now, &fit, n, reach, &adv, t);
+        if (cleared && limits.path_lookahead_m > m->limits.path_lookahead_m && held_back(&adv, t)) {
+            /* the barrier holds a large structure's move back head on: its long carrot cut round the obstacle
+             * the plan goes round; the mission's own lookahead instead (vs_step.h, VS_STEP_LOOKAHEAD_PER_REACH) */
+            rc = vs_advance(pose_fit, &goal, dt_s, &m->limits, tpl, m->wheel_base_m, m->wheel_speed_max_m_s,
+                            m->wheel_accel_max_m_s2, n, NULL, &elapsed_s, head, devs, &adv);
+            if (rc != VS_OK) goto done;
+            cleared = !adv.at_goal && clear_twist(m, points_now, &fit, n, reach, &adv, t);
+        }
+        if (cleared) {
             /* the pose one dt_s on, as vs_advance forms it */
             double th0 = (pose_fit[2] >= -VS_PI && pose_fit[2] < VS_PI) ? pose_fit[2] : vs_wrap_angle(pose_fit[2]);
             adv.vx_m_s = t[0];

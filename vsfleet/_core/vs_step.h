@@ -47,7 +47,11 @@ typedef struct {
 #define VS_STEP_PATH_CAP 160            /* waypoints at most (2 m of 3 cm cells, and rotations) */
 #define VS_STEP_LOOKAHEAD_PER_REACH 0.3 /* following a field: the carrot runs at least this times the shape's
                                            reach (its largest |p_i|) ahead, never less than limits.path_lookahead_m:
-                                           a large structure's turn spread over more of its move */
+                                           a large structure's turn spread over more of its move; but where the
+                                           clearance barrier keeps less than half the move asked for (along it),
+                                           the advance runs again with limits' own, and that goes through the
+                                           barrier instead (a long carrot cut round the obstacle the plan goes
+                                           round, and the barrier held a point head on against it) */
 
 typedef struct {
     int any_used;                       /* 0: no robot usable, nothing else written */
