@@ -500,7 +500,8 @@ def table(rows: list[dict], key: str, groups) -> str:
         way_ms = f"{1e3 * np.median(p['ompl_s_way']):.0f} ms" if p["ompl_s_way"] else "-"
         out.append(
             f"| {name} | {p['rooms']} | {p['ompl_way']} | {p['ours_way']} | {p['agree']} | {p['way']} | "
-            f"{_pct(p['way_in_time'], p['way'])} | {p['way_reached']}/{p['way']} | {_t(float(np.median(p['ratio'])) if p['ratio'] else math.nan)} | "
+            f"{_pct(p['way_in_time'], p['way'])} | {p['way_reached']}/{p['way']} | "
+            f"{_t(float(np.median(p['ratio'])) if p['ratio'] else math.nan)} | "
             f"{_t(float(np.median(p['len_ratio'])) if p['len_ratio'] else math.nan)} | {_pct(p['noway_blocked'], p['noway'])} | "
             f"{p['way_blocked']} | {p['contacts']} | {1e3 * p['min_gap_m']:.1f} mm | "
             f"{1e3 * np.median(p['ours_build_s']):.0f} / {1e3 * max(p['ours_build_s']):.0f} ms | "

@@ -153,8 +153,8 @@ def test_a_room_our_fleet_drove_through_without_contact_has_a_way_even_where_omp
                 "ours": {"success": True, "length_m": 2.0, "build_s": 0.01}, "t_goal_s": t_goal, "gap_m": gap,
                 "in_time": t_goal is not None, "ended_blocked": blocked, "ref_s": 20.0}
 
-    driven, touched, stuck, ompl_only = row(False, 30.0, 0.02), row(False, 30.0, -0.001), row(False, None, 0.02, True), \
-        row(True, None, 0.02, True)
+    driven, touched = row(False, 30.0, 0.02), row(False, 30.0, -0.001)
+    stuck, ompl_only = row(False, None, 0.02, True), row(True, None, 0.02, True)
     assert [has_way(r) for r in (driven, touched, stuck, ompl_only)] == [True, False, False, True]
     p = pooled([driven, touched, stuck, ompl_only])
     assert (p["way"], p["ompl_way"], p["noway"], p["noway_blocked"], p["way_blocked"]) == (2, 1, 2, 1, 1)
