@@ -479,8 +479,9 @@ def pooled(rows: list[dict]) -> dict:
         "min_gap_m": min((r["gap_m"] for r in rows), default=math.nan),
         "ours_build_s": [r["ours"]["build_s"] for r in rows], "ompl_s": [r["ompl"]["time_s"] for r in rows],
         "ours_whole_s": [r["ours"].get("build_whole_s", math.nan) for r in rows],
-        "ompl_s_way": [r["ompl"]["time_s"] for r in way],
-        "ratio": [r["t_goal_s"] / r["ref_s"] for r in way if r["t_goal_s"] is not None],
+        "ompl_s_way": [r["ompl"]["time_s"] for r in way if r["ompl"]["success"]],
+        "ratio": [r["t_goal_s"] / r["ref_s"] for r in way
+                  if r["t_goal_s"] is not None and r["ref_s"] is not None and math.isfinite(r["ref_s"])],
         "len_ratio": [r["ours"]["length_m"] / r["ompl"]["length_m"] for r in way
                       if r["ours"]["success"] and r["ompl"]["success"]],
     }
@@ -526,7 +527,7 @@ def summary(rows: list[dict]) -> str:
             reached = "-" if r["t_goal_s"] is None else f"{r['t_goal_s']:.1f} s (position {r['t_position_s']:.1f} s)"
             lines.append(f"| {r['seed']} | {r['kind']} | {r['shape']} ({r['n']}) | {r['obstacles']} | "
                          f"{_m(r['ompl']['length_m'])} | {'yes' if r['ours']['success'] else 'no'} / "
-                         f"{r['ours']['length_m']:.2f} m | {reached} | {r['ref_s']:.1f} s | "
+                         f"{r['ours']['length_m']:.2f} m | {reached} | {_t(r['ref_s'])} s | "
                          f"{'yes' if r['ended_blocked'] else 'no'} | {r['end_goal_m']:.2f} m | {1e3 * r['gap_m']:.1f} mm |")
     return "\n".join(lines)
 

@@ -9,7 +9,7 @@ import pytest
 
 from bench import ompl_ref
 from bench.room import (CLEAR_M, FLEETS, KINDS, MAX_OBSTACLES, assembled_starts, has_way, make_room, obs_gap_m, pooled,
-                        to_scenario)
+                        summary, to_scenario)
 from vsfleet.field import build_field, follow_field
 from vsfleet.fit import fit_structure
 from vsfleet.geometry import Pose2
@@ -158,3 +158,12 @@ def test_a_room_our_fleet_drove_through_without_contact_has_a_way_even_where_omp
     assert [has_way(r) for r in (driven, touched, stuck, ompl_only)] == [True, False, False, True]
     p = pooled([driven, touched, stuck, ompl_only])
     assert (p["way"], p["ompl_way"], p["noway"], p["noway_blocked"], p["way_blocked"]) == (2, 1, 2, 1, 1)
+    assert p["ompl_s_way"] == [1.0]   # OMPL's time over the rooms where it found its way
+    rows = []
+    for k, r in enumerate((driven, touched, stuck, ompl_only)):
+        rows.append({**r, "seed": k, "kind": "wall", "shape": "line", "n": 10, "obstacles": 5,
+                     "t_position_s": r["t_goal_s"], "end_goal_m": 0.0, "ours": {**r["ours"], "build_whole_s": 0.02}})
+    rows[0]["ref_s"] = None   # neither planner's length (as rooms.json stores NaN)
+    text = summary(rows)
+    assert "| 0 | wall |" not in text and "| 2 | wall |" not in text   # in time, and without a way: not listed late
+    assert "| 3 | wall | line (10) | 5 | 2.00 m | yes / 2.00 m | - | 20.00 s | yes |" in text

@@ -149,9 +149,6 @@ def _decide(state: AgentState, mission: Mission | None, frame: Frame, now_s: flo
     return decide_in_numpy(state, mission, controller, frame, config, notes)
 
 
-KERNELS_HELD = 1024   # a mission's agent steps held: one per robot of an offline fleet (vsfleet.agentstate.CoreMission)
-
-
 @dataclass(frozen=True)
 class Kernel:
     """A mission's and an agent's constants for vs_agent_step (vsfleet._core.agent_config), and its scratch."""
@@ -174,10 +171,10 @@ def agent_kernel(cm: CoreMission, mission: Mission, robot: str, controller: Cont
                  config: StepConfig) -> Kernel | None:
     """The core's agent step for this mission, robot, controller and config (built once; None: a controller the
     core does not run, whose frames then go through vsfleet.glue's numpy glue)."""
-    key = (robot, id(controller), config.dt_s, config.ttl_s, config.age_s, config.resync_gap_s)
-    hit = cm.kernels.get(key)   # held by the mission: one per robot of an offline run, one in an agent process
-    if hit is not None and hit[0] is controller:
-        return hit[1]
+    timing = (config.dt_s, config.ttl_s, config.age_s, config.resync_gap_s)
+    hit = cm.kernels.get(robot)   # held by the mission, one per robot: its latest controller and timing
+    if hit is not None and hit[0] is controller and hit[1] == timing:
+        return hit[2]
     inner, deadband, still = controller, 0.0, 0.0
     if isinstance(controller, Held):
         inner, deadband, still = controller.inner, controller.deadband_m, controller.still_speed_m_s
@@ -198,9 +195,7 @@ def agent_kernel(cm: CoreMission, mission: Mission, robot: str, controller: Cont
     kernel = Kernel(capsule, filled("d", (AGENT_SCRATCH_F64_PER_ROBOT * n,)),
                     filled("?", (AGENT_SCRATCH_U8_PER_ROBOT * n,)),
                     tuple(getattr(stateless, k) for k in PRECISION_STATE_FIELDS), name == "precision")
-    if len(cm.kernels) >= KERNELS_HELD:
-        cm.kernels.clear()
-    cm.kernels[key] = (controller, kernel)
+    cm.kernels[robot] = (controller, timing, kernel)   # a robot's kernel for another controller is let go
     return kernel
 
 

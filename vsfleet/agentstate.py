@@ -113,8 +113,8 @@ class CoreMission:
     field: Field | None = None
     shapes: tuple = ()         # ((name, points), ...): mission_shape_points, when the template has a field
     shape_fields: tuple = ()
-    # the agent steps built on it (vsfleet.agentcore.agent_kernel), by robot, controller and config: they live as
-    # long as the mission is held
+    # the agent steps built on it (vsfleet.agentcore.agent_kernel), one per robot (its latest controller and
+    # timing): they live as long as the mission is held
     kernels: dict = dataclass_field(default_factory=dict, repr=False)
 
 

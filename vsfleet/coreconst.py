@@ -61,6 +61,7 @@ STEP_PATH_M: float = _core.STEP_PATH_M
 STEP_PATH_CAP: int = _core.STEP_PATH_CAP
 #: following a field, the carrot runs at least this times the shape's reach ahead (vs_step.h)
 STEP_LOOKAHEAD_PER_REACH: float = _core.STEP_LOOKAHEAD_PER_REACH
+STEP_HELD_BACK: float = _core.STEP_HELD_BACK   # vs_step.h: the barrier keeps less of the move: the short carrot
 #: the structure's clearance barrier in a room (vs_clear.h): the clearance its points keep [m], the band [m] in
 #: which a point gets a row, the barrier's rate [1/s], the rows kept at most
 CLEAR_M: float = _core.CLEAR_M

@@ -110,7 +110,7 @@ def mission_arrays(mission: Mission) -> MissionArrays:
     hit = _ARRAYS.get(id(mission))
     if hit is not None and hit[0] is mission:
         return hit[1]
-    cm = core_mission_of(mission)   # the packed constants and the room's fields: the agent's very own
+    cm = core_mission_of(mission)   # the packed constants and the room's fields, shared by equal missions
     template, envelopes = mission_template(mission), mission_envelope_arrays(mission)
     limits = cm.limits
     arrays = MissionArrays(ids=cm.ids, index=cm.index, template=template, envelopes=envelopes, goal=cm.goal,

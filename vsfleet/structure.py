@@ -15,7 +15,7 @@ from typing import Callable
 
 from .lazy import lazy_numpy
 from . import _core
-from .coreconst import STEP_LOOKAHEAD_PER_REACH, STRUCTURE_STEP_ARGS
+from .coreconst import STEP_HELD_BACK, STEP_LOOKAHEAD_PER_REACH, STRUCTURE_STEP_ARGS
 from .advance import Goal, GoalPath, GoalPose, GoalTwist, Twist2, advance_structure_reference
 from .buffers import f64
 from .clear import clearance_barrier_reference
@@ -31,7 +31,7 @@ np = lazy_numpy(globals())   # numpy on first use: the agent process never loads
 #: field's edges keep this, its states 1-2 mm more (the edges' exact bound); the clearance barrier (vsfleet.clear)
 #: keeps the structure's points CLEAR_M (22 mm) away
 PLAN_MARGIN_M = 0.02
-HELD_BACK = 0.5   # vs_step.c: the barrier keeps less than this share of the move asked for
+HELD_BACK = STEP_HELD_BACK   # vs_step.h: the barrier keeps less than this share of the move asked for
 
 
 def room_field(template: np.ndarray, radii, obstacles: np.ndarray, goal: Goal,

@@ -57,12 +57,11 @@ static int clear_twist(const vs_mission *m, const double *points_now, const vs_f
                                 t_in, t);
 }
 
-#define HELD_BACK 0.5
 /* the barrier's twist t keeps less than half the move the advance asked for (along it) */
 static int held_back(const vs_advance_result *adv, const double t[3])
 {
     double ask2 = adv->vx_m_s * adv->vx_m_s + adv->vy_m_s * adv->vy_m_s;
-    return ask2 > 0.0 && t[0] * adv->vx_m_s + t[1] * adv->vy_m_s < HELD_BACK * ask2;
+    return ask2 > 0.0 && t[0] * adv->vx_m_s + t[1] * adv->vy_m_s < VS_STEP_HELD_BACK * ask2;
 }
 
 int vs_structure_step(const vs_mission *m, const double *pose_world, const unsigned char *seen,

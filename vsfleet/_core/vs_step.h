@@ -45,6 +45,7 @@ typedef struct {
 
 #define VS_STEP_PATH_M 2.0              /* [m] of the field's descent handed to the advance each frame */
 #define VS_STEP_PATH_CAP 160            /* waypoints at most (2 m of 3 cm cells, and rotations) */
+#define VS_STEP_HELD_BACK 0.5          /* that share of the move (VS_STEP_LOOKAHEAD_PER_REACH) */
 #define VS_STEP_LOOKAHEAD_PER_REACH 0.3 /* following a field: the carrot runs at least this times the shape's
                                            reach (its largest |p_i|) ahead, never less than limits.path_lookahead_m:
                                            a large structure's turn spread over more of its move; but where the
