@@ -54,12 +54,15 @@ test-integration: $(STAMP) $(CORE_SO)
 CORE_C := $(filter-out vsfleet/_core/py_%.c vsfleet/_core/module.c,$(wildcard vsfleet/_core/*.c))
 # -Werror: the core and both drivers build without a warning (-Wall brings -Wsequence-point: the fuzz
 # driver once wrote in[len++] = f(len), unsequenced; tests/test_core_warnings.py holds this)
-CORE_CFLAGS := -std=c99 -O2 -ffp-contract=off -fno-fast-math -Wall -Wextra -Werror -Ivsfleet/_core
+# -pthread: the field's raster runs on two threads (vs_field.c raster_all)
+CORE_CFLAGS := -std=c99 -O2 -ffp-contract=off -fno-fast-math -Wall -Wextra -Werror -pthread -Ivsfleet/_core
 GOLDEN := tests/data/golden-core.txt
 test-cross:
 	mkdir -p build
 	aarch64-linux-gnu-gcc $(CORE_CFLAGS) -static -o build/golden-aarch64 $(CORE_C) tests/cdriver/golden_driver.c -lm
 	qemu-aarch64 build/golden-aarch64 $(GOLDEN)
+	gcc $(CORE_CFLAGS) -DVS_FIELD_NO_THREADS -o build/golden-serial $(CORE_C) tests/cdriver/golden_driver.c -lm
+	build/golden-serial $(GOLDEN)
 
 # The agent's frame allocates nothing once its mission's workspace is sized (issue 29): malloc, calloc, realloc
 # and qsort wrapped and counted (tests/test_core_no_alloc.py runs the same)
@@ -71,7 +74,8 @@ test-noalloc:
 
 # The core under AddressSanitizer and UBSan: the golden vectors, then a fuzz of every C entry point, then the
 # frames without allocation (each workspace exactly its size: ASan sees a kernel write past it), then a deferred
-# field whose resolution runs out of memory at each of its allocations in turn (tests/cdriver/field_nomem_driver.c)
+# field whose resolution runs out of memory at each of its allocations in turn (tests/cdriver/field_nomem_driver.c),
+# then the golden vectors under ThreadSanitizer (the field's raster runs on two threads)
 NOMEM_WRAP := -Wl,--wrap=malloc,--wrap=calloc,--wrap=realloc
 SAN := -fsanitize=address,undefined -fno-sanitize-recover=all -fno-omit-frame-pointer -g
 test-sanitize:
@@ -84,6 +88,8 @@ test-sanitize:
 	ASAN_OPTIONS=detect_leaks=1 build/noalloc-san
 	gcc $(CORE_CFLAGS) $(SAN) $(NOMEM_WRAP) -o build/field-nomem-san $(CORE_C) tests/cdriver/field_nomem_driver.c -lm
 	ASAN_OPTIONS=detect_leaks=1 build/field-nomem-san
+	gcc $(CORE_CFLAGS) -fsanitize=thread -g -o build/golden-tsan $(CORE_C) tests/cdriver/golden_driver.c -lm
+	TSAN_OPTIONS=halt_on_error=1 build/golden-tsan $(GOLDEN)
 
 bench-fit: $(STAMP) $(CORE_SO)
 	$(BIN)/python bench/fit.py

@@ -4,6 +4,7 @@
 #include "vs_fit_linf.h"
 
 #include <math.h>   /* sqrt only (and the INFINITY / NAN macros) */
+#include <string.h> /* memset */
 
 #define WS 6
 
@@ -433,6 +434,7 @@ static void basis_at(const vs_prob *pr, double th, const int *basis, int new_, i
     int j = new_;
     double r0 = -1.0;
     mec_t m;
+    memset(&m, 0, sizeof m);   /* the loop below sets it at least once (gcc -O1 -fsanitize=thread cannot tell) */
     for (size_t guard = 0; guard < 4 * n + 16; guard++) {
         mec(ids, k, qx, qy, j, &m);
         size_t a = 0;
