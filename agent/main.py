@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import bisect
 import collections
+import functools
 import math
 import logging
 import queue
@@ -92,6 +93,10 @@ def peers_to_ask(robot_ids, robot: str, k: int = PEERS_ASKED) -> tuple[str, ...]
     return tuple(ids[(start + i) % len(ids)] for i in range(min(k, len(ids))))
 
 
+def discard(payload: bytes) -> None:
+    """An Agent's put_event when none is given: its events go nowhere."""
+
+
 class Agent:
     """The agent's transport-facing side: its state, a latest-frame slot, and what it publishes.
 
@@ -102,7 +107,7 @@ class Agent:
                  put_state: Callable[[bytes], None], dt_s: float = DEFAULT_DT_S,
                  ttl_s: float = DEFAULT_TTL_S, deadline_s: float | None = None, max_age_s: float = MAX_AGE_S,
                  clock: Callable[[], float] = wall_clock,
-                 put_event: Callable[[bytes], None] = lambda payload: None,
+                 put_event: Callable[[bytes], None] = discard,
                  controller: Controller | None = None, command_age_s: float | None = None,
                  shared_structures: dict | None = None, reference: bool = False,
                  prepare: Callable[[Mission], None] | None = None) -> None:
@@ -351,11 +356,15 @@ class Agent:
     def on_message(self, kind: str, key: str, payload) -> None:
         """Dispatch one message (or, for "mission-replies"/"health-replies", the list of replies
         to one query); nothing a peer sends may end the agent."""
-        handlers = {"mission": self.on_mission,
-                    "mission-replies": lambda _key, replies: self.on_query_replies("mission", replies),
-                    "health-replies": lambda _key, replies: self.health_replies(replies)}
         try:
-            handlers[kind](key, payload)
+            if kind == "mission":
+                self.on_mission(key, payload)
+            elif kind == "mission-replies":
+                self.on_query_replies("mission", payload)
+            elif kind == "health-replies":
+                self.health_replies(payload)
+            else:
+                raise KeyError(kind)
         except Exception as exc:  # noqa: BLE001 - counted and logged, never fatal
             self.rejections.reject(key, f"unexpected {type(exc).__name__}: {exc}")
 
@@ -420,20 +429,19 @@ def ask(session: zenoh.Session, selectors: tuple[str, ...], timeout_s: float) ->
     return replies
 
 
-def mission_followup(keys: Keys, robot: str) -> Callable[[list[tuple[str, bytes]]], tuple[str, ...]]:
-    """What a mission query asks after the operator's key: the PEERS_ASKED peers after ``robot`` in the operator's
-    mission (peers may run a newer version than the operator's answer), or, if the operator gave no mission,
-    every peer (``peer/*/mission``: only then does one join cost a query per peer)."""
-    def then(replies: list[tuple[str, bytes]]) -> tuple[str, ...]:
-        for key, payload in replies:
-            if key == keys.mission:
-                try:
-                    ids = decode_mission(payload).robot_ids
-                except WireError:
-                    continue  # rejected (and counted) when the agent takes the replies
-                return tuple(keys.peer_mission(p) for p in peers_to_ask(ids, robot))
-        return (keys.peer_mission(),)
-    return then
+def mission_followup(keys: Keys, robot: str, replies: list[tuple[str, bytes]]) -> tuple[str, ...]:
+    """What a mission query asks after the operator's key, given its replies: the PEERS_ASKED peers after
+    ``robot`` in the operator's mission (peers may run a newer version than the operator's answer), or, if the
+    operator gave no mission, every peer (``peer/*/mission``: only then does one join cost a query per peer).
+    fetch takes it bound to the agent's keys and robot (functools.partial)."""
+    for key, payload in replies:
+        if key == keys.mission:
+            try:
+                ids = decode_mission(payload).robot_ids
+            except WireError:
+                continue  # rejected (and counted) when the agent takes the replies
+            return tuple(keys.peer_mission(p) for p in peers_to_ask(ids, robot))
+    return (keys.peer_mission(),)
 
 
 def fetch(session: zenoh.Session, selectors: tuple[str, ...], kind: str, inbox: queue.Queue,
@@ -455,18 +463,21 @@ def fetch(session: zenoh.Session, selectors: tuple[str, ...], kind: str, inbox: 
         wake.set()
 
 
-def prepare_mission(mission: Mission) -> threading.Thread:
-    """Build a new mission's constants for the core and its room's field (vsfleet.agentcore.core_mission_of, memoised) on a thread of
-    their own, while the frames of the mission in force go on: the field takes up to ~0.2 s for a large room,
-    and the mission takes effect later (mission set: 0.5 s). A frame that needs it sooner builds it itself (the
-    same pure function: the same bits)."""
-    def build() -> None:
-        try:
-            core_mission_of(mission)
-        except Exception:  # noqa: BLE001 - the frame that needs it builds it again and raises there
-            log.exception("mission v%d: building its arrays failed", mission.version)
+def build_mission_arrays(mission: Mission) -> None:
+    """A mission's constants for the core and its room's field (vsfleet.agentcore.core_mission_of, memoised); a
+    failure is logged, and the frame that needs them builds them again and raises there."""
+    try:
+        core_mission_of(mission)
+    except Exception:  # noqa: BLE001 - the frame that needs it builds it again and raises there
+        log.exception("mission v%d: building its arrays failed", mission.version)
 
-    thread = threading.Thread(target=build, name=f"prepare-v{mission.version}", daemon=True)
+
+def prepare_mission(mission: Mission) -> threading.Thread:
+    """Build a new mission's arrays (build_mission_arrays) on a thread of their own, while the frames of the
+    mission in force go on: the field takes up to ~0.2 s for a large room, and the mission takes effect later
+    (mission set: 0.5 s). A frame that needs it sooner builds it itself (the same pure function: the same bits)."""
+    thread = threading.Thread(target=build_mission_arrays, args=(mission,), name=f"prepare-v{mission.version}",
+                              daemon=True)
     thread.start()
     return thread
 
@@ -584,7 +595,7 @@ class AgentWiring:
         if latest is None and now >= self.next_fetch and idle:
             self.fetcher = threading.Thread(target=fetch, args=(
                 self.session, (keys.mission,), "mission", self.inbox, 1.0, agent.wake,
-                mission_followup(keys, self.robot)), daemon=True)
+                functools.partial(mission_followup, keys, self.robot)), daemon=True)
             self.fetcher.start()
             self.next_fetch = now + FETCH_PERIOD_S
         elif latest is not None and not self.asked_health and idle and \

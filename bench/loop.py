@@ -162,6 +162,8 @@ class LoopRun:
     # imports, session), and the agents' CPU time [s] from their start to every agent's first command, per agent
     alive_s: float = math.nan
     startup_cpu_s_per_agent: float = math.nan
+    # after the measured frames: agents whose process still runs and whose liveliness token is still up
+    alive_end: int = -1
 
     @property
     def period_s(self) -> float:
@@ -375,6 +377,7 @@ def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2
         bench_cpu = time.process_time() + (proc_cpu_s(router_pid) if router_pid else 0.0) - bench0
         busy1, tot1 = machine_busy_s()
         rss = np.array([proc_rss_mib(p.pid) for p in procs.values()])
+        alive_end = sum(1 for r, p in procs.items() if p.poll() is None and keys.alive("agent", r) in alive)
         last = seq
         for s in subs:
             s.undeclare()
@@ -433,7 +436,8 @@ def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2
         agent_cpu_s_per_answer=np.array([(cpu1[r] - cpu0[r]) / max(1, per_robot[r]) for r in procs]),
         agent_rss_mib=rss, bench_cpu_s_per_frame=bench_cpu / measured,
         others_cores=max(0.0, (busy1 - busy0) - own) / max(wall_cores, 1e-9), wall_s=wall,
-        startup_s=startup_s, agent_kind=agent_kind, alive_s=alive_s, startup_cpu_s_per_agent=startup_cpu)
+        startup_s=startup_s, agent_kind=agent_kind, alive_s=alive_s, startup_cpu_s_per_agent=startup_cpu,
+        alive_end=alive_end)
 
 
 # ---------------------------------------------------------------- the zenoh floor
@@ -537,6 +541,7 @@ def compare(sizes: list[int], rate_hz: float, frames: int, out: Path | None = No
                          "max_ms": 1e3 * p["max"], "cpu_ms_per_tick": 1e3 * float(r.agent_cpu_s_per_tick.mean()),
                          "agreed": r.agreed_frames, "all_ran": r.all_ran_frames, "startup_s": r.startup_s,
                          "alive_s": r.alive_s, "startup_cpu_ms_per_agent": 1e3 * r.startup_cpu_s_per_agent,
+                         "alive_end": r.alive_end,
                          "load_1min": os.getloadavg()[0],
                          "rss_mib_total": float(r.agent_rss_mib.sum()), "others_cores": r.others_cores}
         t, v = row["trivial"], row["vsfleet"]
@@ -547,7 +552,8 @@ def compare(sizes: list[int], rate_hz: float, frames: int, out: Path | None = No
             f"({row['ratio_p99']:.2f}x {t['p99_ms']:.1f}), cpu/tick {v['cpu_ms_per_tick']:.2f} vs "
             f"{t['cpu_ms_per_tick']:.2f} ms, agree {v['agreed']}/{v['all_ran']}, start-up {v['startup_s']:.1f} s "
             f"(trivial {t['startup_s']:.1f} s; all alive at {v['alive_s']:.1f} / {t['alive_s']:.1f} s; CPU per agent "
-            f"until every one answered {v['startup_cpu_ms_per_agent']:.0f} / {t['startup_cpu_ms_per_agent']:.0f} ms)")
+            f"until every one answered {v['startup_cpu_ms_per_agent']:.0f} / {t['startup_cpu_ms_per_agent']:.0f} ms); "
+            f"alive after the measured frames {v['alive_end']}/{n} (trivial {t['alive_end']}/{n})")
         rows.append(row)
     if out is not None:
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -599,7 +605,8 @@ def main(argv: list[str] | None = None) -> int:
           round(1e3 * float(r.agent_cpu_s_per_tick.mean()), 3), "rss MiB", round(float(r.agent_rss_mib.mean()), 1),
           "bench cpu/frame ms", round(1e3 * r.bench_cpu_s_per_frame, 3), "others cores", round(r.others_cores, 2),
           "agree", f"{r.agreed_frames}/{r.all_ran_frames} of {r.frames}", "holds", r.holds, "startup s", round(r.startup_s, 1),
-          "all alive s", round(r.alive_s, 1), "startup CPU ms/agent", round(1e3 * r.startup_cpu_s_per_agent))
+          "all alive s", round(r.alive_s, 1), "startup CPU ms/agent", round(1e3 * r.startup_cpu_s_per_agent),
+          "alive at the end", f"{r.alive_end}/{a.robots}")
     return 0
 
 

@@ -230,7 +230,7 @@ def test_the_binding_refuses_a_policy_mode_or_a_shape_that_is_not_a_code():
     pose = np.zeros((n, 3))
     seen = np.ones(n, dtype=bool)
     for shape in (math.nan, -1.0, 1e300):
-        scalars[11] = shape
+        scalars[agentcore.SCALAR_AT["shape"]] = shape
         with pytest.raises(VsfleetValueError):
             _core.agent_step(config, arrays_in, scalars, pose, seen, seen, 0.0, np.empty(n, dtype=bool),
                              kernel.scratch_f64, kernel.scratch_u8)
@@ -269,7 +269,7 @@ def test_a_resync_on_a_frame_with_no_robot_usable_restarts_the_stall_watch_in_co
     kept the watch from before the gap (agentcore took only last_frame_t back from it)."""
     from step_core_records import AGENT_RUNS, agent_run_frames
 
-    run = next(r for r in AGENT_RUNS if r[0] == "room-wall-gap resync")
+    run = next(run for run in AGENT_RUNS if run[0] == "room-wall-gap resync")
     robot, config, warm, _record = agent_run_frames(run)
     mission, last, _ = warm[-1]
     frames = [Frame(seq=last.seq + 41, t=last.t + 41 / 30.0, poses={}, complete=False, fresh=frozenset(), src="sim")]

@@ -258,3 +258,49 @@ def test_the_check_catches_the_copies_it_replaced():
     for what, text in old.items():
         assert copies(text), what
     assert not copies('for metric in ("l1", "l2", "linf"):\n    pass\nx = 0.8 * width\n')
+
+
+def test_the_agent_bindings_layouts_are_the_structs_and_python_builds_them_by_name():
+    """agent_config's policy and safety name vs_failure_policy's and vs_safety_params' members in order; the
+    state's arrays are the own wheels, Precision's state and the failure rule's (vs_failure_state after n and W);
+    vsfleet.agentcore packs the numbers by AGENT_SCALARS' names and reads agent_step's answer by AGENT_RESULT's."""
+    from array import array
+
+    from vsfleet import agentcore
+
+    assert coreconst.AGENT_POLICY == struct_members("vs_failure_policy")
+    assert coreconst.AGENT_SAFETY == struct_members("vs_safety_params")
+    assert coreconst.AGENT_STATE == ("wheels_m_s", *coreconst.PRECISION_STATE_ARGS,
+                                     *struct_members("vs_failure_state")[2:])
+    assert set(coreconst.AGENT_TIMES) == {"dt_s", "ttl_s", "age_s", "resync_gap_s", "effective_t"}
+    assert agentcore.STATE_ARRAYS == coreconst.AGENT_STATE
+    places = {name: float(k) for k, name in enumerate(coreconst.AGENT_SCALARS)}
+    assert agentcore.scalars_of(**places) == array("d", range(len(places)))
+    with pytest.raises(KeyError):
+        agentcore.scalars_of(**{k: v for k, v in places.items() if k != "shape"})
+    assert coreconst.AGENT_RESULT[-1] == "decisions" and len(set(coreconst.AGENT_RESULT)) == len(coreconst.AGENT_RESULT)
+
+
+def test_no_python_file_reads_the_agent_bindings_answers_by_number():
+    """agent_step's answer (r) and the state's numbers (scalars, sc) are read by name (AGENT_RESULT, AGENT_SCALARS),
+    never by a written index: the form they had before (r[12], scalars[4]), in every file that calls the binding."""
+    def indexed(text: str) -> list[str]:
+        return [ast.unparse(n) for n in ast.walk(ast.parse(text)) if isinstance(n, ast.Subscript)
+                and isinstance(n.value, ast.Name) and n.value.id in ("r", "sc", "scalars")
+                and isinstance(n.slice, ast.Constant) and type(n.slice.value) is int]
+    assert sorted(indexed("blocked, shape = r[12], r[14]\nx = scalars[4]\n")) == ["r[12]", "r[14]", "scalars[4]"]
+    callers = [p for p in SOURCES if re.search(r"_core\.agent_(step|frame)\b|_core_inputs\(", p.read_text())]
+    assert {p.name for p in callers} >= {"agentcore.py", "test_core_agent_step.py", "step_core_records.py"}
+    for path in callers:
+        assert not indexed(path.read_text()), path.relative_to(ROOT)
+
+
+def test_a_string_field_is_held_to_the_cores_src_limit():
+    """vsfleet.wire's strings are at most VS_WIRE_MAX_SRC characters, the core decoder's limit on a frame's src."""
+    from vsfleet.wire import WireError, _str
+
+    limit = coreconst.WIRE_MAX_SRC
+    assert limit == define_value("VS_WIRE_MAX_SRC")
+    assert _str({"src": "a" * limit}, "src") == "a" * limit
+    with pytest.raises(WireError):
+        _str({"src": "a" * (limit + 1)}, "src")

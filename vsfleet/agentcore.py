@@ -26,8 +26,9 @@ from .agentstate import (FAILURE_FIELDS, PRECISION_STATE_FIELDS, AgentState, Con
                          used_ids)
 from .buffers import filled
 from .control import Arc, Held, Precision, PrecisionState, Tracking, TurnThenGo
-from .coreconst import (AGENT_CONTROLLERS, AGENT_SCRATCH_F64_PER_ROBOT, AGENT_SCRATCH_U8_PER_ROBOT, DECISION_KINDS,
-                        FAILURE_MODES, PRECISION_HISTORY)
+from .coreconst import (AGENT_CONTROLLERS, AGENT_POLICY, AGENT_RESULT, AGENT_SAFETY, AGENT_SCALARS,
+                        AGENT_SCRATCH_F64_PER_ROBOT, AGENT_SCRATCH_U8_PER_ROBOT, AGENT_STATE, AGENT_TIMES,
+                        DECISION_KINDS, FAILURE_MODES, PRECISION_HISTORY)
 from .failure import Decision, FailurePolicy, Health
 from .frames import MAX_AGE_S, Frame
 from .impl import core as core_impl
@@ -149,6 +150,21 @@ def _decide(state: AgentState, mission: Mission | None, frame: Frame, now_s: flo
     return decide_in_numpy(state, mission, controller, frame, config, notes)
 
 
+# The agent binding's layouts are the core's (vsfleet.coreconst.AGENT_*, py_agent.c): tuples are built by their
+# names, answers read by their places found there.
+SCALAR_AT = {name: k for k, name in enumerate(AGENT_SCALARS)}   # the state's numbers
+RESULT_AT = {name: k for k, name in enumerate(AGENT_RESULT)}    # agent_step's answer
+# The state's arrays go in the order of their dataclasses (no mapping per frame); the core's order is checked once.
+STATE_ARRAYS = ("wheels_m_s", *PRECISION_STATE_FIELDS, *FAILURE_FIELDS)
+if STATE_ARRAYS != AGENT_STATE:
+    raise ImportError(f"vsfleet.agentcore: the core's agent state is {AGENT_STATE}, this module's {STATE_ARRAYS}")
+
+
+def scalars_of(**numbers: float) -> array:
+    """The state's numbers as agent_step takes them (float64, in AGENT_SCALARS' order); every one named."""
+    return array("d", (float(numbers[name]) for name in AGENT_SCALARS))
+
+
 @dataclass(frozen=True)
 class Kernel:
     """A mission's and an agent's constants for vs_agent_step (vsfleet._core.agent_config), and its scratch."""
@@ -183,14 +199,19 @@ def agent_kernel(cm: CoreMission, mission: Mission, robot: str, controller: Cont
         return None
     gains = (inner.horizon_s,) if name == "arc" else tuple(float(g) for g in inner._core)
     p = cm.policy
-    policy = (FAILURE_MODES.index(p.mode), p.fail_deviation_m, p.fail_after_s, p.rejoin_deviation_m, p.rejoin_after_s,
-              p.recover_after_s, p.min_progress_ratio, p.min_expected_m ** 2, p.min_approach_m)
+    policy = {"mode": FAILURE_MODES.index(p.mode), "fail_deviation_m": p.fail_deviation_m,
+              "fail_after_s": p.fail_after_s, "rejoin_deviation_m": p.rejoin_deviation_m,
+              "rejoin_after_s": p.rejoin_after_s, "recover_after_s": p.recover_after_s,
+              "min_progress_ratio": p.min_progress_ratio, "min_expected_m2": p.min_expected_m ** 2,
+              "min_approach_m": p.min_approach_m}
     sp = safety_params(config.dt_s)
+    safety = {"margin_m": sp.margin_m, "gamma_per_s": sp.gamma_per_s, "offset_m": sp.offset_m, "dt_s": sp.dt_s}
+    times = {"dt_s": config.dt_s, "ttl_s": config.ttl_s, "age_s": config.age_s, "resync_gap_s": config.resync_gap_s,
+             "effective_t": mission.effective_t}
     n = len(cm.ids)
     capsule = _core.agent_config(cm.core, cm.index[robot], AGENT_CONTROLLERS.index(name), gains, deadband,
-                                 still, policy, (sp.margin_m, sp.gamma_per_s, sp.offset_m, sp.dt_s),
-                                 (config.dt_s, config.ttl_s, config.age_s, config.resync_gap_s, mission.effective_t),
-                                 cm.room, cm.bodies, cm.ids)
+                                 still, tuple(policy[k] for k in AGENT_POLICY), tuple(safety[k] for k in AGENT_SAFETY),
+                                 tuple(times[k] for k in AGENT_TIMES), cm.room, cm.bodies, cm.ids)
     stateless = precision_initial(n)
     kernel = Kernel(capsule, filled("d", (AGENT_SCRATCH_F64_PER_ROBOT * n,)),
                     filled("?", (AGENT_SCRATCH_U8_PER_ROBOT * n,)),
@@ -207,10 +228,11 @@ def _core_inputs(kernel: Kernel, state: AgentState, controller, n: int) -> tuple
     precision = tuple(getattr(ctrl, k) for k in PRECISION_STATE_FIELDS) if isinstance(ctrl, PrecisionState) \
         else kernel.stateless
     f = state.failure
-    at = state.stall_pose
-    scalars = array("d", (state.last_frame_t, state.last_cmd_t, state.ctrl is not None, state.blocked,
-                          state.stall_since_t, at is not None, *(at[:3] if at is not None else (0.0, 0.0, 0.0)),
-                          bool(at[3]) if at is not None else False, state.stalled, state.shape))
+    at = state.stall_pose if state.stall_pose is not None else (0.0, 0.0, 0.0, False)
+    scalars = scalars_of(last_frame_t=state.last_frame_t, last_cmd_t=state.last_cmd_t,
+                         ctrl_ready=state.ctrl is not None, blocked=state.blocked, stall_since_t=state.stall_since_t,
+                         stall_watch=state.stall_pose is not None, stall_x=at[0], stall_y=at[1], stall_th=at[2],
+                         stall_filter=bool(at[3]), stalled=state.stalled, shape=state.shape)
     return ctrl, (state.wheels_m_s, *precision, *(getattr(f, k) for k in FAILURE_FIELDS)), scalars
 
 
@@ -218,15 +240,19 @@ def _core_outcome(state: AgentState, mission: Mission, cm: CoreMission, ctrl, t:
                   scalars: array, notes: list) -> tuple[AgentState, HealthMsg | None, tuple]:
     """The new state, the health answer and the events of a frame the core ran (r: vsfleet._core.agent_step's
     answer, scalars: the state's numbers it wrote back); its log lines are added to notes."""
-    last_frame_t = scalars[0]
-    if r[0]:   # resynced
+    sc, at = scalars, SCALAR_AT
+    last_frame_t = sc[at["last_frame_t"]]
+    if r[RESULT_AT["resynced"]]:
         notes.append(Note("warning", f"frame {seq}: no frame for {t - state.last_frame_t:.2f} s; "
                                      "restarting failure timers and asking peers for their failure state"))
         state = replace(state, phase=SyncPhase.RESYNCING)
-    stall_pose = (scalars[6], scalars[7], scalars[8], bool(scalars[9])) if scalars[5] else None
+    stall_pose = (sc[at["stall_x"]], sc[at["stall_y"]], sc[at["stall_th"]], bool(sc[at["stall_filter"]])) \
+        if sc[at["stall_watch"]] else None
     if len(r) == 1:   # no robot usable (a resync restarted the stall watch all the same)
-        return _evolve(state, last_frame_t=last_frame_t, stall_since_t=scalars[4], stall_pose=stall_pose), None, ()
-    blocked, shape, event, event_dev, shape_before, made = r[12], r[14], r[19], r[20], r[21], r[22]
+        return _evolve(state, last_frame_t=last_frame_t, stall_since_t=sc[at["stall_since_t"]],
+                       stall_pose=stall_pose), None, ()
+    blocked, shape, event, event_dev, shape_before, made = (
+        r[RESULT_AT[k]] for k in ("blocked", "shape", "event", "event_dev_m", "shape_before", "decisions"))
     health = health_of(state.failure, cm.ids)
     health_msg = HealthMsg(t=t, seq=seq, mission=mission.version, failed=tuple(sorted(health.failed)),
                            dropped=tuple(sorted(health.dropped)), since=tuple(sorted(health.since_t.items())))
@@ -246,7 +272,7 @@ def _core_outcome(state: AgentState, mission: Mission, cm: CoreMission, ctrl, t:
         notes.extend(Note("warning", f"frame {seq}: robot {d.robot} {d.kind} (deviation {d.deviation_m:.3f} m, "
                                      f"on_failure={mission.on_failure})") for d in decisions)
     state = _evolve(state, last_frame_t=last_frame_t, ctrl=ctrl, health=health, last_seq=seq, blocked=bool(blocked),
-                    stall_since_t=scalars[4], stall_pose=stall_pose, stalled=bool(scalars[10]),
+                    stall_since_t=sc[at["stall_since_t"]], stall_pose=stall_pose, stalled=bool(sc[at["stalled"]]),
                     shape=int(shape), last_cmd_t=t, ticks=state.ticks + 1)
     return state, health_msg, events
 

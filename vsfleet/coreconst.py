@@ -94,6 +94,8 @@ CORNER_TIE_RAD: float = _core.CORNER_TIE_RAD
 # a frame's limits, as the core's decoder checks them (vs_wire.h VS_WIRE_*)
 WIRE_MAX_FRAME_BYTES: int = _core.WIRE_MAX_FRAME_BYTES
 WIRE_MAX_ROBOTS: int = _core.WIRE_MAX_ROBOTS
+#: a frame's src at most this many bytes (vs_wire.h VS_WIRE_MAX_SRC); vsfleet.wire holds every string field to it
+WIRE_MAX_SRC: int = _core.WIRE_MAX_SRC
 WIRE_MAX_ABS: float = _core.WIRE_MAX_ABS
 WIRE_MAX_ABS_T: float = _core.WIRE_MAX_ABS_T
 WIRE_PROTOCOL_V: int = _core.WIRE_PROTOCOL_V
@@ -111,3 +113,11 @@ AGENT_STALL_MOVE_M: float = _core.AGENT_STALL_MOVE_M
 AGENT_STALL_TURN_RAD: float = _core.AGENT_STALL_TURN_RAD
 AGENT_SCRATCH_F64_PER_ROBOT: int = _core.AGENT_SCRATCH_F64_PER_ROBOT
 AGENT_SCRATCH_U8_PER_ROBOT: int = _core.AGENT_SCRATCH_U8_PER_ROBOT
+#: the agent binding's layouts by name (py_agent.c): agent_config's policy, safety and times tuples, the state's
+#: arrays and numbers (scalars) agent_step and agent_frame update in place, and agent_step's answer
+AGENT_POLICY: tuple[str, ...] = _core.AGENT_POLICY
+AGENT_SAFETY: tuple[str, ...] = _core.AGENT_SAFETY
+AGENT_TIMES: tuple[str, ...] = _core.AGENT_TIMES
+AGENT_STATE: tuple[str, ...] = _core.AGENT_STATE
+AGENT_SCALARS: tuple[str, ...] = _core.AGENT_SCALARS
+AGENT_RESULT: tuple[str, ...] = _core.AGENT_RESULT

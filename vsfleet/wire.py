@@ -29,7 +29,7 @@ from . import _core
 from .control import CONTROLLERS
 from .coreconst import (DECISION_KINDS, FAILURE_MODES, WIRE_MAX_ABS as MAX_ABS, WIRE_MAX_ABS_T as MAX_ABS_T,
                         WIRE_MAX_FRAME_BYTES as MAX_FRAME_BYTES, WIRE_MAX_ROBOTS as MAX_ROBOTS,
-                        WIRE_PROTOCOL_V as PROTOCOL_V)
+                        WIRE_MAX_SRC as MAX_STR, WIRE_PROTOCOL_V as PROTOCOL_V)
 from .errors import VsfleetValueError
 from .failure import FailurePolicy
 from .fit import METRICS  # noqa: F401 (a mission's metric: one of the fit's; re-exported)
@@ -41,7 +41,8 @@ MAX_PAYLOAD_BYTES = 4096          # pose, cmd, state, truth, fault, event
 MAX_MISSION_BYTES = 1 << 20       # a mission lists every robot
 # MAX_FRAME_BYTES (64 KiB), MAX_ROBOTS (1000), MAX_ABS (1e6) and MAX_ABS_T (1e11) are the core's decoder's
 # (vs_wire.h): a frame lists every robot a tracker sees (1000 robots fit); any number field: |v| <= MAX_ABS
-# (metres, seconds apart from t, m/s, rad), a time |t| <= MAX_ABS_T
+# (metres, seconds apart from t, m/s, rad), a time |t| <= MAX_ABS_T; a string field at most MAX_STR (128) characters,
+# the core's limit on a frame's src (VS_WIRE_MAX_SRC, bytes: a src is ASCII, check_name)
 MAX_OBSTACLES = 256     # a mission's round obstacles
 MAX_SHAPES = 4          # a mission's alternative templates (reshape, docs/planning.md)
 MAX_TTL_S = 5.0         # a command may keep a robot moving for at most this long
@@ -191,8 +192,8 @@ def _str(m: Mapping[str, Any], name: str) -> str:
     if name not in m:
         raise WireError(f"missing field {name!r}")
     v = m[name]
-    if not isinstance(v, str) or not v or len(v) > 128:
-        raise WireError(f"field {name!r} must be a non-empty string of <= 128 chars")
+    if not isinstance(v, str) or not v or len(v) > MAX_STR:
+        raise WireError(f"field {name!r} must be a non-empty string of <= {MAX_STR} chars")
     return v
 
 

@@ -66,7 +66,7 @@ static const int_const ints[] = {
     {"STEP_PATH_CAP", VS_STEP_PATH_CAP}, {"CLEAR_ROWS", VS_CLEAR_ROWS},
     {"FIT_MAX_ROUNDS", VS_FIT_MAX_ROUNDS}, {"L1_NEWTON_N", VS_L1_NEWTON_N}, {"LINF_SPLIT", VS_LINF_SPLIT},
     {"WIRE_MAX_FRAME_BYTES", VS_WIRE_MAX_FRAME_BYTES}, {"WIRE_MAX_ROBOTS", VS_WIRE_MAX_ROBOTS},
-    {"WIRE_PROTOCOL_V", VS_WIRE_PROTOCOL_V},
+    {"WIRE_PROTOCOL_V", VS_WIRE_PROTOCOL_V}, {"WIRE_MAX_SRC", VS_WIRE_MAX_SRC},
     {"AGENT_SCRATCH_F64_PER_ROBOT", VS_AGENT_SCRATCH_F64_PER_ROBOT},
     {"AGENT_SCRATCH_U8_PER_ROBOT", VS_AGENT_SCRATCH_U8_PER_ROBOT},
 };
@@ -184,6 +184,12 @@ static int add_constants(PyObject *m)
     if (add_names(m, "CONTROL_INPUT_ARGS", vs_py_control_input_args, VS_PY_CONTROL_INPUTS) < 0) return -1;
     if (add_names(m, "PRECISION_STATE_ARGS", vs_py_precision_state_args, VS_PY_PRECISION_STATES) < 0) return -1;
     if (add_names(m, "STRUCTURE_STEP_ARGS", vs_py_structure_step_args, VS_PY_STRUCTURE_STEP_ARGS) < 0) return -1;
+    if (add_names(m, "AGENT_POLICY", vs_py_agent_policy, VS_PY_AGENT_POLICY) < 0) return -1;
+    if (add_names(m, "AGENT_SAFETY", vs_py_agent_safety, VS_PY_AGENT_SAFETY) < 0) return -1;
+    if (add_names(m, "AGENT_TIMES", vs_py_agent_times, VS_PY_AGENT_TIMES) < 0) return -1;
+    if (add_names(m, "AGENT_STATE", vs_py_agent_state, VS_PY_AGENT_STATE) < 0) return -1;
+    if (add_names(m, "AGENT_SCALARS", vs_py_agent_scalars, VS_PY_AGENT_SCALARS) < 0) return -1;
+    if (add_names(m, "AGENT_RESULT", vs_py_agent_result, VS_PY_AGENT_RESULT) < 0) return -1;
     return 0;
 }
 

@@ -72,6 +72,27 @@ static int doubles_of(PyObject *seq, double *out, Py_ssize_t k, const char *name
     return 0;
 }
 
+/* agent_config's policy, safety and times, by place; their names are exported (AGENT_POLICY, AGENT_SAFETY,
+ * AGENT_TIMES) and vsfleet.agentcore builds the tuples by name */
+enum { P_MODE, P_FAIL_DEV, P_FAIL_AFTER, P_REJOIN_DEV, P_REJOIN_AFTER, P_RECOVER_AFTER, P_MIN_PROGRESS, P_MIN_EXPECTED2,
+       P_MIN_APPROACH, P_COUNT };
+enum { S_MARGIN, S_GAMMA, S_OFFSET, S_DT, S_COUNT };
+enum { T_DT, T_TTL, T_AGE, T_RESYNC_GAP, T_EFFECTIVE, T_COUNT };
+typedef char policy_check[P_COUNT == VS_PY_AGENT_POLICY && S_COUNT == VS_PY_AGENT_SAFETY
+                          && T_COUNT == VS_PY_AGENT_TIMES ? 1 : -1];
+const char *const vs_py_agent_policy[VS_PY_AGENT_POLICY] = {
+    [P_MODE] = "mode", [P_FAIL_DEV] = "fail_deviation_m", [P_FAIL_AFTER] = "fail_after_s",
+    [P_REJOIN_DEV] = "rejoin_deviation_m", [P_REJOIN_AFTER] = "rejoin_after_s", [P_RECOVER_AFTER] = "recover_after_s",
+    [P_MIN_PROGRESS] = "min_progress_ratio", [P_MIN_EXPECTED2] = "min_expected_m2", [P_MIN_APPROACH] = "min_approach_m",
+};
+const char *const vs_py_agent_safety[VS_PY_AGENT_SAFETY] = {
+    [S_MARGIN] = "margin_m", [S_GAMMA] = "gamma_per_s", [S_OFFSET] = "offset_m", [S_DT] = "dt_s",
+};
+const char *const vs_py_agent_times[VS_PY_AGENT_TIMES] = {
+    [T_DT] = "dt_s", [T_TTL] = "ttl_s", [T_AGE] = "age_s", [T_RESYNC_GAP] = "resync_gap_s",
+    [T_EFFECTIVE] = "effective_t",
+};
+
 /* agent_config(mission, own, controller, gains, deadband_m, still_speed_m_s, policy, safety, times, room, bodies,
  *              ids)
  * mission: the mission packed for the core in MISSION_ARGS order (vsfleet.step.core_mission); own: the agent's row;
@@ -85,8 +106,8 @@ static PyObject *py_agent_config(PyObject *mod, PyObject *const *a, Py_ssize_t n
     (void)mod;
     if (nargs != 12) { PyErr_SetString(PyExc_TypeError, "agent_config takes 12 arguments"); return NULL; }
     PyObject *mt = a[0];
-    if (!PyTuple_Check(mt) || PyTuple_GET_SIZE(mt) != 14) {
-        PyErr_SetString(PyExc_TypeError, "agent_config: the mission must be the core's 14-tuple (core_mission)");
+    if (!PyTuple_Check(mt) || PyTuple_GET_SIZE(mt) != VS_PY_MISSION_ARGS) {
+        PyErr_SetString(PyExc_TypeError, "agent_config: the mission must be the core's tuple (MISSION_ARGS)");
         return NULL;
     }
     agent_config *c = PyMem_Calloc(1, sizeof *c);
@@ -94,9 +115,11 @@ static PyObject *py_agent_config(PyObject *mod, PyObject *const *a, Py_ssize_t n
     PyObject *cap = PyCapsule_New(c, AGENT_CAPSULE, agent_config_free);
     if (cap == NULL) { PyMem_Free(c); return NULL; }
     c->keep = Py_NewRef(mt);
-    /* MISSION_ARGS: template, base, vmax, amax, metric, goal_kind, goal, limits, radius, obstacles, margin, field,
-     * shapes_xy, shape_fields */
-    static const int dbl[N_MISSION_BUFS] = {0, 1, 2, 3, 6, 7, 8, 9, 12, -1};
+    /* the mission's arrays, by their places in MISSION_ARGS (py_util.h) */
+    static const int dbl[N_MISSION_BUFS] = {
+        VS_PY_MISSION_AT(A_TEMPLATE), VS_PY_MISSION_AT(A_BASE), VS_PY_MISSION_AT(A_VMAX), VS_PY_MISSION_AT(A_AMAX),
+        VS_PY_MISSION_AT(A_GOAL), VS_PY_MISSION_AT(A_LIMITS), VS_PY_MISSION_AT(A_RADIUS),
+        VS_PY_MISSION_AT(A_OBSTACLES), VS_PY_MISSION_AT(A_SHAPES), -1};
     static const char *names[N_MISSION_BUFS] = {"template_xy", "wheel_base_m", "wheel_speed_max_m_s",
                                                 "wheel_accel_max_m_s2", "goal", "limits", "radius_m", "obstacles",
                                                 "shapes_xy", ""};
@@ -109,7 +132,7 @@ static PyObject *py_agent_config(PyObject *mod, PyObject *const *a, Py_ssize_t n
         PyErr_SetString(vs_ValueError, "agent_config: the mission's arrays do not fit n robots");
         goto fail;
     }
-    PyObject *sf = PyTuple_GET_ITEM(mt, 13);
+    PyObject *sf = PyTuple_GET_ITEM(mt, VS_PY_MISSION_AT(A_SHAPE_FIELDS));
     if (!PyTuple_Check(sf) || PyTuple_GET_SIZE(sf) > VS_STEP_MAX_SHAPES
         || c->views[8].len != 16 * n * PyTuple_GET_SIZE(sf)) {
         PyErr_SetString(vs_ValueError, "agent_config: shapes_xy and shape_fields do not agree");
@@ -120,10 +143,11 @@ static PyObject *py_agent_config(PyObject *mod, PyObject *const *a, Py_ssize_t n
             if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "agent_config: a shape without its field");
             goto fail;
         }
-    const vs_field *field = vs_py_field(PyTuple_GET_ITEM(mt, 11));
+    const vs_field *field = vs_py_field(PyTuple_GET_ITEM(mt, VS_PY_MISSION_AT(A_FIELD)));
     if (field == NULL && PyErr_Occurred()) goto fail;
-    long metric = PyLong_AsLong(PyTuple_GET_ITEM(mt, 4)), kind = PyLong_AsLong(PyTuple_GET_ITEM(mt, 5));
-    double margin = PyFloat_AsDouble(PyTuple_GET_ITEM(mt, 10));
+    long metric = PyLong_AsLong(PyTuple_GET_ITEM(mt, VS_PY_MISSION_AT(A_METRIC)));
+    long kind = PyLong_AsLong(PyTuple_GET_ITEM(mt, VS_PY_MISSION_AT(A_KIND)));
+    double margin = PyFloat_AsDouble(PyTuple_GET_ITEM(mt, VS_PY_MISSION_AT(A_MARGIN)));
     if (PyErr_Occurred()) goto fail;
     const double *lim = c->views[5].buf;
     vs_mission m = {(size_t)n, c->views[0].buf, c->views[1].buf, c->views[2].buf, c->views[3].buf, (int)metric,
@@ -169,21 +193,23 @@ static PyObject *py_agent_config(PyObject *mod, PyObject *const *a, Py_ssize_t n
         PyErr_SetString(vs_ValueError, "agent_config: unknown controller code");
         goto fail;
     }
-    double pol[9], saf[4], times[5];
-    if (doubles_of(a[6], pol, 9, "policy") < 0 || doubles_of(a[7], saf, 4, "safety") < 0
-        || doubles_of(a[8], times, 5, "times") < 0)
+    double pol[P_COUNT], saf[S_COUNT], times[T_COUNT];
+    if (doubles_of(a[6], pol, P_COUNT, "policy") < 0 || doubles_of(a[7], saf, S_COUNT, "safety") < 0
+        || doubles_of(a[8], times, T_COUNT, "times") < 0)
         goto fail;
-    if (!(pol[0] == 0.0 || pol[0] == 1.0 || pol[0] == 2.0)) {   /* a mode code, before any cast to int */
+    if (!(pol[P_MODE] == 0.0 || pol[P_MODE] == 1.0 || pol[P_MODE] == 2.0)) {   /* a mode code, before any cast */
         PyErr_SetString(vs_ValueError, "agent_config: the policy's mode must be a code of FAILURE_MODES");
         goto fail;
     }
-    g->policy = (vs_failure_policy){(int)pol[0], pol[1], pol[2], pol[3], pol[4], pol[5], pol[6], pol[7], pol[8]};
-    g->safety = (vs_safety_params){saf[0], saf[1], saf[2], saf[3]};
-    g->dt_s = times[0];
-    g->ttl_s = times[1];
-    g->age_s = times[2];
-    g->resync_gap_s = times[3];
-    g->effective_t = times[4];
+    g->policy = (vs_failure_policy){(int)pol[P_MODE], pol[P_FAIL_DEV], pol[P_FAIL_AFTER], pol[P_REJOIN_DEV],
+                                    pol[P_REJOIN_AFTER], pol[P_RECOVER_AFTER], pol[P_MIN_PROGRESS],
+                                    pol[P_MIN_EXPECTED2], pol[P_MIN_APPROACH]};
+    g->safety = (vs_safety_params){saf[S_MARGIN], saf[S_GAMMA], saf[S_OFFSET], saf[S_DT]};
+    g->dt_s = times[T_DT];
+    g->ttl_s = times[T_TTL];
+    g->age_s = times[T_AGE];
+    g->resync_gap_s = times[T_RESYNC_GAP];
+    g->effective_t = times[T_EFFECTIVE];
     /* the ids, for agent_frame */
     if (!PyTuple_Check(a[11]) || PyTuple_GET_SIZE(a[11]) != n) {
         PyErr_SetString(PyExc_TypeError, "agent_config: ids must be a tuple of the mission's n robot ids");
@@ -262,9 +288,41 @@ static int get_buf(PyObject *obj, Py_buffer *view, int kind, Py_ssize_t count, i
     return 0;
 }
 
-/* the state's arrays, in this order (vsfleet.agentcore.CoreState.arrays) */
-#define N_STATE 21
-#define N_SCALARS 12
+/* the state's arrays, by place (their names exported: AGENT_STATE; vsfleet.agentcore checks its order against it) */
+enum { ST_WHEELS, ST_POSE, ST_GAINS, ST_HISTORY, ST_TARGET, ST_FEED, ST_TURN, ST_DIRECTION, ST_READY, ST_SINCE,
+       ST_FAILED, ST_DROPPED, ST_LAST_T, ST_LAST_XY, ST_LAST_EXPECTED, ST_WINDOW_T, ST_WINDOW_NM, ST_HEAD,
+       ST_IN_WINDOW, ST_SUMS_NM, ST_WINDOW_DEV, N_STATE };
+const char *const vs_py_agent_state[VS_PY_AGENT_STATE] = {
+    [ST_WHEELS] = "wheels_m_s", [ST_POSE] = "pose_world", [ST_GAINS] = "gains", [ST_HISTORY] = "history_m_s",
+    [ST_TARGET] = "target_world", [ST_FEED] = "feed_m_s", [ST_TURN] = "turn_rad_s", [ST_DIRECTION] = "direction",
+    [ST_READY] = "ready", [ST_SINCE] = "since_t", [ST_FAILED] = "failed", [ST_DROPPED] = "dropped",
+    [ST_LAST_T] = "last_t", [ST_LAST_XY] = "last_xy", [ST_LAST_EXPECTED] = "last_expected", [ST_WINDOW_T] = "window_t",
+    [ST_WINDOW_NM] = "window_nm", [ST_HEAD] = "head", [ST_IN_WINDOW] = "in_window", [ST_SUMS_NM] = "sums_nm",
+    [ST_WINDOW_DEV] = "window_dev_m",
+};
+/* the state's numbers (a float64 buffer), by place (exported: AGENT_SCALARS) */
+enum { SC_LAST_FRAME_T, SC_LAST_CMD_T, SC_CTRL_READY, SC_BLOCKED, SC_STALL_SINCE_T, SC_STALL_WATCH, SC_STALL_X,
+       SC_STALL_Y, SC_STALL_TH, SC_STALL_FILTER, SC_STALLED, SC_SHAPE, N_SCALARS };
+const char *const vs_py_agent_scalars[VS_PY_AGENT_SCALARS] = {
+    [SC_LAST_FRAME_T] = "last_frame_t", [SC_LAST_CMD_T] = "last_cmd_t", [SC_CTRL_READY] = "ctrl_ready",
+    [SC_BLOCKED] = "blocked", [SC_STALL_SINCE_T] = "stall_since_t", [SC_STALL_WATCH] = "stall_watch",
+    [SC_STALL_X] = "stall_x", [SC_STALL_Y] = "stall_y", [SC_STALL_TH] = "stall_th", [SC_STALL_FILTER] = "stall_filter",
+    [SC_STALLED] = "stalled", [SC_SHAPE] = "shape",
+};
+/* agent_step's answer, by place (exported: AGENT_RESULT); (resynced,) alone when no robot was usable */
+enum { R_RESYNCED, R_FIT_X, R_FIT_Y, R_FIT_TH, R_GOAL_X, R_GOAL_Y, R_GOAL_TH, R_VX, R_VY, R_W, R_COST, R_AT_GOAL,
+       R_BLOCKED, R_LEFT, R_SHAPE, R_VL, R_VR, R_OWN_SEEN, R_ERR, R_EVENT, R_EVENT_DEV, R_SHAPE_BEFORE, R_DECISIONS,
+       N_RESULT };
+const char *const vs_py_agent_result[VS_PY_AGENT_RESULT] = {
+    [R_RESYNCED] = "resynced", [R_FIT_X] = "fit_x", [R_FIT_Y] = "fit_y", [R_FIT_TH] = "fit_th",
+    [R_GOAL_X] = "goal_x", [R_GOAL_Y] = "goal_y", [R_GOAL_TH] = "goal_th", [R_VX] = "vx_m_s", [R_VY] = "vy_m_s",
+    [R_W] = "w_rad_s", [R_COST] = "cost", [R_AT_GOAL] = "at_goal", [R_BLOCKED] = "blocked", [R_LEFT] = "left_m",
+    [R_SHAPE] = "shape", [R_VL] = "vl_m_s", [R_VR] = "vr_m_s", [R_OWN_SEEN] = "own_seen", [R_ERR] = "err_m",
+    [R_EVENT] = "event", [R_EVENT_DEV] = "event_dev_m", [R_SHAPE_BEFORE] = "shape_before",
+    [R_DECISIONS] = "decisions",
+};
+typedef char state_check[N_STATE == VS_PY_AGENT_STATE && N_SCALARS == VS_PY_AGENT_SCALARS
+                         && N_RESULT == VS_PY_AGENT_RESULT ? 1 : -1];
 #define N_STEP_ARGS 10
 
 /* the state's buffers, held for one call */
@@ -283,37 +341,36 @@ static void release_state(state_views *sv)
     sv->got = 0;
 }
 
-/* state: the 21 arrays; scalars (12): last_frame_t, last_cmd_t, ctrl_ready, blocked, stall_since_t, stall_watch,
- * stall_x, stall_y, stall_th, stall_filter, stalled, shape */
+/* state: the N_STATE arrays (ST_*); scalars: the N_SCALARS numbers (SC_*) */
 static int get_state(const agent_config *c, PyObject *tuple, PyObject *scalars, PyObject *f64, PyObject *u8,
                      state_views *sv)
 {
     sv->got = 0;
     const Py_ssize_t n = (Py_ssize_t)c->m.n;
     if (!PyTuple_Check(tuple) || PyTuple_GET_SIZE(tuple) != N_STATE) {
-        PyErr_SetString(PyExc_TypeError, "agent_step: the state must be a tuple of 21 arrays");
+        PyErr_Format(PyExc_TypeError, "agent_step: the state must be a tuple of %d arrays", (int)N_STATE);
         return -1;
     }
-    /* the window's width from window_t (state 15: (n, W)) */
+    /* the window's width from window_t ((n, W)) */
     Py_buffer wt;
-    if (PyObject_GetBuffer(PyTuple_GET_ITEM(tuple, 15), &wt, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0) return -1;
+    if (PyObject_GetBuffer(PyTuple_GET_ITEM(tuple, ST_WINDOW_T), &wt, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0) return -1;
     Py_ssize_t W = (wt.ndim == 2 && wt.shape[0] == n) ? wt.shape[1] : 0;
     PyBuffer_Release(&wt);
     if (W < 1) { PyErr_SetString(vs_ValueError, "agent_step: window_t must be (n, W), W >= 1"); return -1; }
-    static const struct { int kind; Py_ssize_t per_row; const char *name; } spec[N_STATE] = {
-        {BUF_F64, 2, "wheels_m_s"},
-        {BUF_F64, 3, "pose_world"}, {BUF_F64, 2, "gains"}, {BUF_F64, 2 * VS_PRECISION_HISTORY, "history_m_s"},
-        {BUF_F64, 2, "target_world"}, {BUF_F64, 2, "feed_m_s"}, {BUF_F64, 1, "turn_rad_s"},
-        {BUF_F64, 1, "direction"}, {BUF_BOOL, 1, "ready"},
-        {BUF_F64, 1, "since_t"}, {BUF_BOOL, 1, "failed"}, {BUF_BOOL, 1, "dropped"}, {BUF_F64, 1, "last_t"},
-        {BUF_F64, 2, "last_xy"}, {BUF_F64, 2, "last_expected"}, {BUF_F64, -1, "window_t"},
-        {BUF_I64, -4, "window_nm"}, {BUF_I64, 1, "head"}, {BUF_BOOL, -1, "in_window"}, {BUF_I64, 4, "sums_nm"},
-        {BUF_F64, -1, "window_dev_m"},
+    static const struct { int kind; Py_ssize_t per_row; } spec[N_STATE] = {   /* per_row < 0: times W */
+        [ST_WHEELS] = {BUF_F64, 2},
+        [ST_POSE] = {BUF_F64, 3}, [ST_GAINS] = {BUF_F64, 2}, [ST_HISTORY] = {BUF_F64, 2 * VS_PRECISION_HISTORY},
+        [ST_TARGET] = {BUF_F64, 2}, [ST_FEED] = {BUF_F64, 2}, [ST_TURN] = {BUF_F64, 1},
+        [ST_DIRECTION] = {BUF_F64, 1}, [ST_READY] = {BUF_BOOL, 1},
+        [ST_SINCE] = {BUF_F64, 1}, [ST_FAILED] = {BUF_BOOL, 1}, [ST_DROPPED] = {BUF_BOOL, 1},
+        [ST_LAST_T] = {BUF_F64, 1}, [ST_LAST_XY] = {BUF_F64, 2}, [ST_LAST_EXPECTED] = {BUF_F64, 2},
+        [ST_WINDOW_T] = {BUF_F64, -1}, [ST_WINDOW_NM] = {BUF_I64, -4}, [ST_HEAD] = {BUF_I64, 1},
+        [ST_IN_WINDOW] = {BUF_BOOL, -1}, [ST_SUMS_NM] = {BUF_I64, 4}, [ST_WINDOW_DEV] = {BUF_F64, -1},
     };
     for (; sv->got < N_STATE; sv->got++) {
         Py_ssize_t per = spec[sv->got].per_row < 0 ? -spec[sv->got].per_row * W : spec[sv->got].per_row;
         if (get_buf(PyTuple_GET_ITEM(tuple, sv->got), &sv->v[sv->got], spec[sv->got].kind, n * per, 1,
-                    spec[sv->got].name) < 0)
+                    vs_py_agent_state[sv->got]) < 0)
             goto fail;
     }
     if (get_buf(scalars, &sv->v[sv->got], BUF_F64, N_SCALARS, 1, "scalars") < 0) goto fail;
@@ -324,7 +381,7 @@ static int get_state(const agent_config *c, PyObject *tuple, PyObject *scalars, 
     sv->got++;
     Py_buffer *v = sv->v;
     double *sc = v[N_STATE].buf;
-    if (!(sc[11] >= 0.0 && sc[11] <= (double)VS_STEP_MAX_SHAPES)) {   /* the shape, before any cast to int */
+    if (!(sc[SC_SHAPE] >= 0.0 && sc[SC_SHAPE] <= (double)VS_STEP_MAX_SHAPES)) {   /* before any cast to int */
         PyErr_SetString(vs_ValueError, "agent_step: the state's shape must be in [0, VS_STEP_MAX_SHAPES]");
         goto fail;
     }
@@ -332,12 +389,15 @@ static int get_state(const agent_config *c, PyObject *tuple, PyObject *scalars, 
     sv->scratch_f64 = v[N_STATE + 1].buf;
     sv->scratch_u8 = v[N_STATE + 2].buf;
     vs_agent_state st = {
-        v[0].buf, sc[2] != 0.0,
-        {v[1].buf, v[2].buf, v[3].buf, v[4].buf, v[5].buf, v[6].buf, v[7].buf, v[8].buf},
-        {(size_t)n, (size_t)W, v[9].buf, v[10].buf, v[11].buf, v[12].buf, v[13].buf, v[14].buf, v[15].buf,
-         v[16].buf, v[17].buf, v[18].buf, v[19].buf, v[20].buf},
-        sc[0], sc[1], sc[3] != 0.0, sc[4], sc[5] != 0.0, {sc[6], sc[7], sc[8]}, sc[9] != 0.0, sc[10] != 0.0,
-        (int)sc[11],
+        v[ST_WHEELS].buf, sc[SC_CTRL_READY] != 0.0,
+        {v[ST_POSE].buf, v[ST_GAINS].buf, v[ST_HISTORY].buf, v[ST_TARGET].buf, v[ST_FEED].buf, v[ST_TURN].buf,
+         v[ST_DIRECTION].buf, v[ST_READY].buf},
+        {(size_t)n, (size_t)W, v[ST_SINCE].buf, v[ST_FAILED].buf, v[ST_DROPPED].buf, v[ST_LAST_T].buf,
+         v[ST_LAST_XY].buf, v[ST_LAST_EXPECTED].buf, v[ST_WINDOW_T].buf, v[ST_WINDOW_NM].buf, v[ST_HEAD].buf,
+         v[ST_IN_WINDOW].buf, v[ST_SUMS_NM].buf, v[ST_WINDOW_DEV].buf},
+        sc[SC_LAST_FRAME_T], sc[SC_LAST_CMD_T], sc[SC_BLOCKED] != 0.0, sc[SC_STALL_SINCE_T], sc[SC_STALL_WATCH] != 0.0,
+        {sc[SC_STALL_X], sc[SC_STALL_Y], sc[SC_STALL_TH]}, sc[SC_STALL_FILTER] != 0.0, sc[SC_STALLED] != 0.0,
+        (int)sc[SC_SHAPE],
     };
     sv->st = st;
     return 0;
@@ -350,38 +410,63 @@ static void put_scalars(state_views *sv)
 {
     double *sc = sv->sc;
     const vs_agent_state *st = &sv->st;
-    sc[0] = st->last_frame_t;
-    sc[1] = st->last_cmd_t;
-    sc[2] = st->ctrl_ready;
-    sc[3] = st->blocked;
-    sc[4] = st->stall_since_t;
-    sc[5] = st->stall_watch;
-    sc[6] = st->stall_pose[0];
-    sc[7] = st->stall_pose[1];
-    sc[8] = st->stall_pose[2];
-    sc[9] = st->stall_filter;
-    sc[10] = st->stalled;
-    sc[11] = st->shape;
+    sc[SC_LAST_FRAME_T] = st->last_frame_t;
+    sc[SC_LAST_CMD_T] = st->last_cmd_t;
+    sc[SC_CTRL_READY] = st->ctrl_ready;
+    sc[SC_BLOCKED] = st->blocked;
+    sc[SC_STALL_SINCE_T] = st->stall_since_t;
+    sc[SC_STALL_WATCH] = st->stall_watch;
+    sc[SC_STALL_X] = st->stall_pose[0];
+    sc[SC_STALL_Y] = st->stall_pose[1];
+    sc[SC_STALL_TH] = st->stall_pose[2];
+    sc[SC_STALL_FILTER] = st->stall_filter;
+    sc[SC_STALLED] = st->stalled;
+    sc[SC_SHAPE] = st->shape;
 }
 
-/* (resynced,) or (resynced, fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m, shape, vl, vr,
- * own_seen, err_m, event, event_dev_m, shape_before, ((row, kind code, t, deviation_m), ...)) */
+/* (resynced,), or agent_step's answer in R_* order (its names: AGENT_RESULT), the decisions last:
+ * ((row, kind code, t, deviation_m), ...) */
 static PyObject *result_of(const vs_agent_out *out, const vs_failure_decision *dec)
 {
     if (!out->ran) return Py_BuildValue("(O)", out->resynced ? Py_True : Py_False);
+    PyObject *r = PyTuple_New(N_RESULT);
+    if (r == NULL) return NULL;
     PyObject *decs = PyTuple_New((Py_ssize_t)out->n_decisions);
-    if (decs == NULL) return NULL;
+    if (decs == NULL) { Py_DECREF(r); return NULL; }
+    PyTuple_SET_ITEM(r, R_DECISIONS, decs);
     for (size_t k = 0; k < out->n_decisions; k++) {
         PyObject *item = Py_BuildValue("(nidd)", (Py_ssize_t)dec[k].row, dec[k].kind, dec[k].t, dec[k].deviation_m);
-        if (item == NULL) { Py_DECREF(decs); return NULL; }
+        if (item == NULL) { Py_DECREF(r); return NULL; }
         PyTuple_SET_ITEM(decs, (Py_ssize_t)k, item);
     }
     const vs_structure *s = &out->s;
-    return Py_BuildValue("(OddddddddddOOdiddOdidiN)", out->resynced ? Py_True : Py_False, s->fit_x, s->fit_y,
-                         s->fit_th, s->goal_x, s->goal_y, s->goal_th, s->vx_m_s, s->vy_m_s, s->w_rad_s, s->cost,
-                         s->at_goal ? Py_True : Py_False, s->blocked ? Py_True : Py_False, s->left_m, s->shape,
-                         out->vl_m_s, out->vr_m_s, out->own_seen ? Py_True : Py_False, out->err_m, out->event,
-                         out->event_dev_m, out->shape_before, decs);
+    const struct { int at; double v; } num[] = {
+        {R_FIT_X, s->fit_x}, {R_FIT_Y, s->fit_y}, {R_FIT_TH, s->fit_th}, {R_GOAL_X, s->goal_x},
+        {R_GOAL_Y, s->goal_y}, {R_GOAL_TH, s->goal_th}, {R_VX, s->vx_m_s}, {R_VY, s->vy_m_s}, {R_W, s->w_rad_s},
+        {R_COST, s->cost}, {R_LEFT, s->left_m}, {R_VL, out->vl_m_s}, {R_VR, out->vr_m_s}, {R_ERR, out->err_m},
+        {R_EVENT_DEV, out->event_dev_m},
+    };
+    const struct { int at; long v; } ints[] = {
+        {R_SHAPE, s->shape}, {R_EVENT, out->event}, {R_SHAPE_BEFORE, out->shape_before},
+    };
+    const struct { int at; int v; } flags[] = {
+        {R_RESYNCED, out->resynced}, {R_AT_GOAL, s->at_goal}, {R_BLOCKED, s->blocked}, {R_OWN_SEEN, out->own_seen},
+    };
+    (void)sizeof(char[sizeof num / sizeof num[0] + sizeof ints / sizeof ints[0] + sizeof flags / sizeof flags[0] + 1
+                      == N_RESULT ? 1 : -1]);   /* every place set once (and R_DECISIONS above) */
+    for (size_t k = 0; k < sizeof num / sizeof num[0]; k++) {
+        PyObject *v = PyFloat_FromDouble(num[k].v);
+        if (v == NULL) { Py_DECREF(r); return NULL; }
+        PyTuple_SET_ITEM(r, num[k].at, v);
+    }
+    for (size_t k = 0; k < sizeof ints / sizeof ints[0]; k++) {
+        PyObject *v = PyLong_FromLong(ints[k].v);
+        if (v == NULL) { Py_DECREF(r); return NULL; }
+        PyTuple_SET_ITEM(r, ints[k].at, v);
+    }
+    for (size_t k = 0; k < sizeof flags / sizeof flags[0]; k++)
+        PyTuple_SET_ITEM(r, flags[k].at, PyBool_FromLong(flags[k].v));
+    return r;
 }
 
 /* agent_step(config, state_arrays (21), scalars (12 float64), pose_world (n, 3), seen (n), fresh (n), t, used_out (n),

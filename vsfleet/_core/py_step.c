@@ -17,9 +17,7 @@ const vs_field *vs_py_field(PyObject *obj);   /* py_field.c: NULL for None (or w
  * none), shape_fields: a tuple of k such capsules (reshape: vs_step.h).
  * -> None (no robot usable) or (fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m, shape,
  * cleared). */
-enum { A_TEMPLATE, A_BASE, A_VMAX, A_AMAX, A_METRIC, A_KIND, A_GOAL, A_LIMITS, A_POSE, A_SEEN, A_EXCLUDED, A_JUDGED,
-       A_ELAPSED, A_DT, A_USED, A_NOW, A_NEXT, A_DEV, A_RADIUS, A_OBSTACLES, A_MARGIN, A_FIELD, A_SHAPES,
-       A_SHAPE_FIELDS, A_COUNT };
+/* A_TEMPLATE ... A_SHAPE_FIELDS, A_COUNT: py_util.h */
 typedef char step_args_check[A_COUNT == VS_PY_STRUCTURE_STEP_ARGS ? 1 : -1];
 /* the arguments by name (exported: STRUCTURE_STEP_ARGS); the mission's are the ones before pose_world and
  * from radius_m on, the frame's between */
