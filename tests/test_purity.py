@@ -310,3 +310,29 @@ def test_no_function_of_the_compiled_core_is_told_apart_by_its_address():
     bad = [(p.name, m.group()) for p in sorted(C_CORE.glob("*.c"))
            for m in re.finditer(rf"(?:[=!]=\s*(?:{names})\b(?!\s*\())|(?:\b(?:{names})\s*[=!]=)", c_strip(p.read_text()))]
     assert not bad, f"functions compared by address: {bad}"
+
+
+def _closures(text: str) -> list[str]:
+    """Functions defined inside functions, and lambdas, in a module's text: 'name (line)'."""
+    found = []
+
+    def visit(node, inside: bool) -> None:
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, ast.Lambda):
+                found.append(f"lambda ({child.lineno})")
+            if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                if inside:
+                    found.append(f"{child.name} ({child.lineno})")
+                visit(child, True)
+            else:
+                visit(child, inside)
+    visit(ast.parse(text), False)
+    return found
+
+
+def test_the_agents_wiring_is_named_functions_and_methods_without_closures():
+    """Issue 29: agent/main.py wires the agent with module functions and methods (a method's own def is not a
+    closure), no function nested in another and no lambda; the check sees both forms."""
+    assert _closures("def f():\n    def g():\n        pass\n    return lambda: g\n") == ["g (2)", "lambda (4)"]
+    assert _closures("class A:\n    def m(self):\n        return 1\n") == []
+    assert _closures((ROOT / "agent" / "main.py").read_text()) == []
