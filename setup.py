@@ -2,10 +2,10 @@
 
 Flags are fixed here and nowhere else: -O2 -ffp-contract=off (no fused multiply-add, so
 aarch64 and x86-64 round alike), never -ffast-math, C99; linked with -pthread (the field's
-raster runs on two threads: vs_field.c; not compiled with it, which would define
-_POSIX_C_SOURCE before Python.h does).  VSFLEET_CORE_OPT=-O0 / -O3 rebuilds the same core at
-another optimisation level (tests/test_core_golden.py's check that the golden vectors do not
-depend on it).  Metadata lives in pyproject.toml.
+raster runs on two threads: vs_field.c), not compiled with it (it defines _REENTRANT, and
+glibc's headers then define _POSIX_C_SOURCE before Python.h does).  VSFLEET_CORE_OPT=-O0 /
+-O3 rebuilds the same core at another optimisation level (tests/test_core_golden.py's check
+that the golden vectors do not depend on it).  Metadata lives in pyproject.toml.
 """
 
 import os

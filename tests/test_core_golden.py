@@ -48,8 +48,8 @@ def test_the_binding_as_built_reproduces_every_record_bit_for_bit(entry):
 @pytest.mark.parametrize("opt", ["-O0", "-O2", "-O3"])
 def test_a_plain_c_driver_built_at_each_optimisation_level_reproduces_the_records(opt, tmp_path):
     exe = tmp_path / f"golden{opt}"
-    subprocess.run(["gcc", "-std=c99", opt, "-ffp-contract=off", "-fno-fast-math", f"-I{CORE}", "-o", str(exe),
-                    *map(str, PURE_C), str(ROOT / "tests" / "cdriver" / "golden_driver.c"), "-lm"],
+    subprocess.run(["gcc", "-std=c99", opt, "-ffp-contract=off", "-fno-fast-math", "-pthread", f"-I{CORE}", "-o",
+                    str(exe), *map(str, PURE_C), str(ROOT / "tests" / "cdriver" / "golden_driver.c"), "-lm"],
                    check=True, capture_output=True, timeout=120)
     run = subprocess.run([str(exe), str(PATH)], capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stdout + run.stderr

@@ -283,16 +283,25 @@ def test_the_agent_bindings_layouts_are_the_structs_and_python_builds_them_by_na
 
 def test_no_python_file_reads_the_agent_bindings_answers_by_number():
     """agent_step's answer (r) and the state's numbers (scalars, sc) are read by name (AGENT_RESULT, AGENT_SCALARS),
-    never by a written index: the form they had before (r[12], scalars[4]), in every file that calls the binding."""
-    def indexed(text: str) -> list[str]:
-        return [ast.unparse(n) for n in ast.walk(ast.parse(text)) if isinstance(n, ast.Subscript)
-                and isinstance(n.value, ast.Name) and n.value.id in ("r", "sc", "scalars")
-                and isinstance(n.slice, ast.Constant) and type(n.slice.value) is int]
-    assert sorted(indexed("blocked, shape = r[12], r[14]\nx = scalars[4]\n")) == ["r[12]", "r[14]", "scalars[4]"]
-    callers = [p for p in SOURCES if re.search(r"_core\.agent_(step|frame)\b|_core_inputs\(", p.read_text())]
-    assert {p.name for p in callers} >= {"agentcore.py", "test_core_agent_step.py", "step_core_records.py"}
+    never by a written index or by unpacking the whole answer: the forms they had before (r[12], scalars[4],
+    (_, fx, fy, ...) = r), in every file that calls the binding or reads its answer."""
+    def by_place(text: str) -> list[str]:
+        found = []
+        for n in ast.walk(ast.parse(text)):
+            if isinstance(n, ast.Subscript) and isinstance(n.value, ast.Name) and n.value.id in ("r", "sc", "scalars") \
+                    and isinstance(n.slice, ast.Constant) and type(n.slice.value) is int:
+                found.append(ast.unparse(n))
+            if isinstance(n, ast.Assign) and isinstance(n.value, ast.Name) and n.value.id in ("r", "sc", "scalars") \
+                    and any(isinstance(t, ast.Tuple) for t in n.targets):
+                found.append(ast.unparse(n))
+        return found
+    assert sorted(by_place("blocked, shape = r[12], r[14]\nx = scalars[4]\n(_, fx, *_) = r\n")) == \
+        ["_, fx, *_ = r", "r[12]", "r[14]", "scalars[4]"]
+    callers = [p for p in SOURCES
+               if re.search(r"_core\.agent_(step|frame)\b|_core_inputs\(|def core_outputs\(", p.read_text())]
+    assert {p.name for p in callers} >= {"agentcore.py", "glue.py", "test_core_agent_step.py", "step_core_records.py"}
     for path in callers:
-        assert not indexed(path.read_text()), path.relative_to(ROOT)
+        assert not by_place(path.read_text()), path.relative_to(ROOT)
 
 
 def test_a_string_field_is_held_to_the_cores_src_limit():

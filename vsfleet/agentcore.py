@@ -20,13 +20,13 @@ from itertools import chain, repeat
 from typing import Mapping
 
 from . import _core
-from .agentstate import (FAILURE_FIELDS, PRECISION_STATE_FIELDS, AgentState, Controller, CoreMission, Note,
+from .agentstate import (FAILURE_FIELDS, PRECISION_STATE_FIELDS, AgentState, Controller, CoreMission, Note, answer,
                          StepConfig, StepOutput, SyncPhase, _evolve, blocked_note, core_mission_of, failure_initial,
                          failure_with_health, health_of, mission_controller, mission_policy, safety_params, shape_name,
                          used_ids)
 from .buffers import filled
 from .control import Arc, Held, Precision, PrecisionState, Tracking, TurnThenGo
-from .coreconst import (AGENT_CONTROLLERS, AGENT_POLICY, AGENT_RESULT, AGENT_SAFETY, AGENT_SCALARS,
+from .coreconst import (AGENT_CONTROLLERS, AGENT_POLICY, AGENT_SAFETY, AGENT_SCALARS,
                         AGENT_SCRATCH_F64_PER_ROBOT, AGENT_SCRATCH_U8_PER_ROBOT, AGENT_STATE, AGENT_TIMES,
                         DECISION_KINDS, FAILURE_MODES, PRECISION_HISTORY)
 from .failure import Decision, FailurePolicy, Health
@@ -152,8 +152,8 @@ def _decide(state: AgentState, mission: Mission | None, frame: Frame, now_s: flo
 
 # The agent binding's layouts are the core's (vsfleet.coreconst.AGENT_*, py_agent.c): tuples are built by their
 # names, answers read by their places found there.
-SCALAR_AT = {name: k for k, name in enumerate(AGENT_SCALARS)}   # the state's numbers
-RESULT_AT = {name: k for k, name in enumerate(AGENT_RESULT)}    # agent_step's answer
+SCALAR_AT = {name: k for k, name in enumerate(AGENT_SCALARS)}   # the state's numbers (agent_step's answer:
+                                                                # vsfleet.agentstate.answer)
 # The state's arrays go in the order of their dataclasses (no mapping per frame); the core's order is checked once.
 STATE_ARRAYS = ("wheels_m_s", *PRECISION_STATE_FIELDS, *FAILURE_FIELDS)
 if STATE_ARRAYS != AGENT_STATE:
@@ -242,7 +242,7 @@ def _core_outcome(state: AgentState, mission: Mission, cm: CoreMission, ctrl, t:
     answer, scalars: the state's numbers it wrote back); its log lines are added to notes."""
     sc, at = scalars, SCALAR_AT
     last_frame_t = sc[at["last_frame_t"]]
-    if r[RESULT_AT["resynced"]]:
+    if answer(r, "resynced")[0]:
         notes.append(Note("warning", f"frame {seq}: no frame for {t - state.last_frame_t:.2f} s; "
                                      "restarting failure timers and asking peers for their failure state"))
         state = replace(state, phase=SyncPhase.RESYNCING)
@@ -251,8 +251,8 @@ def _core_outcome(state: AgentState, mission: Mission, cm: CoreMission, ctrl, t:
     if len(r) == 1:   # no robot usable (a resync restarted the stall watch all the same)
         return _evolve(state, last_frame_t=last_frame_t, stall_since_t=sc[at["stall_since_t"]],
                        stall_pose=stall_pose), None, ()
-    blocked, shape, event, event_dev, shape_before, made = (
-        r[RESULT_AT[k]] for k in ("blocked", "shape", "event", "event_dev_m", "shape_before", "decisions"))
+    blocked, shape, event, event_dev, shape_before, made = answer(
+        r, "blocked", "shape", "event", "event_dev_m", "shape_before", "decisions")
     health = health_of(state.failure, cm.ids)
     health_msg = HealthMsg(t=t, seq=seq, mission=mission.version, failed=tuple(sorted(health.failed)),
                            dropped=tuple(sorted(health.dropped)), since=tuple(sorted(health.since_t.items())))
@@ -309,8 +309,9 @@ def _frame_in_core(kernel: Kernel, state: AgentState, mission: Mission, cm: Core
     state, health_msg, events = _core_outcome(state, mission, cm, ctrl, frame.t, frame.seq, r, scalars, notes)
     if len(r) == 1:
         return state, StepOutput(notes=tuple(notes))
-    (_, fx, fy, fth, gx, gy, gth, _vx, _vy, _w, cost, _at_goal, _blocked, _left_m, shape, vl, vr, own_seen, err,
-     *_) = r
+    fx, fy, fth, gx, gy, gth, cost, shape, vl, vr, own_seen, err = answer(
+        r, "fit_x", "fit_y", "fit_th", "goal_x", "goal_y", "goal_th", "cost", "shape", "vl_m_s", "vr_m_s", "own_seen",
+        "err_m")
     cmd = CmdMsg(t=frame.t, seq=frame.seq, vl=vl, vr=vr, ttl=config.ttl_s)
     state_msg = None
     if own_seen:

@@ -18,8 +18,8 @@ from typing import Callable, Mapping
 from .advance import Goal, GoalError, GoalPath, GoalPose, GoalTwist, StructureLimits, structure_limits
 from .buffers import f64, filled
 from .control import DEFAULT_CONTROLLER, PrecisionState, make_controller
-from .coreconst import AGENT_STALL_MOVE_M, AGENT_STALL_S, AGENT_STALL_TURN_RAD, GOAL_PATH, GOAL_POSE, GOAL_TWIST, \
-    LIMIT_FIELDS, METRIC_CODES
+from .coreconst import AGENT_RESULT, AGENT_STALL_MOVE_M, AGENT_STALL_S, AGENT_STALL_TURN_RAD, GOAL_PATH, GOAL_POSE, \
+    GOAL_TWIST, LIMIT_FIELDS, METRIC_CODES
 from .errors import VsfleetValueError
 from .failure import FailurePolicy, FailureState, Health
 from .field import Field, build_field_deferred
@@ -28,6 +28,16 @@ from .impl import Impl, choose as choose_impl, core as core_impl
 from .safety import SafetyParams
 from .structure import MISSION_ARGS, PLAN_MARGIN_M, room_field
 from .wire import CmdMsg, EventMsg, HealthMsg, Mission, StateMsg
+
+#: agent_step's answer, its names' places (vsfleet.coreconst.AGENT_RESULT, py_agent.c)
+RESULT_AT = {name: k for k, name in enumerate(AGENT_RESULT)}
+
+
+def answer(r: tuple, *names: str) -> tuple:
+    """The values named so (AGENT_RESULT's names) of agent_step's answer r: a full one, or (resynced,) alone for
+    "resynced" (the answer of a frame no robot was usable in)."""
+    return tuple(r[RESULT_AT[name]] for name in names)
+
 
 Controller = Callable  # vsfleet.control: controller(state, ControlInput) -> (state, wheels (n, 2))
 

@@ -28,8 +28,8 @@ from typing import Mapping
 from .lazy import lazy_numpy
 from .advance import Goal, GoalPath, GoalPose, StructureLimits
 from .agentstate import (FAILURE_FIELDS, PRECISION_STATE_FIELDS, STALL_MOVE_M, STALL_S, STALL_TURN_RAD, AgentState,
-                         Note, StepConfig, StepOutput, SyncPhase, _evolve, blocked_note, core_mission_of, health_of,
-                         mission_shape_points, pack_mission, safety_params, shape_name, used_ids)
+                         Note, StepConfig, StepOutput, SyncPhase, _evolve, answer, blocked_note, core_mission_of,
+                         health_of, mission_shape_points, pack_mission, safety_params, shape_name, used_ids)
 from .control import ControlInput, PrecisionState
 from .envelope import Envelope, Envelopes
 from .failure import FailurePolicy, FailureState, restart_timers
@@ -215,7 +215,9 @@ def core_outputs(r: tuple, used, scratch_f64, wheels_m_s, n: int) -> tuple[Struc
     """(the structure, every robot's wheels (n, 2)) of a frame the core ran (vsfleet.agentcore, StepConfig.outputs):
     r its answer, used its rows used, scratch_f64 its scratch (the poses seen, points_now, points_next, deviations,
     in this order), wheels_m_s the state's commands; copies, as the next frame overwrites them."""
-    (_, fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m, shape, *_) = r
+    fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m, shape = answer(
+        r, "fit_x", "fit_y", "fit_th", "goal_x", "goal_y", "goal_th", "vx_m_s", "vy_m_s", "w_rad_s", "cost", "at_goal",
+        "blocked", "left_m", "shape")
     sf = np.asarray(scratch_f64)
     structure = make_structure(fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, np.array(used, dtype=bool),
                                sf[3 * n:5 * n].reshape(n, 2).copy(), sf[5 * n:7 * n].reshape(n, 2).copy(),

@@ -54,7 +54,7 @@ typedef struct {
     size_t len, cap;
 } bucket;
 
-/* grows a bucket's room (doubling, from 256); the push itself is BUCKET_PUSH's */
+/* grows a bucket's room (doubling, from 256); the pushes themselves are inline (bucket_push, RELAX) */
 static int bucket_grow(bucket *b)
 {
     size_t cap = b->cap ? 2 * b->cap : 256;
@@ -83,6 +83,9 @@ static int bucket_push(bucket *b, uint32_t v)
  * loop.  2026-12-07, bench/plan_cost.py's rooms 0-9, a scratch driver, best of 3: the triangle's builds from 54-65
  * to 38-51 ms, the 30 robots' from 27-60 to 27-54 ms, every cost the same bit for bit.
  * VS_ENOMEM: the states written so far keep their distances (the callers start again or fail). */
+/* s + plane < 1.25 total (a plane is at most a quarter of the lattice: K >= 4) must not wrap in 32 bits */
+typedef char vs_field_states_fit[VS_FIELD_MAX_STATES <= 3000000000u ? 1 : -1];
+
 static int dial_in_place(const vs_field *f, size_t src, uint32_t keep)
 {
     uint32_t *cost = f->cost;
