@@ -150,10 +150,9 @@ def _decide(state: AgentState, mission: Mission | None, frame: Frame, now_s: flo
     return decide_in_numpy(state, mission, controller, frame, config, notes)
 
 
-# The agent binding's layouts are the core's (vsfleet.coreconst.AGENT_*, py_agent.c): tuples are built by their
-# names, answers read by their places found there.
-SCALAR_AT = {name: k for k, name in enumerate(AGENT_SCALARS)}   # the state's numbers (agent_step's answer:
-                                                                # vsfleet.agentstate.answer)
+# The agent binding's layouts are the core's (vsfleet.coreconst.AGENT_*, py_agent.c): the tuples it takes are built
+# by name, the state's numbers read at the places found here, agent_step's answer by name (vsfleet.agentstate.answer).
+SCALAR_AT = {name: k for k, name in enumerate(AGENT_SCALARS)}
 # The state's arrays go in the order of their dataclasses (no mapping per frame); the core's order is checked once.
 STATE_ARRAYS = ("wheels_m_s", *PRECISION_STATE_FIELDS, *FAILURE_FIELDS)
 if STATE_ARRAYS != AGENT_STATE:
