@@ -105,19 +105,19 @@ static int dial_in_place(const vs_field *f, size_t src, uint32_t keep)
         pending = 1;
     }
 /* relax the neighbour t over an edge of base weight w (doubled where either end is tight) */
-#define RELAX(tt, ww)                                                                                       \
-    do {                                                                                                    \
-        uint32_t t_ = (tt), ct_ = cost[t_];                                                                 \
-        if (ct_ != VS_FIELD_WALL) {                                                                         \
-            uint32_t w_ = (ww), nd_ = d + (((cs | ct_) & VS_FIELD_TIGHT_BIT) ? 2 * w_ : w_);               \
-            if (nd_ < (ct_ & VS_FIELD_COST_MASK)) {                                                         \
-                bucket *b_ = &bk[nd_ & mask];                                                                 \
-                cost[t_] = (ct_ & keep) | nd_;                                                              \
-                if (b_->len == b_->cap && (rc = bucket_grow(b_)) != VS_OK) goto out;                        \
-                b_->items[b_->len++] = t_;                                                                  \
-                pending++;                                                                                  \
-            }                                                                                               \
-        }                                                                                                   \
+#define RELAX(tt, ww)                                                                                              \
+    do {                                                                                                           \
+        uint32_t t_ = (tt), ct_ = cost[t_];                                                                        \
+        if (ct_ != VS_FIELD_WALL) {                                                                                \
+            uint32_t w_ = (ww), nd_ = d + (((cs | ct_) & VS_FIELD_TIGHT_BIT) ? 2 * w_ : w_);                       \
+            if (nd_ < (ct_ & VS_FIELD_COST_MASK)) {                                                                \
+                bucket *b_ = &bk[nd_ & mask];                                                                      \
+                cost[t_] = (ct_ & keep) | nd_;                                                                     \
+                if (b_->len == b_->cap && (rc = bucket_grow(b_)) != VS_OK) goto out;                               \
+                b_->items[b_->len++] = t_;                                                                         \
+                pending++;                                                                                         \
+            }                                                                                                      \
+        }                                                                                                          \
     } while (0)
     for (uint32_t d = 0; pending > 0 && rc == VS_OK; d++) {
         bucket *b = &bk[d & mask];
@@ -269,7 +269,7 @@ static int finite3(const double *v, size_t n)
  * thread alone, so the planes hold the same bits however the headings are shared out) */
 typedef struct {
     const vs_field *f;
-    const double *template_xy, *radius_m;
+    const double *template_xy;
     size_t n;
     const double *obstacles;
     size_t n_obstacles;
@@ -466,8 +466,8 @@ static int build(const double *template_xy, const double *radius_m, size_t n, do
             b[2] = rho_tight;
         }
     }
-    raster_job jobs[2] = {{&f, template_xy, radius_m, n, obstacles, n_obstacles, xs, ys, radii2, inv_h, 0, 1, q},
-                          {&f, template_xy, radius_m, n, obstacles, n_obstacles, xs, ys, radii2, inv_h, 1, 2,
+    raster_job jobs[2] = {{&f, template_xy, n, obstacles, n_obstacles, xs, ys, radii2, inv_h, 0, 1, q},
+                          {&f, template_xy, n, obstacles, n_obstacles, xs, ys, radii2, inv_h, 1, 2,
                            q + 2 * n + f.nx + f.ny + 3 * n * n_obstacles}};
     raster_all(jobs);
 
