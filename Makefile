@@ -64,9 +64,9 @@ test-cross:
 	gcc $(CORE_CFLAGS) -DVS_FIELD_NO_THREADS -o build/golden-serial $(CORE_C) tests/cdriver/golden_driver.c -lm
 	build/golden-serial $(GOLDEN)
 
-# The agent's frame allocates nothing once its mission's workspace is sized (issue 29): malloc, calloc, realloc
-# and qsort wrapped and counted (tests/test_core_no_alloc.py runs the same)
-NOALLOC_WRAP := -Wl,--wrap=malloc,--wrap=calloc,--wrap=realloc,--wrap=qsort
+# The agent's frame allocates nothing once its mission's workspace is sized (issue 29): malloc, calloc, realloc,
+# posix_memalign and qsort wrapped and counted (tests/test_core_no_alloc.py runs the same)
+NOALLOC_WRAP := -Wl,--wrap=malloc,--wrap=calloc,--wrap=realloc,--wrap=posix_memalign,--wrap=qsort
 test-noalloc:
 	mkdir -p build
 	gcc $(CORE_CFLAGS) $(NOALLOC_WRAP) -o build/noalloc $(CORE_C) tests/cdriver/noalloc_driver.c -lm
@@ -76,7 +76,7 @@ test-noalloc:
 # frames without allocation (each workspace exactly its size: ASan sees a kernel write past it), then a deferred
 # field whose resolution runs out of memory at each of its allocations in turn (tests/cdriver/field_nomem_driver.c),
 # then the golden vectors under ThreadSanitizer (the field's raster runs on two threads)
-NOMEM_WRAP := -Wl,--wrap=malloc,--wrap=calloc,--wrap=realloc
+NOMEM_WRAP := -Wl,--wrap=malloc,--wrap=calloc,--wrap=realloc,--wrap=posix_memalign
 SAN := -fsanitize=address,undefined -fno-sanitize-recover=all -fno-omit-frame-pointer -g
 test-sanitize:
 	mkdir -p build

@@ -12,7 +12,10 @@ bodies of 0.05-0.09 m) in a room of 12 m. For each room, on the compiled core:
 - ``follow``: one frame's descent (vsfleet.field.follow_field, 2 m of it), timed along the way from the start.
 
 Times are wall-clock on this host, the best of 3 for builds (median of the frames for follow), and for the plan also
-the CPU time of the same run (every thread of this process: the raster runs on two, vs_field.c). Progress on stderr.
+the CPU time of the same run (every thread of this process: the raster runs on two, vs_field.c). An agent builds each
+mission's field once, into memory its process has not touched yet, so ``first`` is the plan again as the first build
+of a fresh process (``--first N SEED``, run as a child process): the best of 3 reuses memory the C library keeps
+after the first of them. Progress on stderr.
 
     .venv/bin/python -m bench.plan_cost --rooms 10
 """
@@ -24,6 +27,7 @@ import math
 import os
 import platform
 import statistics
+import subprocess
 import sys
 import time
 from datetime import datetime, timezone
@@ -83,16 +87,24 @@ def best_of(fn, times: int = 3) -> tuple[float, float, object]:
     return best, best_cpu, out
 
 
+def plan_room(tpl, rad, obs, start, goal, heads: int):
+    """The room's plan as an agent makes it: (the deferred field, the first frame's descent from the start)."""
+    f = build_field(tpl, rad, PLAN_MARGIN_M, obs, Pose2(*goal), n_headings=heads, deferred=True)
+    return f, follow_field(f, Pose2(*start))
+
+
+def first_plan_ms(n: int, seed: int) -> float:
+    """The plan's wall time [ms] as the first field a fresh process builds (this module run as a child)."""
+    out = subprocess.run([sys.executable, "-m", "bench.plan_cost", "--first", str(n), str(seed)], check=True,
+                         capture_output=True, text=True, cwd=Path(__file__).resolve().parent.parent)
+    return float(out.stdout.split()[-1])
+
+
 def measure(n: int, seed: int) -> dict:
     tpl, rad, obs, start, goal = room(n, seed)
     heads = field_headings(tpl, rad, PLAN_MARGIN_M, obs, goal[:2])
     args = (tpl, rad, PLAN_MARGIN_M, obs, Pose2(*goal))
-
-    def plan():
-        f = build_field(*args, n_headings=heads, deferred=True)
-        return f, follow_field(f, Pose2(*start))
-
-    plan_s, plan_cpu_s, (fld, first) = best_of(plan)
+    plan_s, plan_cpu_s, (fld, first) = best_of(lambda: plan_room(tpl, rad, obs, start, goal, heads))
     whole_s, _, _ = best_of(lambda: build_field(*args, n_headings=heads))
     way, blocked, _ = follow_field(fld, Pose2(*start), path_m=1e9, cap=200000)
     follow_us = []
@@ -103,7 +115,7 @@ def measure(n: int, seed: int) -> dict:
     lat = fld.lattice
     return {"n": n, "seed": seed, "obstacles": len(obs), "headings": heads, "cell_m": lat.cell_m,
             "states": lat.nx * lat.ny * lat.n_headings, "way": not blocked, "plan_ms": 1e3 * plan_s,
-            "plan_cpu_ms": 1e3 * plan_cpu_s,
+            "plan_cpu_ms": 1e3 * plan_cpu_s, "first_ms": first_plan_ms(n, seed),
             "whole_ms": 1e3 * whole_s, "follow_us": statistics.median(follow_us)}
 
 
@@ -121,7 +133,16 @@ def cpu() -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rooms", type=int, default=10, help="rooms per case (seeds 0..rooms-1)")
+    ap.add_argument("--first", type=int, nargs=2, metavar=("N", "SEED"),
+                    help="(a child's run) print the wall time [ms] of one plan, this process's first field")
     args = ap.parse_args(argv)
+    if args.first:
+        tpl, rad, obs, start, goal = room(*args.first)
+        heads = field_headings(tpl, rad, PLAN_MARGIN_M, obs, goal[:2])
+        t0 = time.perf_counter()
+        plan_room(tpl, rad, obs, start, goal, heads)
+        print(f"{1e3 * (time.perf_counter() - t0):.3f}")
+        return 0
     rows = []
     for n in CASES:
         for seed in range(args.rooms):
@@ -129,20 +150,23 @@ def main(argv=None) -> int:
             rows.append(r)
             print(f"[{n} robots, room {seed + 1}/{args.rooms}] {r['obstacles']} obstacles, {r['states']:,} states, "
                   f"{'a way' if r['way'] else 'blocked'}: plan {r['plan_ms']:.1f} ms "
-                  f"(CPU {r['plan_cpu_ms']:.1f} ms), "
+                  f"(CPU {r['plan_cpu_ms']:.1f} ms; a fresh process's first {r['first_ms']:.1f} ms), "
                   f"whole build {r['whole_ms']:.1f} ms, follow {r['follow_us']:.1f} us", file=sys.stderr, flush=True)
     print(f"bench/plan_cost.py, {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC, {cpu()}, {os.cpu_count()} cores, "
           f"Python {platform.python_version()}\n")
     print("| robots | obstacles | rooms (a way) | states | plan: deferred build + first descent, median / max | "
-          "the plan's CPU time, median / max | whole build, median / max | follow a frame, median / max |")
-    print("|---|---|---|---|---|---|---|---|")
+          "the plan's CPU time, median / max | the plan, a fresh process's first field, median / max | "
+          "whole build, median / max | follow a frame, median / max |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for n, (m, _side) in CASES.items():
         sel = [r for r in rows if r["n"] == n]
-        plan, plan_cpu, whole, fol = ([r[k] for r in sel] for k in ("plan_ms", "plan_cpu_ms", "whole_ms", "follow_us"))
+        plan, plan_cpu, first, whole, fol = ([r[k] for r in sel] for k in ("plan_ms", "plan_cpu_ms", "first_ms",
+                                                                           "whole_ms", "follow_us"))
         states = [r["states"] for r in sel]
         print(f"| {n} | {m} | {len(sel)} ({sum(r['way'] for r in sel)}) | {min(states):,}-{max(states):,} | "
               f"{statistics.median(plan):.1f} / {max(plan):.1f} ms | "
               f"{statistics.median(plan_cpu):.1f} / {max(plan_cpu):.1f} ms | "
+              f"{statistics.median(first):.1f} / {max(first):.1f} ms | "
               f"{statistics.median(whole):.1f} / {max(whole):.1f} ms | "
               f"{statistics.median(fol):.1f} / {max(fol):.1f} us |")
     return 0

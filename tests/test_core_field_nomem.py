@@ -1,7 +1,8 @@
 """A deferred field that runs out of memory while a descent resolves a component stays as it was
 (tests/cdriver/field_nomem_driver.c, linked with malloc, calloc and realloc wrapped so that the k-th one fails, for
 every k the resolution reaches): the descent says VS_ENOMEM, and the next one, with memory, answers as the whole build
-does, bit for bit, and resolves to its costs. `make test-sanitize` runs the same driver under ASan and UBSan."""
+does, bit for bit, and resolves to its costs; and a build whose k-th allocation fails (the cost array's posix_memalign
+among them) says VS_ENOMEM. `make test-sanitize` runs the same driver under ASan and UBSan."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ import pytest
 from tests.test_core_no_alloc import ROOT, run_wrapped_driver
 
 DRIVER = ROOT / "tests" / "cdriver" / "field_nomem_driver.c"
-WRAP = "-Wl,--wrap=malloc,--wrap=calloc,--wrap=realloc"
+WRAP = "-Wl,--wrap=malloc,--wrap=calloc,--wrap=realloc,--wrap=posix_memalign"
 
 
 @pytest.mark.integration  # starts gcc and the driver
@@ -22,3 +23,5 @@ def test_a_resolution_that_runs_out_of_memory_leaves_the_deferred_field_as_it_wa
     run = run_wrapped_driver(tmp_path, DRIVER, WRAP)
     failed = re.search(r"field_nomem: (\d+) failed allocations, each left the field as it was; ok", run.stdout)
     assert failed and int(failed.group(1)) > 2, run.stdout
+    built = re.search(r"field_nomem: build: (\d+) failed allocations \((\d+) aligned\), each VS_ENOMEM; ok", run.stdout)
+    assert built and int(built.group(1)) >= 2 and int(built.group(2)) >= 1, run.stdout

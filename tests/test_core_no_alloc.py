@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parent.parent
 CORE = ROOT / "vsfleet" / "_core"
 PURE_C = sorted(p for p in CORE.glob("*.c") if not p.name.startswith("py_") and p.name != "module.c")
 DRIVER = ROOT / "tests" / "cdriver" / "noalloc_driver.c"
-WRAP = "-Wl,--wrap=malloc,--wrap=calloc,--wrap=realloc,--wrap=qsort"
+WRAP = "-Wl,--wrap=malloc,--wrap=calloc,--wrap=realloc,--wrap=posix_memalign,--wrap=qsort"
 
 
 def core_cflags() -> list[str]:

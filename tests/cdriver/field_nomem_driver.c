@@ -2,13 +2,16 @@
  * a component stays as it was: the descent returns VS_ENOMEM, and a later descent, with memory, answers as on the
  * whole build (vs_field_build), bit for bit, and resolves to the same costs.
  *
- * Built with -Wl,--wrap=malloc,--wrap=calloc,--wrap=realloc (tests/test_core_field_nomem.py, and `make
- * test-sanitize` under ASan): while armed, the k-th allocation fails, for k = 1, 2, ... until a resolution no longer
- * reaches its k-th allocation.  The room: a ring of obstacles around the goal (a component of its own) and a pose
+ * Then a build (vs_field_build_deferred) whose k-th allocation fails says VS_ENOMEM, for every k it reaches.
+ *
+ * Built with -Wl,--wrap=malloc,--wrap=calloc,--wrap=realloc,--wrap=posix_memalign (tests/test_core_field_nomem.py,
+ * and `make test-sanitize` under ASan): while armed, the k-th allocation fails, for k = 1, 2, ... until a resolution
+ * (a build) no longer reaches its k-th allocation.  The room: a ring of obstacles around the goal (a component of its own) and a pose
  * outside it, so the descent must resolve the ring's outside; its scratch grows by realloc past 256 states, so the
  * failures fall in the breadth-first listing as well as in Dial's buckets.
  * Exit 0 and "ok" when every failure left the field as it was; 1 otherwise.
  */
+#include <errno.h>
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -18,13 +21,16 @@
 #include "vs_field.h"
 
 static long armed = -1;   /* >= 1: the allocation that fails, counted down; -1: none fails */
+static long aligned_failed;   /* failures given to posix_memalign (vs_field.c's cost array, on Linux) */
 
 void *__real_malloc(size_t size);
 void *__real_calloc(size_t count, size_t size);
 void *__real_realloc(void *p, size_t size);
+int __real_posix_memalign(void **p, size_t alignment, size_t size);
 void *__wrap_malloc(size_t size);
 void *__wrap_calloc(size_t count, size_t size);
 void *__wrap_realloc(void *p, size_t size);
+int __wrap_posix_memalign(void **p, size_t alignment, size_t size);
 
 static int fails(void)
 {
@@ -34,6 +40,12 @@ static int fails(void)
 void *__wrap_malloc(size_t size) { return fails() ? NULL : __real_malloc(size); }
 void *__wrap_calloc(size_t count, size_t size) { return fails() ? NULL : __real_calloc(count, size); }
 void *__wrap_realloc(void *p, size_t size) { return fails() ? NULL : __real_realloc(p, size); }
+int __wrap_posix_memalign(void **p, size_t alignment, size_t size)
+{
+    if (!fails()) return __real_posix_memalign(p, alignment, size);
+    aligned_failed++;
+    return ENOMEM;
+}
 
 #define RING 24
 #define CAP 400
@@ -99,5 +111,38 @@ int main(void)
     }
     vs_field_free(&whole);
     printf("field_nomem: %ld failed allocations, each left the field as it was; ok\n", failed);
-    return failed > 2 ? 0 : 1;   /* the listing and Dial's buckets both allocate */
+    if (failed <= 2) return 1;   /* the listing and Dial's buckets both allocate */
+
+    /* A build whose k-th allocation fails says VS_ENOMEM (and, under ASan, leaks nothing), for every k it reaches;
+     * the lattice (about 630,000 states, 2.5 MB) is large enough for the cost array's huge-page path on Linux. */
+    long build_failed = 0;
+    for (long k = 1;; k++) {
+        vs_field d;
+        armed = k;
+        int rc = vs_field_build_deferred(tpl, rad, 3, 0.02, obs, RING, goal, 0.02, 32, 1000000, &d);
+        int hit = armed == 0;
+        armed = -1;
+        if (!hit) {
+            if (rc != VS_OK || d.nx * d.ny * d.n_headings * sizeof(uint32_t) < ((size_t)1 << 21)) {
+                printf("build: rc %d with memory, or a lattice under 2 MiB\n", rc);
+                return 1;
+            }
+            vs_field_free(&d);
+            break;
+        }
+        build_failed++;
+        if (rc != VS_ENOMEM) {
+            printf("build: allocation %ld failed, rc %d\n", k, rc);
+            return 1;
+        }
+    }
+#if defined(__linux__)
+    if (aligned_failed < 1) {
+        printf("build: the cost array did not come from posix_memalign\n");
+        return 1;
+    }
+#endif
+    printf("field_nomem: build: %ld failed allocations (%ld aligned), each VS_ENOMEM; ok\n", build_failed,
+           aligned_failed);
+    return build_failed >= 2 ? 0 : 1;   /* the scratch and the cost array at least */
 }

@@ -37,10 +37,12 @@ static long allocs, sorts, decisions, reshaped, blocked;
 void *__real_malloc(size_t size);
 void *__real_calloc(size_t count, size_t size);
 void *__real_realloc(void *p, size_t size);
+int __real_posix_memalign(void **p, size_t alignment, size_t size);
 void __real_qsort(void *base, size_t count, size_t size, int (*cmp)(const void *, const void *));
 void *__wrap_malloc(size_t size);
 void *__wrap_calloc(size_t count, size_t size);
 void *__wrap_realloc(void *p, size_t size);
+int __wrap_posix_memalign(void **p, size_t alignment, size_t size);
 void __wrap_qsort(void *base, size_t count, size_t size, int (*cmp)(const void *, const void *));
 
 void *__wrap_malloc(size_t size)
@@ -59,6 +61,12 @@ void *__wrap_realloc(void *p, size_t size)
 {
     allocs += counting;
     return __real_realloc(p, size);
+}
+
+int __wrap_posix_memalign(void **p, size_t alignment, size_t size)
+{
+    allocs += counting;
+    return __real_posix_memalign(p, alignment, size);
 }
 
 void __wrap_qsort(void *base, size_t count, size_t size, int (*cmp)(const void *, const void *))

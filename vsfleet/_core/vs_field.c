@@ -4,9 +4,15 @@
 #undef _POSIX_C_SOURCE
 #define _POSIX_C_SOURCE 200112L   /* pthreads under -std=c99 */
 #endif
+#if defined(__linux__) && !defined(_DEFAULT_SOURCE)
+#define _DEFAULT_SOURCE 1   /* madvise and MADV_HUGEPAGE under -std=c99 (cost_alloc) */
+#endif
 #include <stdlib.h>
 #include <math.h>
 #include <string.h>
+#if defined(__linux__)
+#include <sys/mman.h>
+#endif
 #if !defined(VS_FIELD_NO_THREADS)
 #include <pthread.h>
 #endif
@@ -24,6 +30,25 @@ static long long ifloor(double v)
     long long t = (long long)v;
     if ((double)t > v) t--;
     return t;
+}
+
+/* The cost array of `count` states, or NULL. On Linux, aligned to 2 MiB and offered to the kernel for transparent
+ * huge pages (madvise: this host's default mode): an agent builds each mission's field once, into memory it has not
+ * touched, and filling 8 MB of small pages took about 4,000 page faults. Memory only: the costs are the same. */
+static uint32_t *cost_alloc(size_t count)
+{
+    if (count > SIZE_MAX / sizeof(uint32_t)) return NULL;
+    size_t bytes = sizeof(uint32_t) * count;
+#if defined(__linux__) && defined(MADV_HUGEPAGE)
+    const size_t huge = (size_t)1 << 21;
+    if (bytes >= huge) {
+        void *mem = NULL;
+        if (posix_memalign(&mem, huge, bytes) != 0) return NULL;
+        (void)madvise(mem, bytes, MADV_HUGEPAGE);   /* a hint: refused (EINVAL where THP is off), small pages */
+        return mem;
+    }
+#endif
+    return malloc(bytes);
 }
 
 /* the neighbour order, fixed: 8 moves at the same heading, then heading + 1, heading - 1 */
@@ -436,7 +461,7 @@ static int build(const double *template_xy, const double *radius_m, size_t n, do
     double *q = NULL;
     if (n <= (SIZE_MAX / sizeof(double) - f.nx - f.ny) / (4 + 3 * (size_t)n_obstacles))   /* + a thread's 2 n */
         q = malloc(sizeof(double) * (4 * n + f.nx + f.ny + 3 * n * n_obstacles));
-    f.cost = malloc(sizeof(uint32_t) * total);
+    f.cost = cost_alloc(total);
     int rc = VS_OK;
     if (q == NULL || f.cost == NULL) { rc = VS_ENOMEM; goto fail; }
     for (size_t s = 0; s < total; s++) f.cost[s] = 0u;   /* 0: free (the raster ORs in walls, tight bits) */
