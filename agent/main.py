@@ -12,8 +12,9 @@ operator's mission (its put, or its answer on ``vs/<fleet>/mission``) is taken
 as it is. Joining costs a bounded number of messages, not one per peer: once the
 operator has answered (or the agent holds a mission) it asks only the
 PEERS_ASKED robots after its own in the mission's sorted ids (peers_to_ask), so
-a fleet of N agents starting together exchanges O(N) queries, not N^2. Frames land in a latest-frame slot per source: a newer frame replaces
-one not yet run (counted). On any exit it publishes a zero command.
+a fleet of N agents starting together exchanges O(N) queries, not N^2. Frames
+land in a latest-frame slot per source: a newer frame replaces one not yet run
+(counted). On any exit it publishes a zero command.
 """
 
 from __future__ import annotations
@@ -205,8 +206,9 @@ class Agent:
     def fast_frame(self, key: str, payload: bytes) -> bool:
         """Run a frame in one pass from its payload to the command's and the state's (vsfleet.step.agent_payload_step)
         when it is the common case: one source, which this agent already follows (no other heard within the merger's
-        max_age_s), every robot of the one mission held in it, and nothing waiting in the slot or the merger. False: the frame was not run (nothing changed); the
-        caller hands it to on_frame and poll, which decide the same bits the long way. The caller holds the agent."""
+        max_age_s), every robot of the one mission held in it, and nothing waiting in the slot or the merger. False:
+        the frame was not run (nothing changed); the caller hands it to on_frame and poll, which decide the same bits
+        the long way. The caller holds the agent."""
         head = self._frame_head
         merger = self.merger
         if merger.pending is not None or self._slot or not key.startswith(head):

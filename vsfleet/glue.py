@@ -86,7 +86,7 @@ class MissionArrays:
     @cached_property
     def room(self) -> bool:
         """The mission knows robot bodies or obstacles: commands go through the safety filter (once per mission)."""
-        return bool(self.radii.any()) or len(self.obstacles) > 0               # the same, packed for vsfleet._core.structure_step (core_mission)
+        return bool(self.radii.any()) or len(self.obstacles) > 0
 
 
 def core_mission(metric: str, template: np.ndarray, envelopes: Envelopes, goal: Goal,
@@ -98,7 +98,8 @@ def core_mission(metric: str, template: np.ndarray, envelopes: Envelopes, goal: 
     packed = pack_mission(metric, template, envelopes.wheel_base_m, envelopes.wheel_speed_max_m_s,
                           envelopes.wheel_accel_max_m_s2, goal, limits, [0.0] * n if radii is None else radii,
                           obstacles, field, shapes, shape_fields)
-    return tuple(np.frombuffer(v).reshape(n, 2) if a == "template_xy" else np.frombuffer(v) if isinstance(v, (array, memoryview))
+    return tuple(np.frombuffer(v).reshape(n, 2) if a == "template_xy"
+                 else np.frombuffer(v) if isinstance(v, (array, memoryview))
                  else v for a, v in zip(MISSION_ARGS, packed))
 
 
@@ -334,8 +335,8 @@ def stall_state(state: AgentState, arrays: MissionArrays, s: Structure, filtered
     the filter said no: without this the fleet stood still and said
     nothing (issue 28). Going again: the structure moved more than that within STALL_S of the watch's pose; a
     structure that only crawls (less than that each STALL_S) stays stuck, the watch's pose moving on with it every
-    STALL_S, so a crawl is one `blocked`, not a `blocked`/`unblocked` pair each time it crosses the threshold. stall_watch:
-    (x, y, th, filter seen). A pure function of the frames run, as the failure rule is."""
+    STALL_S, so a crawl is one `blocked`, not a `blocked`/`unblocked` pair each time it crosses the threshold.
+    stall_watch: (x, y, th, filter seen). A pure function of the frames run, as the failure rule is."""
     if arrays.field is None:
         return math.nan, None, False
     dev = s.deviations_m[s.used]

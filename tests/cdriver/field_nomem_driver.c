@@ -6,7 +6,8 @@
  *
  * Built with -Wl,--wrap=malloc,--wrap=calloc,--wrap=realloc,--wrap=posix_memalign (tests/test_core_field_nomem.py,
  * and `make test-sanitize` under ASan): while armed, the k-th allocation fails, for k = 1, 2, ... until a resolution
- * (a build) no longer reaches its k-th allocation.  The room: a ring of obstacles around the goal (a component of its own) and a pose
+ * (a build) no longer reaches its k-th allocation.  The room: a ring of obstacles around the goal (a component of its
+ * own) and a pose
  * outside it, so the descent must resolve the ring's outside; its scratch grows by realloc past 256 states, so the
  * failures fall in the breadth-first listing as well as in Dial's buckets.
  * Exit 0 and "ok" when every failure left the field as it was; 1 otherwise.
