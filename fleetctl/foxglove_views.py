@@ -405,7 +405,10 @@ class FleetViews:
         elif m.kind == "rejoin":
             f.dropped.discard(m.robot)
             f.failed.discard(m.robot)
-        dev = "unseen" if not math.isfinite(m.dev) else f"deviation {m.dev:.3f} m"
+        if m.kind in ("blocked", "unblocked"):   # the structure's: dev is its distance to the goal
+            dev = f"{m.dev:.3f} m from the goal" + (f", {m.why.replace('_', ' ')}" if m.why else "")
+        else:
+            dev = "unseen" if not math.isfinite(m.dev) else f"deviation {m.dev:.3f} m"
         text = f"{m.robot}: {m.kind} at frame {m.seq} ({dev}), decided by {m.by}"
         return [View(f"{base}/log", log_message(t, EVENT_LEVEL[m.kind], f"agent {by}", text), t)]
 

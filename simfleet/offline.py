@@ -26,7 +26,7 @@ from vsfleet.fit import fit_structure
 from vsfleet.geometry import Pose2
 from vsfleet.scenario import Scenario
 from vsfleet.step import mission_template
-from vsfleet.wire import FrameMsg, Keys, decode_cmd, decode_event, encode_frame, encode_mission
+from vsfleet.wire import EventMsg, FrameMsg, Keys, decode_cmd, decode_event, encode_frame, encode_mission
 
 from vsfleet.agent.main import Agent
 
@@ -77,6 +77,8 @@ class OfflineRun:
     contacts: tuple[Contact, ...] = ()  # contacts between bodies that began, as the engine reported them
     # reshape: robot -> [(frame seq, shape)], each change of the shape its agent's state reports (from 0, the template)
     shapes: dict = dataclasses.field(default_factory=dict)
+    # robot -> every event its agent published, in order, as decoded from the wire (decisions holds the same, shorter)
+    events: dict = dataclasses.field(default_factory=dict)
 
 
 def run_offline(scenario: Scenario, duration_s: float, controller: str | None = None,
@@ -134,6 +136,7 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
     # every decision (and blocked/unblocked event) each agent publishes, as the fleet's event/<robot> carries
     # it: the agent itself keeps only its newest ones
     decisions: dict[str, list[Decision]] = {r: [] for r in robots}
+    events: dict[str, list[EventMsg]] = {r: [] for r in robots}
     shapes: dict[str, list[tuple[int, int]]] = {r: [] for r in robots}
     # share_structures: the agents share the structures they compute: an agent whose frame, mission and failure
     # masks equal another's takes that agent's structure (the same pure function of the same inputs) instead of
@@ -141,7 +144,8 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
     shared: dict | None = {} if share_structures else None
     for r in robots:  # one agent per robot, each with its own state, as in the fleet
         agents[r] = Agent(r, keys, put_cmd=lambda b, r=r: _take_cmd(sent, sent_ttl, r, b),
-                          put_state=lambda b, r=r: _note_shape(shapes[r], b), put_event=lambda b, r=r: decisions[r].append(_decision(b)),
+                          put_state=lambda b, r=r: _note_shape(shapes[r], b),
+                          put_event=lambda b, r=r: _take_event(decisions[r], events[r], b),
                           dt_s=dt, clock=lambda: t - tracker_clock_ahead_s, controller=ctrl,
                           command_age_s=latency_frames * dt, shared_structures=shared, reference=reference)
         agents[r].on_mission(keys.mission, encode_mission(mission))
@@ -191,7 +195,8 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
                       final_poses={r: s.pose for r, s in states.items()},
                       decisions=decisions,
                       positions_m=np.array(positions), commands_m_s=np.array(sent_log, dtype=float),
-                      engine=engine, contacts=tuple(phys.contacts) if phys is not None else (), shapes=shapes)
+                      engine=engine, contacts=tuple(phys.contacts) if phys is not None else (), shapes=shapes,
+                      events=events)
 
 
 def _note_shape(changes: list[tuple[int, int]], payload: bytes) -> None:
@@ -208,6 +213,8 @@ def _take_cmd(sent: dict, sent_ttl: dict, robot: str, payload: bytes) -> None:
     sent[robot], sent_ttl[robot] = (cmd.vl, cmd.vr), cmd.ttl
 
 
-def _decision(payload: bytes) -> Decision:
+def _take_event(decisions: list[Decision], events: list[EventMsg], payload: bytes) -> None:
+    """An event as its agent published it: decoded (events), and as a Decision (decisions)."""
     ev = decode_event(payload)
-    return Decision(ev.t, ev.robot, ev.kind, ev.dev)
+    events.append(ev)
+    decisions.append(Decision(ev.t, ev.robot, ev.kind, ev.dev))

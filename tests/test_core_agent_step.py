@@ -75,6 +75,8 @@ def test_a_goal_walled_in_blocked_in_core_and_glue_alike():
     glue, core = both(walled_in(), 3.0, seed=1)
     assert all([d.kind for d in ds] == ["blocked"] for ds in glue.decisions.values()), glue.decisions
     assert_same(glue, core)
+    for run in (glue, core):   # the reason on the wire: the field's own verdict, no way
+        assert all([e.why for e in evs] == ["no_path"] for evs in run.events.values()), run.events
 
 
 def test_a_room_threaded_with_the_clearance_barrier_at_work():

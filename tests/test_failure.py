@@ -102,6 +102,23 @@ def test_events_round_trip_including_an_unseen_robots_infinite_deviation():
         decode_event(encode_event(EventMsg(1.0, 1, "r2", "drop", 0.1, "r1")).replace(b"drop", b"boom"))
 
 
+def test_a_blocked_event_carries_why_and_no_other_event_does():
+    import msgpack
+
+    for why in ("no_path", "stuck"):
+        msg = EventMsg(t=3.0, seq=90, robot="r1", kind="blocked", dev=1.25, by="r1", why=why)
+        assert decode_event(encode_event(msg)) == msg
+        assert msgpack.unpackb(encode_event(msg))["why"] == why
+    for kind in ("fail", "drop", "rejoin", "recover", "unblocked"):
+        assert "why" not in msgpack.unpackb(encode_event(EventMsg(3.0, 90, "r1", kind, 0.5, "r1")))
+    base = {"t": 3.0, "seq": 90, "robot": "r1", "dev": 1.25, "by": "r1", "v": 1}
+    # an older agent's blocked event, without why, is read with why ""
+    assert decode_event(msgpack.packb({**base, "kind": "blocked"})).why == ""
+    for kind, why in (("blocked", "nope"), ("blocked", 3), ("unblocked", "stuck"), ("fail", "no_path")):
+        with pytest.raises(WireError, match="field 'why'"):
+            decode_event(msgpack.packb({**base, "kind": kind, "why": why}))
+
+
 def test_an_agent_that_missed_a_frame_fails_the_robot_on_the_same_frame():
     policy = FailurePolicy("drop")
     dt = 1.0 / 30.0

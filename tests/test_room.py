@@ -391,3 +391,23 @@ def test_a_sliver_in_the_poses_own_cell_does_not_hide_the_way_one_cell_away():
     gx, gy = room.goal[0], room.goal[1]
     assert np.hypot(way_core[-1][0] - gx, way_core[-1][1] - gy) < np.hypot(ROOM_174_IN_THE_GAP.x - gx,
                                                                             ROOM_174_IN_THE_GAP.y - gy) - 0.5
+
+
+def test_a_stuck_structure_says_blocked_with_why_stuck(monkeypatch):
+    """The stall watch's verdict on the wire: blocked, why stuck, dev the structure's distance to its goal; then
+    unblocked without a why. The watch is scripted here (stuck from 1 s to 2 s of a pillar room; its rule has
+    its own tests above), and the numpy glue's step turns its verdict into events as the core's binding does."""
+    import vsfleet.glue as glue
+
+    real = glue.stall_state
+
+    def scripted(state, arrays, s, filtered, failed_any, t):
+        since, at, _stalled = real(state, arrays, s, filtered, failed_any, t)
+        return since, at, 1.0 <= t < 2.0
+
+    monkeypatch.setattr(glue, "stall_state", scripted)
+    sc = load_scenario(ROOT / "scenarios" / "room-pillar-facing.toml")
+    run = run_offline(sc, 3.0, seed=1, share_structures=True, reference=False, stop_at_goal=False)
+    for robot, evs in run.events.items():
+        assert [(e.kind, e.why) for e in evs] == [("blocked", "stuck"), ("unblocked", "")], (robot, evs)
+        assert 1.0 <= evs[0].t < 1.1 and evs[0].dev > 0.5 and evs[0].robot == evs[0].by == robot

@@ -100,7 +100,11 @@ def test_an_agents_state_message_with_the_processs_rejection_count_is_encoded_as
 def test_an_event_of_a_robot_not_seen_still_sends_its_deviation_as_inf():
     ev = EventMsg(t=1.0, seq=3, robot="r2", kind="fail", dev=math.inf, by="r1")
     assert msgpack.unpackb(encode_event(ev))["dev"] == "inf"
-    assert encode_event(MESSAGES[-1]) == plain_encode(MESSAGES[-1])
+    plain = msgpack.unpackb(plain_encode(MESSAGES[-1]))
+    assert MESSAGES[-1].why == "" and plain.pop("why") == ""
+    assert msgpack.unpackb(encode_event(MESSAGES[-1])) == plain   # why is sent with blocked only
+    blocked = dataclasses.replace(MESSAGES[-1], kind="blocked", why="stuck")
+    assert encode_event(blocked) == plain_encode(blocked)
 
 
 def test_a_message_class_of_one_field_or_of_none_encodes_too():

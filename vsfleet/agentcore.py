@@ -21,9 +21,9 @@ from typing import Mapping
 
 from . import _core
 from .agentstate import (FAILURE_FIELDS, PRECISION_STATE_FIELDS, AgentState, Controller, CoreMission, Note, answer,
-                         StepConfig, StepOutput, SyncPhase, _evolve, blocked_note, core_mission_of, failure_initial,
-                         failure_with_health, health_of, mission_controller, mission_policy, safety_params, shape_name,
-                         used_ids)
+                         StepConfig, StepOutput, SyncPhase, _evolve, blocked_note, blocked_why, core_mission_of,
+                         failure_initial, failure_with_health, health_of, mission_controller, mission_policy,
+                         safety_params, shape_name, used_ids)
 from .buffers import filled
 from .control import Arc, Held, Precision, PrecisionState, Tracking, TurnThenGo
 from .coreconst import (AGENT_CONTROLLERS, AGENT_POLICY, AGENT_SAFETY, AGENT_SCALARS,
@@ -264,7 +264,7 @@ def _core_outcome(state: AgentState, mission: Mission, cm: CoreMission, ctrl, t:
         if event:
             now_blocked = event == 1
             events += (EventMsg(t=t, seq=seq, robot=state.robot, kind="blocked" if now_blocked else "unblocked",
-                                dev=event_dev, by=state.robot),)
+                                dev=event_dev, by=state.robot, why=blocked_why(now_blocked, bool(blocked))),)
             notes.append(blocked_note(seq, blocked, now_blocked, event_dev))
         if shape != shape_before:
             notes.append(Note("info", f"frame {seq}: the structure takes {shape_name(cm, shape)}"))

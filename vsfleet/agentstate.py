@@ -380,6 +380,12 @@ STALL_MOVE_M = AGENT_STALL_MOVE_M
 STALL_TURN_RAD = AGENT_STALL_TURN_RAD
 
 
+def blocked_why(now: bool, blocked: bool) -> str:
+    """A blocked event's why (vsfleet.wire.BLOCKED_WHY; "" for unblocked): no_path when the plan itself has no way
+    to the goal (blocked), stuck when the stall watch holds a structure whose plan goes on."""
+    return ("no_path" if blocked else "stuck") if now else ""
+
+
 def blocked_note(seq: int, blocked: bool, now: bool, short: float) -> Note:
     """The log line of the room's verdict changing (blocked: the plan's; now: blocked or stuck, else going on)."""
     if not now:

@@ -28,8 +28,9 @@ from typing import Mapping
 from .lazy import lazy_numpy
 from .advance import Goal, GoalPath, GoalPose, StructureLimits
 from .agentstate import (FAILURE_FIELDS, PRECISION_STATE_FIELDS, STALL_MOVE_M, STALL_S, STALL_TURN_RAD, AgentState,
-                         Note, StepConfig, StepOutput, SyncPhase, _evolve, answer, blocked_note, core_mission_of,
-                         health_of, mission_shape_points, pack_mission, safety_params, shape_name, used_ids)
+                         Note, StepConfig, StepOutput, SyncPhase, _evolve, answer, blocked_note, blocked_why,
+                         core_mission_of, health_of, mission_shape_points, pack_mission, safety_params, shape_name,
+                         used_ids)
 from .control import ControlInput, PrecisionState
 from .envelope import Envelope, Envelopes
 from .failure import FailurePolicy, FailureState, restart_timers
@@ -310,7 +311,7 @@ def decide_in_numpy(state: AgentState, mission: Mission, controller, frame: Fram
     if now != was:  # the room: no path to the goal (stopping short) or stuck on the way, or going again
         short = s.left_m if s.blocked else _goal_distance(arrays, s.fit_pose)
         events += (EventMsg(t=frame.t, seq=frame.seq, robot=state.robot, kind="blocked" if now else "unblocked",
-                            dev=short, by=state.robot),)
+                            dev=short, by=state.robot, why=blocked_why(now, s.blocked)),)
         notes.append(blocked_note(frame.seq, s.blocked, now, short))
     if s.shape != state.shape:   # reshape: every agent at the same frame (a function of the frame)
         notes.append(Note("info", f"frame {frame.seq}: the structure takes {shape_name(arrays, s.shape)}"))

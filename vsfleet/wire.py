@@ -380,9 +380,13 @@ class FaultMsg:
 
 
 # the failure rule's decisions (vsfleet.coreconst.DECISION_KINDS, in vs_failure.h's code order), then the
-# structure's own: blocked (no path to the goal around the obstacles: it stops at the closest safe pose;
-# dev = how far that is from the goal [m]) and unblocked (a path is open again)
+# structure's own: blocked (it stands short of the goal; dev = how far from the goal [m]; why: BLOCKED_WHY) and
+# unblocked (it goes on again; dev = how far from the goal it is then [m])
 EVENT_KINDS = (*DECISION_KINDS, "blocked", "unblocked")
+# why a structure is blocked: no_path (no way to the goal around the obstacles for any shape the mission allows: it
+# stops at the closest safe pose) or stuck (the way goes on, but the safety filter or the clearance barrier has held
+# the structure in place for the stall watch's time: docs/planning.md, "The stall watch")
+BLOCKED_WHY = ("no_path", "stuck")
 
 
 @dataclass(frozen=True)
@@ -390,8 +394,9 @@ class EventMsg:
     """A failure-policy decision by agent ``by`` at frame ``seq`` (tracker time t [s]).
 
     kind: fail, drop, rejoin or recover (robot: the robot decided on; dev [m]: its deviation at that
-    frame), or blocked / unblocked (robot: the agent's own; dev [m]: how far short of the goal the
-    structure stops, 0 when unblocked).
+    frame), or blocked / unblocked (robot: the agent's own; dev [m]: how far from the goal the structure
+    stands). why: for blocked, one of BLOCKED_WHY; "" for every other kind. Optional on the wire (sent only
+    with blocked): a blocked event without it (an older agent) decodes with why "".
     """
 
     t: float
@@ -401,6 +406,7 @@ class EventMsg:
     dev: float
     by: str
     v: int = PROTOCOL_V  # telemetry: the protocol version followed
+    why: str = ""
 
 
 def decode_event(payload: bytes) -> EventMsg:
@@ -414,7 +420,11 @@ def decode_event(payload: bytes) -> EventMsg:
     check_name(by, "by")
     dev = m.get("dev")
     dev = math.inf if dev == "inf" else _pos({"dev": dev}, "dev", allow_zero=True)
-    return EventMsg(t=_num(m, "t"), seq=_int(m, "seq"), robot=robot, kind=kind, dev=dev, by=by, v=v)
+    why = m.get("why", "")
+    if why != "" and (kind != "blocked" or why not in BLOCKED_WHY):
+        raise WireError(f"field 'why' of a {kind!r} event must be "
+                        + (f"one of {BLOCKED_WHY}" if kind == "blocked" else "absent") + f", got {why!r}")
+    return EventMsg(t=_num(m, "t"), seq=_int(m, "seq"), robot=robot, kind=kind, dev=dev, by=by, v=v, why=why)
 
 
 CONTACT_KINDS = ("robot", "obstacle")
@@ -457,6 +467,8 @@ def encode_event(msg: EventMsg) -> bytes:
     d = dict(zip(names, values(msg)))
     if not math.isfinite(d["dev"]):
         d["dev"] = "inf"  # a robot not seen in the frame
+    if not d["why"]:
+        del d["why"]   # sent with blocked only
     return _pack(d)
 
 
