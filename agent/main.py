@@ -111,11 +111,13 @@ class Agent:
                  put_event: Callable[[bytes], None] = discard,
                  controller: Controller | None = None, command_age_s: float | None = None,
                  shared_structures: dict | None = None, reference: bool = False,
-                 prepare: Callable[[Mission], None] | None = None) -> None:
+                 prepare: Callable[[Mission], threading.Thread | None] | None = None) -> None:
         self.robot = check_name(robot, "robot")
         # prepare(mission): called with every new mission before it takes effect (run_agent: its arrays and its
-        # room's field built on a thread of their own, so a plan never stalls the frames; None: at its first frame)
+        # room's field built on a thread of their own, so a plan never stalls the frames; None: at its first frame).
+        # The thread it returns is kept until a frame first runs that mission (await_prepared)
         self.prepare = prepare
+        self._preparing: dict[int, threading.Thread] = {}   # mission version -> the thread building its arrays
         self.following: frozenset[str] = frozenset()   # the tracker sources of the last frame run
         self.keys = keys
         self._frame_head = keys.frame("")   # "vs/<fleet>/frame/": a frame's key is this and its src
@@ -177,9 +179,21 @@ class Agent:
             self.mission_payload = encode_mission(latest)  # one assignment: read by the queryable
             self.merger.set_robots(latest.robot_ids, self.missions.robots())
             if self.prepare is not None:
-                self.prepare(mission)
+                thread = self.prepare(mission)
+                if thread is not None:
+                    for version in [v for v, th in self._preparing.items() if not th.is_alive()]:
+                        del self._preparing[version]   # built, and no frame has needed it yet
+                    self._preparing[mission.version] = thread
             return True
         return False
+
+    def await_prepared(self, mission: Mission) -> None:
+        """A frame is about to run ``mission``: if its prepare thread is still building its arrays, wait for that
+        build rather than start a second one beside it (the frame would build the same bits; it took the CPU the
+        thread needed and finished no sooner). The caller holds the agent."""
+        thread = self._preparing.pop(mission.version, None)
+        if thread is not None:
+            thread.join()
 
     def on_frame(self, key: str, payload: bytes, wake: bool = True) -> None:
         """Decode a frame (any thread) into the latest-frame slot of its source: a newer one replaces
@@ -221,6 +235,8 @@ class Agent:
         if len(missions) != 1:
             return False
         (mission,) = missions.values()
+        if self._preparing and mission.version in self._preparing:
+            return False   # its prepare thread not yet awaited: the long way waits for it if the frame runs it
         got = agent_payload_step(self.state, mission, payload, src, self.clock(), self.config, merger.done,
                                  merger.max_future_s, self.rejections.count, merger.max_age_s, others_t)
         if got is None:
@@ -392,9 +408,11 @@ class Agent:
 
     def tick(self, frame: Frame) -> None:
         """decode -> step -> publish and log: one frame through the pure step."""
+        mission = self.missions.active(frame.t)
+        if self._preparing and mission is not None:
+            self.await_prepared(mission)
         try:
-            self.state, out = agent_step(self.state, self.missions.active(frame.t), frame, self.clock(),
-                                         self.config)
+            self.state, out = agent_step(self.state, mission, frame, self.clock(), self.config)
         except (VsfleetValueError, ArithmeticError, ValueError, MemoryError) as exc:
             self.rejections.reject(self.keys.frame(frame.src or "*"), f"frame {frame.seq} unusable: {exc!r}")
             return
@@ -477,7 +495,7 @@ def build_mission_arrays(mission: Mission) -> None:
 def prepare_mission(mission: Mission) -> threading.Thread:
     """Build a new mission's arrays (build_mission_arrays) on a thread of their own, while the frames of the
     mission in force go on: the field takes up to ~0.2 s for a large room, and the mission takes effect later
-    (mission set: 0.5 s). A frame that needs it sooner builds it itself (the same pure function: the same bits)."""
+    (mission set: 0.5 s). A frame that needs it sooner waits for this thread (Agent.await_prepared)."""
     thread = threading.Thread(target=build_mission_arrays, args=(mission,), name=f"prepare-v{mission.version}",
                               daemon=True)
     thread.start()

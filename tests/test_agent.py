@@ -506,6 +506,54 @@ def test_a_new_mission_with_a_room_is_prepared_off_the_frame_path_once_and_its_f
 
 
 @pytest.mark.parametrize("fast", [True, False], ids=["one pass", "long way"])
+def test_a_frame_waits_for_its_missions_prepare_thread_instead_of_building_beside_it(monkeypatch, fast):
+    """A mission whose prepare thread is still building when its first frame comes: the frame waits for that
+    build and builds nothing itself (before, it built a second copy beside the thread, on the CPU the thread
+    needed: an agent that joins a fleet in a room gets its mission and its first frame together)."""
+    import threading
+
+    obstacle = (0.6, 0.35, 0.11) if fast else (0.6, 0.4, 0.12)   # a room no other test built (they are memoised)
+    room = dataclasses.replace(MISSION, version=3, obstacles=(obstacle,),
+                               robots=tuple((r, dataclasses.replace(s, radius=0.05)) for r, s in MISSION.robots))
+    go, builds = threading.Event(), []
+    original = agentstate.build_field_deferred
+
+    def counted(*a, **k):
+        builds.append(threading.current_thread().name)
+        return original(*a, **k)
+
+    def held_build(mission):
+        go.wait(timeout=30.0)
+        agent_main.build_mission_arrays(mission)
+
+    def prepare(mission):
+        thread = threading.Thread(target=held_build, args=(mission,), name="prepare-held", daemon=True)
+        thread.start()
+        return thread
+
+    monkeypatch.setattr(agentstate, "build_field_deferred", counted)
+    agent = Agent("r1", KEYS, lambda b: None, lambda b: None, clock=Clock(100.0), prepare=prepare)
+    agent.on_message("mission", KEYS.mission, encode_mission(room))
+    done = threading.Event()
+
+    def run():
+        if fast:
+            agent.run_frame(KEYS.frame("sim"), encode_frame(FrameMsg(100.0, 1, "sim", POSES)))
+        else:
+            frame(agent, Clock(100.0), 1, 100.0, POSES)
+        done.set()
+
+    runner = threading.Thread(target=run, daemon=True)
+    runner.start()
+    assert not done.wait(timeout=0.5) and builds == []   # the frame waits: nothing built while the thread is held
+    go.set()
+    runner.join(timeout=30.0)
+    assert done.is_set()
+    assert builds == ["prepare-held"]                      # built once, by the prepare thread
+    assert agent.state.mission_version == 3                # and the frame ran the mission
+
+
+@pytest.mark.parametrize("fast", [True, False], ids=["one pass", "long way"])
 def test_with_every_robot_dropped_a_frame_sends_no_command_and_the_agent_goes_on(fast):
     """Peers agree that every robot is dropped (on_failure drop): no robot is usable, so a frame answers with no
     command and no state, in one pass as the long way (before, the one pass handed None to put_cmd, which zenoh
