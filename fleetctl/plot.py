@@ -34,7 +34,7 @@ from mcap.exceptions import McapError
 
 from vsfleet.analysis import fitted_truth, truth_frames
 from vsfleet.geometry import Pose2
-from vsfleet.step import planned_way
+from vsfleet.step import mission_arrays, planned_way, shape_name
 from vsfleet.wire import (
     Mission,
     PoseMsg,
@@ -184,26 +184,35 @@ def _canvas(fig: Figure) -> Figure:
 # ---------------------------------------------------------------- figures
 
 
-def draw_plan(ax, mission: Mission, first: StateMsg, spacing_m: float = 0.15) -> None:
-    """The room's plan from the structure's first fitted pose (vsfleet.step.planned_way: what the field gives
-    from there), and the robots' bodies swept along it every ``spacing_m`` [m] of the way."""
-    planned = planned_way(mission, Pose2(first.x, first.y, first.th))
-    if planned is None:
-        return
-    way, blocked = planned
-    ax.plot(way[:, 0], way[:, 1], color="tab:green", lw=1.0, alpha=0.9,
-            label="plan from the start" + (" (blocked: to the closest safe pose)" if blocked else ""))
-    radii = mission.radii
-    run, last = 0.0, None
-    for x, y, th in way:
-        if last is not None:
-            run += math.hypot(x - last[0], y - last[1])
-        if last is None or run >= spacing_m or (x, y, th) == tuple(way[-1]):
-            run = 0.0
-            for point, r in zip(structure_points(mission, x, y, th), radii):
-                ax.add_patch(Circle((point[0], point[1]), max(r, 0.005), fill=False, ec="tab:green", alpha=0.25, lw=0.6,
-                                    zorder=2, gid="swept body"))
-        last = (x, y)
+def draw_plan(ax, mission: Mission, states: list[StateMsg], spacing_m: float = 0.15) -> None:
+    """The room's plan from the structure's first fitted pose (vsfleet.step.planned_way: what the field of the
+    shape it has there gives), and again from each state whose shape differs from the one before (a reshape:
+    that shape's field from there); the robots' bodies, in the shape planned for, swept along each plan every
+    ``spacing_m`` [m] of the way. states: one agent's state messages, in order."""
+    t0 = states[0].t
+    starts = [m for k, m in enumerate(states) if k == 0 or m.shape != states[k - 1].shape]
+    colours = ("tab:green", "tab:purple", "tab:olive", "tab:cyan")
+    for k, first in enumerate(starts):
+        planned = planned_way(mission, Pose2(first.x, first.y, first.th), shape=first.shape)
+        if planned is None:
+            continue
+        way, blocked = planned
+        colour = colours[k % len(colours)]
+        label = "plan from the start" if k == 0 else f"plan from {first.t - t0:.1f} s"
+        if first.shape:
+            label += f" ({shape_name(mission_arrays(mission), first.shape)})"
+        ax.plot(way[:, 0], way[:, 1], color=colour, lw=1.0, alpha=0.9,
+                label=label + (" (blocked: to the closest safe pose)" if blocked else ""))
+        run, last = 0.0, None
+        for x, y, th in way:
+            if last is not None:
+                run += math.hypot(x - last[0], y - last[1])
+            if last is None or run >= spacing_m or (x, y, th) == tuple(way[-1]):
+                run = 0.0
+                for point, r in zip(structure_points(mission, x, y, th, first.shape), mission.radii):
+                    ax.add_patch(Circle((point[0], point[1]), max(r, 0.005), fill=False, ec=colour, alpha=0.25,
+                                        lw=0.6, zorder=2, gid="swept body"))
+            last = (x, y)
 
 
 def trajectory_figure(data: RunData) -> Figure:
@@ -231,10 +240,10 @@ def trajectory_figure(data: RunData) -> Figure:
                 label=f"structure (agent {agent})")
         if data.mission is not None:
             for m, style in ((st[0], ":"), (st[-1], "-")):
-                pts = [(p[0], p[1]) for p in structure_points(data.mission, m.x, m.y, m.th)]
+                pts = [(p[0], p[1]) for p in structure_points(data.mission, m.x, m.y, m.th, m.shape)]
                 ax.add_patch(Polygon(pts, closed=True, fill=False, ec="0.45", ls=style, lw=1.0))
     if data.mission is not None and data.state:
-        draw_plan(ax, data.mission, data.state[max(data.state, key=lambda a: len(data.state[a]))][0])
+        draw_plan(ax, data.mission, data.state[max(data.state, key=lambda a: len(data.state[a]))])
     if data.mission is not None:
         for i, (x, y, r) in enumerate(data.mission.obstacles):
             ax.add_patch(Circle((x, y), r, fc="0.55", ec="0.25", alpha=0.6, lw=0.8, zorder=1, gid=f"obstacle {i}",

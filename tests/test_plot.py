@@ -193,3 +193,36 @@ def test_in_a_room_the_plan_from_the_first_fitted_pose_and_the_bodies_swept_alon
     assert len(swept) >= 3 * 10 and all(p.radius == 0.05 for p in swept)
     for p in swept:                                                     # no swept body touches the pillar
         assert math.hypot(p.center[0] - 0.8, p.center[1]) >= 0.2 + 0.05
+
+
+def test_a_reshape_draws_the_plan_of_each_shape_taken_from_where_it_was_taken():
+    """The structure changes shape (its states say so): the plan of the new shape is drawn from the state where
+    it took it, and the bodies swept along it are at that shape's points (before, only the template's plan from
+    the start was drawn, whatever shape the structure took)."""
+    import dataclasses
+
+    from matplotlib.patches import Circle
+
+    from vsfleet.geometry import Pose2
+    from vsfleet.step import planned_way
+
+    column = ("column", ((0.3, 0.0), (0.0, 0.0), (-0.3, 0.0)))
+    room = dataclasses.replace(MISSION, goal=(1.6, 0.0, 0.0), obstacles=((0.8, 0.0, 0.2),), shapes=(column,),
+                               robots=tuple((r, dataclasses.replace(s, radius=0.05)) for r, s in MISSION.robots))
+    log = [rec("vs/demo/mission", encode_mission(room), T0 - 0.5)]
+    for k in range(100):   # the structure slides along +x, and takes the column (shape 1) from frame 50 on
+        t, sx = T0 + k * 0.02, 0.002 * k
+        out = encode(StateMsg(t=t, seq=k, x=sx, y=0.0, th=0.0, gx=sx, gy=0.0, gth=0.0, cost=0.001, err=0.001,
+                              used=ROBOTS, rejected=0, shape=1 if k >= 50 else 0))
+        log.append(rec("vs/demo/state/r1", out, t + 0.005))
+    ax = plot.trajectory_figure(extract(log)).axes[0]
+    plans = {line.get_label(): line for line in ax.get_lines() if line.get_label().startswith("plan from")}
+    assert sorted(plans) == ["plan from 1.0 s (shape 1 (column))", "plan from the start"], sorted(plans)
+    way, _ = planned_way(room, Pose2(0.1, 0.0, 0.0), shape=1)
+    later = plans["plan from 1.0 s (shape 1 (column))"]
+    assert np.array_equal(later.get_xdata(), way[:, 0]) and np.array_equal(later.get_ydata(), way[:, 1])
+    first_column = structure_points(room, *way[0], shape=1)      # the column's bodies where that plan begins
+    centres = {tuple(np.round(p.center, 9)) for p in ax.patches
+               if isinstance(p, Circle) and p.get_gid() == "swept body"}
+    assert all(tuple(np.round((x, y), 9)) in centres for x, y, _ in first_column)
+    assert tuple(np.round(structure_points(room, *way[0])[1][:2], 9)) not in centres   # not the template's r2 there
