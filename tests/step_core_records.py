@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from golden_step import load
-from vsfleet.coreconst import METRICS
+from vsfleet.coreconst import AGENT_STATE, METRICS
 from vsfleet.step import core_mission, frame_arrays, mission_arrays
 
 #: the room's field in these records: a coarse lattice (8 cm, 16 headings), so that the replay under
@@ -166,7 +166,7 @@ AGENT_RUNS = (
     ("room-wall-gap resync", "room-wall-gap", 8.0, {"seed": 1}, "r2", 60, 50, {49: ("still", 100)}),
     ("room-4", "room-4", 12.0, {"seed": 4}, "r01", 200, 40, {}),
     ("walled-in blocked", "walled-in", 3.0, {"seed": 1}, "r2", 0, 40, {20: ("drop", ("r3",))}),
-    ("room-column-switch", "room-column-switch", 40.0, {"seed": 1}, "r1", 860, 40, {5: ("drop", ("r3",))}),
+    ("room-column-switch", "room-column-switch", 40.0, {"seed": 1}, "r1", 830, 40, {5: ("drop", ("r3",))}),
     ("crowd-10", "crowd-10", 3.0, {"seed": 3, "stop_at_goal": False}, "r03", 20, 30,
      {5: ("drop", ("r01", "r07")), 18: ("gap", 12)}),
 )
@@ -275,11 +275,11 @@ def agent_step_inputs(robot, config, warm, record) -> list[float]:
     head = [float(n), float(metric), float(kind), float(len(goal) // 3), *goal, *limits, *tpl.ravel(), *wb, *vmax,
             *amax, margin, CELL_M, float(HEADINGS), float(MAX_STATES), float(len(obstacles) // 3), *radii,
             *obstacles, float(len(arrays.shapes)), *shapes_xy]
-    gains = [*map(float, gains), *[0.0] * (16 - len(gains))]
+    gains = [*map(float, gains), *[0.0] * (17 - len(gains))]
     agent = [float(own), float(code), *gains, float(deadband), float(still), *map(float, policy), *map(float, safety),
              *map(float, times), float(room), float(bodies)]
     _ctrl, arrays_in, scalars = agentcore._core_inputs(kernel, state, controller, n)
-    width = arrays_in[15].shape[1]
+    width = arrays_in[AGENT_STATE.index("window_t")].shape[1]
     packed = [float(width)] + [float(v) for a in arrays_in for v in np.asarray(a).ravel()] + [*map(float, scalars)]
     frames = []
     for _m, frame, _now in record:

@@ -152,7 +152,7 @@ def test_each_agent_step_record_agrees_with_the_numpy_reference(k):
     n = int(inputs[0])
     want, want_state = frame_outputs(outs, n, len(record))
     # the frames before the record on the core (the test above: the glue comes to the record's start bit for bit),
-    # the record's on the reference: the reference from the recorded start (0-860 frames before each record: on
+    # the record's on the reference: the reference from the recorded start (0-830 frames before each record: on
     # the reference they took three quarters of this test's time)
     got, got_state = step_outputs(robot, config, warm, record, dataclasses.replace(config, reference=True), config)
     for j, (w, g) in enumerate(zip(want, got)):
@@ -166,8 +166,8 @@ def test_each_agent_step_record_agrees_with_the_numpy_reference(k):
                                    atol=REFERENCE_TOL)
         np.testing.assert_allclose(g["head"], w["head"], rtol=0, atol=REFERENCE_TOL, err_msg=f"frame {j}")
         np.testing.assert_allclose(g["dev"], w["dev"], rtol=0, atol=REFERENCE_TOL, err_msg=f"frame {j}")
-    # the failure rule's verdicts after the last frame: failed and dropped (the state's arrays 10, 11)
-    flags = slice(n * (2 + 3 + 2 + 10 + 2 + 2 + 1 + 1 + 1 + 1), n * (2 + 3 + 2 + 10 + 2 + 2 + 1 + 1 + 1 + 1 + 2))
+    # the failure rule's verdicts after the last frame: failed and dropped (the state's arrays 11, 12)
+    flags = slice(n * (2 + 3 + 2 + 10 + 2 + 2 + 1 + 1 + 2 + 1 + 1), n * (2 + 3 + 2 + 10 + 2 + 2 + 1 + 1 + 2 + 1 + 1 + 2))
     assert got_state[flags] == want_state[flags]
 
 

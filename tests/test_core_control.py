@@ -385,7 +385,8 @@ def test_precision_takes_a_state_of_other_dtypes_and_strides_as_the_reference():
     odd = PrecisionState(pose_world=np.asfortranarray(state.pose_world), gains=state.gains.tolist(),
                          history_m_s=state.history_m_s, target_world=state.target_world,
                          feed_m_s=state.feed_m_s, turn_rad_s=state.turn_rad_s,
-                         direction=state.direction.astype(np.float32), ready=state.ready.astype(np.uint8))
+                         direction=state.direction.astype(np.float32), offset_world=state.offset_world.T.copy().T,
+                         ready=state.ready.astype(np.uint8))
     inp = one_input(seed=4, pose_world=np.asfortranarray(one_input(seed=4).pose_world))
     assert_same(ctrl(odd, inp), ctrl.reference(state, inp), "odd")
 

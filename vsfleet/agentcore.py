@@ -179,7 +179,7 @@ def precision_initial(n: int) -> PrecisionState:
     """Precision's state for n robots, as buffers (vsfleet.control.Precision.initial, without numpy)."""
     return PrecisionState(filled("d", (n, 3)), filled("d", (n, 2), 1.0), filled("d", (n, PRECISION_HISTORY, 2)),
                           filled("d", (n, 2)), filled("d", (n, 2)), filled("d", (n,)), filled("d", (n,), 1.0),
-                          filled("?", (n,)))
+                          filled("d", (n, 2)), filled("?", (n,)))
 
 
 def agent_kernel(cm: CoreMission, mission: Mission, robot: str, controller: Controller,

@@ -353,7 +353,8 @@ class PrecisionState:
     gains estimated (actual / commanded, left and right), the commands sent before the last one
     (n, H, 2) [m/s], the filtered target point [m; world], the filtered feed-forward velocity
     [m/s; world] and the rate [rad/s] at which it turns, the driving direction (+1 ahead, -1 in
-    reverse) and whether the row has been initialised."""
+    reverse), the running mean of the robot's observed offset from its point [m; world] (the gain
+    boost's trigger) and whether the row has been initialised."""
 
     pose_world: np.ndarray
     gains: np.ndarray
@@ -362,6 +363,7 @@ class PrecisionState:
     feed_m_s: np.ndarray
     turn_rad_s: np.ndarray
     direction: np.ndarray
+    offset_world: np.ndarray
     ready: np.ndarray
 
 
@@ -381,7 +383,10 @@ class Precision:
        gain_boost_per_m [1/m] x the excess). The slow rate keeps the tracker's noise out of the gains; a
        wheel-gain change (a robot slowed to 50%, or back to speed) shows first as the robot falling off its
        point, and at the slow rate alone the gains caught up too late (issue 30: a robot slowed to 50%
-       bent the paper triangle by up to 1.03 cm, 1.31 cm when it came back to speed).
+       bent the paper triangle by up to 1.03 cm, 1.31 cm when it came back to speed). The distance is that
+       of the offset's running mean, which moves gain_boost_mean_ratio of the way to each frame's offset: the
+       tracker's noise alone seldom moves it past gain_boost_from_m (each frame's own offset tripped the boost
+       at sigma 3-5 mm, and under l1, which piles the residual onto one robot: docs/benchmarks.md section 4).
     2. Age: the filtered pose is driven forward by age_s [s] over the commands already sent.
     3. Target: the structure point at that time (point_now + age f, f = (next - now) / dt_s),
        smoothed by target_gain_ratio around its own prediction; f is smoothed by feed_gain_ratio around its
@@ -410,8 +415,10 @@ class Precision:
     gain_boost_from_m: float = 0.005
     gain_boost_per_m: float = 1600.0
     gain_boost_max_ratio: float = 9.0
+    gain_boost_mean_ratio: float = 0.35
     _allow_zero = ("gain_rate_ratio", "gain_boost_per_m", "gain_boost_max_ratio")
-    _at_most = {"pose_gain_ratio": 1.0, "heading_gain_ratio": 1.0, "target_gain_ratio": 1.0, "feed_gain_ratio": 1.0}
+    _at_most = {"pose_gain_ratio": 1.0, "heading_gain_ratio": 1.0, "target_gain_ratio": 1.0, "feed_gain_ratio": 1.0,
+                "gain_boost_mean_ratio": 1.0}
 
     def __post_init__(self) -> None:
         _check_gains(self)
@@ -422,15 +429,15 @@ class Precision:
     def initial(self, n: int) -> PrecisionState:
         z2 = np.zeros((n, 2))
         return PrecisionState(np.zeros((n, 3)), np.ones((n, 2)), np.zeros((n, _HISTORY, 2)),
-                              z2, z2, np.zeros(n), np.ones(n), np.zeros(n, dtype=bool))
+                              z2, z2, np.zeros(n), np.ones(n), z2, np.zeros(n, dtype=bool))
 
     def __call__(self, state: PrecisionState, inp: ControlInput) -> tuple[PrecisionState, np.ndarray]:
         n = len(inp.active)
         new = (np.empty((n, 3)), np.empty((n, 2)), np.empty((n, _HISTORY, 2)), np.empty((n, 2)), np.empty((n, 2)),
-               np.empty(n), np.empty(n), np.empty(n, dtype=bool))
+               np.empty(n), np.empty(n), np.empty((n, 2)), np.empty(n, dtype=bool))
         wheels = np.empty((n, 2))
         old = (state.pose_world, state.gains, state.history_m_s, state.target_world, state.feed_m_s,
-               state.turn_rad_s, state.direction, state.ready)
+               state.turn_rad_s, state.direction, state.offset_world, state.ready)
         _core_call(_core.control_precision, (self._core, *old), inp, (*new, wheels), head_flags=(_READY,))
         out = object.__new__(PrecisionState)   # the dataclass without its __init__ (1 us of 5 at n = 3)
         out.__dict__.update(zip(_STATE_FIELDS, new))
@@ -457,8 +464,12 @@ class Precision:
         along = c * nx + s * ny
         d_wheel = columns(along - 0.5 * base * nth, along + 0.5 * base * nth)
         # a robot measurably off its point (a wheel-gain change shows there first: a robot slowed, or back to
-        # speed) adapts its gains faster: the rate times 1 + min(max, per_m (distance - from))
-        ox, oy = z[:, 0] - inp.point_now_world[:, 0], z[:, 1] - inp.point_now_world[:, 1]
+        # speed) adapts its gains faster: the rate times 1 + min(max, per_m (distance - from)), the distance that
+        # of the offset's running mean (the tracker's noise alone seldom moves the mean that far)
+        so, a = state.offset_world, self.gain_boost_mean_ratio
+        offset = columns(so[:, 0] + a * ((z[:, 0] - inp.point_now_world[:, 0]) - so[:, 0]),
+                         so[:, 1] + a * ((z[:, 1] - inp.point_now_world[:, 1]) - so[:, 1]))
+        ox, oy = offset[:, 0], offset[:, 1]
         off = np.sqrt(ox * ox + oy * oy)
         boost = 1.0 + np.minimum(self.gain_boost_max_ratio,
                                  self.gain_boost_per_m * np.maximum(off - self.gain_boost_from_m, 0.0))
@@ -538,6 +549,7 @@ class Precision:
             feed_m_s=np.where(keep, state.feed_m_s, f_filtered),
             turn_rad_s=np.where(act, turn, state.turn_rad_s),
             direction=np.where(act, direction, state.direction),
+            offset_world=np.where(keep, state.offset_world, offset),
             ready=state.ready | act)
         return new, out
 

@@ -756,8 +756,8 @@ static double odd_param(double ordinary)
  * ring slots, a fresh state and 1-5 frames; returns the count of values */
 static long agent_flat_input(double *in)
 {
-    static const double gains[4][16] = {
-        {2.5, 0.025, 0.15, 0.1, 0.2, 0.3, 0.1, 0.2, 0.01, 0.5, 2.0, 0.01, 5e-4, 5e-3, 1600.0, 9.0},
+    static const double gains[4][17] = {
+        {2.5, 0.025, 0.15, 0.1, 0.2, 0.3, 0.1, 0.2, 0.01, 0.5, 2.0, 0.01, 5e-4, 5e-3, 1600.0, 9.0, 0.35},
         {1.0, 0.075, 0.25, 0.001, 1.0}, {1.0}, {2.0, 2500.0, 100.0, 5.0, 0.005, 0.02}};
     static const double limits[9] = {0.1, 0.5, 0.003, 0.01, 0.15, 0.006, 0.012, 0.5, 2.0};
     static const double policy[9] = {0.0, 0.05, 0.5, 0.02, 0.3, 0.2, 0.3, 0.0025, 0.02};
@@ -778,7 +778,7 @@ static long agent_flat_input(double *in)
     for (long j = 0; j < m; j++) { PUT(0.5 + uniform()); PUT(uniform() - 0.5); PUT(0.05 + 0.1 * uniform()); }
     PUT(0.0);                                              /* shapes */
     PUT((double)(next() % (uint64_t)n)); PUT((double)ctrl);
-    for (int j = 0; j < 16; j++) PUT(gains[ctrl][j]);
+    for (int j = 0; j < 17; j++) PUT(gains[ctrl][j]);
     PUT((next() % 2) ? 0.0 : 0.004); PUT(0.001);
     PUT((double)(next() % 3));
     for (int j = 1; j < 9; j++) PUT(policy[j]);
@@ -786,11 +786,12 @@ static long agent_flat_input(double *in)
     PUT(1.0 / 30.0); PUT(0.3); PUT(1.0 / 60.0); PUT(1.0); PUT(0.0);
     PUT((double)(m > 0 || bodies)); PUT((double)bodies);
     PUT((double)W);
-    /* the 21 arrays: per robot 2, 3, 2, 10, 2, 2, 1, 1, 1 | 1, 1, 1, 1, 2, 2, W, 4W, 1, W, 4, W */
+    /* the 22 arrays: per robot 2, 3, 2, 10, 2, 2, 1, 1, 2, 1 | 1, 1, 1, 1, 2, 2, W, 4W, 1, W, 4, W */
     for (long i = 0; i < 2 * n + 3 * n; i++) PUT(0.0);
     for (long i = 0; i < 2 * n; i++) PUT(1.0);
     for (long i = 0; i < 10 * n + 4 * n + n; i++) PUT(0.0);
     for (long i = 0; i < n; i++) PUT(1.0);                 /* direction */
+    for (long i = 0; i < 2 * n; i++) PUT(0.0);             /* offset */
     for (long i = 0; i < n; i++) PUT(0.0);                 /* ready */
     for (long i = 0; i < n; i++) PUT(0.0 / 0.0);           /* since */
     for (long i = 0; i < 2 * n; i++) PUT(0.0);             /* failed, dropped */
@@ -816,8 +817,8 @@ static long agent_flat_input(double *in)
 static int fuzz_agent(long iters)
 {
     static const double limits_default[9] = {0.1, 0.5, 0.003, 0.01, 0.15, 0.006, 0.012, 0.5, 2.0};
-    static const double precision_default[16] = {2.5, 0.025, 0.15, 0.1, 0.2, 0.3, 0.1, 0.2, 0.01, 0.5, 2.0, 0.01,
-                                                 5e-4, 5e-3, 1600.0, 9.0};
+    static const double precision_default[17] = {2.5, 0.025, 0.15, 0.1, 0.2, 0.3, 0.1, 0.2, 0.01, 0.5, 2.0, 0.01,
+                                                 5e-4, 5e-3, 1600.0, 9.0, 0.35};
     static const double ttg_default[5] = {1.0, 0.075, 0.25, 0.001, 1.0}, tracking_default[6] = {2.0, 2500.0, 100.0,
                                                                                                 5.0, 0.005, 0.02};
     const int frames = 30;
@@ -873,10 +874,10 @@ static int fuzz_agent(long iters)
         cfg.mission = &m;
         cfg.own = (next() % 20) ? (n ? (size_t)(next() % n) : 0) : n + (size_t)(next() % 3);
         cfg.controller = (next() % 20) ? (int)(next() % 4) : (int)(next() % 9) - 3;
-        double gv[16];
-        for (int j = 0; j < 16; j++) gv[j] = (next() % 64) ? precision_default[j] : odd_param(precision_default[j]);
+        double gv[17];
+        for (int j = 0; j < 17; j++) gv[j] = (next() % 64) ? precision_default[j] : odd_param(precision_default[j]);
         cfg.precision = (vs_precision_gains){gv[0], gv[1], gv[2], gv[3], gv[4], gv[5], gv[6], gv[7], gv[8], gv[9],
-                                             gv[10], gv[11], gv[12], gv[13], gv[14], gv[15]};
+                                             gv[10], gv[11], gv[12], gv[13], gv[14], gv[15], gv[16]};
         for (int j = 0; j < 6; j++) gv[j] = (next() % 64) ? (j < 5 ? ttg_default[j] : 0.0) : odd_param(ttg_default[j % 5]);
         int reverse = (int)(next() % 2);
         cfg.turn_then_go = (vs_turn_then_go_gains){gv[0], gv[1], gv[2], gv[3], reverse};
@@ -905,7 +906,7 @@ static int fuzz_agent(long iters)
         /* the state */
         double *wheels = doubles(2 * n), *p_pose = doubles(3 * n), *p_gains = doubles(2 * n);
         double *p_hist = doubles(2 * VS_PRECISION_HISTORY * n), *p_target = doubles(2 * n), *p_feed = doubles(2 * n);
-        double *p_turn = doubles(n), *p_dir = doubles(n);
+        double *p_turn = doubles(n), *p_dir = doubles(n), *p_off = doubles(2 * n);
         unsigned char *p_ready = bytes_of(n);
         double *since = doubles(n), *last_t = doubles(n), *last_xy = doubles(2 * n), *last_exp = doubles(2 * n);
         double *wt = doubles(n * W), *wdev = doubles(n * W);
@@ -918,7 +919,7 @@ static int fuzz_agent(long iters)
         double *work = (it % 2) ? doubles(vs_agent_work_f64(&m)) : NULL;   /* odd missions: the caller's workspace */
         if ((it % 2) && work == NULL) return 2;
         if (!tpl || !wb || !vmax || !amax || !radii || !goal || !obs || !wheels || !p_pose || !p_gains || !p_hist
-            || !p_target || !p_feed || !p_turn || !p_dir || !p_ready || !since || !last_t || !last_xy || !last_exp
+            || !p_target || !p_feed || !p_turn || !p_dir || !p_off || !p_ready || !since || !last_t || !last_xy || !last_exp
             || !wt || !wdev || !nm || !head || !sums || !failed || !dropped || !inw || !pose || !scratch || !seen
             || !fresh || !used || !scratch_u8 || !dec)
             return 2;
@@ -932,6 +933,7 @@ static int fuzz_agent(long iters)
             for (int c = 0; c < 2; c++) {
                 p_target[2 * i + c] = MAYBE(uniform());
                 p_feed[2 * i + c] = MAYBE(0.0);
+                p_off[2 * i + c] = MAYBE(0.01 * (uniform() - 0.5));
             }
             p_turn[i] = MAYBE(0.0);
             p_dir[i] = (next() % 2) ? 1.0 : -1.0;
@@ -968,7 +970,7 @@ static int fuzz_agent(long iters)
         at[1] = MAYBE(0.5);
         at[2] = MAYBE(0.0);
         vs_agent_state st = {wheels, (int)sc[0],
-                             {p_pose, p_gains, p_hist, p_target, p_feed, p_turn, p_dir, p_ready},
+                             {p_pose, p_gains, p_hist, p_target, p_feed, p_turn, p_dir, p_off, p_ready},
                              {n, W, since, failed, dropped, last_t, last_xy, last_exp, wt, nm, head, inw, sums, wdev},
                              sc[1], sc[2], (int)sc[3], sc[4], (int)sc[5], {at[0], at[1], at[2]}, (int)sc[6],
                              (int)sc[7], 0};
@@ -1008,7 +1010,7 @@ static int fuzz_agent(long iters)
         }
         if (have_field) vs_field_free(&field);
         free(tpl); free(wb); free(vmax); free(amax); free(radii); free(goal); free(obs); free(wheels); free(p_pose);
-        free(p_gains); free(p_hist); free(p_target); free(p_feed); free(p_turn); free(p_dir); free(p_ready);
+        free(p_gains); free(p_hist); free(p_target); free(p_feed); free(p_turn); free(p_dir); free(p_off); free(p_ready);
         free(since); free(last_t); free(last_xy); free(last_exp); free(wt); free(wdev); free(nm); free(head);
         free(sums); free(failed); free(dropped); free(inw); free(pose); free(scratch); free(seen); free(fresh);
         free(used); free(scratch_u8); free(dec); free(work);

@@ -108,8 +108,8 @@ enum { OPEN, PILLARS, SLOT };
  * returns the frames that failed */
 static int run(int metric, int controller, int where, int mode, long *counted)
 {
-    static const double precision[16] = {2.5, 0.025, 0.15, 0.1, 0.2, 0.3, 0.1, 0.2, 0.01, 0.5, 2.0, 0.01, 5e-4, 5e-3,
-                                         1600.0, 9.0};
+    static const double precision[17] = {2.5, 0.025, 0.15, 0.1, 0.2, 0.3, 0.1, 0.2, 0.01, 0.5, 2.0, 0.01, 5e-4, 5e-3,
+                                         1600.0, 9.0, 0.35};
     static const double angles[N] = {0.0, 0.9, 2.1, 3.0, 4.2, 5.3};
     const size_t n = N;
     const int room = where != OPEN;
@@ -149,7 +149,7 @@ static int run(int metric, int controller, int where, int mode, long *counted)
     cfg.precision = (vs_precision_gains){precision[0], precision[1], precision[2], precision[3], precision[4],
                                          precision[5], precision[6], precision[7], precision[8], precision[9],
                                          precision[10], precision[11], precision[12], precision[13], precision[14],
-                                         precision[15]};
+                                         precision[15], precision[16]};
     cfg.turn_then_go = (vs_turn_then_go_gains){1.0, 0.075, 0.25, 0.001, 1};
     cfg.arc_horizon_s = 1.0;
     cfg.tracking = (vs_tracking_gains){2.0, 2500.0, 100.0, 5.0, 0.005, 0.02};
@@ -168,11 +168,12 @@ static int run(int metric, int controller, int where, int mode, long *counted)
     double *wheels = doubles(2 * n, 0.0), *p_pose = doubles(3 * n, 0.0), *p_gains = doubles(2 * n, 1.0);
     double *p_hist = doubles(2 * VS_PRECISION_HISTORY * n, 0.0), *p_target = doubles(2 * n, 0.0);
     double *p_feed = doubles(2 * n, 0.0), *p_turn = doubles(n, 0.0), *p_dir = doubles(n, 1.0);
+    double *p_off = doubles(2 * n, 0.0);
     unsigned char *p_ready = bytes(n), *failed = bytes(n), *dropped = bytes(n), *inw = bytes(n * W);
     double *since = doubles(n, NAN), *last_t = doubles(n, NAN), *last_xy = doubles(2 * n, 0.0);
     double *last_exp = doubles(2 * n, 0.0), *wt = doubles(n * W, NAN), *wdev = doubles(n * W, 0.0);
     int64_t *nm = ints(4 * n * W), *head = ints(n), *sums = ints(4 * n);
-    vs_agent_state st = {wheels, 0, {p_pose, p_gains, p_hist, p_target, p_feed, p_turn, p_dir, p_ready},
+    vs_agent_state st = {wheels, 0, {p_pose, p_gains, p_hist, p_target, p_feed, p_turn, p_dir, p_off, p_ready},
                          {n, W, since, failed, dropped, last_t, last_xy, last_exp, wt, nm, head, inw, sums, wdev},
                          -INFINITY, -INFINITY, 0, NAN, 0, {0.0, 0.0, 0.0}, 0, 0, 0};
     /* the agent's buffers, sized once for the mission (as py_agent.c's agent_config and vsfleet.step do) */
@@ -216,6 +217,7 @@ static int run(int metric, int controller, int where, int mode, long *counted)
     if (have_shape) vs_field_free(&shape_field);
     if (have_field) vs_field_free(&field);
     free(wheels); free(p_pose); free(p_gains); free(p_hist); free(p_target); free(p_feed); free(p_turn); free(p_dir);
+    free(p_off);
     free(p_ready); free(failed); free(dropped); free(inw); free(since); free(last_t); free(last_xy); free(last_exp);
     free(wt); free(wdev); free(nm); free(head); free(sums); free(scratch); free(work); free(scratch_u8); free(seen);
     free(fresh); free(used); free(dec); free(pose); free(moved);

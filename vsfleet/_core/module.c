@@ -112,6 +112,7 @@ static const member precision[] = {
     MEMBER(vs_precision_gains, gain_max_ratio), MEMBER(vs_precision_gains, moving_speed_m_s),
     MEMBER(vs_precision_gains, travel_floor_m), MEMBER(vs_precision_gains, gain_boost_from_m),
     MEMBER(vs_precision_gains, gain_boost_per_m), MEMBER(vs_precision_gains, gain_boost_max_ratio),
+    MEMBER(vs_precision_gains, gain_boost_mean_ratio),
 };
 static const member tracking[] = {
     MEMBER(vs_tracking_gains, along_gain_per_s), MEMBER(vs_tracking_gains, lateral_gain_per_m2),
@@ -148,16 +149,23 @@ static int add_members(PyObject *m, const char *attr, const member *f, size_t k,
         PyErr_Format(PyExc_SystemError, "vsfleet._core: %s does not name every member of its struct", attr);
         return -1;
     }
-    coded c[16];
-    for (size_t i = 0; i < k && i < COUNT(c); i++) c[i] = (coded){f[i].name, (int)(f[i].offset / sizeof(double))};
-    return k > COUNT(c) ? -1 : add_coded(m, attr, c, k);
+    coded c[32];
+    if (k > COUNT(c)) {
+        PyErr_Format(PyExc_SystemError, "vsfleet._core: %s has more members than add_members holds", attr);
+        return -1;
+    }
+    for (size_t i = 0; i < k; i++) c[i] = (coded){f[i].name, (int)(f[i].offset / sizeof(double))};
+    return add_coded(m, attr, c, k);
 }
 
 /* m.<attr> = the tuple of the k names, in their order */
 static int add_names(PyObject *m, const char *attr, const char *const *names, size_t k)
 {
     coded c[32];
-    if (k > COUNT(c)) return -1;
+    if (k > COUNT(c)) {
+        PyErr_Format(PyExc_SystemError, "vsfleet._core: %s has more names than add_names holds", attr);
+        return -1;
+    }
     for (size_t i = 0; i < k; i++) c[i] = (coded){names[i], (int)i};
     return add_coded(m, attr, c, k);
 }

@@ -96,7 +96,7 @@ const char *const vs_py_agent_times[VS_PY_AGENT_TIMES] = {
 /* agent_config(mission, own, controller, gains, deadband_m, still_speed_m_s, policy, safety, times, room, bodies,
  *              ids)
  * mission: the mission packed for the core in MISSION_ARGS order (vsfleet.step.core_mission); own: the agent's row;
- * controller: VS_AGENT_* code; gains: the controller's numbers in its C struct's order (precision 16, turn_then_go
+ * controller: VS_AGENT_* code; gains: the controller's numbers in its C struct's order (precision 17, turn_then_go
  * 5, arc 1, tracking 6); policy: (mode code, fail_deviation_m, fail_after_s, rejoin_deviation_m, rejoin_after_s,
  * recover_after_s, min_progress_ratio, min_expected_m2, min_approach_m); safety: (margin_m, gamma_per_s, offset_m,
  * dt_s); times: (dt_s, ttl_s, age_s, resync_gap_s, effective_t); ids: the mission's robot ids in its sorted
@@ -169,13 +169,13 @@ static PyObject *py_agent_config(PyObject *mod, PyObject *const *a, Py_ssize_t n
     g->controller = (int)ctrl;
     g->room = room;
     g->bodies = bodies;
-    double gains[16];
+    double gains[17];
     switch (ctrl) {
     case VS_AGENT_PRECISION:
-        if (doubles_of(a[3], gains, 16, "gains") < 0) goto fail;
+        if (doubles_of(a[3], gains, 17, "gains") < 0) goto fail;
         g->precision = (vs_precision_gains){gains[0], gains[1], gains[2], gains[3], gains[4], gains[5], gains[6],
                                             gains[7], gains[8], gains[9], gains[10], gains[11], gains[12], gains[13],
-                                            gains[14], gains[15]};
+                                            gains[14], gains[15], gains[16]};
         break;
     case VS_AGENT_TURN_THEN_GO:
         if (doubles_of(a[3], gains, 5, "gains") < 0) goto fail;
@@ -289,13 +289,14 @@ static int get_buf(PyObject *obj, Py_buffer *view, int kind, Py_ssize_t count, i
 }
 
 /* the state's arrays, by place (their names exported: AGENT_STATE; vsfleet.agentcore checks its order against it) */
-enum { ST_WHEELS, ST_POSE, ST_GAINS, ST_HISTORY, ST_TARGET, ST_FEED, ST_TURN, ST_DIRECTION, ST_READY, ST_SINCE,
-       ST_FAILED, ST_DROPPED, ST_LAST_T, ST_LAST_XY, ST_LAST_EXPECTED, ST_WINDOW_T, ST_WINDOW_NM, ST_HEAD,
+enum { ST_WHEELS, ST_POSE, ST_GAINS, ST_HISTORY, ST_TARGET, ST_FEED, ST_TURN, ST_DIRECTION, ST_OFFSET, ST_READY,
+       ST_SINCE, ST_FAILED, ST_DROPPED, ST_LAST_T, ST_LAST_XY, ST_LAST_EXPECTED, ST_WINDOW_T, ST_WINDOW_NM, ST_HEAD,
        ST_IN_WINDOW, ST_SUMS_NM, ST_WINDOW_DEV, N_STATE };
 const char *const vs_py_agent_state[VS_PY_AGENT_STATE] = {
     [ST_WHEELS] = "wheels_m_s", [ST_POSE] = "pose_world", [ST_GAINS] = "gains", [ST_HISTORY] = "history_m_s",
     [ST_TARGET] = "target_world", [ST_FEED] = "feed_m_s", [ST_TURN] = "turn_rad_s", [ST_DIRECTION] = "direction",
-    [ST_READY] = "ready", [ST_SINCE] = "since_t", [ST_FAILED] = "failed", [ST_DROPPED] = "dropped",
+    [ST_OFFSET] = "offset_world", [ST_READY] = "ready", [ST_SINCE] = "since_t", [ST_FAILED] = "failed",
+    [ST_DROPPED] = "dropped",
     [ST_LAST_T] = "last_t", [ST_LAST_XY] = "last_xy", [ST_LAST_EXPECTED] = "last_expected", [ST_WINDOW_T] = "window_t",
     [ST_WINDOW_NM] = "window_nm", [ST_HEAD] = "head", [ST_IN_WINDOW] = "in_window", [ST_SUMS_NM] = "sums_nm",
     [ST_WINDOW_DEV] = "window_dev_m",
@@ -361,7 +362,7 @@ static int get_state(const agent_config *c, PyObject *tuple, PyObject *scalars, 
         [ST_WHEELS] = {BUF_F64, 2},
         [ST_POSE] = {BUF_F64, 3}, [ST_GAINS] = {BUF_F64, 2}, [ST_HISTORY] = {BUF_F64, 2 * VS_PRECISION_HISTORY},
         [ST_TARGET] = {BUF_F64, 2}, [ST_FEED] = {BUF_F64, 2}, [ST_TURN] = {BUF_F64, 1},
-        [ST_DIRECTION] = {BUF_F64, 1}, [ST_READY] = {BUF_BOOL, 1},
+        [ST_DIRECTION] = {BUF_F64, 1}, [ST_OFFSET] = {BUF_F64, 2}, [ST_READY] = {BUF_BOOL, 1},
         [ST_SINCE] = {BUF_F64, 1}, [ST_FAILED] = {BUF_BOOL, 1}, [ST_DROPPED] = {BUF_BOOL, 1},
         [ST_LAST_T] = {BUF_F64, 1}, [ST_LAST_XY] = {BUF_F64, 2}, [ST_LAST_EXPECTED] = {BUF_F64, 2},
         [ST_WINDOW_T] = {BUF_F64, -1}, [ST_WINDOW_NM] = {BUF_I64, -4}, [ST_HEAD] = {BUF_I64, 1},
@@ -391,7 +392,7 @@ static int get_state(const agent_config *c, PyObject *tuple, PyObject *scalars, 
     vs_agent_state st = {
         v[ST_WHEELS].buf, sc[SC_CTRL_READY] != 0.0,
         {v[ST_POSE].buf, v[ST_GAINS].buf, v[ST_HISTORY].buf, v[ST_TARGET].buf, v[ST_FEED].buf, v[ST_TURN].buf,
-         v[ST_DIRECTION].buf, v[ST_READY].buf},
+         v[ST_DIRECTION].buf, v[ST_OFFSET].buf, v[ST_READY].buf},
         {(size_t)n, (size_t)W, v[ST_SINCE].buf, v[ST_FAILED].buf, v[ST_DROPPED].buf, v[ST_LAST_T].buf,
          v[ST_LAST_XY].buf, v[ST_LAST_EXPECTED].buf, v[ST_WINDOW_T].buf, v[ST_WINDOW_NM].buf, v[ST_HEAD].buf,
          v[ST_IN_WINDOW].buf, v[ST_SUMS_NM].buf, v[ST_WINDOW_DEV].buf},

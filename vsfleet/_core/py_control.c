@@ -160,18 +160,19 @@ static int read_input(bufs *b, PyObject *const *args, Py_ssize_t n, vs_control_i
 }
 
 /* Precision's state arrays, in the order control_precision takes them (exported by name) */
-enum { ST_POSE, ST_GAINS, ST_HISTORY, ST_TARGET, ST_FEED, ST_TURN, ST_DIRECTION, ST_READY, ST_COUNT };
+enum { ST_POSE, ST_GAINS, ST_HISTORY, ST_TARGET, ST_FEED, ST_TURN, ST_DIRECTION, ST_OFFSET, ST_READY, ST_COUNT };
 typedef char st_count_check[ST_COUNT == VS_PY_PRECISION_STATES ? 1 : -1];
 const char *const vs_py_precision_state_args[VS_PY_PRECISION_STATES] = {
     [ST_POSE] = "pose_world", [ST_GAINS] = "gains", [ST_HISTORY] = "history_m_s", [ST_TARGET] = "target_world",
-    [ST_FEED] = "feed_m_s", [ST_TURN] = "turn_rad_s", [ST_DIRECTION] = "direction", [ST_READY] = "ready",
+    [ST_FEED] = "feed_m_s", [ST_TURN] = "turn_rad_s", [ST_DIRECTION] = "direction", [ST_OFFSET] = "offset_world",
+    [ST_READY] = "ready",
 };
 
 #define INPUT_SIG "pose, now, next, prev, dt_s, age_s, wheel_base, speed_max, accel_max, active"
 static const char *const CONTROL_ERR = "control input: every array must be finite, dt_s > 0 and age_s >= 0";
 
-/* control_precision(gains (16,), state: pose, gains, history, target, feed, turn, direction, ready,
- *                   <the 10 input arguments>, out state: the same 8, wheels_out) */
+/* control_precision(gains (17,), state: pose, gains, history, target, feed, turn, direction, offset, ready,
+ *                   <the 10 input arguments>, out state: the same 9, wheels_out) (32 buffers: MAXBUF) */
 static PyObject *py_control_precision(PyObject *m, PyObject *const *args, Py_ssize_t nargs)
 {
     (void)m;
@@ -182,23 +183,23 @@ static PyObject *py_control_precision(PyObject *m, PyObject *const *args, Py_ssi
     double *wheels = dbl(&b, args[WHEELS], -1, 1, "wheels_out");
     if (wheels == NULL) return NULL;
     Py_ssize_t n = b.v[0].len / 16;
-    const double *gv = dbl(&b, args[0], 16, 0, "gains");
+    const double *gv = dbl(&b, args[0], 17, 0, "gains");
     if (gv == NULL) goto fail;
     vs_precision_gains g = {gv[0], gv[1], gv[2], gv[3], gv[4], gv[5], gv[6], gv[7], gv[8], gv[9], gv[10], gv[11], gv[12],
-                            gv[13], gv[14], gv[15]};
+                            gv[13], gv[14], gv[15], gv[16]};
     vs_precision_state st, out;
     PyObject *const *s = args + STATE, *const *o = args + OUT;
     const char *const *names = vs_py_precision_state_args;
     const Py_ssize_t sizes[ST_READY] = {[ST_POSE] = 3 * n, [ST_GAINS] = 2 * n,
                                         [ST_HISTORY] = 2 * VS_PRECISION_HISTORY * n, [ST_TARGET] = 2 * n,
-                                        [ST_FEED] = 2 * n, [ST_TURN] = n, [ST_DIRECTION] = n};
+                                        [ST_FEED] = 2 * n, [ST_TURN] = n, [ST_DIRECTION] = n, [ST_OFFSET] = 2 * n};
     double **sp[ST_READY] = {[ST_POSE] = &st.pose_world, [ST_GAINS] = &st.gains, [ST_HISTORY] = &st.history_m_s,
                              [ST_TARGET] = &st.target_world, [ST_FEED] = &st.feed_m_s, [ST_TURN] = &st.turn_rad_s,
-                             [ST_DIRECTION] = &st.direction};
+                             [ST_DIRECTION] = &st.direction, [ST_OFFSET] = &st.offset_world};
     double **op[ST_READY] = {[ST_POSE] = &out.pose_world, [ST_GAINS] = &out.gains,
                              [ST_HISTORY] = &out.history_m_s,
                              [ST_TARGET] = &out.target_world, [ST_FEED] = &out.feed_m_s, [ST_TURN] = &out.turn_rad_s,
-                             [ST_DIRECTION] = &out.direction};
+                             [ST_DIRECTION] = &out.direction, [ST_OFFSET] = &out.offset_world};
     for (int k = 0; k < ST_READY; k++) {
         if ((*sp[k] = dbl(&b, s[k], sizes[k], 0, names[k])) == NULL) goto fail;
         if ((*op[k] = dbl(&b, o[k], sizes[k], 1, names[k])) == NULL) goto fail;

@@ -15,7 +15,7 @@ PyObject *vs_py_error(int code, const char *what);
 /* The argument layouts the bindings read, by name (module.c exports them: CONTROL_INPUT_ARGS,
  * PRECISION_STATE_ARGS, STRUCTURE_STEP_ARGS, and the agent's AGENT_*; Python finds its positions there). */
 #define VS_PY_CONTROL_INPUTS 10
-#define VS_PY_PRECISION_STATES 8
+#define VS_PY_PRECISION_STATES 9
 #define VS_PY_STRUCTURE_STEP_ARGS 24
 extern const char *const vs_py_control_input_args[VS_PY_CONTROL_INPUTS];
 extern const char *const vs_py_precision_state_args[VS_PY_PRECISION_STATES];
@@ -32,7 +32,7 @@ enum { A_TEMPLATE, A_BASE, A_VMAX, A_AMAX, A_METRIC, A_KIND, A_GOAL, A_LIMITS, A
 #define VS_PY_AGENT_POLICY 9
 #define VS_PY_AGENT_SAFETY 4
 #define VS_PY_AGENT_TIMES 5
-#define VS_PY_AGENT_STATE 21
+#define VS_PY_AGENT_STATE 22
 #define VS_PY_AGENT_SCALARS 12
 #define VS_PY_AGENT_RESULT 23
 extern const char *const vs_py_agent_policy[VS_PY_AGENT_POLICY];

@@ -24,6 +24,7 @@ static void precision_initial(vs_precision_state *p, size_t n)
         for (int k = 0; k < 2; k++) {
             p->target_world[2 * i + k] = 0.0;
             p->feed_m_s[2 * i + k] = 0.0;
+            p->offset_world[2 * i + k] = 0.0;
         }
         p->turn_rad_s[i] = 0.0;
         p->direction[i] = 1.0;

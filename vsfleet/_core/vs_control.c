@@ -94,16 +94,17 @@ int vs_control_precision_ws(const vs_precision_gains *g, const vs_precision_stat
 {
     int rc = check_input(in);
     if (rc != VS_OK) return rc;
-    const double gv[16] = {g->position_gain_per_s, g->offset_m, g->pose_gain_ratio, g->heading_gain_ratio,
+    const double gv[17] = {g->position_gain_per_s, g->offset_m, g->pose_gain_ratio, g->heading_gain_ratio,
                            g->target_gain_ratio, g->feed_gain_ratio, g->turn_gain_ratio, g->reverse_cos_ratio,
                            g->gain_rate_ratio, g->gain_min_ratio, g->gain_max_ratio, g->moving_speed_m_s,
-                           g->travel_floor_m, g->gain_boost_from_m, g->gain_boost_per_m, g->gain_boost_max_ratio};
-    if (!vs_all_finite(gv, 16)) return VS_ENONFINITE;
+                           g->travel_floor_m, g->gain_boost_from_m, g->gain_boost_per_m, g->gain_boost_max_ratio,
+                           g->gain_boost_mean_ratio};
+    if (!vs_all_finite(gv, 17)) return VS_ENONFINITE;
     size_t n = in->n;
     if (!vs_all_finite(state->pose_world, 3 * n) || !vs_all_finite(state->gains, 2 * n)
         || !vs_all_finite(state->history_m_s, 2 * H * n) || !vs_all_finite(state->target_world, 2 * n)
         || !vs_all_finite(state->feed_m_s, 2 * n) || !vs_all_finite(state->turn_rad_s, n)
-        || !vs_all_finite(state->direction, n))
+        || !vs_all_finite(state->direction, n) || !vs_all_finite(state->offset_world, 2 * n))
         return VS_ENONFINITE;
     if (n == 0) return VS_OK;
     double *own = NULL, *scratch = work;
@@ -123,7 +124,8 @@ int vs_control_precision_ws(const vs_precision_gains *g, const vs_precision_stat
     for (size_t i = 0; i < n; i++) {
         double *r = scratch + i * ROW;
         double *o_pose = r, *o_gains = r + 3, *o_hist = r + 5, *o_target = r + 5 + 2 * H,
-               *o_feed = o_target + 2, *o_turn = o_feed + 2, *o_dir = o_turn + 1, *o_wheels = o_dir + 1;
+               *o_feed = o_target + 2, *o_turn = o_feed + 2, *o_dir = o_turn + 1, *o_wheels = o_dir + 1,
+               *o_off = o_wheels + 2;
         const double *sp = state->pose_world + 3 * i, *sg = state->gains + 2 * i;
         const double *sh = state->history_m_s + 2 * H * i;
         if (!in->active[i]) {   /* zero wheels, the state kept */
@@ -134,6 +136,7 @@ int vs_control_precision_ws(const vs_precision_gains *g, const vs_precision_stat
             memcpy(o_feed, state->feed_m_s + 2 * i, 2 * sizeof(double));
             *o_turn = state->turn_rad_s[i];
             *o_dir = state->direction[i];
+            memcpy(o_off, state->offset_world + 2 * i, 2 * sizeof(double));
             o_wheels[0] = o_wheels[1] = 0.0;
             continue;
         }
@@ -159,9 +162,13 @@ int vs_control_precision_ws(const vs_precision_gains *g, const vs_precision_stat
         double along = c * nx + s * ny;
         double d_wheel[2] = {along - 0.5 * base * nth, along + 0.5 * base * nth};
         /* a robot measurably off its point (a wheel-gain change shows there first, e.g. a robot slowed or
-         * back to speed) adapts its gains faster: the rate times 1 + min(max, per_m (distance - from)) */
-        const double *pn = in->point_now_world + 2 * i;
-        double ox = z[0] - pn[0], oy = z[1] - pn[1];
+         * back to speed) adapts its gains faster: the rate times 1 + min(max, per_m (distance - from)), the
+         * distance that of the offset's running mean (the tracker's noise alone seldom moves the mean that far) */
+        const double *pn = in->point_now_world + 2 * i, *so = state->offset_world + 2 * i;
+        double ox = so[0] + g->gain_boost_mean_ratio * ((z[0] - pn[0]) - so[0]);
+        double oy = so[1] + g->gain_boost_mean_ratio * ((z[1] - pn[1]) - so[1]);
+        o_off[0] = ox;
+        o_off[1] = oy;
         double off = sqrt(ox * ox + oy * oy);
         double boost = 1.0 + mind(g->gain_boost_max_ratio, g->gain_boost_per_m * maxd(off - g->gain_boost_from_m, 0.0));
         double gn[2], est[3];
@@ -272,6 +279,7 @@ int vs_control_precision_ws(const vs_precision_gains *g, const vs_precision_stat
         out->turn_rad_s[i] = r[9 + 2 * H];
         out->direction[i] = r[10 + 2 * H];
         memcpy(wheels_out + 2 * i, r + 11 + 2 * H, 2 * sizeof(double));
+        memcpy(out->offset_world + 2 * i, r + 13 + 2 * H, 2 * sizeof(double));
     }
     free(own);
     return VS_OK;

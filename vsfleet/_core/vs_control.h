@@ -55,6 +55,8 @@ typedef struct {
     double gain_boost_from_m;     /* [m] a robot farther than this from its point adapts its gains faster: */
     double gain_boost_per_m;      /* [1/m] rate x (1 + min(max_ratio, per_m (distance - from_m))), >= 0 */
     double gain_boost_max_ratio;  /* the most extra rate, >= 0 */
+    double gain_boost_mean_ratio; /* the distance is that of the offset's running mean: each frame it moves this
+                                   * share of the way to the offset observed, in (0, 1] (1: this frame's alone) */
 } vs_precision_gains;
 
 #define VS_PRECISION_HISTORY 5   /* commands kept besides the last one sent */
@@ -68,6 +70,7 @@ typedef struct {
     double *feed_m_s;        /* n*2: filtered feed-forward velocity [m/s; world] */
     double *turn_rad_s;      /* n: rate at which the feed-forward velocity turns [rad/s] */
     double *direction;       /* n: +1 ahead, -1 in reverse */
+    double *offset_world;    /* n*2: running mean of the observed pose minus the point [m; world] (the gain boost) */
     unsigned char *ready;    /* n: 1 once the row has been initialised */
 } vs_precision_state;
 
@@ -81,7 +84,7 @@ int vs_control_precision(const vs_precision_gains *g, const vs_precision_state *
  * doubles (no allocation), or is NULL (vs_control_precision: allocated for the one call). */
 int vs_control_precision_ws(const vs_precision_gains *g, const vs_precision_state *state, const vs_control_input *in,
                             vs_precision_state *out, double *wheels_out, double *work);
-#define VS_CONTROL_PRECISION_WORK_F64(n) ((n) * (3 + 2 + 2 * VS_PRECISION_HISTORY + 2 + 2 + 1 + 1 + 2))
+#define VS_CONTROL_PRECISION_WORK_F64(n) ((n) * (3 + 2 + 2 * VS_PRECISION_HISTORY + 2 + 2 + 1 + 1 + 2 + 2))
 
 /* ------------------------------------------------------------------ the stateless ones */
 

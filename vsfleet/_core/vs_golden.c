@@ -338,17 +338,17 @@ static int int64_of(double v, int64_t *out)
 /* NaN as one bit pattern (+NaN: what C99 hex floats and Python's float.hex write back) */
 static double canon(double v) { return isnan(v) ? NAN : v; }
 
-/* agent_step: the mission (mission_of), then the agent: own, controller (VS_AGENT_*), 16 gains (the controller's
- * struct's values first: precision 16, turn_then_go 5, arc 1, tracking 6), deadband, still speed, 9 policy (mode,
+/* agent_step: the mission (mission_of), then the agent: own, controller (VS_AGENT_*), 17 gains (the controller's
+ * struct's values first: precision 17, turn_then_go 5, arc 1, tracking 6), deadband, still speed, 9 policy (mode,
  * then vs_failure_policy's numbers), 4 safety, dt, ttl, age, resync gap, effective_t, room, bodies; then the state:
- * W, then py_agent.c's 21 arrays in order (2n wheels; the precision state: 3n pose, 2n gains, 10n history, 2n
- * target, 2n feed, n turn, n direction, n ready; the failure state: n since, n failed, n dropped, n last_t, 2n
+ * W, then py_agent.c's 22 arrays in order (2n wheels; the precision state: 3n pose, 2n gains, 10n history, 2n
+ * target, 2n feed, n turn, n direction, 2n offset, n ready; the failure state: n since, n failed, n dropped, n last_t, 2n
  * last_xy, 2n last_expected, nW window_t, 4nW window_nm, n head, nW in_window, 4n sums, nW window_dev) and its 12
  * scalars (last_frame_t, last_cmd_t, ctrl_ready, blocked, stall_since_t, stall_watch, stall x, y, th,
  * stall_filter, stalled, shape); then F frames, each t, 3n poses, n seen, n fresh
  * -> per frame: ran, resynced, then (if ran) fit 3, goal 3, twist 3, cost, at_goal, blocked, left, shape, vl, vr,
  *    own_seen, err, event, event_dev, shape_before, n used, n deviations, the count of decisions d and d times
- *    (row, kind, t, deviation); then the final state as packed (the 21 arrays, the 12 scalars).  NaN comes out as
+ *    (row, kind, t, deviation); then the final state as packed (the 22 arrays, the 12 scalars).  NaN comes out as
  *    +NaN. */
 static long g_agent_step(const double *in, long n_in, double *out, long cap)
 {
@@ -362,7 +362,7 @@ static long g_agent_step(const double *in, long n_in, double *out, long cap)
     int64_t *ints = NULL;
     vs_failure_decision *dec = NULL;
     double *work = NULL;
-    const long n_cfg = 2 + 16 + 2 + 9 + 4 + 5 + 2;
+    const long n_cfg = 2 + 17 + 2 + 9 + 4 + 5 + 2;
     if (n_in < at + n_cfg + 1) goto done;
     const double *c = in + at, *gains = c + 2;
     long own = count_of(c[0], 0, n - 1), W = count_of(c[n_cfg], 1, 100000);
@@ -375,11 +375,11 @@ static long g_agent_step(const double *in, long n_in, double *out, long cap)
     if (cfg.controller == VS_AGENT_PRECISION)
         cfg.precision = (vs_precision_gains){gains[0], gains[1], gains[2], gains[3], gains[4], gains[5], gains[6],
                                              gains[7], gains[8], gains[9], gains[10], gains[11], gains[12],
-                                             gains[13], gains[14], gains[15]};
+                                             gains[13], gains[14], gains[15], gains[16]};
     cfg.turn_then_go = (vs_turn_then_go_gains){gains[0], gains[1], gains[2], gains[3], gains[4] != 0.0};
     cfg.arc_horizon_s = gains[0];
     cfg.tracking = (vs_tracking_gains){gains[0], gains[1], gains[2], gains[3], gains[4], gains[5]};
-    const double *p = gains + 16;
+    const double *p = gains + 17;
     cfg.deadband_m = p[0];
     cfg.still_speed_m_s = p[1];
     p += 2;
@@ -395,10 +395,10 @@ static long g_agent_step(const double *in, long n_in, double *out, long cap)
     cfg.room = p[5] != 0.0;
     cfg.bodies = p[6] != 0.0;
     p += 8;   /* past W */
-    /* the state: 21 arrays, then 12 scalars */
-    const long per[21] = {2, 3, 2, 2 * VS_PRECISION_HISTORY, 2, 2, 1, 1, 1, 1, 1, 1, 1, 2, 2, W, 4 * W, 1, W, 4, W};
+    /* the state: 22 arrays, then 12 scalars */
+    const long per[22] = {2, 3, 2, 2 * VS_PRECISION_HISTORY, 2, 2, 1, 1, 2, 1, 1, 1, 1, 1, 2, 2, W, 4 * W, 1, W, 4, W};
     long n_state = 12;
-    for (int k = 0; k < 21; k++) n_state += n * per[k];
+    for (int k = 0; k < 22; k++) n_state += n * per[k];
     at += n_cfg + 1;
     if (n_in < at + n_state) goto done;
     long per_frame = 1 + 5 * n, frames = (n_in - at - n_state) / per_frame;
@@ -412,9 +412,9 @@ static long g_agent_step(const double *in, long n_in, double *out, long cap)
     if (buf == NULL || bytes == NULL || ints == NULL || dec == NULL || work == NULL) goto done;
     /* doubles: the arrays' values as given (booleans and ints too, for the output); their typed copies below */
     memcpy(buf, p, sizeof(double) * (size_t)n_state);
-    double *arr[21];
+    double *arr[22];
     long off = 0;
-    for (int k = 0; k < 21; k++) {
+    for (int k = 0; k < 22; k++) {
         arr[k] = buf + off;
         off += n * per[k];
     }
@@ -423,21 +423,21 @@ static long g_agent_step(const double *in, long n_in, double *out, long cap)
     unsigned char *seen = in_window + n * W, *fresh = seen + n, *used = fresh + n, *scratch_u8 = used + n;
     int64_t *window_nm = ints, *head = window_nm + 4 * n * W, *sums = head + n;
     for (long i = 0; i < n; i++) {
-        ready[i] = arr[8][i] != 0.0;
-        failed[i] = arr[10][i] != 0.0;
-        dropped[i] = arr[11][i] != 0.0;
-        if (int64_of(arr[17][i], &head[i]) < 0) goto done;
+        ready[i] = arr[9][i] != 0.0;
+        failed[i] = arr[11][i] != 0.0;
+        dropped[i] = arr[12][i] != 0.0;
+        if (int64_of(arr[18][i], &head[i]) < 0) goto done;
     }
-    for (long j = 0; j < n * W; j++) in_window[j] = arr[18][j] != 0.0;
+    for (long j = 0; j < n * W; j++) in_window[j] = arr[19][j] != 0.0;
     for (long j = 0; j < 4 * n * W; j++)
-        if (int64_of(arr[16][j], &window_nm[j]) < 0) goto done;
+        if (int64_of(arr[17][j], &window_nm[j]) < 0) goto done;
     for (long j = 0; j < 4 * n; j++)
-        if (int64_of(arr[19][j], &sums[j]) < 0) goto done;
+        if (int64_of(arr[20][j], &sums[j]) < 0) goto done;
     vs_agent_state st = {
         arr[0], sc[2] != 0.0,
-        {arr[1], arr[2], arr[3], arr[4], arr[5], arr[6], arr[7], ready},
-        {(size_t)n, (size_t)W, arr[9], failed, dropped, arr[12], arr[13], arr[14], arr[15], window_nm, head,
-         in_window, sums, arr[20]},
+        {arr[1], arr[2], arr[3], arr[4], arr[5], arr[6], arr[7], arr[8], ready},
+        {(size_t)n, (size_t)W, arr[10], failed, dropped, arr[13], arr[14], arr[15], arr[16], window_nm, head,
+         in_window, sums, arr[21]},
         sc[0], sc[1], sc[3] != 0.0, sc[4], sc[5] != 0.0, {sc[6], sc[7], sc[8]}, sc[9] != 0.0, sc[10] != 0.0,
         (int)count_of(sc[11], 0, VS_STEP_MAX_SHAPES),
     };
@@ -476,14 +476,14 @@ static long g_agent_step(const double *in, long n_in, double *out, long cap)
     if (cap - (o - out) < n_state) goto done;
     /* the final state, packed as it came in */
     for (long i = 0; i < n; i++) {
-        arr[8][i] = ready[i];
-        arr[10][i] = failed[i];
-        arr[11][i] = dropped[i];
-        arr[17][i] = (double)head[i];
+        arr[9][i] = ready[i];
+        arr[11][i] = failed[i];
+        arr[12][i] = dropped[i];
+        arr[18][i] = (double)head[i];
     }
-    for (long j = 0; j < n * W; j++) arr[18][j] = in_window[j];
-    for (long j = 0; j < 4 * n * W; j++) arr[16][j] = (double)window_nm[j];
-    for (long j = 0; j < 4 * n; j++) arr[19][j] = (double)sums[j];
+    for (long j = 0; j < n * W; j++) arr[19][j] = in_window[j];
+    for (long j = 0; j < 4 * n * W; j++) arr[17][j] = (double)window_nm[j];
+    for (long j = 0; j < 4 * n; j++) arr[20][j] = (double)sums[j];
     double tail[12] = {st.last_frame_t, st.last_cmd_t, st.ctrl_ready, st.blocked, st.stall_since_t, st.stall_watch,
                        st.stall_pose[0], st.stall_pose[1], st.stall_pose[2], st.stall_filter, st.stalled, st.shape};
     memcpy(sc, tail, sizeof tail);
