@@ -423,3 +423,40 @@ def test_a_robots_command_from_the_core_is_the_same_bits_whatever_the_other_rows
                          np.array([True]))
     _, one = ctrl(ctrl.initial(1), alone)
     assert one[0].tobytes() == all_rows[4].tobytes()
+
+
+@pytest.mark.parametrize("impl", ["core", "reference"])
+def test_the_gain_boost_reads_the_offsets_running_mean_so_noise_alone_does_not_trip_it(impl):
+    """Precision adapts its wheel gains faster for a robot off its point (issue 30), reading the running mean of
+    the offset (gain_boost_mean_ratio of the way to each frame's). An offset that flips +-6 mm every frame, the
+    tracker's noise at sigma 3-5 mm, keeps the mean under the boost's 5 mm and the gains where they were as with
+    the boost off; an offset that stays at 8 mm takes the mean past 5 mm within 3 frames (issue 30's slowed robot),
+    and the gains then move faster than with the boost off."""
+    def run(offsets_m, **gains):
+        ctrl = Precision(**gains)
+        state = ctrl.initial(1)
+        step = ctrl if impl == "core" else ctrl.reference
+        means, g = [], []
+        for k, off in enumerate(offsets_m):
+            x = 0.003 * k
+            pose = np.array([[x + off, 0.0, 0.0]])
+            inp = ControlInput(pose, np.array([[x, 0.0]]), np.array([[x + 0.003, 0.0]]), np.array([[0.09, 0.09]]),
+                               DT, DT, Envelopes(np.full(1, 0.12), np.full(1, 0.3), np.full(1, 1.0)),
+                               np.ones(1, dtype=bool))
+            state, _ = step(state, inp)
+            means.append(float(np.hypot(*np.asarray(state.offset_world)[0])))
+            g.append(np.asarray(state.gains)[0].copy())
+        return np.array(means), np.array(g)
+
+    noise = [0.006 * (-1) ** k for k in range(60)]
+    means, gains = run(noise)
+    _, gains_off = run(noise, gain_boost_per_m=0.0)
+    assert means[5:].max() < 0.0015                       # +-6 mm a frame: the mean stays near 0
+    assert np.array_equal(gains, gains_off)               # so the boost never engages
+    lag = [0.008] * 10
+    means, gains = run(lag)
+    _, gains_off = run(lag, gain_boost_per_m=0.0)
+    assert means[2] > 0.005 and means[1] < 0.005          # 8 mm held: past 5 mm at the third frame
+    assert np.abs(gains[-1] - 1.0).max() > 1.5 * np.abs(gains_off[-1] - 1.0).max()
+    _, gains_each = run(noise, gain_boost_mean_ratio=1.0)   # each frame's offset (before): noise trips the boost
+    assert not np.array_equal(gains_each, gains_off)
