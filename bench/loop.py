@@ -84,10 +84,43 @@ def circle_template(n: int, spacing_m: float = SPACING_M) -> list[tuple[str, tup
             for i in range(n)]
 
 
-def bench_mission(n: int, now_s: float) -> Mission:
-    robots = tuple(sorted((r, RobotSpec(p, WHEEL_BASE_M, 0.3, 0.8)) for r, p in circle_template(n)))
-    m = Mission(version=1, metric="l2", robots=robots, speed_max=0.08, turn_rate_max=0.3, effective_t=0.0,
-                goal=(1000.0, 0.0, 0.0))
+ROOM_PILLARS = 64        # --room: pillars scattered ahead of the circle (issue 28's 3 robots among 64 obstacles)
+ROOM_BODY_M = 0.05       # --room: every robot's body radius [m]
+ROOM_GOAL_AHEAD_M = 4.0  # --room: the goal this far ahead of the circle's edge [m]
+
+
+def room_obstacles(n: int, seed: int = 28) -> tuple[tuple[float, float, float], ...]:
+    """--room's pillars (x, y, r) [m; world]: ROOM_PILLARS of radius 0.05-0.12 m, drawn (seeded) from the circle's
+    start to ROOM_GOAL_AHEAD_M beyond it and 1 m either side of it, each at least 0.25 m clear of every robot's body
+    as the structure sweeps straight from its start to its goal: the pillars stand beside the way, not on it."""
+    pts = np.array([p for _, p in circle_template(n)])
+    radius = float(np.hypot(pts[:, 0], pts[:, 1]).max())
+    ahead = radius + ROOM_GOAL_AHEAD_M
+    rng = np.random.default_rng([seed, n])
+    out: list[tuple[float, float, float]] = []
+    while len(out) < ROOM_PILLARS:
+        x, y = rng.uniform(-radius, ahead + radius), rng.uniform(-radius - 1.0, radius + 1.0)
+        r = rng.uniform(0.05, 0.12)
+        along = np.clip(x - pts[:, 0], 0.0, ahead)      # each body's nearest place on its straight sweep
+        if np.all(np.hypot(pts[:, 0] + along - x, pts[:, 1] - y) - r - ROOM_BODY_M >= 0.25):
+            out.append((float(x), float(y), float(r)))
+    return tuple(out)
+
+
+
+def bench_mission(n: int, now_s: float, room: bool = False) -> Mission:
+    """The bench's mission: robots on a circle heading for a goal 1 km ahead; room: with bodies (ROOM_BODY_M) and
+    room_obstacles, the goal ROOM_GOAL_AHEAD_M beyond the circle, so every agent follows its room's field, runs the
+    clearance barrier and the safety filter with bodies (the measured frames end long before the goal)."""
+    radius = 0.05 if room else None
+    robots = tuple(sorted((r, RobotSpec(p, WHEEL_BASE_M, 0.3, 0.8, radius=radius)) for r, p in circle_template(n)))
+    if room:
+        edge = max(math.hypot(*p) for _, p in circle_template(n))
+        m = Mission(version=1, metric="l2", robots=robots, speed_max=0.08, turn_rate_max=0.3, effective_t=0.0,
+                    goal=(edge + ROOM_GOAL_AHEAD_M, 0.0, 0.0), obstacles=room_obstacles(n))
+    else:
+        m = Mission(version=1, metric="l2", robots=robots, speed_max=0.08, turn_rate_max=0.3, effective_t=0.0,
+                    goal=(1000.0, 0.0, 0.0))
     return stamp(m, now_s, 0.0, version=1)
 
 
@@ -261,13 +294,13 @@ def start_agent(children: Children, kind: str, robot: str, fleet: str, period_s:
 
 def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2.0, seed: int = 0,
              label: str = "loop", router_process: bool = True, deadline_s: float | None = None,
-             agent_kind: str = "vsfleet", spawn: str = "fork") -> LoopRun:
+             agent_kind: str = "vsfleet", spawn: str = "fork", room: bool = False) -> LoopRun:
     """Start n agents (``agent_kind``: see agent_command), warm up, then measure `frames` frames at rate_hz.
 
     The router is its own `vsfleet router` process, as on a deployment (or, with router_process=False,
     embedded in this process's session, whose Python callbacks then share zenoh's threads with routing).
     spawn: how the agents start (fleetctl.run.SPAWN_MODES): forked from a fork server that imported them once,
-    as `vsfleet run` starts them, or each its own python."""
+    as `vsfleet run` starts them, or each its own python. room: the mission of bench_mission(room=True)."""
     fleet = "bench"
     keys = Keys(fleet)
     period = 1.0 / rate_hz
@@ -288,7 +321,7 @@ def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2
 
     try:
         alive_sub = router.liveliness().declare_subscriber(keys.alive("agent"), on_alive, history=True)
-        mission = bench_mission(n, time.time())
+        mission = bench_mission(n, time.time(), room)
         payload = encode_mission(mission)
         queryable = router.declare_queryable(keys.mission, lambda q: q.reply(keys.mission, payload),
                                              complete=True)
@@ -584,6 +617,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--robots", type=int, default=3)
     p.add_argument("--rate", type=float, default=30.0)
     p.add_argument("--frames", type=int, default=300)
+    p.add_argument("--room", action="store_true",
+                   help="bodies and 64 pillars: every agent follows its room's field (issue 28: 30 Hz in a room)")
     p.add_argument("--floor", action="store_true", help="also measure the zenoh floor")
     p.add_argument("--compare", default=None, help="N,N,...: the trivial fleet and vsfleet's back to back at each N")
     add_output_flags(p, "loop", DOCS / "bench", f"--compare's {VS_TRIVIAL}.json and {VS_TRIVIAL}.png")
@@ -599,7 +634,7 @@ def main(argv: list[str] | None = None) -> int:
     if a.floor:
         for f in run_floor([("back to back", None, 2000), ("30 Hz", 30.0, 300)]):
             print(f.label, {k: round(v * 1e3, 3) for k, v in percentiles_s(f.rtt_s).items()}, "lost", f.lost)
-    r = run_loop(a.robots, a.rate, a.frames, agent_kind=a.agent, spawn=a.spawn)
+    r = run_loop(a.robots, a.rate, a.frames, agent_kind=a.agent, spawn=a.spawn, room=a.room)
     print(a.agent, {k: round(v * 1e3, 3) for k, v in percentiles_s(r.latency_s).items()}, "ms; missed", r.missed,
           "late", r.late, "incomplete", r.incomplete, "/", r.states, "cpu/tick ms",
           round(1e3 * float(r.agent_cpu_s_per_tick.mean()), 3), "rss MiB", round(float(r.agent_rss_mib.mean()), 1),
