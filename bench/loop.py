@@ -197,6 +197,9 @@ class LoopRun:
     startup_cpu_s_per_agent: float = math.nan
     # after the measured frames: agents whose process still runs and whose liveliness token is still up
     alive_end: int = -1
+    # how far the fitted structure moved [m] from the first to the last measured frame every agent ran (its copies
+    # agreeing): in a room (--room), that it went its way among the pillars while it was timed
+    moved_m: float = math.nan
 
     @property
     def period_s(self) -> float:
@@ -459,6 +462,9 @@ def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2
             copies.setdefault(st.seq, {})[key] = (st.x, st.y, st.th, st.gx, st.gy, st.gth, st.used)
     all_ran = [c for c in copies.values() if len(c) == n]
     agreed = sum(1 for c in all_ran if len(set(c.values())) == 1)
+    same = [next(iter(copies[s].values())) for s in sorted(copies) if len(copies[s]) == n
+            and len(set(copies[s].values())) == 1]
+    moved_m = math.hypot(same[-1][0] - same[0][0], same[-1][1] - same[0][1]) if len(same) > 1 else math.nan
     wall_cores = (tot1 - tot0) / os.cpu_count() if tot1 > tot0 else wall
     own = sum(cpu1[r] - cpu0[r] for r in procs) + bench_cpu
     return LoopRun(
@@ -470,7 +476,7 @@ def run_loop(n: int, rate_hz: float, frames: int, log=print, warmup_s: float = 2
         agent_rss_mib=rss, bench_cpu_s_per_frame=bench_cpu / measured,
         others_cores=max(0.0, (busy1 - busy0) - own) / max(wall_cores, 1e-9), wall_s=wall,
         startup_s=startup_s, agent_kind=agent_kind, alive_s=alive_s, startup_cpu_s_per_agent=startup_cpu,
-        alive_end=alive_end)
+        alive_end=alive_end, moved_m=moved_m)
 
 
 # ---------------------------------------------------------------- the zenoh floor
@@ -641,7 +647,7 @@ def main(argv: list[str] | None = None) -> int:
           "bench cpu/frame ms", round(1e3 * r.bench_cpu_s_per_frame, 3), "others cores", round(r.others_cores, 2),
           "agree", f"{r.agreed_frames}/{r.all_ran_frames} of {r.frames}", "holds", r.holds, "startup s", round(r.startup_s, 1),
           "all alive s", round(r.alive_s, 1), "startup CPU ms/agent", round(1e3 * r.startup_cpu_s_per_agent),
-          "alive at the end", f"{r.alive_end}/{a.robots}")
+          "alive at the end", f"{r.alive_end}/{a.robots}", "structure moved m", round(r.moved_m, 3))
     return 0
 
 
