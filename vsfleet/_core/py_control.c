@@ -288,7 +288,7 @@ PyMethodDef vs_py_control_methods[] = {
     {"limit_wheels", FC(py_limit_wheels),
      "limit_wheels(u (n,2), prev (n,2), dt_s, speed_max (n,), accel_max (n,), out (n,2)): the envelope."},
     {"control_precision", FC(py_control_precision),
-     "control_precision(gains (16,), 8 state arrays, " INPUT_SIG ", 8 out state arrays, wheels_out (n,2))."},
+     "control_precision(gains (17,), 9 state arrays, " INPUT_SIG ", 9 out state arrays, wheels_out (n,2))."},
     {"control_turn_then_go", FC(py_control_turn_then_go), "control_turn_then_go(gains (5,), " INPUT_SIG ", wheels_out)."},
     {"control_arc", FC(py_control_arc), "control_arc(horizon_s, " INPUT_SIG ", wheels_out)."},
     {"control_tracking", FC(py_control_tracking), "control_tracking(gains (6,), " INPUT_SIG ", wheels_out)."},
