@@ -48,7 +48,7 @@ from vsfleet.wire import (
 from vsfleet.zglue.lifecycle import StopFlag
 from vsfleet.zglue.peers import current_missions
 from vsfleet.zglue.program import common_flags, program, refusing
-from .record import split_key
+from .record import split_key, structure_points
 from vsfleet.zglue.zconf import open_session, zenoh_config
 
 log = logging.getLogger("vsfleet.monitor")
@@ -96,6 +96,7 @@ class FleetView:
     # blocked (it ends at the closest safe pose), and its end (x, y, th); None without a room
     plan: tuple[float, bool, tuple[float, float, float]] | None = None
     shape: str | None = None   # in a room with reshapes: the shape the newest state reports (vsfleet.step.shape_name)
+    room_map: tuple[str, ...] = ()   # in a room: the plan and the bodies swept along it, drawn in characters (room_map)
 
 
 @dataclass
@@ -275,12 +276,13 @@ class FleetModel:
             structure_seq, structure = newest.state_seq, newest.frames[newest.state_seq]
         version = newest.mission if newest is not None and newest.mission is not None else self.mission_version
         shape = newest.shape if newest is not None else 0
+        plan, drawn = self._plan(structure, shape)
         return FleetView(now_s=now, fleet=self.fleet, robots=rows, structure=structure,
                          structure_seq=structure_seq, mission_version=version, agreement_seq=seq,
                          agreement_complete=complete,
                          agreement_pos_m=pos, agreement_th_rad=th, agents_compared=n,
                          events=list(self.events), bad_messages=self.bad, obstacles=self.obstacles,
-                         plan=self._plan(structure, shape), shape=self._shape_name(shape))
+                         plan=plan, shape=self._shape_name(shape), room_map=drawn)
 
     def _shape_name(self, shape: int) -> str | None:
         """The shape's name, in a mission that allows reshapes; None otherwise (or for an unknown index)."""
@@ -292,15 +294,84 @@ class FleetModel:
         return shape_name(arrays, shape)
 
     def _plan(self, structure: tuple[float, float, float] | None, shape: int = 0):
-        """The room's plan from the structure pose: (length [m], blocked, end pose), or None."""
+        """The room's plan from the structure pose: ((length [m], blocked, end pose), its room_map), or (None, ())."""
         if structure is None or self.mission is None:
-            return None
+            return None, ()
         planned = planned_way(self.mission, Pose2(*structure), shape=shape)
         if planned is None:
-            return None
+            return None, ()
         way, blocked = planned
         length = float(sum(math.hypot(b[0] - a[0], b[1] - a[1]) for a, b in zip(way[:-1], way[1:])))
-        return length, blocked, (float(way[-1][0]), float(way[-1][1]), float(way[-1][2]))
+        radii = self.mission.radii
+        swept = [(x, y, r) for pose in swept_poses(way) for (x, y, _), r in
+                 zip(structure_points(self.mission, *pose, shape), radii)]
+        robots = [r.xy for _, r in sorted(self.robots.items()) if r.xy is not None]
+        drawn = room_map(self.obstacles, way, swept, robots, blocked)
+        return (length, blocked, (float(way[-1][0]), float(way[-1][1]), float(way[-1][2]))), drawn
+
+
+# ---------------------------------------------------------------- the room in characters
+
+MAP_COLS, MAP_ROWS = 72, 18   # the room map's size in characters (a character is about twice as tall as wide)
+MAP_KEY = "O obstacle, . the plan (the structure's origin), : the bodies swept along it, # a robot now, G the goal " \
+          "(B: the closest safe pose, blocked)"
+
+
+def swept_poses(way, spacing_m: float = 0.15) -> list[tuple[float, float, float]]:
+    """The plan's poses every spacing_m [m] of its way, its first and last among them (as vsfleet plot sweeps)."""
+    out, run, last = [], 0.0, None
+    for x, y, th in way:
+        if last is not None:
+            run += math.hypot(x - last[0], y - last[1])
+        if last is None or run >= spacing_m:
+            out.append((float(x), float(y), float(th)))
+            run = 0.0
+        last = (x, y)
+    if len(way) and (out[-1] != tuple(float(v) for v in way[-1])):
+        out.append(tuple(float(v) for v in way[-1]))
+    return out
+
+
+def room_map(obstacles, way, swept, robots, blocked: bool = False, cols: int = MAP_COLS,
+             rows: int = MAP_ROWS) -> tuple[str, ...]:
+    """The room drawn in rows x cols characters, x to the right and y up, the scale the same both ways (a
+    character twice as tall as wide): obstacles (x, y, r) as 'O', the bodies swept along the plan (x, y, r) as
+    ':', the plan's poses (x, y, th) as '.', the robots' tracked positions (x, y) as '#', the plan's end as 'G'
+    ('B' when blocked). A disc marks every character whose centre it covers, and at least the one at its centre."""
+    pts = [(x, y, r) for x, y, r in obstacles] + [(x, y, r) for x, y, r in swept] \
+        + [(p[0], p[1], 0.0) for p in way] + [(x, y, 0.0) for x, y in robots]
+    if not pts:
+        return ()
+    x0, x1 = min(x - r for x, _, r in pts), max(x + r for x, _, r in pts)
+    y0, y1 = min(y - r for _, y, r in pts), max(y + r for _, y, r in pts)
+    s = max((x1 - x0) / cols, (y1 - y0) / (2 * rows), 1e-6)   # metres per column; a row is 2 s
+    grid = [[" "] * cols for _ in range(rows)]
+
+    def cell(x, y):
+        return min(rows - 1, max(0, int((y1 - y) / (2 * s)))), min(cols - 1, max(0, int((x - x0) / s)))
+
+    def disc(x, y, r, ch):
+        r0, c0 = cell(x, y)
+        grid[r0][c0] = ch
+        for i in range(max(0, int((y1 - y - r) / (2 * s))), min(rows, int((y1 - y + r) / (2 * s)) + 1)):
+            for j in range(max(0, int((x - r - x0) / s)), min(cols, int((x + r - x0) / s) + 1)):
+                if math.hypot(x0 + (j + 0.5) * s - x, y1 - (i + 0.5) * 2 * s - y) <= r:
+                    grid[i][j] = ch
+
+    for x, y, r in swept:
+        disc(x, y, r, ":")
+    for p in way:
+        i, j = cell(p[0], p[1])
+        grid[i][j] = "."
+    for x, y, r in obstacles:
+        disc(x, y, r, "O")
+    for x, y in robots:
+        i, j = cell(x, y)
+        grid[i][j] = "#"
+    if len(way):
+        i, j = cell(way[-1][0], way[-1][1])
+        grid[i][j] = "B" if blocked else "G"
+    return tuple("".join(row).rstrip() for row in grid)
 
 
 # ---------------------------------------------------------------- rendering
@@ -355,6 +426,9 @@ def render(view: FleetView):
         length, blocked, (ex, ey, eth) = view.plan
         lines.append(f"plan: {length:.2f} m to " + ("the closest safe pose (BLOCKED: no way to the goal)" if blocked
                                                       else "the goal") + f" at ({ex:+.3f}, {ey:+.3f}, {eth:+.3f})")
+    if view.room_map:
+        lines.append(f"room ({MAP_KEY}):")
+        lines.extend(view.room_map)
     if view.agreement_seq is not None:
         ran = "run complete" if view.agreement_complete else "none run complete by every agent"
         lines.append(f"agreement on frame {view.agreement_seq} ({ran}) over {view.agents_compared} agents: "

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import msgpack
+import numpy as np
 import pytest
 from rich.console import Console
 
@@ -259,3 +260,53 @@ def test_in_a_room_with_reshapes_the_monitor_names_the_shape_the_agents_take_and
     assert m.view().shape == "shape 1 (wide)" and "shape: shape 1 (wide)" in _text(m.view())
     assert m.view().plan != template_plan   # the wide shape's own field: another way round the pillar
     assert fed().view().shape is None       # no reshapes, no shape line
+
+
+def test_in_a_room_the_monitor_draws_the_plan_and_the_bodies_swept_along_it():
+    from vsfleet.fleetctl.monitor import MAP_COLS, MAP_ROWS
+    from vsfleet.geometry import Pose2
+    from vsfleet.step import planned_way
+    from vsfleet.wire import FrameMsg, Mission, RobotSpec, encode_frame, encode_mission
+
+    def room(obstacles):
+        return Mission(6, "l2", (("r1", RobotSpec((0.3, 0.0), 0.12, 0.3, 0.8, radius=0.05)),
+                                 ("r2", RobotSpec((-0.3, 0.0), 0.12, 0.3, 0.8, radius=0.05))),
+                       0.08, 0.3, 0.0, goal=(2.0, 0.0, 0.0), obstacles=obstacles)
+
+    m = FleetModel("demo")
+    m.ingest(T0, "vs/demo/mission", encode_mission(room(((1.0, 0.0, 0.2),))))
+    m.ingest(T0, "vs/demo/frame/sim", encode_frame(FrameMsg(T0, 1, "sim", {"r1": (0.3, 0.0, 0.0),
+                                                                        "r2": (-0.3, 0.0, 0.0)})))
+    m.ingest(T0 + 0.004, "vs/demo/state/r1", encode(StateMsg(t=T0, seq=1, x=0.0, y=0.0, th=0.0, gx=0.0, gy=0.0,
+                                                             gth=0.0, cost=0.0, err=0.0, used=("r1", "r2"),
+                                                             rejected=0, mission=6)))
+    drawn = m.view().room_map
+    assert 0 < len(drawn) <= MAP_ROWS and max(map(len, drawn)) <= MAP_COLS
+    text = "\n".join(drawn)
+    assert all(text.count(ch) >= 1 for ch in "O.:G") and text.count("#") == 2 and "B" not in text
+    cols = {ch: [line.index(ch) for line in drawn if ch in line] for ch in "OG#"}
+    assert max(cols["#"]) < min(cols["O"]) <= max(cols["O"]) < min(cols["G"])   # start, the pillar, the goal
+    way, _ = planned_way(m.mission, Pose2(0.0, 0.0, 0.0))
+    o_rows = [k for k, line in enumerate(drawn) if "O" in line]
+    plan_rows = {k for k, line in enumerate(drawn) if "." in line}
+    assert plan_rows - set(o_rows) and np.abs(way[:, 1]).max() > 0.2             # round the pillar, not through it
+    assert "room (O obstacle" in _text(m.view()) and drawn[0] in _text(m.view())
+    ring = tuple((2.0 + 0.6 * math.cos(a), 0.6 * math.sin(a), 0.12) for a in [k * math.pi / 10 for k in range(20)])
+    m.ingest(T0 + 0.1, "vs/demo/mission", encode_mission(room(ring)))          # the goal walled in
+    assert "B" in "\n".join(m.view().room_map) and "G" not in "\n".join(m.view().room_map)
+    assert fed().view().room_map == ()                                          # no room, no map
+
+
+def test_the_room_map_puts_each_disc_where_it_is_at_one_scale_both_ways():
+    from vsfleet.fleetctl.monitor import room_map
+
+    drawn = room_map([(1.0, 0.0, 0.25)], [(0.0, 0.0, 0.0), (2.0, 0.0, 0.0)], [], [(0.0, 1.0)], cols=40, rows=10)
+    # x from -0.25 m... 2 m and y from -0.25 to 1 m: 2.25 m over 40 columns, 1.25 m over 10 rows of two columns each
+    assert len(drawn) == 10
+    (robot_row,) = [k for k, line in enumerate(drawn) if "#" in line]
+    o = [(k, j) for k, line in enumerate(drawn) for j, ch in enumerate(line) if ch == "O"]
+    assert robot_row == 0 and drawn[robot_row].index("#") < min(j for _, j in o)
+    width = max(j for _, j in o) - min(j for _, j in o) + 1
+    height = max(k for k, _ in o) - min(k for k, _ in o) + 1
+    assert 6 <= width <= 10 and 3 <= height <= 5 and abs(width - 2 * height) <= 2   # a disc, not an ellipse
+    assert any(line.endswith("G") for line in drawn)                  # the plan's end, the room's right edge
