@@ -190,7 +190,9 @@ class Agent:
     def await_prepared(self, mission: Mission) -> None:
         """A frame is about to run ``mission``: if its prepare thread is still building its arrays, wait for that
         build rather than start a second one beside it (the frame would build the same bits; it took the CPU the
-        thread needed and finished no sooner). The caller holds the agent."""
+        thread needed and finished no sooner). Only the long way (tick) calls it: a mission's first frame never
+        goes in one pass (vsfleet.agentcore.agent_payload_step), and the thread is forgotten once awaited. The
+        caller holds the agent."""
         thread = self._preparing.pop(mission.version, None)
         if thread is not None:
             thread.join()
@@ -235,8 +237,6 @@ class Agent:
         if len(missions) != 1:
             return False
         (mission,) = missions.values()
-        if self._preparing and mission.version in self._preparing:
-            return False   # its prepare thread not yet awaited: the long way waits for it if the frame runs it
         got = agent_payload_step(self.state, mission, payload, src, self.clock(), self.config, merger.done,
                                  merger.max_future_s, self.rejections.count, merger.max_age_s, others_t)
         if got is None:

@@ -509,11 +509,13 @@ def test_a_new_mission_with_a_room_is_prepared_off_the_frame_path_once_and_its_f
 def test_a_frame_waits_for_its_missions_prepare_thread_instead_of_building_beside_it(monkeypatch, fast):
     """A mission whose prepare thread is still building when its first frame comes: the frame waits for that
     build and builds nothing itself (before, it built a second copy beside the thread, on the CPU the thread
-    needed: an agent that joins a fleet in a room gets its mission and its first frame together)."""
+    needed: an agent that joins a fleet in a room gets its mission and its first frame together). Through
+    run_frame (the frame callback's way: a mission's first frame never goes in one pass, so the long way waits)
+    and through on_frame and poll."""
     import threading
 
     obstacle = (0.6, 0.35, 0.11) if fast else (0.6, 0.4, 0.12)   # a room no other test built (they are memoised)
-    room = dataclasses.replace(MISSION, version=3, obstacles=(obstacle,),
+    room = dataclasses.replace(MISSION, version=3, obstacles=(obstacle,), effective_t=100.5,
                                robots=tuple((r, dataclasses.replace(s, radius=0.05)) for r, s in MISSION.robots))
     go, builds = threading.Event(), []
     original = agentstate.build_field_deferred
@@ -532,15 +534,22 @@ def test_a_frame_waits_for_its_missions_prepare_thread_instead_of_building_besid
         return thread
 
     monkeypatch.setattr(agentstate, "build_field_deferred", counted)
-    agent = Agent("r1", KEYS, lambda b: None, lambda b: None, clock=Clock(100.0), prepare=prepare)
+    clock = Clock(100.0)
+    agent = Agent("r1", KEYS, lambda b: None, lambda b: None, clock=clock, prepare=prepare)
     agent.on_message("mission", KEYS.mission, encode_mission(room))
+    # a frame before the mission takes effect: it needs no arrays, and the agent follows "sim" from it on, so
+    # the next frame could go in one pass (fast_frame), its mission the only one held
+    agent.run_frame(KEYS.frame("sim"), encode_frame(FrameMsg(100.0, 1, "sim", POSES)))
+    assert agent.following == frozenset({"sim"}) and builds == []
     done = threading.Event()
 
     def run():
+        clock.t = 100.6   # the mission in force
         if fast:
-            agent.run_frame(KEYS.frame("sim"), encode_frame(FrameMsg(100.0, 1, "sim", POSES)))
+            agent.run_frame(KEYS.frame("sim"), encode_frame(FrameMsg(100.6, 2, "sim", POSES)))
         else:
-            frame(agent, Clock(100.0), 1, 100.0, POSES)
+            agent.on_frame(KEYS.frame("sim"), encode_frame(FrameMsg(100.6, 2, "sim", POSES)))
+            agent.poll()
         done.set()
 
     runner = threading.Thread(target=run, daemon=True)

@@ -31,7 +31,7 @@ from vsfleet.kinematics import (
 TOL = 1e-9
 DT = 1.0 / 30.0
 NAMES = ("precision", "tracking", "arc", "turn_then_go")
-STATE_FIELDS = ("pose_world", "gains", "history_m_s", "target_world", "feed_m_s", "turn_rad_s")
+STATE_FIELDS = ("pose_world", "gains", "history_m_s", "target_world", "feed_m_s", "turn_rad_s", "offset_world")
 CHEAP = settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 LOOPS = settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

@@ -172,7 +172,7 @@ const char *const vs_py_precision_state_args[VS_PY_PRECISION_STATES] = {
 static const char *const CONTROL_ERR = "control input: every array must be finite, dt_s > 0 and age_s >= 0";
 
 /* control_precision(gains (17,), state: pose, gains, history, target, feed, turn, direction, offset, ready,
- *                   <the 10 input arguments>, out state: the same 9, wheels_out) (32 buffers: MAXBUF) */
+ *                   <the 10 input arguments>, out state: the same 9, wheels_out) (28 buffers of MAXBUF) */
 static PyObject *py_control_precision(PyObject *m, PyObject *const *args, Py_ssize_t nargs)
 {
     (void)m;

@@ -80,7 +80,7 @@ static int floordiv_capped(double a, double b, int cap)
 /* ------------------------------------------------------------------ precision */
 
 #define H VS_PRECISION_HISTORY
-/* per row in the scratch: pose 3, gains 2, history 10, target 2, feed 2, turn, direction, wheels 2 */
+/* per row in the scratch: pose 3, gains 2, history 10, target 2, feed 2, turn, direction, wheels 2, offset 2 */
 #define ROW VS_CONTROL_PRECISION_WORK_F64(1)
 
 int vs_control_precision(const vs_precision_gains *g, const vs_precision_state *state, const vs_control_input *in,
