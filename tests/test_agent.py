@@ -27,7 +27,6 @@ from vsfleet.wire import (
     decode_event,
     decode_health,
     decode_state,
-    encode,
     encode_frame,
     encode_health,
     encode_mission,
