@@ -213,14 +213,19 @@ def test_a_touching_body_shows_a_negative_gap_and_a_mission_without_a_room_adds_
     assert "gap [cm]" not in text and "body r" not in text and "obstacles" not in text
 
 
+def _two_in_a_room(obstacles):
+    """Two robots with bodies, 0.6 m apart, their goal 2 m ahead, among ``obstacles`` (mission version 6)."""
+    from vsfleet.wire import Mission, RobotSpec
+
+    return Mission(6, "l2", (("r1", RobotSpec((0.3, 0.0), 0.12, 0.3, 0.8, radius=0.05)),
+                             ("r2", RobotSpec((-0.3, 0.0), 0.12, 0.3, 0.8, radius=0.05))),
+                   0.08, 0.3, 0.0, goal=(2.0, 0.0, 0.0), obstacles=obstacles)
+
+
 def test_in_a_room_the_monitor_shows_the_plans_length_and_end_from_the_structure_pose():
-    from vsfleet.wire import FrameMsg, Mission, RobotSpec, encode_frame, encode_mission
+    from vsfleet.wire import FrameMsg, encode_frame, encode_mission
 
-    def room(obstacles):
-        return Mission(6, "l2", (("r1", RobotSpec((0.3, 0.0), 0.12, 0.3, 0.8, radius=0.05)),
-                                 ("r2", RobotSpec((-0.3, 0.0), 0.12, 0.3, 0.8, radius=0.05))),
-                       0.08, 0.3, 0.0, goal=(2.0, 0.0, 0.0), obstacles=obstacles)
-
+    room = _two_in_a_room
     m = FleetModel("demo")
     m.ingest(T0, "vs/demo/mission", encode_mission(room(((1.0, 0.0, 0.2),))))
     m.ingest(T0, "vs/demo/frame/sim", encode_frame(FrameMsg(T0, 1, "sim", {"r1": (0.3, 0.0, 0.0)})))
@@ -266,13 +271,9 @@ def test_in_a_room_the_monitor_draws_the_plan_and_the_bodies_swept_along_it():
     from vsfleet.fleetctl.monitor import MAP_COLS, MAP_ROWS
     from vsfleet.geometry import Pose2
     from vsfleet.step import planned_way
-    from vsfleet.wire import FrameMsg, Mission, RobotSpec, encode_frame, encode_mission
+    from vsfleet.wire import FrameMsg, encode_frame, encode_mission
 
-    def room(obstacles):
-        return Mission(6, "l2", (("r1", RobotSpec((0.3, 0.0), 0.12, 0.3, 0.8, radius=0.05)),
-                                 ("r2", RobotSpec((-0.3, 0.0), 0.12, 0.3, 0.8, radius=0.05))),
-                       0.08, 0.3, 0.0, goal=(2.0, 0.0, 0.0), obstacles=obstacles)
-
+    room = _two_in_a_room
     m = FleetModel("demo")
     m.ingest(T0, "vs/demo/mission", encode_mission(room(((1.0, 0.0, 0.2),))))
     m.ingest(T0, "vs/demo/frame/sim", encode_frame(FrameMsg(T0, 1, "sim", {"r1": (0.3, 0.0, 0.0),
