@@ -200,6 +200,23 @@ PLAN_SWEEP_M = 0.3          # the plan's swept bodies: one set every this far al
 PLAN_MAX_DISCS = 2000       # ... at most this many discs in all (a long way for a large fleet: fewer sets)
 
 
+def swept_poses(way, spacing_m: float) -> list[tuple[float, float, float]]:
+    """Where a plan's bodies are drawn swept along it (the Foxglove scene, vsfleet plot, vsfleet monitor): its
+    first pose, each pose once the way has run spacing_m [m] since the last one kept, and its last pose."""
+    out: list[tuple[float, float, float]] = []
+    run, last = 0.0, None
+    for x, y, th in way:
+        if last is not None:
+            run += math.hypot(x - last[0], y - last[1])
+        if last is None or run >= spacing_m:
+            out.append((float(x), float(y), float(th)))
+            run = 0.0
+        last = (x, y)
+    if len(way) and out[-1] != tuple(float(v) for v in way[-1]):
+        out.append(tuple(float(v) for v in way[-1]))
+    return out
+
+
 def plan_entity(t_ns: int, mission: Mission, pose: tuple[float, float, float], meta: dict[str, str],
                 shape: int = 0) -> fm.SceneEntity | None:
     """The room's plan from a fitted structure pose (vsfleet.step.planned_way: the field's whole descent of the
@@ -213,13 +230,7 @@ def plan_entity(t_ns: int, mission: Mission, pose: tuple[float, float, float], m
     line = fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineStrip, thickness=0.004, color=color,
                             points=[_p3(x, y) for x, y, _ in way])
     bodies = [r for r in mission.radii if r > 0.0]
-    sets, run, last = [], math.inf, None
-    for x, y, th in way:
-        run += 0.0 if last is None else math.hypot(x - last[0], y - last[1])
-        last = (x, y)
-        if run >= PLAN_SWEEP_M:
-            sets.append((x, y, th))
-            run = 0.0
+    sets = swept_poses(way, PLAN_SWEEP_M)
     if bodies:
         sets = sets[:: max(1, math.ceil(len(sets) * len(bodies) / PLAN_MAX_DISCS))]
     swept = [_disc(px, py, r, 0.002, PLAN_SWEPT_BLOCKED if blocked else PLAN_SWEPT)

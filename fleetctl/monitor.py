@@ -48,6 +48,7 @@ from vsfleet.wire import (
 from vsfleet.zglue.lifecycle import StopFlag
 from vsfleet.zglue.peers import current_missions
 from vsfleet.zglue.program import common_flags, program, refusing
+from .foxglove_views import swept_poses
 from .record import split_key, structure_points
 from vsfleet.zglue.zconf import open_session, zenoh_config
 
@@ -303,7 +304,7 @@ class FleetModel:
         way, blocked = planned
         length = float(sum(math.hypot(b[0] - a[0], b[1] - a[1]) for a, b in zip(way[:-1], way[1:])))
         radii = self.mission.radii
-        swept = [(x, y, r) for pose in swept_poses(way) for (x, y, _), r in
+        swept = [(x, y, r) for pose in swept_poses(way, SWEEP_M) for (x, y, _), r in
                  zip(structure_points(self.mission, *pose, shape), radii)]
         robots = [r.xy for _, r in sorted(self.robots.items()) if r.xy is not None]
         drawn = room_map(self.obstacles, way, swept, robots, blocked)
@@ -312,24 +313,10 @@ class FleetModel:
 
 # ---------------------------------------------------------------- the room in characters
 
+SWEEP_M = 0.15                # the bodies drawn along the plan every this far [m] (as vsfleet plot)
 MAP_COLS, MAP_ROWS = 72, 18   # the room map's size in characters (a character is about twice as tall as wide)
 MAP_KEY = "O obstacle, . the plan (the structure's origin), : the bodies swept along it, # a robot now, G the goal " \
           "(B: the closest safe pose, blocked)"
-
-
-def swept_poses(way, spacing_m: float = 0.15) -> list[tuple[float, float, float]]:
-    """The plan's poses every spacing_m [m] of its way, its first and last among them (as vsfleet plot sweeps)."""
-    out, run, last = [], 0.0, None
-    for x, y, th in way:
-        if last is not None:
-            run += math.hypot(x - last[0], y - last[1])
-        if last is None or run >= spacing_m:
-            out.append((float(x), float(y), float(th)))
-            run = 0.0
-        last = (x, y)
-    if len(way) and (out[-1] != tuple(float(v) for v in way[-1])):
-        out.append(tuple(float(v) for v in way[-1]))
-    return out
 
 
 def room_map(obstacles, way, swept, robots, blocked: bool = False, cols: int = MAP_COLS,

@@ -49,6 +49,7 @@ from vsfleet.wire import (
 )
 from vsfleet.zglue.program import common_flags
 
+from .foxglove_views import swept_poses
 from .record import RAW, LogRecord, read_log, split_key, structure_points
 
 log = logging.getLogger("vsfleet.plot")
@@ -203,16 +204,10 @@ def draw_plan(ax, mission: Mission, states: list[StateMsg], spacing_m: float = 0
             label += f" ({shape_name(mission_arrays(mission), first.shape)})"
         ax.plot(way[:, 0], way[:, 1], color=colour, lw=1.0, alpha=0.9,
                 label=label + (" (blocked: to the closest safe pose)" if blocked else ""))
-        run, last = 0.0, None
-        for x, y, th in way:
-            if last is not None:
-                run += math.hypot(x - last[0], y - last[1])
-            if last is None or run >= spacing_m or (x, y, th) == tuple(way[-1]):
-                run = 0.0
-                for point, r in zip(structure_points(mission, x, y, th, first.shape), mission.radii):
-                    ax.add_patch(Circle((point[0], point[1]), max(r, 0.005), fill=False, ec=colour, alpha=0.25,
-                                        lw=0.6, zorder=2, gid="swept body"))
-            last = (x, y)
+        for x, y, th in swept_poses(way, spacing_m):
+            for point, r in zip(structure_points(mission, x, y, th, first.shape), mission.radii):
+                ax.add_patch(Circle((point[0], point[1]), max(r, 0.005), fill=False, ec=colour, alpha=0.25,
+                                    lw=0.6, zorder=2, gid="swept body"))
 
 
 def trajectory_figure(data: RunData) -> Figure:

@@ -226,3 +226,11 @@ def test_a_reshape_draws_the_plan_of_each_shape_taken_from_where_it_was_taken():
                if isinstance(p, Circle) and p.get_gid() == "swept body"}
     assert all(tuple(np.round((x, y), 9)) in centres for x, y, _ in first_column)
     assert tuple(np.round(structure_points(room, *way[0])[1][:2], 9)) not in centres   # not the template's r2 there
+
+
+def test_the_swept_bodies_are_drawn_at_the_plans_first_pose_every_spacing_and_its_last():
+    from vsfleet.fleetctl.foxglove_views import swept_poses
+
+    way = [(0.05 * k, 0.0, 0.0) for k in range(11)]               # 0.5 m along x, every 5 cm
+    assert [round(p[0], 9) for p in swept_poses(way, 0.14)] == [0.0, 0.15, 0.3, 0.45, 0.5]   # 3 steps a set
+    assert swept_poses(way[:1], 0.15) == [(0.0, 0.0, 0.0)] and swept_poses([], 0.15) == []
