@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vsfleet.field import build_field, field_headings, follow_field
+from vsfleet.field import build_field, follow_field, room_lattice
 from vsfleet.geometry import Pose2
 from vsfleet.step import PLAN_MARGIN_M
 
@@ -87,9 +87,10 @@ def best_of(fn, times: int = 3) -> tuple[float, float, object]:
     return best, best_cpu, out
 
 
-def plan_room(tpl, rad, obs, start, goal, heads: int):
-    """The room's plan as an agent makes it: (the deferred field, the first frame's descent from the start)."""
-    f = build_field(tpl, rad, PLAN_MARGIN_M, obs, Pose2(*goal), n_headings=heads, deferred=True)
+def plan_room(tpl, rad, obs, start, goal, lattice: dict):
+    """The room's plan as an agent makes it: (the deferred field, the first frame's descent from the start, which
+    builds the finer lattice where the room's own has no way from there)."""
+    f = build_field(tpl, rad, PLAN_MARGIN_M, obs, Pose2(*goal), **lattice, deferred=True)
     return f, follow_field(f, Pose2(*start))
 
 
@@ -102,9 +103,10 @@ def first_plan_ms(n: int, seed: int) -> float:
 
 def measure(n: int, seed: int) -> dict:
     tpl, rad, obs, start, goal = room(n, seed)
-    heads = field_headings(tpl, rad, PLAN_MARGIN_M, obs, goal[:2])
+    lattice = room_lattice(tpl, rad, PLAN_MARGIN_M, obs, goal[:2])
+    heads = lattice["n_headings"]
     args = (tpl, rad, PLAN_MARGIN_M, obs, Pose2(*goal))
-    plan_s, plan_cpu_s, (fld, first) = best_of(lambda: plan_room(tpl, rad, obs, start, goal, heads))
+    plan_s, plan_cpu_s, (fld, first) = best_of(lambda: plan_room(tpl, rad, obs, start, goal, lattice))
     whole_s, _, _ = best_of(lambda: build_field(*args, n_headings=heads))
     way, blocked, _ = follow_field(fld, Pose2(*start), path_m=1e9, cap=200000)
     follow_us = []
@@ -138,9 +140,9 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.first:
         tpl, rad, obs, start, goal = room(*args.first)
-        heads = field_headings(tpl, rad, PLAN_MARGIN_M, obs, goal[:2])
+        lattice = room_lattice(tpl, rad, PLAN_MARGIN_M, obs, goal[:2])
         t0 = time.perf_counter()
-        plan_room(tpl, rad, obs, start, goal, heads)
+        plan_room(tpl, rad, obs, start, goal, lattice)
         print(f"{1e3 * (time.perf_counter() - t0):.3f}")
         return 0
     rows = []

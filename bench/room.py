@@ -49,7 +49,7 @@ from pathlib import Path
 import numpy as np
 
 from vsfleet import _core
-from vsfleet.field import PATH_CAP, PATH_M, build_field, field_headings, follow_field
+from vsfleet.field import PATH_CAP, PATH_M, build_field, follow_field, room_lattice
 from vsfleet.geometry import Pose2
 from vsfleet.scenario import scenario_from_dict
 from vsfleet.simfleet.offline import run_offline
@@ -334,22 +334,23 @@ def to_scenario(room: Room, duration_s: float):
 def our_plan(room: Room) -> dict:
     """Our planner on the room: the field the agents build, followed from the start pose to its end. build_s: the
     agents' plan, the deferred build (vsfleet.field.build_field_deferred) and the first frame's descent from the start
-    (which resolves the start's component when the goal cannot be reached from it); build_whole_s: the whole build
-    (vs_field_build), every component resolved up front."""
+    (which resolves the start's component when the goal cannot be reached from it, and builds the finer lattice when
+    the room's own has no way from there: vs_field_set_refine); build_whole_s: the whole build (vs_field_build) of the
+    room's own lattice, every component resolved up front. refined: the finer lattice was built."""
     args = (room.template, room.radii, PLAN_MARGIN_M, room.obstacles, Pose2(*room.goal))
-    heads = field_headings(room.template, room.radii, PLAN_MARGIN_M, room.obstacles, room.goal)
+    lattice = room_lattice(room.template, room.radii, PLAN_MARGIN_M, room.obstacles, room.goal)
     t0 = time.perf_counter()
-    fld = build_field(*args, n_headings=heads, deferred=True)
+    fld = build_field(*args, **lattice, deferred=True)
     follow_field(fld, Pose2(*room.start))
     build_s = time.perf_counter() - t0
     t0 = time.perf_counter()
-    build_field(*args, n_headings=heads)
+    build_field(*args, n_headings=lattice["n_headings"])
     build_whole_s = time.perf_counter() - t0
     way, blocked, left = follow_field(fld, Pose2(*room.start), path_m=1e9, cap=100000)
     lat = fld.lattice
     return {"success": not blocked, "length_m": ompl_ref.path_length_m(way), "build_s": build_s,
             "build_whole_s": build_whole_s,
-            "left_m": float(left), "cell_m": lat.cell_m, "inflation_m": lat.inflation_m,
+            "left_m": float(left), "cell_m": lat.cell_m, "inflation_m": lat.inflation_m, "refined": fld.refined,
             "length_shortcut_m": ompl_ref.path_length_m(shortcut_path(fld, room.start)), "path": way}
 
 

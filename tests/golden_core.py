@@ -61,7 +61,7 @@ def records() -> list[tuple[str, list[float]]]:
     from step_core_records import (agent_step_records, assembly_records, shape_records,  # noqa: PLC0415 - (tests/)
                                    step_records)
     return (trig_records() + step_records() + safety_records() + field_records() + shape_records()
-            + assembly_records() + agent_step_records())
+            + assembly_records() + agent_step_records() + refine_records())
 
 
 def line(entry: str, inputs, outputs) -> str:
@@ -104,6 +104,30 @@ def field_records(seed: int = 17, count: int = 24) -> list[tuple[str, list[float
     return out
 
 
+def refine_records(seed: int = 29, count: int = 16) -> list[tuple[str, list[float]]]:
+    """A field armed with its finer lattice (vs_field_set_refine): thin walls of discs with one gap about as wide as
+    a line-like structure of 2-5 robots, a few pillars; the coarse lattice grown to fit 1,500 states, the finer one
+    60,000 at 16 headings. Two descents each from the wall's far side: 12 of the 32 find no way on the coarse
+    lattice and take the finer one's, 2 find none on either (recorded 2026-12-07)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(count):
+        n = int(rng.integers(2, 6))
+        tpl = np.c_[rng.uniform(-0.3, 0.3, n), rng.uniform(-0.08, 0.08, n)]
+        radii = rng.uniform(0.02, 0.06, n)
+        gap_y, gap = float(rng.uniform(-0.5, 0.5)), float(rng.uniform(0.12, 0.4))
+        wall = [(0.0, y, 0.06) for y in np.arange(-2.0, 2.01, 0.1) if abs(y - gap_y) > gap / 2]
+        pillars = [(*rng.uniform(-1.5, 1.5, 2), float(rng.uniform(0.05, 0.2))) for _ in range(int(rng.integers(0, 4)))]
+        obs = np.array(wall + pillars)
+        goal = [float(rng.uniform(0.6, 1.2)), float(rng.uniform(-0.5, 0.5)), float(rng.uniform(-4.0, 4.0))]
+        build = [float(n), float(len(obs)), 0.02, 0.04, 8.0, 1500.0, *goal, *tpl.ravel(), *radii, *obs.ravel()]
+        for _ in range(2):
+            pose = [float(rng.uniform(-1.4, -0.5)), float(rng.uniform(-0.6, 0.6)), float(rng.uniform(-4.0, 4.0)),
+                    float(rng.choice([0.5, 2.0, 50.0]))]
+            out.append(("field_refine", build + [16.0, 60000.0] + pose))
+    return out
+
+
 def main(only: str | None = None) -> None:
     """Record every entry (only: that entry's lines alone, again, at the end; the others kept as they are)."""
     from vsfleet import _core
@@ -112,7 +136,7 @@ def main(only: str | None = None) -> None:
             records()
     else:
         from step_core_records import agent_step_records  # noqa: PLC0415 - (tests/)
-        makers = {"agent_step": agent_step_records}
+        makers = {"agent_step": agent_step_records, "field_refine": refine_records}
         if only not in makers:
             raise SystemExit(f"--only: one of {sorted(makers)}")
         lines = [t for t in PATH.read_text().splitlines() if t.split(" ", 1)[0] != only]

@@ -49,6 +49,12 @@ MAX_STATES = 2_000_000
 HEADING_CHOICES = (48, 64, 96)
 HEADING_GAIN_M = 0.005   # a larger count only if its lattice inflates at least this much less [m]
 
+#: the finer lattice a room's field asks where it has no way (field_refinement, vs_field_set_refine): at most
+#: 6 million states (24 MB, built only where the coarse lattice has no way), at the heading count of these whose
+#: lattice inflates least
+REFINE_MAX_STATES = 6_000_000
+REFINE_HEADING_CHOICES = (48, 64, 96, 128)
+
 
 def lattice_sizing(template_xy, radius_m, margin_m: float, obstacles, goal_xy, n_headings: int,
                    cell_m: float = CELL_M, max_states: int = MAX_STATES):
@@ -99,6 +105,31 @@ def field_headings(template_xy, radius_m, margin_m: float, obstacles, goal_xy) -
     return next(k for k, i in zip(HEADING_CHOICES, infl) if i <= least + HEADING_GAIN_M)
 
 
+def field_refinement(template_xy, radius_m, margin_m: float, obstacles, goal_xy,
+                     n_headings: int) -> tuple[int, int] | None:
+    """The finer lattice (n_headings, max_states) a room's field of n_headings (at MAX_STATES) asks where it has no
+    way (build_field's refine), or None when no lattice of REFINE_MAX_STATES inflates HEADING_GAIN_M less than it:
+    the first of REFINE_HEADING_CHOICES whose lattice inflates within HEADING_GAIN_M of the least. A plain function
+    of the mission, as field_headings is. Why (bench/room.py rooms 70 and 130, a line of 10 robots): their rooms'
+    lattices grew to cells of 7.3 cm to fit MAX_STATES, which sealed the goal from the start; at 128 headings and
+    6 million states (cells of 4.7 cm, 1.9 cm less inflation) both are open, and the line reaches the goal."""
+    coarse = lattice_inflation_m(template_xy, radius_m, margin_m, obstacles, goal_xy, n_headings)
+    infl = [lattice_inflation_m(template_xy, radius_m, margin_m, obstacles, goal_xy, k, max_states=REFINE_MAX_STATES)
+            for k in REFINE_HEADING_CHOICES]
+    least = min(infl)
+    if not least <= coarse - HEADING_GAIN_M:
+        return None
+    return next(k for k, i in zip(REFINE_HEADING_CHOICES, infl) if i <= least + HEADING_GAIN_M), REFINE_MAX_STATES
+
+
+def room_lattice(template_xy, radius_m, margin_m: float, obstacles, goal_xy) -> dict:
+    """The agents' lattice for a room, as build_field's keywords: n_headings (field_headings) and refine
+    (field_refinement). vsfleet.structure.room_field builds by it, and so do the benches."""
+    heads = field_headings(template_xy, radius_m, margin_m, obstacles, goal_xy)
+    return {"n_headings": heads,
+            "refine": field_refinement(template_xy, radius_m, margin_m, obstacles, goal_xy, heads)}
+
+
 _DX = (1, -1, 0, 0, 1, -1, 1, -1)
 _DY = (0, 0, 1, -1, 1, 1, -1, -1)
 
@@ -124,27 +155,60 @@ class Lattice:
 
 
 class Field:
-    """A built field: its lattice and costs; ``handle`` is the core's (None for a reference build)."""
+    """A built field: its lattice and costs; ``handle`` is the core's (None for a reference build). refine: the
+    finer lattice (n_headings, max_states) asked where this one has no way (None: none); a reference field builds it
+    the first time it is asked (``fine``), the core's field holds it in the core."""
 
-    def __init__(self, lattice: Lattice, costs: np.ndarray, handle=None):
-        self.lattice, self.costs, self.handle = lattice, costs, handle
+    def __init__(self, lattice: Lattice, costs: np.ndarray, handle=None, refine: tuple[int, int] | None = None,
+                 fine_build=None):
+        self.lattice, self.costs, self.handle, self.refine = lattice, costs, handle, refine
+        self._fine_build, self._fine = fine_build, None
+
+    def refine_now(self) -> bool:
+        """Build the finer lattice now if there is one (an agent's prepare thread: off the frame path); whether it
+        is built. The answers are the same whenever it is built."""
+        if self.refine is None:
+            return False
+        if self.handle is not None:
+            return _core.field_refine_now(self.handle)
+        return self.fine() is not None
+
+    @property
+    def refined(self) -> bool:
+        """Whether the finer lattice is built (asking does not build it)."""
+        if self.handle is not None:
+            return _core.field_refined(self.handle)
+        return self._fine is not None
+
+    def fine(self) -> "Field | None":
+        """A reference field's finer lattice, built on first use (None: none)."""
+        if self._fine is None and self._fine_build is not None:
+            self._fine = self._fine_build()
+        return self._fine
 
 
 def build_field(template_xy, radius_m, margin_m: float, obstacles, goal: Pose2, cell_m: float = CELL_M,
-                n_headings: int = HEADINGS, max_states: int = MAX_STATES, deferred: bool = False) -> Field:
+                n_headings: int = HEADINGS, max_states: int = MAX_STATES, deferred: bool = False,
+                refine: tuple[int, int] | None = None) -> Field:
     """The compiled core's field (vs_field_build); costs read back lazily by tests only. deferred: the components
     the goal cannot reach are resolved when a descent first needs one (vs_field_build_deferred): every descent the
-    same, the build several times faster in rooms with walls."""
+    same, the build several times faster in rooms with walls. refine (n_headings, max_states): the finer lattice of
+    the same room (at cell_m) asked where this one has no way from a pose (vs_field_set_refine; field_refinement)."""
     handle = _core.field_build(f64(template_xy), f64(radius_m), float(margin_m), f64(obstacles), f64(goal.as_tuple()),
                                float(cell_m), int(n_headings), int(max_states), bool(deferred))
+    if refine is not None:
+        _core.field_set_refine(handle, f64(template_xy), f64(radius_m), f64(obstacles), float(cell_m),
+                               int(refine[0]), int(refine[1]))
     lat = Lattice(*_core.field_info(handle))
-    return Field(lat, _CoreCosts(handle, lat), handle)
+    return Field(lat, _CoreCosts(handle, lat), handle, refine)
 
 
 def build_field_deferred(template_xy, radius_m, margin_m: float, obstacles, goal: Pose2, cell_m: float = CELL_M,
-                         n_headings: int = HEADINGS, max_states: int = MAX_STATES) -> Field:
+                         n_headings: int = HEADINGS, max_states: int = MAX_STATES,
+                         refine: tuple[int, int] | None = None) -> Field:
     """build_field(deferred=True): the agent's build (vsfleet.agentstate)."""
-    return build_field(template_xy, radius_m, margin_m, obstacles, goal, cell_m, n_headings, max_states, deferred=True)
+    return build_field(template_xy, radius_m, margin_m, obstacles, goal, cell_m, n_headings, max_states, deferred=True,
+                       refine=refine)
 
 
 class _CoreCosts:
@@ -181,8 +245,16 @@ def _floor(v: float) -> int:
 
 
 def build_field_reference(template_xy, radius_m, margin_m: float, obstacles, goal: Pose2, cell_m: float = CELL_M,
-                          n_headings: int = HEADINGS, max_states: int = MAX_STATES) -> Field:
-    """vs_field_build in numpy and scipy: the same lattice, the same raster, the same integer costs."""
+                          n_headings: int = HEADINGS, max_states: int = MAX_STATES,
+                          refine: tuple[int, int] | None = None) -> Field:
+    """vs_field_build in numpy and scipy: the same lattice, the same raster, the same integer costs (refine: as
+    build_field's, its finer lattice built by the first descent or shape test that asks for it)."""
+    if refine is not None:
+        fld = build_field_reference(template_xy, radius_m, margin_m, obstacles, goal, cell_m, n_headings, max_states)
+        fld.refine = (int(refine[0]), int(refine[1]))
+        fld._fine_build = lambda: build_field_reference(template_xy, radius_m, margin_m, obstacles, goal, cell_m,
+                                                        fld.refine[0], fld.refine[1])
+        return fld
     from scipy.sparse.csgraph import connected_components, dijkstra  # noqa: PLC0415 - the reference only
     if not (4 <= n_headings <= 1024 and 1024 <= max_states <= 1_000_000_000 and 9 * n_headings <= max_states):
         raise VsfleetValueError("build_field: n_headings in [4, 1024], max_states in [1024, 1e9] and >= 9 n_headings")
@@ -400,7 +472,17 @@ def _cost_view(field: Field) -> memoryview:
 
 def field_open_reference(field: Field, pose: Pose2) -> tuple[bool, bool]:
     """vs_field_open in Python: (the descent from the pose starts on a free state the goal can be reached from,
-    that state lies in the comfort band)."""
+    that state lies in the comfort band); where it does not, the finer lattice's answer if that one is open."""
+    answer = _open_one(field, pose)
+    fine = field.fine() if not answer[0] else None
+    if fine is not None:
+        fine_answer = _open_one(fine, pose)
+        if fine_answer[0]:
+            return fine_answer
+    return answer
+
+
+def _open_one(field: Field, pose: Pose2) -> tuple[bool, bool]:
     cost = _cost_view(field)
     start, _outside = _start_state(field.lattice, cost, pose)
     if start is None:
@@ -410,7 +492,16 @@ def field_open_reference(field: Field, pose: Pose2) -> tuple[bool, bool]:
 
 
 def follow_field_reference(field: Field, pose: Pose2, path_m: float = PATH_M, cap: int = PATH_CAP):
-    """vs_field_follow in Python: (waypoints (k, 3), blocked, left_m)."""
+    """vs_field_follow in Python: (waypoints (k, 3), blocked, left_m); where the goal cannot be reached from the
+    pose, the finer lattice's descent if the goal can be reached from it there (vs_field_set_refine)."""
+    answer = _follow_one(field, pose, path_m, cap)
+    fine = field.fine() if answer[1] else None
+    if fine is not None and _open_one(fine, pose)[0]:
+        return _follow_one(fine, pose, path_m, cap)
+    return answer
+
+
+def _follow_one(field: Field, pose: Pose2, path_m: float, cap: int):
     lat = field.lattice
     cost = _cost_view(field)
     start, outside = _start_state(lat, cost, pose)

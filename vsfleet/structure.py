@@ -19,8 +19,8 @@ from .coreconst import STEP_HELD_BACK, STEP_LOOKAHEAD_PER_REACH, STRUCTURE_STEP_
 from .advance import Goal, GoalPath, GoalPose, GoalTwist, Twist2, advance_structure_reference
 from .buffers import f64
 from .clear import clearance_barrier_reference
-from .field import (Field, build_field, build_field_reference, field_headings, field_open_reference,
-                    follow_field_reference)
+from .field import (Field, build_field, build_field_reference, field_open_reference, follow_field_reference,
+                    room_lattice)
 from .fit import fit_structure_reference
 from .geometry import Pose2, wrap_angle
 
@@ -49,15 +49,16 @@ def room_field(template: np.ndarray, radii, obstacles: np.ndarray, goal: Goal,
     return _room_field(tpl.tobytes(), rad.tobytes(), f64(obstacles).tobytes(), target.as_tuple(), build)
 
 
-# A few rooms and their shapes, the least recently used out: each field holds up to 8 MB. A deferred field (the
-# agents') is written by the descents that resolve its components (vs_field_build_deferred), so one field must not be
-# followed by two threads at once: an agent runs its frames one at a time, and its prepare thread only builds.
+# A few rooms and their shapes, the least recently used out: each field holds up to 8 MB (32 MB once it has built its
+# finer lattice, field_refinement). A deferred field (the agents') is written by the descents that resolve its
+# components (vs_field_build_deferred) or build its finer lattice, so one field must not be followed by two threads
+# at once: an agent runs its frames one at a time, and its prepare thread only builds.
 @lru_cache(maxsize=12)
 def _room_field(tpl_bytes: bytes, rad_bytes: bytes, obs_bytes: bytes, target: tuple, build: Callable) -> Field:
-    """room_field's build, by its key (the arrays' bytes): the lattice's heading count by the structure."""
+    """room_field's build, by its key (the arrays' bytes): the lattice's heading count by the structure, and the
+    finer lattice it asks where it has no way (field_refinement)."""
     tpl, rad, obs = array("d", tpl_bytes), array("d", rad_bytes), array("d", obs_bytes)
-    return build(tpl, rad, PLAN_MARGIN_M, obs, Pose2(*target),
-                 n_headings=field_headings(tpl, rad, PLAN_MARGIN_M, obs, target[:2]))
+    return build(tpl, rad, PLAN_MARGIN_M, obs, Pose2(*target), **room_lattice(tpl, rad, PLAN_MARGIN_M, obs, target[:2]))
 
 
 @dataclass(frozen=True)

@@ -51,6 +51,66 @@ int __wrap_posix_memalign(void **p, size_t alignment, size_t size)
 #define RING 24
 #define CAP 400
 
+/* A field armed with a finer lattice (vs_field_set_refine), where the finer lattice's build, or its resolution, runs
+ * out of memory at each of its allocations in turn: the descent returns VS_ENOMEM, the finer lattice is not kept,
+ * and a later descent, with memory, answers as a field that never ran out, bit for bit.  The room: the ring above
+ * with one obstacle left out, two robots 0.3 m apart; its lattice grown to cells of 19 cm (8,000 states) closes the
+ * gap, the finer one (40,000 states, cells of 7.8 cm) opens it. */
+static int refine_nomem(void)
+{
+    const double tpl[4] = {0.15, 0.0, -0.15, 0.0}, rad[2] = {0.03, 0.03};
+    double obs[3 * RING], goal[3] = {0.0, 0.0, 0.0}, pose[3] = {2.0, 0.4, 1.0};
+    for (int i = 1; i < RING; i++) {
+        double a = 2.0 * VS_PI * (double)i / (double)RING;
+        obs[3 * (i - 1)] = 0.9 * cos(a);
+        obs[3 * (i - 1) + 1] = 0.9 * sin(a);
+        obs[3 * (i - 1) + 2] = 0.15;
+    }
+    double w_ref[3 * CAP], w[3 * CAP], left_ref, left;
+    size_t n_ref, n;
+    int b_ref, b;
+    vs_field ref;
+    if (vs_field_build_deferred(tpl, rad, 2, 0.02, obs, RING - 1, goal, 0.05, 16, 8000, &ref) != VS_OK ||
+        vs_field_follow(&ref, pose, 50.0, w_ref, CAP, &n_ref, &b_ref, &left_ref) != VS_OK || !b_ref ||
+        vs_field_set_refine(&ref, tpl, rad, 2, obs, RING - 1, 0.05, 16, 40000) != VS_OK ||
+        vs_field_follow(&ref, pose, 50.0, w_ref, CAP, &n_ref, &b_ref, &left_ref) != VS_OK || b_ref) {
+        printf("refine: the room is not closed on its lattice and open on the finer one\n");
+        return 1;
+    }
+    long failed = 0;
+    for (long k = 1;; k++) {
+        vs_field d;
+        if (vs_field_build_deferred(tpl, rad, 2, 0.02, obs, RING - 1, goal, 0.05, 16, 8000, &d) != VS_OK ||
+            vs_field_follow(&d, pose, 50.0, w, CAP, &n, &b, &left) != VS_OK ||   /* its own components resolved */
+            vs_field_set_refine(&d, tpl, rad, 2, obs, RING - 1, 0.05, 16, 40000) != VS_OK) {
+            printf("refine: the field failed with memory\n");
+            return 1;
+        }
+        armed = k;
+        int rc = vs_field_follow(&d, pose, 50.0, w, CAP, &n, &b, &left);
+        int hit = armed == 0;
+        armed = -1;
+        if (hit) {
+            failed++;
+            if (rc != VS_ENOMEM) {
+                printf("refine: allocation %ld failed: rc %d\n", k, rc);
+                return 1;
+            }
+            rc = vs_field_follow(&d, pose, 50.0, w, CAP, &n, &b, &left);   /* again, with memory */
+        }
+        if (rc != VS_OK || n != n_ref || b != b_ref || memcmp(&left, &left_ref, sizeof left) != 0 ||
+            memcmp(w, w_ref, sizeof(double) * 3 * n) != 0) {
+            printf("refine: allocation %ld: the descent differs from the one that never ran out\n", k);
+            return 1;
+        }
+        vs_field_free(&d);
+        if (!hit) break;
+    }
+    vs_field_free(&ref);
+    printf("field_nomem: refine: %ld failed allocations, each VS_ENOMEM, then the same descent; ok\n", failed);
+    return failed >= 3 ? 0 : 1;   /* the finer build's scratch and cost array, and its resolution */
+}
+
 int main(void)
 {
     const double tpl[6] = {0.2, 0.0, -0.1, 0.17, -0.1, -0.17}, rad[3] = {0.05, 0.05, 0.05};
@@ -145,5 +205,6 @@ int main(void)
 #endif
     printf("field_nomem: build: %ld failed allocations (%ld aligned), each VS_ENOMEM; ok\n", build_failed,
            aligned_failed);
-    return build_failed >= 2 ? 0 : 1;   /* the scratch and the cost array at least */
+    if (build_failed < 2) return 1;   /* the scratch and the cost array at least */
+    return refine_nomem();
 }

@@ -84,6 +84,69 @@ static PyObject *py_field_resolve_all(PyObject *mod, PyObject *const *a, Py_ssiz
     Py_RETURN_NONE;
 }
 
+/* field_set_refine(field, template_xy, radius_m, obstacles, cell_m, n_headings, max_states) -> None:
+ * vs_field_set_refine (the field's finer lattice, asked where it has no way) */
+static PyObject *py_field_set_refine(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
+{
+    (void)mod;
+    if (nargs != 7) { PyErr_SetString(PyExc_TypeError, "field_set_refine takes 7 arguments"); return NULL; }
+    vs_field *f = a[0] == Py_None ? NULL : PyCapsule_GetPointer(a[0], FIELD_CAPSULE);
+    if (f == NULL) { if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "not a field"); return NULL; }
+    double cell = PyFloat_AsDouble(a[4]);
+    long long heads = PyLong_AsLongLong(a[5]), max_states = PyLong_AsLongLong(a[6]);
+    if (PyErr_Occurred()) return NULL;
+    if (heads < 1 || max_states < 1) {
+        PyErr_SetString(vs_ValueError, "n_headings and max_states must be >= 1");
+        return NULL;
+    }
+    Py_buffer b[3];
+    int got = 0;
+    PyObject *result = NULL;
+    if (vs_py_doubles(a[1], &b[got], -1, 0, "template_xy") < 0) goto out;
+    got++;
+    Py_ssize_t n2 = b[0].len / 8;
+    if (n2 % 2 || n2 == 0) { PyErr_SetString(vs_ValueError, "template_xy must be (n, 2) with n >= 1"); goto out; }
+    if (vs_py_doubles(a[2], &b[got], n2 / 2, 0, "radius_m") < 0) goto out;
+    got++;
+    if (vs_py_doubles(a[3], &b[got], -1, 0, "obstacles") < 0) goto out;
+    got++;
+    if ((b[2].len / 8) % 3) { PyErr_SetString(vs_ValueError, "obstacles must hold 3 k doubles"); goto out; }
+    int rc = vs_field_set_refine(f, b[0].buf, b[1].buf, (size_t)(n2 / 2), b[2].buf, (size_t)(b[2].len / 24), cell,
+                                 (size_t)heads, (size_t)max_states);
+    if (rc != VS_OK) { vs_py_error(rc, "field_set_refine refused its inputs"); goto out; }
+    result = Py_None;
+    Py_INCREF(result);
+out:
+    for (int i = 0; i < got; i++) PyBuffer_Release(&b[i]);
+    return result;
+}
+
+/* field_refine_now(field) -> bool: vs_field_refine_now (its finer lattice built now, the GIL released); whether the
+ * field has a finer lattice built */
+static PyObject *py_field_refine_now(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
+{
+    (void)mod;
+    if (nargs != 1) { PyErr_SetString(PyExc_TypeError, "field_refine_now(field)"); return NULL; }
+    const vs_field *f = vs_py_field(a[0]);
+    if (f == NULL) { if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "not a field"); return NULL; }
+    int rc;
+    Py_BEGIN_ALLOW_THREADS
+    rc = vs_field_refine_now(f);
+    Py_END_ALLOW_THREADS
+    if (rc != VS_OK) return vs_py_error(rc, "field_refine_now failed");
+    return PyBool_FromLong(vs_field_refined(f));
+}
+
+/* field_refined(field) -> bool: vs_field_refined (its finer lattice is built; asking builds nothing) */
+static PyObject *py_field_refined(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
+{
+    (void)mod;
+    if (nargs != 1) { PyErr_SetString(PyExc_TypeError, "field_refined(field)"); return NULL; }
+    const vs_field *f = vs_py_field(a[0]);
+    if (f == NULL) { if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "not a field"); return NULL; }
+    return PyBool_FromLong(vs_field_refined(f));
+}
+
 /* field_info(field) -> (gx, gy, gth, cell_m, dth_rad, inflation_m, n_headings, ix_lo, iy_lo, nx, ny, w_rot, goal_free) */
 static PyObject *py_field_info(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
 {
@@ -189,6 +252,12 @@ PyMethodDef vs_py_field_methods[] = {
      "-> field."},
     {"field_resolve_all", (PyCFunction)(void (*)(void))py_field_resolve_all, METH_FASTCALL,
      "field_resolve_all(field): resolve every component a deferred build left."},
+    {"field_set_refine", (PyCFunction)(void (*)(void))py_field_set_refine, METH_FASTCALL,
+     "field_set_refine(field, template_xy, radius_m, obstacles, cell_m, n_headings, max_states): its finer lattice."},
+    {"field_refine_now", (PyCFunction)(void (*)(void))py_field_refine_now, METH_FASTCALL,
+     "field_refine_now(field) -> bool: build its finer lattice now; whether it has one built."},
+    {"field_refined", (PyCFunction)(void (*)(void))py_field_refined, METH_FASTCALL,
+     "field_refined(field) -> bool: whether its finer lattice is built."},
     {"field_info", (PyCFunction)(void (*)(void))py_field_info, METH_FASTCALL, "field_info(field) -> lattice tuple."},
     {"field_costs", (PyCFunction)(void (*)(void))py_field_costs, METH_FASTCALL, "field_costs(field) -> bytes."},
     {"field_open", (PyCFunction)(void (*)(void))py_field_open, METH_FASTCALL,

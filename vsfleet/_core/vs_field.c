@@ -51,6 +51,15 @@ static uint32_t *cost_alloc(size_t count)
     return malloc(bytes);
 }
 
+/* a field's finer lattice (vs_field_set_refine): its inputs, and its field once built */
+struct vs_field_refine {
+    double *inputs;          /* one block: the template (2 n), the radii (n), the obstacles (3 m) */
+    size_t n, n_obstacles, n_headings, max_states;
+    double cell_m;           /* the cell asked of the fine lattice [m] (it grows as the coarse one did) */
+    int built;               /* 1: fine holds the finer lattice's field (deferred, as the agents build) */
+    vs_field fine;
+};
+
 /* the neighbour order, fixed: 8 moves at the same heading, then heading + 1, heading - 1 */
 
 /* every neighbour of state s in the fixed order (8 moves at its heading, then heading + 1, heading - 1), those
@@ -600,6 +609,12 @@ void vs_field_free(vs_field *f)
     if (f == NULL) return;
     free(f->cost);
     f->cost = NULL;
+    if (f->refine != NULL) {
+        vs_field_free(&f->refine->fine);
+        free(f->refine->inputs);
+        free(f->refine);
+        f->refine = NULL;
+    }
 }
 
 /* the column (row) of u = coordinate / h + 0.5 on an axis of `count` from `lo`, clamped; *out set if clamped.
@@ -762,20 +777,43 @@ static int prepare_start(const vs_field *f, const double pose[3])
     return VS_OK;
 }
 
-int vs_field_open(const vs_field *f, const double pose[3], int *tight)
+static int open_one(const vs_field *f, const double pose[3], int *tight)
 {
     int outside;
-    if (prepare_start(f, pose) != VS_OK) { *tight = 0; return 0; }
+    if (prepare_start(f, pose) != VS_OK) { *tight = 0; return 0; }   /* a resolution that fails: not open */
     long start = start_state(f, pose, &outside);
     *tight = start >= 0 && (f->cost[start] & VS_FIELD_TIGHT_BIT) != 0;
     return start >= 0 && !(f->cost[start] & VS_FIELD_BLOCKED_BIT);
 }
 
-int vs_field_follow(const vs_field *f, const double pose[3], double path_m, double *waypoints, size_t cap,
-                    size_t *n_waypoints, int *blocked, double *left_m)
+/* Whether a free state the goal can reach lies within the descent's search of the pose (VS_FIELD_SEARCH_CELLS
+ * cells, 5 headings): then the descent starts on one (start_state), and open_one answers 1.  Reads only: a deferred
+ * field's unresolved states are blocked whatever their costs, so nothing needs resolving to know. */
+static int reachable_near(const vs_field *f, const double pose[3])
 {
-    if (f == NULL || f->cost == NULL || cap < 2) return VS_EVALUE;
-    if (!finite3(pose, 3) || !vs_isfinite(path_m)) return VS_ENONFINITE;
+    size_t plane = f->nx * f->ny;
+    size_t c0, r0, k0;
+    int outside;
+    nearest(f, pose, &c0, &r0, &k0, &outside);
+    static const int DK[5] = {0, 1, -1, 2, -2};
+    for (int d = 0; d <= VS_FIELD_SEARCH_CELLS; d++)
+        for (int a = 0; a < 5; a++) {
+            size_t k = (size_t)((long)k0 + (long)f->n_headings + DK[a]) % f->n_headings;
+            for (int dr = -d; dr <= d; dr++)
+                for (int dc = -d; dc <= d; dc++) {
+                    if (dr != -d && dr != d && dc != -d && dc != d) continue;
+                    long c = (long)c0 + dc, r = (long)r0 + dr;
+                    if (c < 0 || r < 0 || c >= (long)f->nx || r >= (long)f->ny) continue;
+                    uint32_t v = f->cost[k * plane + (size_t)r * f->nx + (size_t)c];
+                    if (v != VS_FIELD_WALL && !(v & VS_FIELD_BLOCKED_BIT)) return 1;
+                }
+        }
+    return 0;
+}
+
+static int follow_one(const vs_field *f, const double pose[3], double path_m, double *waypoints, size_t cap,
+                      size_t *n_waypoints, int *blocked, double *left_m)
+{
     size_t plane = f->nx * f->ny;
     int outside, rc = prepare_start(f, pose);
     if (rc != VS_OK) return rc;
@@ -832,4 +870,93 @@ int vs_field_follow(const vs_field *f, const double pose[3], double path_m, doub
     *blocked = is_blocked;
     *left_m = is_blocked ? sqrt(lx * lx + ly * ly) : 0.0;
     return VS_OK;
+}
+
+/* ------------------------------------------------------------------------------------------------ refinement */
+
+int vs_field_set_refine(vs_field *f, const double *template_xy, const double *radius_m, size_t n,
+                        const double *obstacles, size_t n_obstacles, double cell_m, size_t n_headings,
+                        size_t max_states)
+{
+    if (f == NULL || f->cost == NULL || f->refine != NULL || n == 0 || n_obstacles > VS_FIELD_MAX_OBSTACLES ||
+        n_headings < 4 || n_headings > 1024 || max_states < 1024 || max_states > VS_FIELD_MAX_STATES ||
+        9 * n_headings > max_states)
+        return VS_EVALUE;
+    if (!finite3(template_xy, 2 * n) || !finite3(radius_m, n) || !finite3(obstacles, 3 * n_obstacles) ||
+        !vs_isfinite(cell_m))
+        return VS_ENONFINITE;
+    if (!(cell_m >= 1e-3) || cell_m > VS_FIELD_MAX_ABS_M) return VS_EVALUE;
+    if (n > (SIZE_MAX / sizeof(double) - 3 * n_obstacles) / 3) return VS_ENOMEM;
+    struct vs_field_refine *r = malloc(sizeof *r);
+    double *in = malloc(sizeof(double) * (3 * n + 3 * n_obstacles + 1));   /* + 1: never malloc(0) */
+    if (r == NULL || in == NULL) {
+        free(r);
+        free(in);
+        return VS_ENOMEM;
+    }
+    memcpy(in, template_xy, sizeof(double) * 2 * n);
+    memcpy(in + 2 * n, radius_m, sizeof(double) * n);
+    if (n_obstacles > 0) memcpy(in + 3 * n, obstacles, sizeof(double) * 3 * n_obstacles);
+    memset(r, 0, sizeof *r);
+    r->inputs = in;
+    r->n = n;
+    r->n_obstacles = n_obstacles;
+    r->n_headings = n_headings;
+    r->max_states = max_states;
+    r->cell_m = cell_m;
+    f->refine = r;
+    return VS_OK;
+}
+
+/* f's finer lattice, built the first time it is asked for (*g NULL: f has none) */
+static int refined(const vs_field *f, const vs_field **g)
+{
+    struct vs_field_refine *r = f->refine;
+    *g = NULL;
+    if (r == NULL) return VS_OK;
+    if (!r->built) {
+        const double goal[3] = {f->gx, f->gy, f->gth};
+        const double *in = r->inputs;
+        int rc = vs_field_build_deferred(in, in + 2 * r->n, r->n, f->margin_m, in + 3 * r->n, r->n_obstacles, goal,
+                                         r->cell_m, r->n_headings, r->max_states, &r->fine);
+        if (rc != VS_OK) return rc;
+        r->built = 1;
+    }
+    *g = &r->fine;
+    return VS_OK;
+}
+
+int vs_field_refine_now(const vs_field *f)
+{
+    if (f == NULL || f->cost == NULL) return VS_EVALUE;
+    const vs_field *g;
+    return refined(f, &g);
+}
+
+int vs_field_refined(const vs_field *f)
+{
+    return f != NULL && f->refine != NULL && f->refine->built;
+}
+
+int vs_field_open(const vs_field *f, const double pose[3], int *tight)
+{
+    if (open_one(f, pose, tight)) return 1;
+    const vs_field *g;
+    /* the finer lattice's answer where it is open (a build that fails: not open, as a resolution that fails); its
+     * components the goal cannot reach are never resolved: its answer is taken only where it has a way */
+    if (f->refine == NULL || refined(f, &g) != VS_OK || !reachable_near(g, pose)) return 0;
+    return open_one(g, pose, tight);
+}
+
+int vs_field_follow(const vs_field *f, const double pose[3], double path_m, double *waypoints, size_t cap,
+                    size_t *n_waypoints, int *blocked, double *left_m)
+{
+    if (f == NULL || f->cost == NULL || cap < 2) return VS_EVALUE;
+    if (!finite3(pose, 3) || !vs_isfinite(path_m)) return VS_ENONFINITE;
+    int rc = follow_one(f, pose, path_m, waypoints, cap, n_waypoints, blocked, left_m);
+    if (rc != VS_OK || !*blocked || f->refine == NULL) return rc;
+    /* no way on this lattice: the finer one's, if it has one from here (else this one's answer stands) */
+    const vs_field *g;
+    if ((rc = refined(f, &g)) != VS_OK) return rc;
+    return reachable_near(g, pose) ? follow_one(g, pose, path_m, waypoints, cap, n_waypoints, blocked, left_m) : VS_OK;
 }

@@ -51,6 +51,8 @@
 #define VS_FIELD_W_DIAG 14u
 #define VS_FIELD_SEARCH_CELLS 4            /* a descent's start is looked for this many cells around the pose */
 
+struct vs_field_refine;   /* vs_field_set_refine: a finer lattice of the same room (vs_field.c) */
+
 typedef struct {
     double gx, gy, gth;        /* the goal pose [m, rad; world], gth wrapped to [-pi, pi) */
     double cell_m;             /* h [m] (may be larger than asked: max_states) */
@@ -63,6 +65,7 @@ typedef struct {
     uint32_t w_rot;
     int goal_free;             /* 0: the goal pose itself is not free: every state is blocked */
     uint32_t *cost;            /* (K, ny, nx) row-major: index (k * ny + row) * nx + column */
+    struct vs_field_refine *refine;   /* NULL, or the finer lattice to ask where this one has no way (set_refine) */
 } vs_field;
 
 /* Build the field for a mission.  template_xy (n, 2) [m; structure frame]; radius_m (n) >= 0 [m];
@@ -116,5 +119,28 @@ int vs_field_open(const vs_field *f, const double pose[3], int *tight);
 
 int vs_field_follow(const vs_field *f, const double pose[3], double path_m, double *waypoints, size_t cap,
                     size_t *n_waypoints, int *blocked, double *left_m);
+
+/* Refinement (since 2026-12-07).  A lattice coarse enough for a large room (its cell grown to fit max_states, or a
+ * long structure's turns) can close a passage the bodies clear by a few centimetres: the field then has no way where
+ * a finer lattice of the same room has one (bench/room.py rooms 70 and 130: a line of 10 robots, cells of 7.3 cm,
+ * sealed from the goal; at 128 headings and 6 million states, cells of 4.7 cm, open).  vs_field_set_refine arms f
+ * with that finer lattice: the same room (template_xy, radius_m, obstacles: the inputs f was built from; f's margin
+ * and goal) at cell_m, n_headings and max_states (as vs_field_build takes them; the inputs are copied).  From then
+ * on, where f itself has no way from a pose (vs_field_follow's *blocked, vs_field_open's 0), the finer lattice is
+ * asked, and its answer is taken when it has a way from that pose; otherwise f's answer stands.  So the answers are a
+ * function of the room and the pose alone, as before: every agent gets the same, whenever it builds the finer field.
+ * The finer field is built (vs_field_build_deferred) by the first call that needs it, or by vs_field_refine_now (an
+ * agent's prepare thread), into memory that f owns and vs_field_free releases.  One caller at a time, as for the
+ * components a deferred build resolves; a build that fails (VS_ENOMEM) is tried again by the next call that needs it:
+ * vs_field_follow returns its error, vs_field_open answers 0.  VS_EVALUE: f not built, already armed, or bad sizes. */
+int vs_field_set_refine(vs_field *f, const double *template_xy, const double *radius_m, size_t n,
+                        const double *obstacles, size_t n_obstacles, double cell_m, size_t n_headings,
+                        size_t max_states);
+
+/* Build f's finer lattice now, if f has one and it is not built yet (VS_OK otherwise). */
+int vs_field_refine_now(const vs_field *f);
+
+/* 1 when f's finer lattice is built. */
+int vs_field_refined(const vs_field *f);
 
 #endif
