@@ -348,6 +348,24 @@ def test_the_barrier_brings_room_149_round_its_bend():
     assert all(not ds for ds in run.decisions.values())
 
 
+def test_a_line_of_10_takes_the_finer_lattices_way_out_of_room_70_in_time_and_says_nothing():
+    """bench/room.py's room 70: a line of 10 robots in a bend. The room's own lattice (cells of 7.3 cm, to fit 2
+    million states) has no way from the start, and every agent said 'blocked, no path' at its first frame
+    (docs/benchmarks.md 8s); its finer lattice (vsfleet.field.field_refinement: 128 headings, 6 million states) has
+    one. The fleet now reaches the goal within 1.5x the reference time (OMPL's path, 4.41 m at 0.1 m/s), no agent
+    says blocked, and no body comes within the safety filter's 15 mm of another or of an obstacle."""
+    import sys
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))   # bench/
+    from bench.room import make_room, to_scenario
+
+    room = make_room(70)
+    scenario = to_scenario(room, 66.0)
+    run = run_offline(scenario, 66.0, seed=70)
+    assert run.t_goal_s is not None and run.t_goal_s <= 1.5 * 44.14
+    assert all(e.kind not in ("blocked", "unblocked") for evs in run.events.values() for e in evs)
+    assert gap_of(scenario, run) > 0.015
+
+
 # Room 174's fitted pose at 47.17 s (seed 174, frame 1414; a line of 10 robots in a 0.25 m gap of a thin wall): the
 # pose's own cell is free at one heading of the five looked at, a sliver of one state the goal cannot be reached
 # from, and the way to the goal runs through the ring around it

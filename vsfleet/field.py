@@ -181,7 +181,8 @@ class Field:
         return self._fine is not None
 
     def fine(self) -> "Field | None":
-        """A reference field's finer lattice, built on first use (None: none)."""
+        """A reference field's finer lattice, built on first use (None: none; a core field's lives in the core,
+        which the reference functions do not read: give them a reference field)."""
         if self._fine is None and self._fine_build is not None:
             self._fine = self._fine_build()
         return self._fine
