@@ -75,8 +75,8 @@ def test_the_core_and_the_reference_take_the_finer_lattices_way_where_the_coarse
 
 
 def test_the_finer_lattice_is_built_only_when_a_pose_needs_it_and_early_or_late_the_answers_are_the_same():
-    """Built by the first descent with no way on the room's own lattice (lazy), or ahead of any (eager, as an
-    agent's prepare thread may): every answer the same. A field no pose of which needs it never builds it."""
+    """Built by the first descent with no way on the room's own lattice (lazy), or ahead of any (eager,
+    field_refine_now): every answer the same. A field no pose of which needs it never builds it."""
     rng = np.random.default_rng(29)   # golden_core.refine_records' rooms and poses
     needed = unneeded = 0
     for _ in range(16):
@@ -117,6 +117,13 @@ def test_a_refinement_is_refused_twice_or_with_bad_sizes_with_a_typed_error():
             _core.field_set_refine(g.handle, *args, heads, states)
     with pytest.raises(ValueError):
         _core.field_set_refine(g.handle, args[0], args[1][:1], args[2], 0.04, *FINE)   # radii of another template
+    # what vs_field_build refuses is refused now, not by every descent that would ask the finer lattice
+    far, flat, negative = args[0].copy(), args[2].copy(), args[1].copy()
+    far[0], flat[2], negative[0] = 2e6, 0.0, -0.01
+    for bad in ((far, args[1], args[2]), (args[0], args[1], flat), (args[0], negative, args[2])):
+        with pytest.raises(VsfleetValueError):
+            _core.field_set_refine(g.handle, *bad, 0.04, *FINE)
+    assert follow_field(g, goal)[1] is False and g.refine is None
 
 
 def test_the_rule_arms_a_finer_lattice_only_where_it_inflates_at_least_5_mm_less():

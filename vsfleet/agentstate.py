@@ -131,7 +131,8 @@ class CoreMission:
 # CoreMissions held: by the mission object (the fast path, one dict lookup a frame) and by its content, so that
 # equal missions share one (the agents of an offline run each decode their own copy: 30 or 100 of them used to
 # rebuild theirs every frame, past the 16 held). Every CoreMission alive is in _BY_VALUE: both are cleared together,
-# so at most MISSIONS_HELD are held (each holds its room's fields, up to 8 MB each).
+# so at most MISSIONS_HELD are held (each holds its room's fields, up to 8 MB each, 32 MB once a field has built its
+# finer lattice: vsfleet.field.field_refinement).
 MISSIONS_HELD = 16
 _MISSIONS: dict[int, tuple[Mission, CoreMission]] = {}
 _BY_VALUE: dict[Mission, CoreMission] = {}

@@ -165,8 +165,9 @@ class Field:
         self._fine_build, self._fine = fine_build, None
 
     def refine_now(self) -> bool:
-        """Build the finer lattice now if there is one (an agent's prepare thread: off the frame path); whether it
-        is built. The answers are the same whenever it is built."""
+        """Build the finer lattice now if there is one; whether it is built. The answers are the same whenever it is
+        built. Not beside another thread that follows this field (the core's build writes into it unlocked): the agent
+        does not call it; its first frame with no way on the room's own lattice builds it."""
         if self.refine is None:
             return False
         if self.handle is not None:
@@ -253,8 +254,9 @@ def build_field_reference(template_xy, radius_m, margin_m: float, obstacles, goa
     if refine is not None:
         fld = build_field_reference(template_xy, radius_m, margin_m, obstacles, goal, cell_m, n_headings, max_states)
         fld.refine = (int(refine[0]), int(refine[1]))
-        fld._fine_build = lambda: build_field_reference(template_xy, radius_m, margin_m, obstacles, goal, cell_m,
-                                                        fld.refine[0], fld.refine[1])
+        # the inputs copied now, as the core's vs_field_set_refine copies them
+        tpl, rad, obs = (np.array(a, dtype=float) for a in (template_xy, radius_m, obstacles))
+        fld._fine_build = lambda: build_field_reference(tpl, rad, margin_m, obs, goal, cell_m, *fld.refine)
         return fld
     from scipy.sparse.csgraph import connected_components, dijkstra  # noqa: PLC0415 - the reference only
     if not (4 <= n_headings <= 1024 and 1024 <= max_states <= 1_000_000_000 and 9 * n_headings <= max_states):

@@ -51,9 +51,11 @@ int __wrap_posix_memalign(void **p, size_t alignment, size_t size)
 #define RING 24
 #define CAP 400
 
-/* A field armed with a finer lattice (vs_field_set_refine), where the finer lattice's build, or its resolution, runs
- * out of memory at each of its allocations in turn: the descent returns VS_ENOMEM, the finer lattice is not kept,
- * and a later descent, with memory, answers as a field that never ran out, bit for bit.  The room: the ring above
+/* A field armed with a finer lattice (vs_field_set_refine), where the finer lattice's build (its raster's scratch,
+ * its cost array, its goal's Dijkstra: its blocked components are never resolved) runs out of memory at each of its
+ * allocations in turn: the descent returns VS_ENOMEM, the finer lattice is not kept (vs_field_refined 0), and a later
+ * descent, with memory, answers as a field that never ran out, bit for bit; so does the shape test, which answers 0
+ * (shut) while the build fails.  The room: the ring above
  * with one obstacle left out, two robots 0.3 m apart; its lattice grown to cells of 19 cm (8,000 states) closes the
  * gap, the finer one (40,000 states, cells of 7.8 cm) opens it. */
 static int refine_nomem(void)
@@ -92,11 +94,24 @@ static int refine_nomem(void)
         armed = -1;
         if (hit) {
             failed++;
-            if (rc != VS_ENOMEM) {
-                printf("refine: allocation %ld failed: rc %d\n", k, rc);
+            if (rc != VS_ENOMEM || vs_field_refined(&d)) {
+                printf("refine: allocation %ld failed: rc %d, a finer lattice %s\n", k, rc,
+                       vs_field_refined(&d) ? "kept" : "not kept");
+                return 1;
+            }
+            int tight = 0;
+            armed = k;   /* the shape test, failing the same allocation: shut, nothing kept */
+            int open = vs_field_open(&d, pose, &tight);
+            armed = -1;
+            if (open || vs_field_refined(&d)) {
+                printf("refine: allocation %ld failed in the shape test: open %d\n", k, open);
                 return 1;
             }
             rc = vs_field_follow(&d, pose, 50.0, w, CAP, &n, &b, &left);   /* again, with memory */
+            if (rc == VS_OK && (!vs_field_open(&d, pose, &tight) || !vs_field_refined(&d))) {
+                printf("refine: allocation %ld: with memory, the shape test is not open\n", k);
+                return 1;
+            }
         }
         if (rc != VS_OK || n != n_ref || b != b_ref || memcmp(&left, &left_ref, sizeof left) != 0 ||
             memcmp(w, w_ref, sizeof(double) * 3 * n) != 0) {
@@ -108,7 +123,7 @@ static int refine_nomem(void)
     }
     vs_field_free(&ref);
     printf("field_nomem: refine: %ld failed allocations, each VS_ENOMEM, then the same descent; ok\n", failed);
-    return failed >= 3 ? 0 : 1;   /* the finer build's scratch and cost array, and its resolution */
+    return failed >= 3 ? 0 : 1;   /* the finer build's scratch, its cost array and its Dijkstra's buckets at least */
 }
 
 int main(void)

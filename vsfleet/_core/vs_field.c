@@ -886,6 +886,16 @@ int vs_field_set_refine(vs_field *f, const double *template_xy, const double *ra
         !vs_isfinite(cell_m))
         return VS_ENONFINITE;
     if (!(cell_m >= 1e-3) || cell_m > VS_FIELD_MAX_ABS_M) return VS_EVALUE;
+    for (size_t i = 0; i < 2 * n; i++)   /* build's own checks: refused now, not by every descent that asks */
+        if (vs_fabs(template_xy[i]) > VS_FIELD_MAX_ABS_M) return VS_EVALUE;
+    for (size_t i = 0; i < n; i++)
+        if (!(radius_m[i] >= 0.0) || radius_m[i] > VS_FIELD_MAX_ABS_M) return VS_EVALUE;
+    for (size_t j = 0; j < n_obstacles; j++) {
+        const double *o = obstacles + 3 * j;
+        if (vs_fabs(o[0]) > VS_FIELD_MAX_ABS_M || vs_fabs(o[1]) > VS_FIELD_MAX_ABS_M || !(o[2] > 0.0) ||
+            o[2] > VS_FIELD_MAX_ABS_M)
+            return VS_EVALUE;
+    }
     if (n > (SIZE_MAX / sizeof(double) - 3 * n_obstacles) / 3) return VS_ENOMEM;
     struct vs_field_refine *r = malloc(sizeof *r);
     double *in = malloc(sizeof(double) * (3 * n + 3 * n_obstacles + 1));   /* + 1: never malloc(0) */
@@ -953,10 +963,13 @@ int vs_field_follow(const vs_field *f, const double pose[3], double path_m, doub
 {
     if (f == NULL || f->cost == NULL || cap < 2) return VS_EVALUE;
     if (!finite3(pose, 3) || !vs_isfinite(path_m)) return VS_ENONFINITE;
-    int rc = follow_one(f, pose, path_m, waypoints, cap, n_waypoints, blocked, left_m);
-    if (rc != VS_OK || !*blocked || f->refine == NULL) return rc;
-    /* no way on this lattice: the finer one's, if it has one from here (else this one's answer stands) */
-    const vs_field *g;
-    if ((rc = refined(f, &g)) != VS_OK) return rc;
-    return reachable_near(g, pose) ? follow_one(g, pose, path_m, waypoints, cap, n_waypoints, blocked, left_m) : VS_OK;
+    if (f->refine != NULL && !reachable_near(f, pose)) {
+        /* no way on this lattice (its descent would say blocked): the finer one's, if it has one from here; else
+         * this one's answer stands */
+        const vs_field *g;
+        int rc = refined(f, &g);
+        if (rc != VS_OK) return rc;
+        if (reachable_near(g, pose)) return follow_one(g, pose, path_m, waypoints, cap, n_waypoints, blocked, left_m);
+    }
+    return follow_one(f, pose, path_m, waypoints, cap, n_waypoints, blocked, left_m);
 }

@@ -109,12 +109,13 @@ void vs_field_nearest(const vs_field *f, const double pose[3], size_t *col, size
  * *blocked: the goal cannot be reached from here (the
  * descent ends at the closest safe pose); *left_m [m]: then, how far that pose is from the goal (0 when not
  * blocked).  cap >= 2.  No allocation; O(path_m / h) per call (plus the target's descent when blocked); on a
- * deferred field, the first call that needs a component resolves it (vs_field_build_deferred). */
+ * deferred field, the first call that needs a component resolves it (vs_field_build_deferred), and on a field armed
+ * with a finer lattice, the first call with no way on f builds that lattice (vs_field_set_refine). */
 /* 1 when the descent from the pose (vs_field_follow) starts on a free state from which the goal can be reached,
  * else 0 (no free state near, or a component the goal cannot reach): whether a shape can take its way from
  * this pose (vs_step.c chooses among a mission's shapes).  *tight: that start state lies in the comfort band
- * (VS_FIELD_TIGHT_BIT; 0 when there is none).  pose finite; no allocation (on a deferred field: as
- * vs_field_follow; a resolution that fails leaves 0, not open). */
+ * (VS_FIELD_TIGHT_BIT; 0 when there is none).  pose finite; no allocation (on a deferred field, or one armed with
+ * a finer lattice: as vs_field_follow; a resolution or a build that fails leaves 0, not open). */
 int vs_field_open(const vs_field *f, const double pose[3], int *tight);
 
 int vs_field_follow(const vs_field *f, const double pose[3], double path_m, double *waypoints, size_t cap,
@@ -129,15 +130,17 @@ int vs_field_follow(const vs_field *f, const double pose[3], double path_m, doub
  * on, where f itself has no way from a pose (vs_field_follow's *blocked, vs_field_open's 0), the finer lattice is
  * asked, and its answer is taken when it has a way from that pose; otherwise f's answer stands.  So the answers are a
  * function of the room and the pose alone, as before: every agent gets the same, whenever it builds the finer field.
- * The finer field is built (vs_field_build_deferred) by the first call that needs it, or by vs_field_refine_now (an
- * agent's prepare thread), into memory that f owns and vs_field_free releases.  One caller at a time, as for the
- * components a deferred build resolves; a build that fails (VS_ENOMEM) is tried again by the next call that needs it:
- * vs_field_follow returns its error, vs_field_open answers 0.  VS_EVALUE: f not built, already armed, or bad sizes. */
+ * The finer field is built (vs_field_build_deferred) by the first call that needs it, or by vs_field_refine_now,
+ * into memory that f owns and vs_field_free releases.  Not thread-safe: one caller at a time on f, as for the
+ * components a deferred build resolves (vs_field_refine_now included: never beside a frame that follows f).  A build
+ * that fails (VS_ENOMEM) keeps nothing and is tried again by the next call that needs it: vs_field_follow returns its
+ * error, vs_field_open answers 0.  VS_EVALUE: f not built, already armed, sizes out of range, or inputs vs_field_build
+ * would refuse (VS_ENONFINITE: not finite). */
 int vs_field_set_refine(vs_field *f, const double *template_xy, const double *radius_m, size_t n,
                         const double *obstacles, size_t n_obstacles, double cell_m, size_t n_headings,
                         size_t max_states);
 
-/* Build f's finer lattice now, if f has one and it is not built yet (VS_OK otherwise). */
+/* Build f's finer lattice now, if f has one and it is not built yet (VS_OK otherwise); one caller at a time on f. */
 int vs_field_refine_now(const vs_field *f);
 
 /* 1 when f's finer lattice is built. */
