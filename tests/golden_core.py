@@ -112,20 +112,30 @@ def refine_records(seed: int = 29, count: int = 16) -> list[tuple[str, list[floa
     rng = np.random.default_rng(seed)
     out = []
     for _ in range(count):
-        n = int(rng.integers(2, 6))
-        tpl = np.c_[rng.uniform(-0.3, 0.3, n), rng.uniform(-0.08, 0.08, n)]
-        radii = rng.uniform(0.02, 0.06, n)
-        gap_y, gap = float(rng.uniform(-0.5, 0.5)), float(rng.uniform(0.12, 0.4))
-        wall = [(0.0, y, 0.06) for y in np.arange(-2.0, 2.01, 0.1) if abs(y - gap_y) > gap / 2]
-        pillars = [(*rng.uniform(-1.5, 1.5, 2), float(rng.uniform(0.05, 0.2))) for _ in range(int(rng.integers(0, 4)))]
-        obs = np.array(wall + pillars)
-        goal = [float(rng.uniform(0.6, 1.2)), float(rng.uniform(-0.5, 0.5)), float(rng.uniform(-4.0, 4.0))]
-        build = [float(n), float(len(obs)), 0.02, 0.04, 8.0, 1500.0, *goal, *tpl.ravel(), *radii, *obs.ravel()]
+        tpl, radii, obs, goal = gap_room(rng)
+        build = [float(len(tpl)), float(len(obs)), 0.02, 0.04, 8.0, 1500.0, *goal, *tpl.ravel(), *radii, *obs.ravel()]
         for _ in range(2):
-            pose = [float(rng.uniform(-1.4, -0.5)), float(rng.uniform(-0.6, 0.6)), float(rng.uniform(-4.0, 4.0)),
-                    float(rng.choice([0.5, 2.0, 50.0]))]
+            pose = [*far_side(rng), float(rng.choice([0.5, 2.0, 50.0]))]
             out.append(("field_refine", build + [16.0, 60000.0] + pose))
     return out
+
+
+def gap_room(rng) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[float]]:
+    """refine_records' room: a line-like structure of 2-5 robots (template (n, 2), radii (n,)), a thin wall of discs
+    across x = 0 with one gap about its width, 0-3 pillars (obstacles (m, 3)), and a goal (x, y, th) beyond the wall."""
+    n = int(rng.integers(2, 6))
+    tpl = np.c_[rng.uniform(-0.3, 0.3, n), rng.uniform(-0.08, 0.08, n)]
+    radii = rng.uniform(0.02, 0.06, n)
+    gap_y, gap = float(rng.uniform(-0.5, 0.5)), float(rng.uniform(0.12, 0.4))
+    wall = [(0.0, y, 0.06) for y in np.arange(-2.0, 2.01, 0.1) if abs(y - gap_y) > gap / 2]
+    pillars = [(*rng.uniform(-1.5, 1.5, 2), float(rng.uniform(0.05, 0.2))) for _ in range(int(rng.integers(0, 4)))]
+    goal = [float(rng.uniform(0.6, 1.2)), float(rng.uniform(-0.5, 0.5)), float(rng.uniform(-4.0, 4.0))]
+    return tpl, radii, np.array(wall + pillars), goal
+
+
+def far_side(rng) -> list[float]:
+    """A structure pose (x, y, th) on the far side of gap_room's wall."""
+    return [float(rng.uniform(-1.4, -0.5)), float(rng.uniform(-0.6, 0.6)), float(rng.uniform(-4.0, 4.0))]
 
 
 def main(only: str | None = None) -> None:

@@ -5,6 +5,9 @@ built; the rule that arms it, a function of the mission alone; and the bench roo
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -25,6 +28,9 @@ from vsfleet.field import (
 )
 from vsfleet.geometry import Pose2
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import golden_core  # noqa: E402 - tests/: the golden records' rooms
+
 # the coarse lattice grown to fit 1,500 states, the finer one of 60,000 at 16 headings (tests/golden_core.py's
 # refine_records: rooms small enough for the reference)
 COARSE = dict(cell_m=0.04, n_headings=8, max_states=1500)
@@ -33,20 +39,13 @@ MARGIN_M = 0.02
 
 
 def gap_room(rng):
-    """A line-like structure of 2-5 robots, a thin wall of discs across x = 0 with one gap about its width, a few
-    pillars, and a goal beyond the wall."""
-    n = int(rng.integers(2, 6))
-    tpl = np.c_[rng.uniform(-0.3, 0.3, n), rng.uniform(-0.08, 0.08, n)]
-    rad = rng.uniform(0.02, 0.06, n)
-    gap_y, gap = float(rng.uniform(-0.5, 0.5)), float(rng.uniform(0.12, 0.4))
-    wall = [(0.0, y, 0.06) for y in np.arange(-2.0, 2.01, 0.1) if abs(y - gap_y) > gap / 2]
-    pillars = [(*rng.uniform(-1.5, 1.5, 2), float(rng.uniform(0.05, 0.2))) for _ in range(int(rng.integers(0, 4)))]
-    goal = Pose2(float(rng.uniform(0.6, 1.2)), float(rng.uniform(-0.5, 0.5)), float(rng.uniform(-4.0, 4.0)))
-    return tpl, rad, np.array(wall + pillars), goal
+    """golden_core.gap_room's room, its goal a Pose2."""
+    tpl, rad, obs, goal = golden_core.gap_room(rng)
+    return tpl, rad, obs, Pose2(*goal)
 
 
 def far_side(rng) -> Pose2:
-    return Pose2(float(rng.uniform(-1.4, -0.5)), float(rng.uniform(-0.6, 0.6)), float(rng.uniform(-4.0, 4.0)))
+    return Pose2(*golden_core.far_side(rng))
 
 
 def test_the_core_and_the_reference_take_the_finer_lattices_way_where_the_coarse_one_has_none_bit_for_bit():

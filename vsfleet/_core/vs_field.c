@@ -388,6 +388,24 @@ static void raster_all(raster_job jobs[2])
     raster_headings(&jobs[0]);
 }
 
+/* 1 when the room's finite values are in range: |coordinates| and radii <= VS_FIELD_MAX_ABS_M, body radii >= 0,
+ * obstacle radii > 0 */
+static int room_in_range(const double *template_xy, const double *radius_m, size_t n, const double *obstacles,
+                         size_t n_obstacles)
+{
+    for (size_t i = 0; i < 2 * n; i++)
+        if (vs_fabs(template_xy[i]) > VS_FIELD_MAX_ABS_M) return 0;
+    for (size_t i = 0; i < n; i++)
+        if (!(radius_m[i] >= 0.0) || radius_m[i] > VS_FIELD_MAX_ABS_M) return 0;
+    for (size_t j = 0; j < n_obstacles; j++) {
+        const double *o = obstacles + 3 * j;
+        if (vs_fabs(o[0]) > VS_FIELD_MAX_ABS_M || vs_fabs(o[1]) > VS_FIELD_MAX_ABS_M || !(o[2] > 0.0) ||
+            o[2] > VS_FIELD_MAX_ABS_M)
+            return 0;
+    }
+    return 1;
+}
+
 static int build(const double *template_xy, const double *radius_m, size_t n, double margin_m,
                  const double *obstacles, size_t n_obstacles, const double goal[3], double cell_m,
                  size_t n_headings, size_t max_states, int defer, vs_field *out)
@@ -400,16 +418,7 @@ static int build(const double *template_xy, const double *radius_m, size_t n, do
         return VS_ENONFINITE;
     if (!(cell_m >= 1e-3) || cell_m > VS_FIELD_MAX_ABS_M || !(margin_m >= 0.0) || margin_m > VS_FIELD_MAX_ABS_M)
         return VS_EVALUE;
-    for (size_t i = 0; i < 2 * n; i++)
-        if (vs_fabs(template_xy[i]) > VS_FIELD_MAX_ABS_M) return VS_EVALUE;
-    for (size_t i = 0; i < n; i++)
-        if (!(radius_m[i] >= 0.0) || radius_m[i] > VS_FIELD_MAX_ABS_M) return VS_EVALUE;
-    for (size_t j = 0; j < n_obstacles; j++) {
-        const double *o = obstacles + 3 * j;
-        if (vs_fabs(o[0]) > VS_FIELD_MAX_ABS_M || vs_fabs(o[1]) > VS_FIELD_MAX_ABS_M || !(o[2] > 0.0) ||
-            o[2] > VS_FIELD_MAX_ABS_M)
-            return VS_EVALUE;
-    }
+    if (!room_in_range(template_xy, radius_m, n, obstacles, n_obstacles)) return VS_EVALUE;
     for (int i = 0; i < 2; i++)
         if (vs_fabs(goal[i]) > VS_FIELD_MAX_ABS_M) return VS_EVALUE;
     if (vs_fabs(goal[2]) > VS_FIELD_MAX_ABS_M) return VS_EVALUE;
@@ -886,16 +895,8 @@ int vs_field_set_refine(vs_field *f, const double *template_xy, const double *ra
         !vs_isfinite(cell_m))
         return VS_ENONFINITE;
     if (!(cell_m >= 1e-3) || cell_m > VS_FIELD_MAX_ABS_M) return VS_EVALUE;
-    for (size_t i = 0; i < 2 * n; i++)   /* build's own checks: refused now, not by every descent that asks */
-        if (vs_fabs(template_xy[i]) > VS_FIELD_MAX_ABS_M) return VS_EVALUE;
-    for (size_t i = 0; i < n; i++)
-        if (!(radius_m[i] >= 0.0) || radius_m[i] > VS_FIELD_MAX_ABS_M) return VS_EVALUE;
-    for (size_t j = 0; j < n_obstacles; j++) {
-        const double *o = obstacles + 3 * j;
-        if (vs_fabs(o[0]) > VS_FIELD_MAX_ABS_M || vs_fabs(o[1]) > VS_FIELD_MAX_ABS_M || !(o[2] > 0.0) ||
-            o[2] > VS_FIELD_MAX_ABS_M)
-            return VS_EVALUE;
-    }
+    /* the build's own checks: refused now, not by every descent that would ask the finer lattice */
+    if (!room_in_range(template_xy, radius_m, n, obstacles, n_obstacles)) return VS_EVALUE;
     if (n > (SIZE_MAX / sizeof(double) - 3 * n_obstacles) / 3) return VS_ENOMEM;
     struct vs_field_refine *r = malloc(sizeof *r);
     double *in = malloc(sizeof(double) * (3 * n + 3 * n_obstacles + 1));   /* + 1: never malloc(0) */
