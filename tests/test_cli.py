@@ -159,6 +159,43 @@ def test_help_prints_the_usage_and_exits_0(capsys):
     assert capsys.readouterr().err.startswith("usage: vsfleet [--version] [--verbose] COMMAND")
 
 
+def test_a_signal_the_programs_stop_flag_took_before_the_wait_began_stops_the_wait():
+    """run_agent makes its StopFlag (its SIGTERM handler), then opens its session: a SIGTERM between the two was
+    recorded by the flag, which the wait for the router did not read, so a forked agent told to stop at once waited
+    for ever (a CI rehearsal with a busy core, 2026-12-07). The wait now takes a signal its predecessor recorded."""
+    import signal
+    import threading
+    import time
+
+    from vsfleet.fleetctl.router import free_loopback_port
+    from vsfleet.zglue.lifecycle import StopFlag
+    from vsfleet.zglue.zconf import StoppedWaiting, _open_waiting
+
+    port = free_loopback_port()
+    before = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
+    router = None
+    try:
+        flag = StopFlag()
+        signal.raise_signal(signal.SIGTERM)   # handled now, by the flag's handler: recorded, nothing else
+        assert flag.signalled == signal.SIGTERM
+        t0 = time.monotonic()
+        with pytest.raises(StoppedWaiting) as stopped:
+            _open_waiting(config("--mode", "client", "--connect", f"tcp/127.0.0.1:{port}",
+                                 "--no-multicast-scouting", "--wait"), log_every_s=0.2)
+        assert time.monotonic() - t0 < 5.0
+        assert "stopped by SIGTERM" in str(stopped.value)
+        assert signal.getsignal(signal.SIGTERM) == flag._on_signal   # the program's own handler, back in place
+    finally:
+        for s, h in before.items():
+            signal.signal(s, h)
+        router = zenoh.open(config("--mode", "router", "--listen", f"tcp/127.0.0.1:{port}",
+                                   "--no-multicast-scouting"))
+        for worker in [t for t in threading.enumerate() if t.name == "zenoh-open"]:
+            worker.join(timeout=30)
+        router.close()
+    assert not any(t.name == "zenoh-open" for t in threading.enumerate())
+
+
 def test_a_signal_that_lands_inside_a_log_call_while_waiting_still_stops_the_wait(caplog):
     """SIGTERM delivered while the waiting loop writes its "still waiting" line: logging swallows what
     a handler raises, so a signal handler that raised lost the stop and the program waited on (seen in

@@ -19,6 +19,8 @@ import time
 
 import zenoh
 
+from .lifecycle import StopFlag
+
 log = logging.getLogger(__name__)
 
 # QoS (documented, with the fan-in measurements behind it, in docs/protocol.md). Frames and commands
@@ -260,6 +262,13 @@ def _open_waiting(conf: zenoh.Config, log_every_s: float) -> zenoh.Session:
 
     in_main = threading.current_thread() is threading.main_thread()
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGTERM, signal.SIGINT)} if in_main else {}
+    # a signal the program's own StopFlag took before this handler was in place (run_agent makes its StopFlag, then
+    # opens its session): a forked agent told to stop at once waited for its router for ever (a CI rehearsal under a
+    # busy loop, 2026-12-07: SIGTERM came 0.5 s after the fork, inside that window)
+    for handler in previous.values():
+        flag = getattr(handler, "__self__", None)
+        if isinstance(flag, StopFlag) and flag.signalled is not None and not stopped:
+            stopped.append(flag.signalled)
     t0 = time.monotonic()
     worker = threading.Thread(target=work, name="zenoh-open", daemon=True)
     try:
