@@ -117,18 +117,21 @@ def test_a_forked_agent_is_its_own_process_with_its_command_line_log_session_and
     from vsfleet.fleetctl.run import STOPPED_CODES, Children, child_command
 
     children = Children(tmp_path)
-    bad = children.start_agent("agent-bad", ["--robot", "bad/id"])
-    assert bad.wait(timeout=30) == 2
-    assert "robot must match" in children.last_line("agent-bad")
-    # an agent waiting for a router that is not there, until it is told to stop
-    args = ["--robot", "r1", "--fleet", "forked", "--mode", "client", "--connect",
-            f"tcp/127.0.0.1:{free_loopback_port()}", "--no-multicast-scouting", "--wait"]
-    waiting = children.start_agent("agent-r1", args)
-    cmdline = [a.decode() for a in Path(f"/proc/{waiting.pid}/cmdline").read_bytes().split(b"\0") if a]
-    assert cmdline == child_command("agent", *args)
-    assert os.getsid(waiting.pid) == waiting.pid and waiting.poll() is None
-    server = children.forks.proc
-    waiting.send_signal(signal.SIGTERM)
-    assert waiting.wait(timeout=30) in STOPPED_CODES
-    assert children.stop(["agent-r1"])  # every child has ended: so does the fork server
-    assert children.forks is None and server.wait(timeout=10) == 0
+    try:
+        bad = children.start_agent("agent-bad", ["--robot", "bad/id"])
+        assert bad.wait(timeout=30) == 2
+        assert "robot must match" in children.last_line("agent-bad")
+        # an agent waiting for a router that is not there, until it is told to stop
+        args = ["--robot", "r1", "--fleet", "forked", "--mode", "client", "--connect",
+                f"tcp/127.0.0.1:{free_loopback_port()}", "--no-multicast-scouting", "--wait"]
+        waiting = children.start_agent("agent-r1", args)
+        cmdline = [a.decode() for a in Path(f"/proc/{waiting.pid}/cmdline").read_bytes().split(b"\0") if a]
+        assert cmdline == child_command("agent", *args)
+        assert os.getsid(waiting.pid) == waiting.pid and waiting.poll() is None
+        server = children.forks.proc
+        waiting.send_signal(signal.SIGTERM)
+        assert waiting.wait(timeout=30) in STOPPED_CODES
+        assert children.stop(["agent-r1"])  # every child has ended: so does the fork server
+        assert children.forks is None and server.wait(timeout=10) == 0
+    finally:   # a failed assertion leaves no agent behind (one waited for its router for good, 2026-12-07)
+        children.stop()
