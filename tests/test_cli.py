@@ -159,6 +159,17 @@ def test_help_prints_the_usage_and_exits_0(capsys):
     assert capsys.readouterr().err.startswith("usage: vsfleet [--version] [--verbose] COMMAND")
 
 
+def end_abandoned_waits(port: int) -> None:
+    """A router on ``port``: the abandoned zenoh.open of a stopped wait connects, its worker closes the session and
+    ends; waits for those workers."""
+    import threading
+
+    router = zenoh.open(config("--mode", "router", "--listen", f"tcp/127.0.0.1:{port}", "--no-multicast-scouting"))
+    for worker in [t for t in threading.enumerate() if t.name == "zenoh-open"]:
+        worker.join(timeout=30)
+    router.close()
+
+
 def test_a_signal_the_programs_stop_flag_took_before_the_wait_began_stops_the_wait():
     """run_agent makes its StopFlag (its SIGTERM handler), then opens its session: a SIGTERM between the two was
     recorded by the flag, which the wait for the router did not read, so a forked agent told to stop at once waited
@@ -173,7 +184,6 @@ def test_a_signal_the_programs_stop_flag_took_before_the_wait_began_stops_the_wa
 
     port = free_loopback_port()
     before = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
-    router = None
     try:
         flag = StopFlag()
         signal.raise_signal(signal.SIGTERM)   # handled now, by the flag's handler: recorded, nothing else
@@ -188,11 +198,7 @@ def test_a_signal_the_programs_stop_flag_took_before_the_wait_began_stops_the_wa
     finally:
         for s, h in before.items():
             signal.signal(s, h)
-        router = zenoh.open(config("--mode", "router", "--listen", f"tcp/127.0.0.1:{port}",
-                                   "--no-multicast-scouting"))
-        for worker in [t for t in threading.enumerate() if t.name == "zenoh-open"]:
-            worker.join(timeout=30)
-        router.close()
+        end_abandoned_waits(port)
     assert not any(t.name == "zenoh-open" for t in threading.enumerate())
 
 
@@ -229,7 +235,6 @@ def test_a_signal_that_lands_inside_a_log_call_while_waiting_still_stops_the_wai
     logger.setLevel(logging.INFO)
     # a second SIGTERM 3 s later, outside any log call: a wait that lost the first one ends then, late
     watchdog = threading.Timer(3.0, lambda: os.kill(os.getpid(), signal.SIGTERM))
-    router = None
     try:
         watchdog.start()
         with pytest.raises(StoppedWaiting) as stopped:
@@ -242,12 +247,7 @@ def test_a_signal_that_lands_inside_a_log_call_while_waiting_still_stops_the_wai
     finally:
         watchdog.cancel()
         logger.removeHandler(handler)
-        # let the abandoned zenoh.open connect, so that its worker closes the session and ends
-        router = zenoh.open(config("--mode", "router", "--listen", f"tcp/127.0.0.1:{port}",
-                                   "--no-multicast-scouting"))
-        for worker in [t for t in threading.enumerate() if t.name == "zenoh-open"]:
-            worker.join(timeout=30)
-        router.close()
+        end_abandoned_waits(port)
     assert not any(t.name == "zenoh-open" for t in threading.enumerate())
 
 
