@@ -53,6 +53,8 @@ from vsfleet.agentcore import (  # the agent's step, in the core and without num
     agent_payload_step,
     agent_step,
     core_mission_of,
+    first_plan,
+    in_first_plan,
     stop_command,
 )
 from vsfleet.wire import (
@@ -187,15 +189,23 @@ class Agent:
             return True
         return False
 
-    def await_prepared(self, mission: Mission) -> None:
-        """A frame is about to run ``mission``: if its prepare thread is still building its arrays, wait for that
-        build rather than start a second one beside it (the frame would build the same bits; it took the CPU the
-        thread needed and finished no sooner). Only the long way (tick) calls it: a mission's first frame never
-        goes in one pass (vsfleet.agentcore.agent_payload_step), and the thread is forgotten once awaited. The
-        caller holds the agent."""
-        thread = self._preparing.pop(mission.version, None)
-        if thread is not None:
-            thread.join()
+    def await_prepared(self, mission: Mission, t: float) -> None:
+        """A frame at time t [s] is about to run ``mission``: if its prepare thread is still building the arrays
+        it needs, wait for that build rather than start a second one beside it (the frame would build the same bits;
+        it took the CPU the thread needed and finished no sooner). A frame of the mission's first plan
+        (in_first_plan) waits for that plan's arrays only (PrepareThread.first_built), and the thread is kept for
+        the frames after it; any other waits for the whole build, and the thread is forgotten. Only the long way
+        (tick) calls it: a mission's first frame never goes in one pass (vsfleet.agentcore.agent_payload_step), and
+        a frame that may fall on either side of the first plan's end does not either. The caller holds the agent."""
+        thread = self._preparing.get(mission.version)
+        if thread is None:
+            return
+        first_built = getattr(thread, "first_built", None)
+        if first_built is not None and in_first_plan(mission, t):
+            first_built.wait()
+            return
+        del self._preparing[mission.version]
+        thread.join()
 
     def on_frame(self, key: str, payload: bytes, wake: bool = True) -> None:
         """Decode a frame (any thread) into the latest-frame slot of its source: a newer one replaces
@@ -410,7 +420,7 @@ class Agent:
         """decode -> step -> publish and log: one frame through the pure step."""
         mission = self.missions.active(frame.t)
         if self._preparing and mission is not None:
-            self.await_prepared(mission)
+            self.await_prepared(mission, frame.t)
         try:
             self.state, out = agent_step(self.state, mission, frame, self.clock(), self.config)
         except (VsfleetValueError, ArithmeticError, ValueError, MemoryError) as exc:
@@ -483,21 +493,37 @@ def fetch(session: zenoh.Session, selectors: tuple[str, ...], kind: str, inbox: 
         wake.set()
 
 
-def build_mission_arrays(mission: Mission) -> None:
-    """A mission's constants for the core and its room's field (vsfleet.agentcore.core_mission_of, memoised); a
-    failure is logged, and the frame that needs them builds them again and raises there."""
+def build_mission_arrays(mission: Mission, first_built: threading.Event | None = None) -> None:
+    """A mission's constants for the core and its room's field (vsfleet.agentcore.core_mission_of, memoised): those
+    of its first plan first, where it has one (first_plan; first_built is set once they are built, or have
+    failed), then its own; a failure is logged, and the frame that needs them builds them again and raises there."""
     try:
+        try:
+            if first_plan(mission):
+                core_mission_of(mission, True)
+        finally:
+            if first_built is not None:
+                first_built.set()
         core_mission_of(mission)
     except Exception:  # noqa: BLE001 - the frame that needs it builds it again and raises there
         log.exception("mission v%d: building its arrays failed", mission.version)
 
 
+class PrepareThread(threading.Thread):
+    """A mission's prepare thread (prepare_mission); first_built: set once its first plan's arrays are built."""
+
+    def __init__(self, mission: Mission):
+        self.first_built = threading.Event()
+        super().__init__(target=build_mission_arrays, args=(mission, self.first_built),
+                         name=f"prepare-v{mission.version}", daemon=True)
+
+
 def prepare_mission(mission: Mission) -> threading.Thread:
     """Build a new mission's arrays (build_mission_arrays) on a thread of their own, while the frames of the
     mission in force go on: the field takes up to ~0.2 s for a large room, and the mission takes effect later
-    (mission set: 0.5 s). A frame that needs it sooner waits for this thread (Agent.await_prepared)."""
-    thread = threading.Thread(target=build_mission_arrays, args=(mission,), name=f"prepare-v{mission.version}",
-                              daemon=True)
+    (mission set: 0.5 s). A frame that needs it sooner waits for this thread (Agent.await_prepared): a frame of the
+    mission's first plan (in_first_plan) only for that plan's arrays, which the thread builds first."""
+    thread = PrepareThread(mission)
     thread.start()
     return thread
 

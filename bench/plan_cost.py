@@ -5,9 +5,12 @@ and goal in opposite corners, every body clear of every pillar there by 5 cm (pi
 again). The fleets: the paper triangle (side 0.5 m, bodies of 0.09 m) in a room of 6 m; a 5 x 6 grid (spacing 0.3 m,
 bodies of 0.05-0.09 m) in a room of 12 m. For each room, on the compiled core:
 
-- ``plan``: what an agent does before its structure moves: the deferred build (vsfleet.field.build_field_deferred,
-  the lattice's headings by the structure as the agents choose them) and the first frame's descent from the start
-  (which resolves the start's component when the goal cannot be reached from it);
+- ``plan``: what an agent does before its structure moves: the deferred build (vsfleet.field.build_field_deferred)
+  of the field its first frames follow, and the first frame's descent from the start (which resolves the start's
+  component when the goal cannot be reached from it, and asks a finer lattice where this one has no way). That field
+  is the first plan's (vsfleet.field.first_lattice) where the room has one, else the room's own;
+- ``own``: the same for the room's own field (vsfleet.field.room_lattice), which the agents build meanwhile and follow
+  from the mission's FIRST_PLAN_S on (where the room has a first plan; else it is the plan);
 - ``whole``: the whole build (every component the goal cannot reach resolved up front), as before 2026-12-06;
 - ``follow``: one frame's descent (vsfleet.field.follow_field, 2 m of it), timed along the way from the start.
 
@@ -35,9 +38,10 @@ from pathlib import Path
 
 import numpy as np
 
-from vsfleet.field import build_field, follow_field, room_lattice
+from vsfleet.field import build_field, first_lattice, follow_field, room_lattice
 from vsfleet.geometry import Pose2
 from vsfleet.step import PLAN_MARGIN_M
+from vsfleet.structure import FIRST_PLAN_S
 
 CASES = {3: (64, 6.0), 30: (256, 12.0)}   # robots: (pillars, room side [m])
 
@@ -87,6 +91,16 @@ def best_of(fn, times: int = 3) -> tuple[float, float, object]:
     return best, best_cpu, out
 
 
+def start_lattice(tpl, rad, obs, goal) -> dict:
+    """The lattice of the field an agent's first frames follow: the first plan's where the room has one."""
+    return (first_lattice(tpl, rad, PLAN_MARGIN_M, obs, goal[:2])
+            or room_lattice(tpl, rad, PLAN_MARGIN_M, obs, goal[:2]))
+
+
+def way_m(way) -> float:
+    return float(np.hypot(*np.diff(np.asarray(way)[:, :2], axis=0).T).sum())
+
+
 def plan_room(tpl, rad, obs, start, goal, lattice: dict):
     """The room's plan as an agent makes it: (the deferred field, the first frame's descent from the start, which
     builds the finer lattice where the room's own has no way from there)."""
@@ -104,9 +118,14 @@ def first_plan_ms(n: int, seed: int) -> float:
 def measure(n: int, seed: int) -> dict:
     tpl, rad, obs, start, goal = room(n, seed)
     lattice = room_lattice(tpl, rad, PLAN_MARGIN_M, obs, goal[:2])
+    first_lat = first_lattice(tpl, rad, PLAN_MARGIN_M, obs, goal[:2])
     heads = lattice["n_headings"]
     args = (tpl, rad, PLAN_MARGIN_M, obs, Pose2(*goal))
-    plan_s, plan_cpu_s, (fld, first) = best_of(lambda: plan_room(tpl, rad, obs, start, goal, lattice))
+    own_s, own_cpu_s, (fld, _) = best_of(lambda: plan_room(tpl, rad, obs, start, goal, lattice))
+    plan_s, plan_cpu_s, first_way = own_s, own_cpu_s, None
+    if first_lat is not None:
+        plan_s, plan_cpu_s, (ffld, _) = best_of(lambda: plan_room(tpl, rad, obs, start, goal, first_lat))
+        first_way = follow_field(ffld, Pose2(*start), path_m=1e9, cap=200000)
     whole_s, _, _ = best_of(lambda: build_field(*args, n_headings=heads))
     way, blocked, _ = follow_field(fld, Pose2(*start), path_m=1e9, cap=200000)
     follow_us = []
@@ -117,7 +136,11 @@ def measure(n: int, seed: int) -> dict:
     lat = fld.lattice
     return {"n": n, "seed": seed, "obstacles": len(obs), "headings": heads, "cell_m": lat.cell_m,
             "states": lat.nx * lat.ny * lat.n_headings, "way": not blocked, "plan_ms": 1e3 * plan_s,
-            "plan_cpu_ms": 1e3 * plan_cpu_s, "first_ms": first_plan_ms(n, seed),
+            "plan_cpu_ms": 1e3 * plan_cpu_s, "first_ms": first_plan_ms(n, seed), "own_ms": 1e3 * own_s,
+            "first_plan": first_lat is not None,
+            # the first plan's way from the start against the room's own (its length, or None: no way, or none)
+            "first_way_ratio": (way_m(first_way[0]) / way_m(way) if first_way is not None and not first_way[1]
+                                and not blocked else None),
             "whole_ms": 1e3 * whole_s, "follow_us": statistics.median(follow_us)}
 
 
@@ -140,7 +163,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.first:
         tpl, rad, obs, start, goal = room(*args.first)
-        lattice = room_lattice(tpl, rad, PLAN_MARGIN_M, obs, goal[:2])
+        lattice = start_lattice(tpl, rad, obs, goal)
         t0 = time.perf_counter()
         plan_room(tpl, rad, obs, start, goal, lattice)
         print(f"{1e3 * (time.perf_counter() - t0):.3f}")
@@ -150,25 +173,34 @@ def main(argv=None) -> int:
         for seed in range(args.rooms):
             r = measure(n, seed)
             rows.append(r)
+            which = "the first plan" if r["first_plan"] else "the room's own"
             print(f"[{n} robots, room {seed + 1}/{args.rooms}] {r['obstacles']} obstacles, {r['states']:,} states, "
                   f"{'a way' if r['way'] else 'blocked'}: plan {r['plan_ms']:.1f} ms "
-                  f"(CPU {r['plan_cpu_ms']:.1f} ms; a fresh process's first {r['first_ms']:.1f} ms), "
+                  f"({which}; CPU {r['plan_cpu_ms']:.1f} ms; a "
+                  f"fresh process's first {r['first_ms']:.1f} ms), the room's own field {r['own_ms']:.1f} ms, "
                   f"whole build {r['whole_ms']:.1f} ms, follow {r['follow_us']:.1f} us", file=sys.stderr, flush=True)
     print(f"bench/plan_cost.py, {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC, {cpu()}, {os.cpu_count()} cores, "
           f"Python {platform.python_version()}\n")
-    print("| robots | obstacles | rooms (a way) | states | plan: deferred build + first descent, median / max | "
-          "the plan's CPU time, median / max | the plan, a fresh process's first field, median / max | "
+    print("| robots | obstacles | rooms (a way) | rooms with a first plan | states (the room's own) | "
+          "plan: deferred build + first descent, median / max | the plan's CPU time, median / max | "
+          "the plan, a fresh process's first field, median / max | "
+          "the first plan's way / the room's own, median / max | "
+          f"the room's own field (followed from {FIRST_PLAN_S} s on), median / max | "
           "whole build, median / max | follow a frame, median / max |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for n, (m, _side) in CASES.items():
         sel = [r for r in rows if r["n"] == n]
-        plan, plan_cpu, first, whole, fol = ([r[k] for r in sel] for k in ("plan_ms", "plan_cpu_ms", "first_ms",
-                                                                           "whole_ms", "follow_us"))
+        plan, plan_cpu, first, own, whole, fol = ([r[k] for r in sel] for k in (
+            "plan_ms", "plan_cpu_ms", "first_ms", "own_ms", "whole_ms", "follow_us"))
         states = [r["states"] for r in sel]
-        print(f"| {n} | {m} | {len(sel)} ({sum(r['way'] for r in sel)}) | {min(states):,}-{max(states):,} | "
+        ratios = [r["first_way_ratio"] for r in sel if r["first_way_ratio"] is not None]
+        ratio = f"{statistics.median(ratios):.2f} / {max(ratios):.2f}" if ratios else "-"
+        print(f"| {n} | {m} | {len(sel)} ({sum(r['way'] for r in sel)}) | {sum(r['first_plan'] for r in sel)} | "
+              f"{min(states):,}-{max(states):,} | "
               f"{statistics.median(plan):.1f} / {max(plan):.1f} ms | "
               f"{statistics.median(plan_cpu):.1f} / {max(plan_cpu):.1f} ms | "
-              f"{statistics.median(first):.1f} / {max(first):.1f} ms | "
+              f"{statistics.median(first):.1f} / {max(first):.1f} ms | {ratio} | "
+              f"{statistics.median(own):.1f} / {max(own):.1f} ms | "
               f"{statistics.median(whole):.1f} / {max(whole):.1f} ms | "
               f"{statistics.median(fol):.1f} / {max(fol):.1f} us |")
     return 0

@@ -27,13 +27,16 @@ RECORDS = read(PATH)
 def test_the_golden_file_covers_every_entry_the_core_offers():
     names = {r[0] for r in RECORDS}
     assert names == {"sin", "cos", "atan2", "wrap_angle", "structure_step", "structure_step_shapes", "safety_filter",
-                     "field_build", "field_follow", "field_refine", "assembly_targets", "agent_step"}
+                     "field_build", "field_follow", "field_refine", "field_refine2", "assembly_targets", "agent_step"}
     assert sum(r[0] == "structure_step" for r in RECORDS) >= 1000
     refined = [r[2] for r in RECORDS if r[0] == "field_refine"]
     # open, tight, built, n, blocked: descents the finer lattice opened, and ones it did not
     assert sum(o[2] == 1.0 and o[4] == 0.0 for o in refined) >= 8
     assert sum(o[2] == 1.0 and o[4] == 1.0 for o in refined) >= 2
     assert sum(o[2] == 0.0 for o in refined) >= 8
+    chained = [r[2] for r in RECORDS if r[0] == "field_refine2"]
+    assert sum(o[2] == 1.0 and o[4] == 0.0 for o in chained) >= 16   # a way on the second or the third lattice
+    assert sum(o[2] == 1.0 and o[4] == 1.0 for o in chained) >= 2    # none on any
 
 
 @pytest.mark.parametrize("entry", sorted({r[0] for r in RECORDS}))

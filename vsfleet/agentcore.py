@@ -22,8 +22,8 @@ from typing import Mapping
 from . import _core
 from .agentstate import (FAILURE_FIELDS, PRECISION_STATE_FIELDS, AgentState, Controller, CoreMission, Note, answer,
                          StepConfig, StepOutput, SyncPhase, _evolve, blocked_note, blocked_why, core_mission_of,
-                         failure_initial, failure_with_health, health_of, mission_controller, mission_policy,
-                         safety_params, shape_name, used_ids)
+                         failure_initial, failure_with_health, first_plan, health_of, in_first_plan,
+                         mission_controller, mission_policy, safety_params, shape_name, used_ids)
 from .buffers import filled
 from .control import Arc, Held, Precision, PrecisionState, Tracking, TurnThenGo
 from .coreconst import (AGENT_CONTROLLERS, AGENT_POLICY, AGENT_SAFETY, AGENT_SCALARS,
@@ -32,6 +32,7 @@ from .coreconst import (AGENT_CONTROLLERS, AGENT_POLICY, AGENT_SAFETY, AGENT_SCA
 from .failure import Decision, FailurePolicy, Health
 from .frames import MAX_AGE_S, Frame
 from .impl import core as core_impl
+from .structure import FIRST_PLAN_S
 from .wire import CmdMsg, EventMsg, HealthMsg, Mission, StateMsg
 
 
@@ -104,7 +105,7 @@ def agent_step(state: AgentState, mission: Mission | None, frame: Frame, now_s: 
     """
     if mission is None or state.robot not in mission.robot_ids or frame.t < now_s - config.max_stale_s:
         return _decide(state, mission, frame, now_s, config)
-    ttl = command_ttl_s(core_mission_of(mission).room, frame.t, now_s, config)
+    ttl = command_ttl_s(core_mission_of(mission, in_first_plan(mission, frame.t)).room, frame.t, now_s, config)
     if not ttl > 0.0:
         n = state.too_old + 1
         note = Note("warning", f"frame {frame.seq} skipped, too old to move on: {now_s - frame.t:.3f} s behind this "
@@ -137,7 +138,7 @@ def _decide(state: AgentState, mission: Mission | None, frame: Frame, now_s: flo
         return (replace(state, unnamed=state.unnamed | {mission.version}),
                 StepOutput(notes=(Note("warning", f"mission v{mission.version} does not name robot "
                                                   f"{state.robot}: it stays stopped"),)))
-    cm = core_mission_of(mission)
+    cm = core_mission_of(mission, in_first_plan(mission, frame.t))   # the first plan's fields, or the room's own
     controller = config.controller or mission_controller(mission.controller, mission.controller_gains)
     if mission.version != state.mission_version:
         notes.append(Note("info", f"frame {frame.seq}: switching to mission v{mission.version}"))
@@ -339,6 +340,29 @@ class PayloadStep:
     notes: tuple
 
 
+def first_plan_bounds(effective_t: float, now_s: float, max_future_s: float,
+                      max_stale_s: float) -> tuple[bool | None, float, float]:
+    """For agent_payload_step, before the payload is decoded: which fields its frame follows (in_first_plan: True,
+    the first plan's), and the bounds (max_future_s, max_stale_s) that agent_frame then runs a frame within (t in
+    [now_s - max_stale_s, now_s + max_future_s]: the same sums as its own); a frame beyond them is left to the long
+    way, which decides it alike. t - effective_t is monotone in t, so the bounds' own sums decide every frame within
+    them. The side is the one now_s falls on; (None, ...): neither holds a frame."""
+    end = FIRST_PLAN_S
+    if (now_s + max_future_s) - effective_t < end:
+        return True, max_future_s, max_stale_s
+    if (now_s - max_stale_s) - effective_t >= end:
+        return False, max_future_s, max_stale_s
+    if now_s - effective_t < end:   # the first plan's frames: up to just before its end
+        future = ((effective_t + end) - now_s) * (1.0 - 1e-9) - 1e-9
+        if (now_s + future) - effective_t < end and future >= -max_stale_s:
+            return True, future, max_stale_s
+    else:                           # the room's own: from just after the first plan's end
+        stale = (now_s - (effective_t + end)) * (1.0 - 1e-9) - 1e-9
+        if (now_s - stale) - effective_t >= end and stale >= -max_future_s:
+            return False, max_future_s, stale
+    return None, max_future_s, max_stale_s
+
+
 def agent_payload_step(state: AgentState, mission: Mission | None, payload: bytes, src: str, now_s: float,
                        config: StepConfig, done: tuple[float, int], max_future_s: float, rejected: int,
                        max_age_s: float = MAX_AGE_S,
@@ -353,7 +377,12 @@ def agent_payload_step(state: AgentState, mission: Mission | None, payload: byte
     if (mission is None or state.mission_version != mission.version or state.ctrl is None
             or config.impl is not core_impl or config.shared_structures is not None):
         return None
-    cm = core_mission_of(mission)
+    first, max_stale_s = False, config.max_stale_s
+    if first_plan(mission):
+        first, max_future_s, max_stale_s = first_plan_bounds(mission.effective_t, now_s, max_future_s, max_stale_s)
+        if first is None:
+            return None
+    cm = core_mission_of(mission, first)
     if state.robot not in cm.index:
         return None
     controller = config.controller or mission_controller(mission.controller, mission.controller_gains)
@@ -362,7 +391,7 @@ def agent_payload_step(state: AgentState, mission: Mission | None, payload: byte
         return None
     ctrl, arrays_in, scalars = _core_inputs(kernel, state, controller, len(cm.ids))
     got = _core.agent_frame(kernel.config, arrays_in, scalars, kernel.scratch_f64, kernel.scratch_u8, payload, src,
-                            now_s, max_future_s, config.max_stale_s, done[0], done[1], mission.version, rejected,
+                            now_s, max_future_s, max_stale_s, done[0], done[1], mission.version, rejected,
                             max_age_s, others_t)
     if got is None:
         return None

@@ -26,7 +26,7 @@ from .field import Field, build_field_deferred
 from .geometry import Pose2
 from .impl import Impl, choose as choose_impl, core as core_impl
 from .safety import SafetyParams
-from .structure import MISSION_ARGS, PLAN_MARGIN_M, room_field
+from .structure import FIRST_PLAN_S, MISSION_ARGS, PLAN_MARGIN_M, has_first_plan, room_field
 from .wire import CmdMsg, EventMsg, HealthMsg, Mission, StateMsg
 
 #: agent_step's answer, its names' places (vsfleet.coreconst.AGENT_RESULT, py_agent.c)
@@ -133,48 +133,75 @@ class CoreMission:
 # rebuild theirs every frame, past the 16 held). Every CoreMission alive is in _BY_VALUE: both are cleared together,
 # so at most MISSIONS_HELD are held (each holds its room's fields, up to 8 MB each, 32 MB once a field has built its
 # finer lattice: vsfleet.field.field_refinement).
+# The first plans' CoreMissions (first=True) are held alike, and counted among them.
 MISSIONS_HELD = 16
-_MISSIONS: dict[int, tuple[Mission, CoreMission]] = {}
-_BY_VALUE: dict[Mission, CoreMission] = {}
+_MISSIONS: dict[tuple[int, bool], tuple[Mission, CoreMission]] = {}
+_BY_VALUE: dict[tuple[Mission, bool], CoreMission] = {}
+_FIRST: dict[int, tuple[Mission, bool]] = {}   # has_first_plan by mission object
 
 
-def core_mission_of(mission: Mission) -> CoreMission:
+def first_plan(mission: Mission) -> bool:
+    """Whether a mission's room has a first plan (vsfleet.structure.has_first_plan: its template's and every shape's
+    room has a first lattice), memoised by mission object: plain arithmetic on the mission, no field built."""
+    hit = _FIRST.get(id(mission))
+    if hit is not None and hit[0] is mission:
+        return hit[1]
+    goal = mission_goal(mission)
+    shapes = tuple(p for _, p in mission_shape_points(mission))
+    got = has_first_plan([s.p for _, s in mission.robots], mission.radii, mission.obstacles, goal, shapes)
+    if len(_FIRST) >= 64 * MISSIONS_HELD:
+        _FIRST.clear()
+    _FIRST[id(mission)] = (mission, got)
+    return got
+
+
+def in_first_plan(mission: Mission, t: float) -> bool:
+    """Whether a frame at time t [s; tracker clock] follows its mission's first plan: the room has one (first_plan)
+    and t is less than FIRST_PLAN_S after the mission's effective_t. The same for every agent: a function of the
+    mission and the frame."""
+    return t - mission.effective_t < FIRST_PLAN_S and first_plan(mission)
+
+
+def core_mission_of(mission: Mission, first: bool = False) -> CoreMission:
     """A mission's CoreMission, built once per mission (memoised: a pure function of the mission's content, so equal
     missions share one). Building it builds the room's fields (a plan: run_agent does it on a thread of its own when
-    the mission arrives)."""
-    hit = _MISSIONS.get(id(mission))
+    the mission arrives). first: its first plan's (the fields of vsfleet.field.first_lattice), for a mission that
+    has one (first_plan); the frames of its first FIRST_PLAN_S run on it (in_first_plan)."""
+    hit = _MISSIONS.get((id(mission), first))
     if hit is not None and hit[0] is mission:
         return hit[1]
     try:
-        cm = _BY_VALUE.get(mission)
+        cm = _BY_VALUE.get((mission, first))
     except TypeError:   # a mission that cannot be hashed (none can be decoded so): built for this object alone
         cm = None
     if cm is None:
-        cm = _build_core_mission(mission)
+        cm = _build_core_mission(mission, first)
         if len(_BY_VALUE) >= MISSIONS_HELD:
             _BY_VALUE.clear()
             _MISSIONS.clear()
         try:
-            _BY_VALUE[mission] = cm
+            _BY_VALUE[(mission, first)] = cm
         except TypeError:
             return cm
     if len(_MISSIONS) >= 64 * MISSIONS_HELD:
         _MISSIONS.clear()
-    _MISSIONS[id(mission)] = (mission, cm)
+    _MISSIONS[(id(mission), first)] = (mission, cm)
     return cm
 
 
-def _build_core_mission(mission: Mission) -> CoreMission:
+def _build_core_mission(mission: Mission, first: bool = False) -> CoreMission:
     ids = mission.robot_ids
     specs = [s for _, s in mission.robots]
     template = [s.p for s in specs]
     radii = mission.radii
     goal = mission_goal(mission)
     limits = structure_limits(mission.speed_max, mission.turn_rate_max, len(mission.robots))
+    if first and not first_plan(mission):
+        raise VsfleetValueError(f"mission v{mission.version} has no first plan")
     # the core's build, its blocked components resolved when a descent first needs one (vs_field_build_deferred)
-    fld = room_field(template, radii, mission.obstacles, goal, build_field_deferred)
+    fld = room_field(template, radii, mission.obstacles, goal, build_field_deferred, first)
     shapes = mission_shape_points(mission) if fld is not None else ()
-    shape_fields = tuple(room_field(p, radii, mission.obstacles, goal, build_field_deferred) for _, p in shapes)
+    shape_fields = tuple(room_field(p, radii, mission.obstacles, goal, build_field_deferred, first) for _, p in shapes)
     packed = pack_mission(mission.metric, template, [s.wheel_base for s in specs],
                           [s.wheel_speed_max for s in specs], [s.wheel_accel_max for s in specs], goal, limits,
                           radii, mission.obstacles, fld, shapes, shape_fields)

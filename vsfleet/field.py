@@ -55,6 +55,14 @@ HEADING_GAIN_M = 0.005   # a larger count only if its lattice inflates at least 
 REFINE_MAX_STATES = 6_000_000
 REFINE_HEADING_CHOICES = (48, 64, 96, 128)
 
+#: the first plan (first_lattice): a coarse lattice of the same room, at most 200,000 states, at the first of these
+#: heading counts whose lattice inflates within HEADING_GAIN_M of the least; only where the room's own lattice holds
+#: more than FIRST_GAIN times as many states and asks no finer lattice (docs/planning.md, "The first plan")
+FIRST_MAX_STATES = 200_000
+FIRST_HEADING_CHOICES = (16, 24, 32, 48)
+FIRST_GAIN = 4
+FIRST_EXTRA_M = 0.04   # [m] the first lattice inflates at most this much more than the room's own
+
 
 def lattice_sizing(template_xy, radius_m, margin_m: float, obstacles, goal_xy, n_headings: int,
                    cell_m: float = CELL_M, max_states: int = MAX_STATES):
@@ -130,6 +138,42 @@ def room_lattice(template_xy, radius_m, margin_m: float, obstacles, goal_xy) -> 
             "refine": field_refinement(template_xy, radius_m, margin_m, obstacles, goal_xy, heads)}
 
 
+def lattice_states(template_xy, radius_m, margin_m: float, obstacles, goal_xy, n_headings: int,
+                   max_states: int = MAX_STATES) -> int | None:
+    """How many states vs_field_build's lattice of n_headings holds (lattice_sizing; None if the room never fits)."""
+    sized = lattice_sizing(template_xy, radius_m, margin_m, obstacles, goal_xy, n_headings, max_states=max_states)
+    if sized is None:
+        return None
+    _h, _infl, ix0, ix1, iy0, iy1, _pmax = sized
+    return (ix1 - ix0 + 1) * (iy1 - iy0 + 1) * n_headings
+
+
+def first_lattice(template_xy, radius_m, margin_m: float, obstacles, goal_xy) -> dict | None:
+    """The first plan's lattice of a room, as build_field's keywords, or None where the room has none: a coarse
+    lattice of at most FIRST_MAX_STATES, at the first of FIRST_HEADING_CHOICES whose lattice inflates within
+    HEADING_GAIN_M of the least, armed (refine) with the room's own lattice (room_lattice's), which it asks where it
+    has no way, and that one with its own finer lattice if it has one (refine2): so where the first plan says
+    blocked, the room's own field does too. Only where the room's own lattice holds more than FIRST_GAIN times
+    FIRST_MAX_STATES and the first inflates at most FIRST_EXTRA_M more than it (a large structure's coarse lattice
+    closes most ways, and asking the room's own then costs more than building it alone). A plain function of the
+    mission, as room_lattice is. Why: the triangle's own lattice among 64 pillars (1.7-1.9 million states) takes
+    30-37 ms to plan; this one (bench/plan_cost.py, 2026-12-07) 3-4 ms, and the agents follow it for the mission's
+    first FIRST_PLAN_S (vsfleet.structure) while they build their own."""
+    own = room_lattice(template_xy, radius_m, margin_m, obstacles, goal_xy)
+    states = lattice_states(template_xy, radius_m, margin_m, obstacles, goal_xy, own["n_headings"])
+    if states is None or states <= FIRST_GAIN * FIRST_MAX_STATES:
+        return None
+    infl = [lattice_inflation_m(template_xy, radius_m, margin_m, obstacles, goal_xy, k, max_states=FIRST_MAX_STATES)
+            for k in FIRST_HEADING_CHOICES]
+    least = min(infl)
+    own_infl = lattice_inflation_m(template_xy, radius_m, margin_m, obstacles, goal_xy, own["n_headings"])
+    if not least <= own_infl + FIRST_EXTRA_M:
+        return None
+    heads = next(k for k, i in zip(FIRST_HEADING_CHOICES, infl) if i <= least + HEADING_GAIN_M)
+    return {"n_headings": heads, "max_states": FIRST_MAX_STATES, "refine": (own["n_headings"], MAX_STATES),
+            "refine2": own["refine"]}
+
+
 _DX = (1, -1, 0, 0, 1, -1, 1, -1)
 _DY = (0, 0, 1, -1, 1, 1, -1, -1)
 
@@ -191,26 +235,28 @@ class Field:
 
 def build_field(template_xy, radius_m, margin_m: float, obstacles, goal: Pose2, cell_m: float = CELL_M,
                 n_headings: int = HEADINGS, max_states: int = MAX_STATES, deferred: bool = False,
-                refine: tuple[int, int] | None = None) -> Field:
+                refine: tuple[int, int] | None = None, refine2: tuple[int, int] | None = None) -> Field:
     """The compiled core's field (vs_field_build); costs read back lazily by tests only. deferred: the components
     the goal cannot reach are resolved when a descent first needs one (vs_field_build_deferred): every descent the
     same, the build several times faster in rooms with walls. refine (n_headings, max_states): the finer lattice of
-    the same room (at cell_m) asked where this one has no way from a pose (vs_field_set_refine; field_refinement)."""
+    the same room (at cell_m) asked where this one has no way from a pose (vs_field_set_refine; field_refinement);
+    refine2: that lattice's own finer one, asked where neither has a way (vs_field_set_refine_chain; first_lattice)."""
     handle = _core.field_build(f64(template_xy), f64(radius_m), float(margin_m), f64(obstacles), f64(goal.as_tuple()),
                                float(cell_m), int(n_headings), int(max_states), bool(deferred))
     if refine is not None:
+        chain = (0, 0) if refine2 is None else (int(refine2[0]), int(refine2[1]))
         _core.field_set_refine(handle, f64(template_xy), f64(radius_m), f64(obstacles), float(cell_m),
-                               int(refine[0]), int(refine[1]))
+                               int(refine[0]), int(refine[1]), *chain)
     lat = Lattice(*_core.field_info(handle))
     return Field(lat, _CoreCosts(handle, lat), handle, refine)
 
 
 def build_field_deferred(template_xy, radius_m, margin_m: float, obstacles, goal: Pose2, cell_m: float = CELL_M,
                          n_headings: int = HEADINGS, max_states: int = MAX_STATES,
-                         refine: tuple[int, int] | None = None) -> Field:
+                         refine: tuple[int, int] | None = None, refine2: tuple[int, int] | None = None) -> Field:
     """build_field(deferred=True): the agent's build (vsfleet.agentstate)."""
     return build_field(template_xy, radius_m, margin_m, obstacles, goal, cell_m, n_headings, max_states, deferred=True,
-                       refine=refine)
+                       refine=refine, refine2=refine2)
 
 
 class _CoreCosts:
@@ -248,15 +294,16 @@ def _floor(v: float) -> int:
 
 def build_field_reference(template_xy, radius_m, margin_m: float, obstacles, goal: Pose2, cell_m: float = CELL_M,
                           n_headings: int = HEADINGS, max_states: int = MAX_STATES,
-                          refine: tuple[int, int] | None = None) -> Field:
-    """vs_field_build in numpy and scipy: the same lattice, the same raster, the same integer costs (refine: as
-    build_field's, its finer lattice built by the first descent or shape test that asks for it)."""
+                          refine: tuple[int, int] | None = None, refine2: tuple[int, int] | None = None) -> Field:
+    """vs_field_build in numpy and scipy: the same lattice, the same raster, the same integer costs (refine, refine2:
+    as build_field's, each finer lattice built by the first descent or shape test that asks for it)."""
     if refine is not None:
         fld = build_field_reference(template_xy, radius_m, margin_m, obstacles, goal, cell_m, n_headings, max_states)
         fld.refine = (int(refine[0]), int(refine[1]))
         # the inputs copied now, as the core's vs_field_set_refine copies them
         tpl, rad, obs = (np.array(a, dtype=float) for a in (template_xy, radius_m, obstacles))
-        fld._fine_build = lambda: build_field_reference(tpl, rad, margin_m, obs, goal, cell_m, *fld.refine)
+        fld._fine_build = lambda: build_field_reference(tpl, rad, margin_m, obs, goal, cell_m, *fld.refine,
+                                                        refine=refine2)
         return fld
     from scipy.sparse.csgraph import connected_components, dijkstra  # noqa: PLC0415 - the reference only
     if not (4 <= n_headings <= 1024 and 1024 <= max_states <= 1_000_000_000 and 9 * n_headings <= max_states):
@@ -475,13 +522,14 @@ def _cost_view(field: Field) -> memoryview:
 
 def field_open_reference(field: Field, pose: Pose2) -> tuple[bool, bool]:
     """vs_field_open in Python: (the descent from the pose starts on a free state the goal can be reached from,
-    that state lies in the comfort band); where it does not, the finer lattice's answer if that one is open."""
+    that state lies in the comfort band); where it does not, the first finer lattice's answer that is open."""
     answer = _open_one(field, pose)
     fine = field.fine() if not answer[0] else None
-    if fine is not None:
+    while fine is not None:   # in a chain, the first finer lattice with a way from the pose
         fine_answer = _open_one(fine, pose)
         if fine_answer[0]:
             return fine_answer
+        fine = fine.fine()
     return answer
 
 
@@ -496,11 +544,13 @@ def _open_one(field: Field, pose: Pose2) -> tuple[bool, bool]:
 
 def follow_field_reference(field: Field, pose: Pose2, path_m: float = PATH_M, cap: int = PATH_CAP):
     """vs_field_follow in Python: (waypoints (k, 3), blocked, left_m); where the goal cannot be reached from the
-    pose, the finer lattice's descent if the goal can be reached from it there (vs_field_set_refine)."""
+    pose, the descent of the first finer lattice the goal can be reached from there (vs_field_set_refine_chain)."""
     answer = _follow_one(field, pose, path_m, cap)
     fine = field.fine() if answer[1] else None
-    if fine is not None and _open_one(fine, pose)[0]:
-        return _follow_one(fine, pose, path_m, cap)
+    while fine is not None:   # in a chain, the first finer lattice with a way from the pose
+        if _open_one(fine, pose)[0]:
+            return _follow_one(fine, pose, path_m, cap)
+        fine = fine.fine()
     return answer
 
 

@@ -29,8 +29,8 @@ from .lazy import lazy_numpy
 from .advance import Goal, GoalPath, GoalPose, StructureLimits
 from .agentstate import (FAILURE_FIELDS, PRECISION_STATE_FIELDS, STALL_MOVE_M, STALL_S, STALL_TURN_RAD, AgentState,
                          Note, StepConfig, StepOutput, SyncPhase, _evolve, answer, blocked_note, blocked_why,
-                         core_mission_of, health_of, mission_shape_points, pack_mission, safety_params, shape_name,
-                         used_ids)
+                         core_mission_of, health_of, in_first_plan, mission_shape_points, pack_mission,
+                         safety_params, shape_name, used_ids)
 from .control import ControlInput, PrecisionState
 from .envelope import Envelope, Envelopes
 from .failure import FailurePolicy, FailureState, restart_timers
@@ -83,6 +83,7 @@ class MissionArrays:
     # each one's field (built once per mission; none without the template's field)
     shapes: tuple = ()
     shape_fields: tuple = ()
+    first: bool = False           # the fields are the first plan's (vsfleet.field.first_lattice)
 
     @cached_property
     def room(self) -> bool:
@@ -104,25 +105,26 @@ def core_mission(metric: str, template: np.ndarray, envelopes: Envelopes, goal: 
                  else v for a, v in zip(MISSION_ARGS, packed))
 
 
-_ARRAYS: dict[int, tuple[Mission, MissionArrays]] = {}
+_ARRAYS: dict[tuple[int, bool], tuple[Mission, MissionArrays]] = {}
 
 
-def mission_arrays(mission: Mission) -> MissionArrays:
-    """The arrays of a mission, built once per mission object (memoised: a pure function)."""
-    hit = _ARRAYS.get(id(mission))
+def mission_arrays(mission: Mission, first: bool = False) -> MissionArrays:
+    """The arrays of a mission, built once per mission object (memoised: a pure function). first: with its first
+    plan's fields (vsfleet.agentstate.core_mission_of), for the frames that follow it (in_first_plan)."""
+    hit = _ARRAYS.get((id(mission), first))
     if hit is not None and hit[0] is mission:
         return hit[1]
-    cm = core_mission_of(mission)   # the packed constants and the room's fields, shared by equal missions
+    cm = core_mission_of(mission, first)   # the packed constants and the room's fields, shared by equal missions
     template, envelopes = mission_template(mission), mission_envelope_arrays(mission)
     limits = cm.limits
     arrays = MissionArrays(ids=cm.ids, index=cm.index, template=template, envelopes=envelopes, goal=cm.goal,
                            limits=limits, policy=cm.policy, radii=np.array(mission.radii, dtype=float),
                            obstacles=np.array(mission.obstacles, dtype=float).reshape(-1, 3), core=cm.core,
                            field=cm.field, shapes=mission_shapes(mission) if cm.field is not None else (),
-                           shape_fields=cm.shape_fields)
+                           shape_fields=cm.shape_fields, first=first)
     if len(_ARRAYS) >= 16:
         _ARRAYS.clear()
-    _ARRAYS[id(mission)] = (mission, arrays)
+    _ARRAYS[(id(mission), first)] = (mission, arrays)
     return arrays
 
 
@@ -232,7 +234,7 @@ def decide_in_numpy(state: AgentState, mission: Mission, controller, frame: Fram
     """agent_step from the frame's poses on, in numpy glue around the implementation config.impl selects (the
     reference, or the core's kernels one by one): for a controller the core's agent step does not run, for offline
     runs that share structures, and as the readable account of what vs_agent_step does (the same bits)."""
-    arrays = mission_arrays(mission)
+    arrays = mission_arrays(mission, in_first_plan(mission, frame.t))
     policy = arrays.policy
     n = len(arrays.ids)
     state = numpy_state(state)

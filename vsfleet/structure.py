@@ -19,8 +19,8 @@ from .coreconst import STEP_HELD_BACK, STEP_LOOKAHEAD_PER_REACH, STRUCTURE_STEP_
 from .advance import Goal, GoalPath, GoalPose, GoalTwist, Twist2, advance_structure_reference
 from .buffers import f64
 from .clear import clearance_barrier_reference
-from .field import (Field, build_field, build_field_reference, field_open_reference, follow_field_reference,
-                    room_lattice)
+from .field import (Field, build_field, build_field_reference, field_open_reference, first_lattice,
+                    follow_field_reference, room_lattice)
 from .fit import fit_structure_reference
 from .geometry import Pose2, wrap_angle
 
@@ -32,13 +32,20 @@ np = lazy_numpy(globals())   # numpy on first use: the agent process never loads
 #: keeps the structure's points CLEAR_M (22 mm) away
 PLAN_MARGIN_M = 0.02
 HELD_BACK = STEP_HELD_BACK   # vs_step.h: the barrier keeps less than this share of the move asked for
+#: [s] of a mission's time (tracker clock, from its effective_t): where its room has a first plan
+#: (has_first_plan), every agent follows that plan's field before this, and the room's own field from then on
+#: (docs/planning.md, "The first plan"): a function of the frame's time, so the copies agree whichever field an
+#: agent had built when
+FIRST_PLAN_S = 0.5
 
 
 def room_field(template: np.ndarray, radii, obstacles: np.ndarray, goal: Goal,
-               build: Callable = build_field) -> Field | None:
+               build: Callable = build_field, first: bool = False) -> Field | None:
     """The room's navigation function for a mission (None without obstacles or with a twist goal), memoised by
     what it depends on: missions that differ only in speed, version or metric (and the agents of one offline
-    run, each with its own decoded mission) share one field. build: the core's build_field, or the reference's."""
+    run, each with its own decoded mission) share one field. build: the core's build_field, or the reference's.
+    first: the field of the first plan instead (vsfleet.field.first_lattice; None where the room has none), which
+    the agents follow for a mission's first FIRST_PLAN_S."""
     if len(obstacles) == 0 or isinstance(goal, GoalTwist):
         return None
     target = goal.pose if isinstance(goal, GoalPose) else goal.waypoints[-1]
@@ -46,7 +53,7 @@ def room_field(template: np.ndarray, radii, obstacles: np.ndarray, goal: Goal,
     rad = f64(radii)
     if len(rad) == 1:   # one radius for every body (as numpy broadcast it)
         rad = array("d", [rad[0]] * (len(tpl) // 2))
-    return _room_field(tpl.tobytes(), rad.tobytes(), f64(obstacles).tobytes(), target.as_tuple(), build)
+    return _room_field(tpl.tobytes(), rad.tobytes(), f64(obstacles).tobytes(), target.as_tuple(), build, first)
 
 
 # A few rooms and their shapes, the least recently used out: each field holds up to 8 MB (32 MB once it has built its
@@ -54,11 +61,30 @@ def room_field(template: np.ndarray, radii, obstacles: np.ndarray, goal: Goal,
 # components (vs_field_build_deferred) or build its finer lattice, so one field must not be followed by two threads
 # at once: an agent runs its frames one at a time, and its prepare thread only builds.
 @lru_cache(maxsize=12)
-def _room_field(tpl_bytes: bytes, rad_bytes: bytes, obs_bytes: bytes, target: tuple, build: Callable) -> Field:
+def _room_field(tpl_bytes: bytes, rad_bytes: bytes, obs_bytes: bytes, target: tuple, build: Callable,
+                first: bool = False) -> Field | None:
     """room_field's build, by its key (the arrays' bytes): the lattice's heading count by the structure, and the
-    finer lattice it asks where it has no way (field_refinement)."""
+    finer lattice it asks where it has no way (field_refinement); first: the first plan's (first_lattice)."""
     tpl, rad, obs = array("d", tpl_bytes), array("d", rad_bytes), array("d", obs_bytes)
+    if first:
+        lattice = first_lattice(tpl, rad, PLAN_MARGIN_M, obs, target[:2])
+        return None if lattice is None else build(tpl, rad, PLAN_MARGIN_M, obs, Pose2(*target), **lattice)
     return build(tpl, rad, PLAN_MARGIN_M, obs, Pose2(*target), **room_lattice(tpl, rad, PLAN_MARGIN_M, obs, target[:2]))
+
+
+def has_first_plan(template: np.ndarray, radii, obstacles: np.ndarray, goal: Goal, shapes=()) -> bool:
+    """Whether a mission's room has a first plan (vsfleet.field.first_lattice): its template's and every shape's
+    (points (n, 2), as room_field takes them) room has one. Plain arithmetic on the mission, no build."""
+    if len(obstacles) == 0 or isinstance(goal, GoalTwist):
+        return False
+    target = goal.pose if isinstance(goal, GoalPose) else goal.waypoints[-1]
+    rad = f64(radii)
+    for points in (template, *shapes):
+        tpl = f64(points)
+        r = array("d", [rad[0]] * (len(tpl) // 2)) if len(rad) == 1 else rad
+        if first_lattice(tpl, r, PLAN_MARGIN_M, f64(obstacles), (target.x, target.y)) is None:
+            return False
+    return True
 
 
 @dataclass(frozen=True)
@@ -165,7 +191,7 @@ def structure_step_reference(arrays, metric: str, pose_world: np.ndarray, seen: 
 
 def _reference_field(arrays, template: np.ndarray) -> Field:
     """The reference build of the field of a mission's template or one of its shapes (memoised by room_field)."""
-    return room_field(template, arrays.radii, arrays.obstacles, arrays.goal, build_field_reference)
+    return room_field(template, arrays.radii, arrays.obstacles, arrays.goal, build_field_reference, arrays.first)
 
 
 

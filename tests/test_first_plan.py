@@ -1,0 +1,274 @@
+"""The first plan (vsfleet.field.first_lattice, docs/planning.md "The first plan"): where a small structure's room has
+a large lattice, every agent follows a coarse lattice's field for the mission's first FIRST_PLAN_S, and the room's
+own field from then on. Which field a frame follows is a function of the mission and the frame's time alone: the
+one pass and the long way, the core and the glue, and an agent that has not built the room's own field yet all
+decide the same bits. The rule that gives a room a first plan, and the prepare thread's order."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import threading
+
+import numpy as np
+
+import vsfleet.agentstate as agentstate
+from bench.plan_cost import room as plan_cost_room
+from bench.room import Room, to_scenario
+from vsfleet.agentstate import first_plan, in_first_plan
+from vsfleet.field import (
+    FIRST_MAX_STATES,
+    MAX_STATES,
+    build_field,
+    first_lattice,
+    follow_field,
+    lattice_inflation_m,
+    lattice_states,
+    room_lattice,
+)
+from vsfleet.frames import Frame
+from vsfleet.geometry import Pose2
+from vsfleet.step import PLAN_MARGIN_M, AgentState, StepConfig, agent_step
+from vsfleet.structure import FIRST_PLAN_S
+
+from test_core_agent_step import assert_same, both
+from test_core_step import TOLERANCE
+
+TOL = TOLERANCE["l2"]
+
+
+def triangle_room(seed: int, duration_s: float = 10.0, effective_t: float = 0.0):
+    """bench/plan_cost.py's triangle among 64 pillars (room `seed`) as a scenario: its mission effective at
+    effective_t, the robots at their points of the start pose."""
+    tpl, rad, obs, start, goal = plan_cost_room(3, seed)
+    room = Room(seed, "pillars", "triangle", tpl, rad, np.full(3, 0.16), np.ones((3, 2)), start, goal, obs)
+    sc = to_scenario(room, duration_s)
+    return dataclasses.replace(sc, mission=dataclasses.replace(sc.mission, effective_t=effective_t)), start
+
+
+def robot_poses(mission, start) -> dict:
+    c, s = math.cos(start[2]), math.sin(start[2])
+    out = {}
+    for r in mission.robot_ids:
+        px, py = mission.spec(r).p
+        out[r] = (start[0] + c * px - s * py, start[1] + s * px + c * py, start[2])
+    return out
+
+
+def first_inflation(tpl, rad, obs, goal, lattice: dict) -> float:
+    return lattice_inflation_m(tpl, rad, PLAN_MARGIN_M, obs, goal[:2], lattice["n_headings"],
+                               max_states=lattice.get("max_states", MAX_STATES))
+
+
+def test_a_small_structure_in_a_large_room_has_a_first_plan_and_a_large_one_or_a_small_room_none():
+    for seed in range(4):
+        tpl, rad, obs, _start, goal = plan_cost_room(3, seed)
+        own = room_lattice(tpl, rad, PLAN_MARGIN_M, obs, goal[:2])
+        first = first_lattice(tpl, rad, PLAN_MARGIN_M, obs, goal[:2])
+        assert first is not None
+        # it asks the room's own lattice, and that one its finer lattice: the first plan's verdict is the room's own
+        assert first["refine"] == (own["n_headings"], MAX_STATES) and first["refine2"] == own["refine"]
+        states = lattice_states(tpl, rad, PLAN_MARGIN_M, obs, goal[:2], first["n_headings"], FIRST_MAX_STATES)
+        assert states <= FIRST_MAX_STATES
+        assert lattice_states(tpl, rad, PLAN_MARGIN_M, obs, goal[:2], own["n_headings"]) > 4 * FIRST_MAX_STATES
+        # built, it is the lattice the rule sized, and its finer lattice is the room's own field, state for state
+        fld = build_field(tpl, rad, PLAN_MARGIN_M, obs, Pose2(*goal), **first, deferred=True)
+        assert fld.lattice.nx * fld.lattice.ny * fld.lattice.n_headings == states
+        assert first_inflation(tpl, rad, obs, goal, first) <= first_inflation(tpl, rad, obs, goal, own) + 0.04
+        # 30 robots among 256 pillars: a coarse lattice of theirs inflates 6 cm more than their own (12.6 cm)
+        tpl, rad, obs, _start, goal = plan_cost_room(30, seed)
+        assert first_lattice(tpl, rad, PLAN_MARGIN_M, obs, goal[:2]) is None
+    # one pillar beside the way: the room's own lattice is small already
+    tpl = np.array([[0.0, 0.29], [-0.25, -0.14], [0.25, -0.14]])
+    assert first_lattice(tpl, np.full(3, 0.09), PLAN_MARGIN_M, np.array([[1.0, 0.75, 0.15]]), (2.0, 1.5)) is None
+
+
+def test_a_frame_follows_the_first_plan_before_first_plan_s_and_the_rooms_own_field_from_then_on():
+    sc, start = triangle_room(7, effective_t=100.0)
+    mission = sc.mission
+    assert first_plan(mission)
+    assert in_first_plan(mission, 100.0) and in_first_plan(mission, 100.0 + FIRST_PLAN_S - 1e-9)
+    assert not in_first_plan(mission, 100.0 + FIRST_PLAN_S) and not in_first_plan(mission, 200.0)
+    no_room = dataclasses.replace(mission, obstacles=())
+    assert not first_plan(no_room) and not in_first_plan(no_room, 100.0)
+    # the two fields' ways from the start differ (this room's coarse way goes round the other side: 46 % longer)
+    first_cm, own_cm = agentstate.core_mission_of(mission, True), agentstate.core_mission_of(mission)
+    way_first, _, _ = follow_field(first_cm.field, Pose2(*start))
+    way_own, _, _ = follow_field(own_cm.field, Pose2(*start))
+    assert first_cm.field.lattice.n_headings * first_cm.field.lattice.nx * first_cm.field.lattice.ny <= 200_000
+    assert not np.array_equal(way_first[:5], way_own[:5])
+    poses = robot_poses(mission, start)
+    config = StepConfig()
+    goals = {}
+    for t in (100.25, 101.0):
+        state = AgentState(robot=mission.robot_ids[0])
+        frame = Frame(seq=1, t=t, poses=poses, complete=True, fresh=frozenset(poses), src="sim",
+                      sources=frozenset({"sim"}))
+        _state, out = agent_step(state, mission, frame, t + 0.01, config)
+        goals[t] = out.structure.goal_pose
+    # each frame's advance as the step computes it on the one field and on the other
+    from vsfleet.glue import mission_arrays, structure_step, frame_arrays
+    for t, first in ((100.25, True), (101.0, False)):
+        arrays = mission_arrays(mission, first)
+        pose, seen, _fresh = frame_arrays(arrays.ids, poses)
+        none = np.zeros(len(arrays.ids), dtype=bool)
+        s = structure_step(arrays, mission.metric, pose, seen, none, none, t - 100.0, config.dt_s)
+        other = structure_step(mission_arrays(mission, not first), mission.metric, pose, seen, none, none,
+                               t - 100.0, config.dt_s)
+        assert s.goal_pose == goals[t]
+        assert other.goal_pose != goals[t]
+
+
+def test_core_and_glue_decide_alike_through_the_first_plan_and_after_it():
+    """bench/plan_cost.py's triangle room 7 for 2.5 s: the first plan's half second, the switch, and the room's own
+    field; the numpy glue (structures shared) and the core, every command, truth and decision the same bits."""
+    sc, _start = triangle_room(7, duration_s=2.5)
+    assert first_plan(sc.mission)
+    glue, core = both(sc, 2.5, seed=7)
+    assert_same(glue, core)
+
+
+def test_the_reference_step_follows_the_first_plan_as_the_core_does():
+    """The numpy reference (its own field builds, vsfleet.field.build_field_reference) on the same frames as the
+    core, over the first plan's half second: the same advance, within tests/test_core_step.py's tolerance (the fits
+    differ in their last bits), where the first plan's way and the room's own differ."""
+    sc, start = triangle_room(7, effective_t=20.0)
+    mission = sc.mission
+    poses = robot_poses(mission, start)
+    sc_state = sr_state = AgentState(robot=mission.robot_ids[0])
+    for k in range(14):
+        t = 20.0 + k / 30.0
+        moved = {r: (x - 0.002 * k, y + 0.001 * k, th) for r, (x, y, th) in poses.items()}
+        frame = Frame(seq=k + 1, t=t, poses=moved, complete=True, fresh=frozenset(moved))
+        sc_state, oc = agent_step(sc_state, mission, frame, t + 0.001, StepConfig())
+        sr_state, orf = agent_step(sr_state, mission, frame, t + 0.001, StepConfig(reference=True))
+        a, b = oc.structure.goal_pose, orf.structure.goal_pose
+        assert abs(a.x - b.x) <= TOL and abs(a.y - b.y) <= TOL and abs(a.th - b.th) <= TOL, (k, a, b)
+        assert oc.structure.blocked == orf.structure.blocked is False
+
+
+def test_the_one_pass_and_the_long_way_send_the_same_bytes_across_the_first_plans_end():
+    """Two agents on the same payloads (tests/test_core_agent_step.py's way): frames from before the mission takes
+    effect to past its first plan. The one pass runs the first plan's frames and the room's own, and leaves to the
+    long way only the frames that may fall on either side of FIRST_PLAN_S."""
+    from vsfleet.agent.main import Agent
+    from vsfleet.wire import FrameMsg, Keys, encode_frame, encode_mission
+
+    keys = Keys("demo")
+    sc, start = triangle_room(7, effective_t=10.0)
+    mission = dataclasses.replace(sc.mission, version=1)
+    ids = mission.robot_ids
+    clock = [0.0]
+    out = {True: ([], [], []), False: ([], [], [])}
+    agents = {}
+    for fast in (True, False):
+        cmds, states, events = out[fast]
+        agents[fast] = Agent(ids[0], keys, cmds.append, states.append, clock=lambda: clock[0],
+                             put_event=events.append)
+        agents[fast].on_mission(keys.mission, encode_mission(mission))
+    poses = robot_poses(mission, start)
+    fast_t = []
+    for k in range(75):
+        t = 9.9 + k / 30.0
+        moved = {r: (x + 0.001 * k, y, th) for r, (x, y, th) in poses.items()}
+        payload = encode_frame(FrameMsg(t, k + 1, "sim", moved))
+        clock[0] = t + 0.004
+        for fast, agent in agents.items():
+            key = keys.frame("sim")
+            if fast and agent.fast_frame(key, payload):
+                fast_t.append(t)
+                continue
+            agent.on_frame(key, payload, wake=False)
+            agent.poll()
+    assert out[True][0] == out[False][0] and len(out[True][0]) > 60
+    assert out[True][1] == out[False][1]
+    assert out[True][2] == out[False][2]
+    assert any(t < 10.0 + FIRST_PLAN_S for t in fast_t) and any(t > 10.0 + FIRST_PLAN_S for t in fast_t)
+
+
+def test_a_first_plan_frame_waits_for_the_first_plans_build_only_and_a_later_frame_for_the_whole(monkeypatch):
+    """The prepare thread builds the first plan's arrays, then the room's own (held here until `go`): a frame of
+    the first plan runs meanwhile, a frame after it waits for the room's own field, and no frame builds a field."""
+    import vsfleet.agent.main as agent_main
+    from vsfleet.agent.main import Agent, PrepareThread
+    from vsfleet.wire import FrameMsg, Keys, encode_frame, encode_mission
+
+    keys = Keys("demo")
+    sc, start = triangle_room(5, effective_t=50.0)
+    mission = dataclasses.replace(sc.mission, version=4)
+    go, builds = threading.Event(), []
+    core_mission_of, build = agentstate.core_mission_of, agentstate.build_field_deferred
+
+    def held(m, first=False):   # the prepare thread's builds: the room's own held until go
+        if not first:
+            go.wait(timeout=30.0)
+        return core_mission_of(m, first)
+
+    def counted(*a, **k):
+        builds.append((threading.current_thread().name, k.get("max_states", MAX_STATES)))
+        return build(*a, **k)
+
+    monkeypatch.setattr(agent_main, "core_mission_of", held)
+    monkeypatch.setattr(agentstate, "build_field_deferred", counted)
+    threads = []
+
+    def prepare(m):
+        th = PrepareThread(m)
+        th.name = "prepare-held"
+        th.start()
+        threads.append(th)
+        return th
+
+    cmds, clock = [], [50.0]
+    agent = Agent(mission.robot_ids[0], keys, cmds.append, lambda b: None, clock=lambda: clock[0], prepare=prepare)
+    try:
+        agent.on_mission(keys.mission, encode_mission(mission))
+        assert threads[0].first_built.wait(timeout=30.0)
+        poses = robot_poses(mission, start)
+        done = threading.Event()
+
+        def run(t):
+            clock[0] = t + 0.004
+            agent.on_frame(keys.frame("sim"), encode_frame(FrameMsg(t, int(t * 30), "sim", poses)), wake=False)
+            agent.poll()
+            done.set()
+
+        run(50.25)                          # the first plan's: runs while the room's own field is held
+        assert len(cmds) == 1 and threads[0].is_alive()
+        done.clear()
+        later = threading.Thread(target=run, args=(51.0,), daemon=True)
+        later.start()
+        assert not done.wait(timeout=0.5)   # after it: waits for the room's own field
+        go.set()
+        later.join(timeout=30.0)
+        assert done.is_set() and len(cmds) == 2
+    finally:
+        go.set()
+    # two builds, both on the prepare thread: the first plan's lattice, then the room's own
+    assert builds == [("prepare-held", FIRST_MAX_STATES), ("prepare-held", MAX_STATES)]
+
+
+def test_the_one_pass_bounds_hold_only_frames_of_the_side_they_name():
+    """first_plan_bounds: every frame time agent_frame would run within the bounds given (its own sums) falls on the
+    side named, down to the last bit at the first plan's end; and a frame of either side can be run in one pass."""
+    from vsfleet.agentcore import first_plan_bounds
+
+    rng = np.random.default_rng(11)
+    sides = set()
+    for _ in range(4000):
+        eff = float(rng.choice([0.0, 1.7, 1234.5678, 1.7e9 + rng.uniform(0, 1)]))
+        end = eff + FIRST_PLAN_S
+        now = end + float(rng.choice([rng.uniform(-2.0, 2.0), rng.uniform(-1e-6, 1e-6), 0.0]))
+        future, stale = float(rng.choice([1.0, 0.05, 0.0])), float(rng.choice([0.5, 0.1]))
+        side, f, s = first_plan_bounds(eff, now, future, stale)
+        assert f <= future and s <= stale
+        if side is None:
+            continue
+        sides.add(side)
+        for t in (now + f, now - s, now, end, np.nextafter(end, -np.inf), np.nextafter(end, np.inf),
+                  float(rng.uniform(now - s, now + f))):
+            t = float(t)
+            if t > now + f or t < now - s:
+                continue   # agent_frame leaves it to the long way
+            assert (t - eff < FIRST_PLAN_S) == side, (eff, now, future, stale, t)
+    assert sides == {True, False}
