@@ -195,8 +195,9 @@ class Agent:
         it took the CPU the thread needed and finished no sooner). A frame of the mission's first plan
         (in_first_plan) waits for that plan's arrays only (PrepareThread.first_built), and the thread is kept for
         the frames after it; any other waits for the whole build, and the thread is forgotten. Only the long way
-        (tick) calls it: a mission's first frame never goes in one pass (vsfleet.agentcore.agent_payload_step), and
-        a frame that may fall on either side of the first plan's end does not either. The caller holds the agent."""
+        (tick) calls it: a mission's first frame never goes in one pass (vsfleet.agentcore.agent_payload_step), nor
+        does a frame while the mission's prepare thread builds what that frame may need (fast_frame). The caller holds
+        the agent."""
         thread = self._preparing.get(mission.version)
         if thread is None:
             return
@@ -247,6 +248,14 @@ class Agent:
         if len(missions) != 1:
             return False
         (mission,) = missions.values()
+        thread = self._preparing.get(mission.version)
+        if thread is not None and thread.is_alive():
+            # its prepare thread still builds: a frame that may follow the room's own field goes the long way, which
+            # waits for the build (await_prepared) instead of building the same field beside it
+            first_built = getattr(thread, "first_built", None)
+            if (first_built is None or not first_built.is_set()
+                    or not in_first_plan(mission, self.clock() + merger.max_future_s)):
+                return False
         got = agent_payload_step(self.state, mission, payload, src, self.clock(), self.config, merger.done,
                                  merger.max_future_s, self.rejections.count, merger.max_age_s, others_t)
         if got is None:

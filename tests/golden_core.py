@@ -58,10 +58,10 @@ def safety_records(seed: int = 5, count: int = 120) -> list[tuple[str, list[floa
 
 def records() -> list[tuple[str, list[float]]]:
     """Every recorded call: (entry, flat inputs)."""
-    from step_core_records import (agent_step_records, assembly_records, shape_records,  # noqa: PLC0415 - (tests/)
-                                   step_records)
+    from step_core_records import (agent_step_records, assembly_records, held_records,  # noqa: PLC0415 - (tests/)
+                                   shape_records, step_records)
     return (trig_records() + step_records() + safety_records() + field_records() + shape_records()
-            + assembly_records() + agent_step_records() + refine_records() + refine2_records())
+            + assembly_records() + agent_step_records() + refine_records() + refine2_records() + held_records())
 
 
 def line(entry: str, inputs, outputs) -> str:
@@ -161,8 +161,9 @@ def main(only: str | None = None) -> None:
         lines, todo = ["# golden vectors of vsfleet's compiled core: tests/golden_core.py (entry n_in in... n_out out...)"], \
             records()
     else:
-        from step_core_records import agent_step_records  # noqa: PLC0415 - (tests/)
-        makers = {"agent_step": agent_step_records, "field_refine": refine_records, "field_refine2": refine2_records}
+        from step_core_records import agent_step_records, held_records  # noqa: PLC0415 - (tests/)
+        makers = {"agent_step": agent_step_records, "field_refine": refine_records, "field_refine2": refine2_records,
+                  "structure_step_held": held_records}
         if only not in makers:
             raise SystemExit(f"--only: one of {sorted(makers)}")
         lines = [t for t in PATH.read_text().splitlines() if t.split(" ", 1)[0] != only]

@@ -30,10 +30,12 @@ PILLAR = ((0.8, 0.5, 0.3),)
 WALL = tuple((1.3 + 0.0 * k, -1.0 + 0.25 * k, 0.14) for k in range(13))  # x = 1.3 m, y from -1 to 2 m
 
 
-def step_records() -> list[tuple[str, list[float]]]:
+def step_records(rooms_only: bool = False) -> list[tuple[str, list[float]]]:
     mission, frames, config, _ = load()
     out = []
     rooms = [(metric, (), None, 4) for metric in METRICS] + [("linf", PILLAR, 0.05, 8), ("linf", WALL, 0.05, 8)]
+    if rooms_only:
+        rooms = rooms[len(METRICS):]
     for metric, obstacles, radius, every in rooms:
         m = dataclasses.replace(mission, metric=metric)
         arrays = mission_arrays(m)
@@ -55,6 +57,13 @@ def step_records() -> list[tuple[str, list[float]]]:
                 out.append(("structure_step", [*head, *pose.ravel(), *seen.astype(float), *excluded, *judged,
                                                frame.t - m.effective_t, config.dt_s, *room]))
     return out
+
+
+def held_records() -> list[tuple[str, list[float]]]:
+    """``structure_step_held``: every third room record above (the pillar, then the wall that blocks the way), the field
+    provisional (vs_field_set_provisional, a first plan): where the wall's field has no way the structure holds,
+    neither blocked nor at the goal; beside the pillar, the same as structure_step (recorded 2026-12-07)."""
+    return [("structure_step_held", inputs) for _entry, inputs in step_records(rooms_only=True)[::3]]
 
 
 def shape_records(seed: int = 23, count: int = 48) -> list[tuple[str, list[float]]]:
@@ -253,6 +262,8 @@ def agent_step_inputs(robot, config, warm, record) -> list[float]:
     from vsfleet.field import CELL_M, HEADINGS, MAX_STATES
     from vsfleet.step import AgentState, agent_step
     mission = record[0][0]
+    # the records pack the room's own field (vs_golden.c builds it): never a frame of a first plan
+    assert not any(agentcore.in_first_plan(m, frame.t) for m, frame, _now in record), "a frame of the first plan"
     state = AgentState(robot=robot)
     for m, frame, now_s in warm:
         state, _ = agent_step(state, m, frame, now_s, config)

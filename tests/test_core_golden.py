@@ -26,7 +26,8 @@ RECORDS = read(PATH)
 
 def test_the_golden_file_covers_every_entry_the_core_offers():
     names = {r[0] for r in RECORDS}
-    assert names == {"sin", "cos", "atan2", "wrap_angle", "structure_step", "structure_step_shapes", "safety_filter",
+    assert names == {"sin", "cos", "atan2", "wrap_angle", "structure_step", "structure_step_shapes",
+                     "structure_step_held", "safety_filter",
                      "field_build", "field_follow", "field_refine", "field_refine2", "assembly_targets", "agent_step"}
     assert sum(r[0] == "structure_step" for r in RECORDS) >= 1000
     refined = [r[2] for r in RECORDS if r[0] == "field_refine"]
@@ -34,6 +35,14 @@ def test_the_golden_file_covers_every_entry_the_core_offers():
     assert sum(o[2] == 1.0 and o[4] == 0.0 for o in refined) >= 8
     assert sum(o[2] == 1.0 and o[4] == 1.0 for o in refined) >= 2
     assert sum(o[2] == 0.0 for o in refined) >= 8
+    # a first plan's field (provisional): held where the wall's field has no way, never blocked; beside the pillar
+    # the same as structure_step on the same inputs
+    held = [r for r in RECORDS if r[0] == "structure_step_held"]
+    plain = [list(_core.golden_call("structure_step", np.asarray(i, dtype=float))) for _e, i, _o in held]
+    assert len(held) >= 20 and all(o[0] == 0.0 or o[12] == 0.0 for _e, _i, o in held)
+    stopped = [o for (_e, _i, o), p in zip(held, plain) if o[0] == 1.0 and p[12] == 1.0]   # blocked without the flag
+    assert len(stopped) >= 5 and all(o[11] == 0.0 and o[7:10] == [0.0, 0.0, 0.0] for o in stopped)
+    assert sum(o == p for (_e, _i, o), p in zip(held, plain)) >= 5
     chained = [r[2] for r in RECORDS if r[0] == "field_refine2"]
     assert sum(o[2] == 1.0 and o[4] == 0.0 for o in chained) >= 16   # a way on the second or the third lattice
     assert sum(o[2] == 1.0 and o[4] == 1.0 for o in chained) >= 2    # none on any

@@ -65,7 +65,7 @@ def test_a_small_structure_in_a_large_room_has_a_first_plan_and_a_large_one_or_a
         tpl, rad, obs, _start, goal = plan_cost_room(3, seed)
         own = room_lattice(tpl, rad, PLAN_MARGIN_M, obs, goal[:2])
         first = first_lattice(tpl, rad, PLAN_MARGIN_M, obs, goal[:2])
-        assert first is not None
+        assert first is not None and own["refine"] is not None   # a 6 m room: the room's own asks a finer lattice
         # it asks the room's own lattice, and that one its finer lattice: the first plan's verdict is the room's own
         assert first["refine"] == (own["n_headings"], MAX_STATES) and first["refine2"] == own["refine"]
         states = lattice_states(tpl, rad, PLAN_MARGIN_M, obs, goal[:2], first["n_headings"], FIRST_MAX_STATES)
@@ -75,9 +75,10 @@ def test_a_small_structure_in_a_large_room_has_a_first_plan_and_a_large_one_or_a
         fld = build_field(tpl, rad, PLAN_MARGIN_M, obs, Pose2(*goal), **first, deferred=True)
         assert fld.lattice.nx * fld.lattice.ny * fld.lattice.n_headings == states
         assert first_inflation(tpl, rad, obs, goal, first) <= first_inflation(tpl, rad, obs, goal, own) + 0.04
-        # 30 robots among 256 pillars: a coarse lattice of theirs inflates 6 cm more than their own (12.6 cm)
+        # 30 robots among 256 pillars: a coarse lattice of theirs inflates 6 cm more than their own (12.6 cm), so
+        # theirs is no coarse lattice (the provisional kind: the next test)
         tpl, rad, obs, _start, goal = plan_cost_room(30, seed)
-        assert first_lattice(tpl, rad, PLAN_MARGIN_M, obs, goal[:2]) is None
+        assert "max_states" not in first_lattice(tpl, rad, PLAN_MARGIN_M, obs, goal[:2])
     # one pillar beside the way: the room's own lattice is small already
     tpl = np.array([[0.0, 0.29], [-0.25, -0.14], [0.25, -0.14]])
     assert first_lattice(tpl, np.full(3, 0.09), PLAN_MARGIN_M, np.array([[1.0, 0.75, 0.15]]), (2.0, 1.5)) is None
@@ -95,7 +96,7 @@ def test_a_frame_follows_the_first_plan_before_first_plan_s_and_the_rooms_own_fi
     first_cm, own_cm = agentstate.core_mission_of(mission, True), agentstate.core_mission_of(mission)
     way_first, _, _ = follow_field(first_cm.field, Pose2(*start))
     way_own, _, _ = follow_field(own_cm.field, Pose2(*start))
-    assert first_cm.field.lattice.n_headings * first_cm.field.lattice.nx * first_cm.field.lattice.ny <= 200_000
+    assert first_cm.field.lattice.n_headings * first_cm.field.lattice.nx * first_cm.field.lattice.ny <= FIRST_MAX_STATES
     assert not np.array_equal(way_first[:5], way_own[:5])
     poses = robot_poses(mission, start)
     config = StepConfig()
@@ -132,10 +133,13 @@ def test_the_reference_step_follows_the_first_plan_as_the_core_does():
     """The numpy reference (its own field builds, vsfleet.field.build_field_reference) on the same frames as the
     core, over the first plan's half second: the same advance, within tests/test_core_step.py's tolerance (the fits
     differ in their last bits), where the first plan's way and the room's own differ."""
+    from vsfleet.glue import frame_arrays, mission_arrays, structure_step
+
     sc, start = triangle_room(7, effective_t=20.0)
     mission = sc.mission
     poses = robot_poses(mission, start)
     sc_state = sr_state = AgentState(robot=mission.robot_ids[0])
+    apart = 0
     for k in range(14):
         t = 20.0 + k / 30.0
         moved = {r: (x - 0.002 * k, y + 0.001 * k, th) for r, (x, y, th) in poses.items()}
@@ -145,6 +149,13 @@ def test_the_reference_step_follows_the_first_plan_as_the_core_does():
         a, b = oc.structure.goal_pose, orf.structure.goal_pose
         assert abs(a.x - b.x) <= TOL and abs(a.y - b.y) <= TOL and abs(a.th - b.th) <= TOL, (k, a, b)
         assert oc.structure.blocked == orf.structure.blocked is False
+        # the room's own field would advance elsewhere: the first plan's was followed
+        own = mission_arrays(mission, False)
+        pose, seen, _fresh = frame_arrays(own.ids, moved)
+        none = np.zeros(len(own.ids), dtype=bool)
+        o = structure_step(own, mission.metric, pose, seen, none, none, t - 20.0, StepConfig().dt_s).goal_pose
+        apart += max(abs(o.x - a.x), abs(o.y - a.y), abs(o.th - a.th)) > 1e3 * TOL
+    assert apart >= 10
 
 
 def test_the_one_pass_and_the_long_way_send_the_same_bytes_across_the_first_plans_end():
@@ -236,7 +247,13 @@ def test_a_first_plan_frame_waits_for_the_first_plans_build_only_and_a_later_fra
         run(50.25)                          # the first plan's: runs while the room's own field is held
         assert len(cmds) == 1 and threads[0].is_alive()
         done.clear()
-        later = threading.Thread(target=run, args=(51.0,), daemon=True)
+
+        def run_fast(t):   # the frame callback's way: one pass when it can (fast_frame)
+            clock[0] = t + 0.004
+            agent.run_frame(keys.frame("sim"), encode_frame(FrameMsg(t, int(t * 30), "sim", poses)))
+            done.set()
+
+        later = threading.Thread(target=run_fast, args=(51.0,), daemon=True)
         later.start()
         assert not done.wait(timeout=0.5)   # after it: waits for the room's own field
         go.set()
@@ -272,3 +289,86 @@ def test_the_one_pass_bounds_hold_only_frames_of_the_side_they_name():
                 continue   # agent_frame leaves it to the long way
             assert (t - eff < FIRST_PLAN_S) == side, (eff, now, future, stale, t)
     assert sides == {True, False}
+
+
+def test_a_large_structures_first_plan_is_its_own_lattice_provisional_and_its_room_field_builds_the_finer_one():
+    """30 robots among 256 pillars (bench/plan_cost.py): their own lattice asks a finer one, so their first plan is
+    their own lattice without it, provisional; the room's own field (followed from FIRST_PLAN_S on) has its finer
+    lattice built with it, before any frame asks. The triangle's room field leaves its finer lattice for later."""
+    for seed in range(3):
+        tpl, rad, obs, _start, goal = plan_cost_room(30, seed)
+        own = room_lattice(tpl, rad, PLAN_MARGIN_M, obs, goal[:2])
+        assert own["refine"] is not None
+        assert first_lattice(tpl, rad, PLAN_MARGIN_M, obs, goal[:2]) == {"n_headings": own["n_headings"],
+                                                                          "provisional": True}
+    sc, _ = thirty_room(0)
+    first_cm, own_cm = agentstate.core_mission_of(sc.mission, True), agentstate.core_mission_of(sc.mission)
+    assert first_cm.field.provisional and first_cm.field.refine is None and not own_cm.field.provisional
+    assert own_cm.field.refined
+    sc, _ = triangle_room(3)
+    assert not agentstate.core_mission_of(sc.mission).field.refined
+
+
+def thirty_room(seed: int, effective_t: float = 0.0):
+    """bench/plan_cost.py's 30 robots among 256 pillars (room `seed`) as a scenario (triangle_room's way)."""
+    tpl, rad, obs, start, goal = plan_cost_room(30, seed)
+    room = Room(seed, "pillars", "grid 5x6", tpl, rad, np.full(30, 0.16), np.ones((30, 2)), start, goal, obs)
+    sc = to_scenario(room, 10.0)
+    return dataclasses.replace(sc, mission=dataclasses.replace(sc.mission, effective_t=effective_t)), start
+
+
+def test_where_the_provisional_first_plan_has_no_way_the_structure_holds_and_the_verdict_comes_after_it():
+    """bench/plan_cost.py's 30-robot room 0 has no way (nor on the finer lattice): before FIRST_PLAN_S the structure
+    holds at its fitted pose (no move, not blocked, not at the goal, no event); from then on the room's own field
+    says blocked, and the agent publishes it once."""
+    sc, start = thirty_room(0, effective_t=30.0)
+    mission = sc.mission
+    poses = robot_poses(mission, start)
+    state = AgentState(robot=mission.robot_ids[0])
+    seen = []
+    for k in range(30):   # 1 s at 30 Hz
+        t = 30.0 + k / 30.0
+        frame = Frame(seq=k + 1, t=t, poses=poses, complete=True, fresh=frozenset(poses))
+        state, out = agent_step(state, mission, frame, t + 0.001, StepConfig())
+        s = out.structure
+        seen.append((t - 30.0 < FIRST_PLAN_S, s.blocked, s.at_goal, [e.kind for e in out.events]))
+        if t - 30.0 < FIRST_PLAN_S:
+            assert not s.blocked and not s.at_goal and out.events == ()
+            assert (s.twist.vx_m_s, s.twist.vy_m_s, s.twist.w_rad_s) == (0.0, 0.0, 0.0)
+            assert s.goal_pose == s.fit_pose
+        else:
+            assert s.blocked and not s.at_goal
+    kinds = [k for *_, ks in seen for k in ks]
+    assert kinds == ["blocked"]
+
+
+def test_the_reference_holds_where_the_core_does(monkeypatch):
+    """A provisional first plan in a small room (tests/test_room.py's goal walled in; the rule patched to give it
+    one): the numpy reference and the core hold alike before FIRST_PLAN_S, and say blocked alike after it."""
+    import vsfleet.structure as structure
+    from test_room import walled_in
+
+    def provisional(tpl, rad, margin, obs, goal_xy):
+        return {"n_headings": room_lattice(tpl, rad, margin, obs, goal_xy)["n_headings"], "provisional": True}
+
+    monkeypatch.setattr(structure, "first_lattice", provisional)
+    structure._room_field.cache_clear()
+    agentstate._FIRST.clear()
+    try:
+        sc = walled_in()
+        mission = dataclasses.replace(sc.mission, effective_t=5.0, version=77)
+        assert first_plan(mission)
+        poses = {r.robot: tuple(r.start) for r in sc.robots}
+        sc_state = sr_state = AgentState(robot=mission.robot_ids[0])
+        for t in (5.1, 5.3, 5.6, 5.9):
+            frame = Frame(seq=int(t * 30), t=t, poses=poses, complete=True, fresh=frozenset(poses))
+            sc_state, oc = agent_step(sc_state, mission, frame, t + 0.001, StepConfig())
+            sr_state, orf = agent_step(sr_state, mission, frame, t + 0.001, StepConfig(reference=True))
+            a, b = oc.structure, orf.structure
+            assert a.blocked == b.blocked == (t - 5.0 >= FIRST_PLAN_S) and a.at_goal == b.at_goal is False
+            assert abs(a.goal_pose.x - b.goal_pose.x) <= TOL and abs(a.goal_pose.y - b.goal_pose.y) <= TOL
+            if not a.blocked:
+                assert a.goal_pose == a.fit_pose
+    finally:
+        structure._room_field.cache_clear()
+        agentstate._FIRST.clear()

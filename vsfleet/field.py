@@ -55,10 +55,10 @@ HEADING_GAIN_M = 0.005   # a larger count only if its lattice inflates at least 
 REFINE_MAX_STATES = 6_000_000
 REFINE_HEADING_CHOICES = (48, 64, 96, 128)
 
-#: the first plan (first_lattice): a coarse lattice of the same room, at most 200,000 states, at the first of these
-#: heading counts whose lattice inflates within HEADING_GAIN_M of the least; only where the room's own lattice holds
-#: more than FIRST_GAIN times as many states and asks no finer lattice (docs/planning.md, "The first plan")
-FIRST_MAX_STATES = 200_000
+#: the first plan's coarse kind (first_lattice): a lattice of the same room, at most 150,000 states, at the first of
+#: these heading counts whose lattice inflates within HEADING_GAIN_M of the least; only where the room's own lattice
+#: holds more than FIRST_GAIN times as many states (docs/planning.md, "The first plan")
+FIRST_MAX_STATES = 150_000
 FIRST_HEADING_CHOICES = (16, 24, 32, 48)
 FIRST_GAIN = 4
 FIRST_EXTRA_M = 0.04   # [m] the first lattice inflates at most this much more than the room's own
@@ -149,29 +149,34 @@ def lattice_states(template_xy, radius_m, margin_m: float, obstacles, goal_xy, n
 
 
 def first_lattice(template_xy, radius_m, margin_m: float, obstacles, goal_xy) -> dict | None:
-    """The first plan's lattice of a room, as build_field's keywords, or None where the room has none: a coarse
-    lattice of at most FIRST_MAX_STATES, at the first of FIRST_HEADING_CHOICES whose lattice inflates within
-    HEADING_GAIN_M of the least, armed (refine) with the room's own lattice (room_lattice's), which it asks where it
-    has no way, and that one with its own finer lattice if it has one (refine2): so where the first plan says
-    blocked, the room's own field does too. Only where the room's own lattice holds more than FIRST_GAIN times
-    FIRST_MAX_STATES and the first inflates at most FIRST_EXTRA_M more than it (a large structure's coarse lattice
-    closes most ways, and asking the room's own then costs more than building it alone). A plain function of the
-    mission, as room_lattice is. Why: the triangle's own lattice among 64 pillars (1.7-1.9 million states) takes
-    30-37 ms to plan; this one (bench/plan_cost.py, 2026-12-07) 3-4 ms, and the agents follow it for the mission's
-    first FIRST_PLAN_S (vsfleet.structure) while they build their own."""
+    """The first plan's lattice of a room, as build_field's keywords, or None where the room has none (docs/planning.md,
+    "The first plan"). A plain function of the mission, as room_lattice is; the agents follow its field for the
+    mission's first FIRST_PLAN_S (vsfleet.structure) while they build the room's own. Two kinds:
+
+    - coarse: where the room's own lattice holds more than FIRST_GAIN times FIRST_MAX_STATES, a lattice of the same room
+      of at most FIRST_MAX_STATES, at the first of FIRST_HEADING_CHOICES whose lattice inflates within HEADING_GAIN_M
+      of the least, if it inflates at most FIRST_EXTRA_M more than the room's own (a large structure's coarse lattice
+      closes most ways). It asks the room's own lattice where it has no way (refine), and that one its finer lattice
+      (refine2): where the first plan says blocked, the room's own field does too. Why: the triangle's own lattice
+      among 64 pillars (1.7-1.9 million states) takes 30-37 ms to plan, this one 3-4 ms (bench/plan_cost.py);
+    - provisional: else, where the room's own lattice asks a finer one (field_refinement), the room's own lattice
+      without it, provisional: where it has no way, the structure holds (no verdict) until the room's own field, whose
+      finer lattice the agents build meanwhile, answers. Why: 30 robots among 256 pillars plan in 22-35 ms on their
+      own lattice, but 64-116 ms where it has no way and the finer lattice is built to find whether it has one."""
     own = room_lattice(template_xy, radius_m, margin_m, obstacles, goal_xy)
     states = lattice_states(template_xy, radius_m, margin_m, obstacles, goal_xy, own["n_headings"])
-    if states is None or states <= FIRST_GAIN * FIRST_MAX_STATES:
-        return None
-    infl = [lattice_inflation_m(template_xy, radius_m, margin_m, obstacles, goal_xy, k, max_states=FIRST_MAX_STATES)
-            for k in FIRST_HEADING_CHOICES]
-    least = min(infl)
-    own_infl = lattice_inflation_m(template_xy, radius_m, margin_m, obstacles, goal_xy, own["n_headings"])
-    if not least <= own_infl + FIRST_EXTRA_M:
-        return None
-    heads = next(k for k, i in zip(FIRST_HEADING_CHOICES, infl) if i <= least + HEADING_GAIN_M)
-    return {"n_headings": heads, "max_states": FIRST_MAX_STATES, "refine": (own["n_headings"], MAX_STATES),
-            "refine2": own["refine"]}
+    if states is not None and states > FIRST_GAIN * FIRST_MAX_STATES:
+        infl = [lattice_inflation_m(template_xy, radius_m, margin_m, obstacles, goal_xy, k,
+                                    max_states=FIRST_MAX_STATES) for k in FIRST_HEADING_CHOICES]
+        least = min(infl)
+        if least <= lattice_inflation_m(template_xy, radius_m, margin_m, obstacles, goal_xy,
+                                        own["n_headings"]) + FIRST_EXTRA_M:
+            heads = next(k for k, i in zip(FIRST_HEADING_CHOICES, infl) if i <= least + HEADING_GAIN_M)
+            return {"n_headings": heads, "max_states": FIRST_MAX_STATES, "refine": (own["n_headings"], MAX_STATES),
+                    "refine2": own["refine"]}
+    if own["refine"] is not None:
+        return {"n_headings": own["n_headings"], "provisional": True}
+    return None
 
 
 _DX = (1, -1, 0, 0, 1, -1, 1, -1)
@@ -207,6 +212,8 @@ class Field:
                  fine_build=None):
         self.lattice, self.costs, self.handle, self.refine = lattice, costs, handle, refine
         self._fine_build, self._fine = fine_build, None
+        # a first plan that holds where it has no way (vs_field_set_provisional; the step reads it, the descent not)
+        self.provisional = False
 
     def refine_now(self) -> bool:
         """Build the finer lattice now if there is one; whether it is built. The answers are the same whenever it is
@@ -235,28 +242,35 @@ class Field:
 
 def build_field(template_xy, radius_m, margin_m: float, obstacles, goal: Pose2, cell_m: float = CELL_M,
                 n_headings: int = HEADINGS, max_states: int = MAX_STATES, deferred: bool = False,
-                refine: tuple[int, int] | None = None, refine2: tuple[int, int] | None = None) -> Field:
+                refine: tuple[int, int] | None = None, refine2: tuple[int, int] | None = None,
+                provisional: bool = False) -> Field:
     """The compiled core's field (vs_field_build); costs read back lazily by tests only. deferred: the components
     the goal cannot reach are resolved when a descent first needs one (vs_field_build_deferred): every descent the
     same, the build several times faster in rooms with walls. refine (n_headings, max_states): the finer lattice of
     the same room (at cell_m) asked where this one has no way from a pose (vs_field_set_refine; field_refinement);
-    refine2: that lattice's own finer one, asked where neither has a way (vs_field_set_refine_chain; first_lattice)."""
+    refine2: that lattice's own finer one, asked where neither has a way (vs_field_set_refine_chain; first_lattice).
+    provisional: a first plan, which the step holds where it has no way (vs_field_set_provisional; first_lattice)."""
     handle = _core.field_build(f64(template_xy), f64(radius_m), float(margin_m), f64(obstacles), f64(goal.as_tuple()),
                                float(cell_m), int(n_headings), int(max_states), bool(deferred))
     if refine is not None:
         chain = (0, 0) if refine2 is None else (int(refine2[0]), int(refine2[1]))
         _core.field_set_refine(handle, f64(template_xy), f64(radius_m), f64(obstacles), float(cell_m),
                                int(refine[0]), int(refine[1]), *chain)
+    if provisional:
+        _core.field_set_provisional(handle)
     lat = Lattice(*_core.field_info(handle))
-    return Field(lat, _CoreCosts(handle, lat), handle, refine)
+    fld = Field(lat, _CoreCosts(handle, lat), handle, refine)
+    fld.provisional = bool(provisional)
+    return fld
 
 
 def build_field_deferred(template_xy, radius_m, margin_m: float, obstacles, goal: Pose2, cell_m: float = CELL_M,
                          n_headings: int = HEADINGS, max_states: int = MAX_STATES,
-                         refine: tuple[int, int] | None = None, refine2: tuple[int, int] | None = None) -> Field:
+                         refine: tuple[int, int] | None = None, refine2: tuple[int, int] | None = None,
+                         provisional: bool = False) -> Field:
     """build_field(deferred=True): the agent's build (vsfleet.agentstate)."""
     return build_field(template_xy, radius_m, margin_m, obstacles, goal, cell_m, n_headings, max_states, deferred=True,
-                       refine=refine, refine2=refine2)
+                       refine=refine, refine2=refine2, provisional=provisional)
 
 
 class _CoreCosts:
@@ -294,9 +308,16 @@ def _floor(v: float) -> int:
 
 def build_field_reference(template_xy, radius_m, margin_m: float, obstacles, goal: Pose2, cell_m: float = CELL_M,
                           n_headings: int = HEADINGS, max_states: int = MAX_STATES,
-                          refine: tuple[int, int] | None = None, refine2: tuple[int, int] | None = None) -> Field:
+                          refine: tuple[int, int] | None = None, refine2: tuple[int, int] | None = None,
+                          provisional: bool = False) -> Field:
     """vs_field_build in numpy and scipy: the same lattice, the same raster, the same integer costs (refine, refine2:
-    as build_field's, each finer lattice built by the first descent or shape test that asks for it)."""
+    as build_field's, each finer lattice built by the first descent or shape test that asks for it; provisional: as
+    build_field's)."""
+    if provisional:
+        fld = build_field_reference(template_xy, radius_m, margin_m, obstacles, goal, cell_m, n_headings, max_states,
+                                    refine, refine2)
+        fld.provisional = True
+        return fld
     if refine is not None:
         fld = build_field_reference(template_xy, radius_m, margin_m, obstacles, goal, cell_m, n_headings, max_states)
         fld.refine = (int(refine[0]), int(refine[1]))

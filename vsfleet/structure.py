@@ -66,10 +66,15 @@ def _room_field(tpl_bytes: bytes, rad_bytes: bytes, obs_bytes: bytes, target: tu
     """room_field's build, by its key (the arrays' bytes): the lattice's heading count by the structure, and the
     finer lattice it asks where it has no way (field_refinement); first: the first plan's (first_lattice)."""
     tpl, rad, obs = array("d", tpl_bytes), array("d", rad_bytes), array("d", obs_bytes)
+    first_lat = first_lattice(tpl, rad, PLAN_MARGIN_M, obs, target[:2])
     if first:
-        lattice = first_lattice(tpl, rad, PLAN_MARGIN_M, obs, target[:2])
-        return None if lattice is None else build(tpl, rad, PLAN_MARGIN_M, obs, Pose2(*target), **lattice)
-    return build(tpl, rad, PLAN_MARGIN_M, obs, Pose2(*target), **room_lattice(tpl, rad, PLAN_MARGIN_M, obs, target[:2]))
+        return None if first_lat is None else build(tpl, rad, PLAN_MARGIN_M, obs, Pose2(*target), **first_lat)
+    fld = build(tpl, rad, PLAN_MARGIN_M, obs, Pose2(*target), **room_lattice(tpl, rad, PLAN_MARGIN_M, obs, target[:2]))
+    if first_lat is not None and first_lat.get("provisional"):
+        # its finer lattice now, with the field (on the agent's prepare thread, before any frame follows it): the
+        # provisional first plan left the verdict to it, and the frame that asks it must not build it
+        fld.refine_now()
+    return fld
 
 
 def has_first_plan(template: np.ndarray, radii, obstacles: np.ndarray, goal: Goal, shapes=()) -> bool:
@@ -143,9 +148,11 @@ def structure_step_reference(arrays, metric: str, pose_world: np.ndarray, seen: 
             shape = pick
     now_pts = fit.pose.apply(template)
     dist = np.hypot(xy[:, 0] - now_pts[:, 0], xy[:, 1] - now_pts[:, 1])
-    goal, blocked, left_m, limits = arrays.goal, False, 0.0, arrays.limits
+    goal, blocked, left_m, limits, held = arrays.goal, False, 0.0, arrays.limits, False
     if field is not None:  # the room: follow the field's descent from the fitted pose
         way, blocked, left_m = follow_field_reference(field, fit.pose)
+        if blocked and field.provisional:   # a first plan with no way from here: hold, no verdict (vs_step.h)
+            way, blocked, left_m, held = way[:1], False, 0.0, True
         goal = GoalPath(tuple(Pose2(*w) for w in way), synced=True)
         # the carrot at least STEP_LOOKAHEAD_PER_REACH times the shape's reach ahead (vs_step.h)
         reach = math.sqrt(float(np.max(template[:, 0] * template[:, 0] + template[:, 1] * template[:, 1])))
@@ -183,7 +190,7 @@ def structure_step_reference(arrays, metric: str, pose_world: np.ndarray, seen: 
         judged = fit_fn(template[judges], xy[judges], metric=metric).pose.apply(template)
         dist = np.hypot(xy[:, 0] - judged[:, 0], xy[:, 1] - judged[:, 1])
     return Structure(fit_pose=fit.pose, goal_pose=adv.pose, twist=adv.twist, cost=float(fit.cost),
-                     at_goal=adv.at_goal and not blocked, used=used, points_now=now_pts,
+                     at_goal=adv.at_goal and not blocked and not held, used=used, points_now=now_pts,
                      points_next=adv.pose.apply(template), deviations_m=np.where(seen, dist, np.inf),
                      blocked=blocked, left_m=left_m, shape=shape, cleared=cleared)
 

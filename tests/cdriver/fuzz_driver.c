@@ -866,9 +866,11 @@ static int fuzz_agent(long iters)
             have_field = vs_field_build(tpl, radii, n, 0.02, obs, m_obs, goal + 3 * (k_goal - 1), 0.1, 8, 20000,
                                         &field) == VS_OK;
             fields += have_field;
-            if (have_field && next() % 2)   /* with a finer lattice, asked where this one has no way (and its own) */
-                (void)vs_field_set_refine_chain(&field, tpl, radii, n, obs, m_obs, 0.05, 12, 40000,
-                                                next() % 2 ? 16 : 0, next() % 2 ? 60000 : 0);
+            if (have_field && next() % 2) {   /* a finer lattice, asked where this one has no way (and its own) */
+                size_t heads2 = next() % 2 ? 16 : 0, states2 = next() % 2 ? 60000 : 0;   /* in this order */
+                (void)vs_field_set_refine_chain(&field, tpl, radii, n, obs, m_obs, 0.05, 12, 40000, heads2, states2);
+            }
+            if (have_field && next() % 4 == 0) vs_field_set_provisional(&field);   /* a first plan: holds */
         }
         vs_mission m = {n, tpl, wb, vmax, amax, metric, {kind, goal, k_goal}, lim, radii, obs, m_obs, 0.02,
                         have_field ? &field : NULL, 0, NULL, NULL};
@@ -1188,7 +1190,9 @@ int main(int argc, char **argv)
             long n = (long)(next() % 301);
             if (it % 50 == 0) n = 0;
             for (long i = 0; i < n; i++) in[i] = hostile(in, i, in, i);
-            if (strcmp(all[e].name, "structure_step") == 0 && it % 10) n = structure_step_input(in);
+            if ((strcmp(all[e].name, "structure_step") == 0 || strcmp(all[e].name, "structure_step_held") == 0) &&
+                it % 10)
+                n = structure_step_input(in);
             if (strcmp(all[e].name, "structure_step_shapes") == 0 && it % 10) {   /* then shapes: s, 2 n s points */
                 n = structure_step_input(in);
                 long robots = (long)in[0], shapes = (long)(next() % 4);

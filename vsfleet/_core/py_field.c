@@ -142,6 +142,17 @@ static PyObject *py_field_refine_now(PyObject *mod, PyObject *const *a, Py_ssize
     return PyBool_FromLong(vs_field_refined(f));
 }
 
+/* field_set_provisional(field) -> None: vs_field_set_provisional (a first plan: the step holds where it has no way) */
+static PyObject *py_field_set_provisional(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
+{
+    (void)mod;
+    if (nargs != 1) { PyErr_SetString(PyExc_TypeError, "field_set_provisional(field)"); return NULL; }
+    vs_field *f = a[0] == Py_None ? NULL : PyCapsule_GetPointer(a[0], FIELD_CAPSULE);
+    if (f == NULL) { if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "not a field"); return NULL; }
+    vs_field_set_provisional(f);
+    Py_RETURN_NONE;
+}
+
 /* field_refined(field) -> bool: vs_field_refined (its finer lattice is built; asking builds nothing) */
 static PyObject *py_field_refined(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
 {
@@ -262,6 +273,8 @@ PyMethodDef vs_py_field_methods[] = {
      "max_states2]): its finer lattice (and that one's)."},
     {"field_refine_now", (PyCFunction)(void (*)(void))py_field_refine_now, METH_FASTCALL,
      "field_refine_now(field) -> bool: build its finer lattice now; whether it has one built."},
+    {"field_set_provisional", (PyCFunction)(void (*)(void))py_field_set_provisional, METH_FASTCALL,
+     "field_set_provisional(field): a first plan, held where it has no way (vs_step)."},
     {"field_refined", (PyCFunction)(void (*)(void))py_field_refined, METH_FASTCALL,
      "field_refined(field) -> bool: whether its finer lattice is built."},
     {"field_info", (PyCFunction)(void (*)(void))py_field_info, METH_FASTCALL, "field_info(field) -> lattice tuple."},

@@ -970,6 +970,11 @@ int vs_field_refine_now(const vs_field *f)
     return refined(f, &g);
 }
 
+void vs_field_set_provisional(vs_field *f)
+{
+    if (f != NULL) f->provisional = 1;
+}
+
 int vs_field_refined(const vs_field *f)
 {
     return f != NULL && f->refine != NULL && f->refine->built;

@@ -66,6 +66,7 @@ typedef struct {
     int goal_free;             /* 0: the goal pose itself is not free: every state is blocked */
     uint32_t *cost;            /* (K, ny, nx) row-major: index (k * ny + row) * nx + column */
     struct vs_field_refine *refine;   /* NULL, or the finer lattice to ask where this one has no way (set_refine) */
+    int provisional;           /* 1: a first plan that holds where it has no way (vs_field_set_provisional) */
 } vs_field;
 
 /* Build the field for a mission.  template_xy (n, 2) [m; structure frame]; radius_m (n) >= 0 [m];
@@ -149,6 +150,13 @@ int vs_field_set_refine(vs_field *f, const double *template_xy, const double *ra
 int vs_field_set_refine_chain(vs_field *f, const double *template_xy, const double *radius_m, size_t n,
                               const double *obstacles, size_t n_obstacles, double cell_m, size_t n_headings,
                               size_t max_states, size_t n_headings2, size_t max_states2);
+
+/* Mark f provisional (since 2026-12-07): a first plan whose "no way" is not a verdict.  vs_structure_step (vs_step.h)
+ * holds the structure where f has no way from its pose (no move, not blocked, not at the goal) instead of heading
+ * for the closest safe pose: the verdict is the room's own field's, which every agent follows from the mission's
+ * FIRST_PLAN_S on (a large structure's first plan: the room's own lattice without the finer one it asks, which
+ * the agents build meanwhile; vsfleet.field.first_lattice).  vs_field_follow and vs_field_open answer as before. */
+void vs_field_set_provisional(vs_field *f);
 
 /* Build f's finer lattice now, if f has one and it is not built yet (VS_OK otherwise); one caller at a time on f. */
 int vs_field_refine_now(const vs_field *f);

@@ -56,7 +56,7 @@ static long count_of(double v, long lo, long hi)
  * cell, headings, max states (the room's field, built from these when m > 0), m obstacles, n radii, 3m obstacles
  * -> any_used, then (if any) fit 3, goal 3, twist 3, cost, at_goal, blocked, left, n used, 2n now,
  * 2n next, n deviations */
-static long structure_step_of(const double *in, long n_in, double *out, long cap, int with_shapes)
+static long structure_step_of(const double *in, long n_in, double *out, long cap, int with_shapes, int provisional)
 {
     if (n_in < 4) return -1;
     long n = count_of(in[0], 1, 100000), metric = count_of(in[1], 0, 2), kind = count_of(in[2], 0, 2),
@@ -97,6 +97,7 @@ static long structure_step_of(const double *in, long n_in, double *out, long cap
                            (size_t)heads, (size_t)max_states, &field) != VS_OK)
             return -1;
         have_field = 1;
+        if (provisional) vs_field_set_provisional(&field);
     }
     const double *shapes = obstacles + 3 * m_obs + 1;
     vs_field shape_field[VS_STEP_MAX_SHAPES];
@@ -135,14 +136,21 @@ static long structure_step_of(const double *in, long n_in, double *out, long cap
 
 static long g_structure_step(const double *in, long n_in, double *out, long cap)
 {
-    return structure_step_of(in, n_in, out, cap, 0);
+    return structure_step_of(in, n_in, out, cap, 0, 0);
+}
+
+/* structure_step_held: structure_step's inputs, its field provisional (vs_field_set_provisional: a first plan, held
+ * where it has no way) -> structure_step's outputs */
+static long g_structure_step_held(const double *in, long n_in, double *out, long cap)
+{
+    return structure_step_of(in, n_in, out, cap, 0, 1);
 }
 
 /* structure_step_shapes: structure_step's inputs, then the count of shapes s (<= VS_STEP_MAX_SHAPES) and their
  * 2n s points (each built into its own field as the template's is) -> structure_step's outputs, then the shape */
 static long g_structure_step_shapes(const double *in, long n_in, double *out, long cap)
 {
-    return structure_step_of(in, n_in, out, cap, 1);
+    return structure_step_of(in, n_in, out, cap, 1, 0);
 }
 
 /* safety_filter: n, k obstacles, margin, gamma, offset, dt, 3n poses, n radii, n active, n wheel base,
@@ -559,6 +567,7 @@ static const golden_entry entries[] = {
     {"safety_filter", g_safety_filter},
     {"structure_step", g_structure_step},
     {"structure_step_shapes", g_structure_step_shapes},
+    {"structure_step_held", g_structure_step_held},
     {"sin", g_sin},
     {"cos", g_cos},
     {"atan2", g_atan2},

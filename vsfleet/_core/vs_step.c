@@ -156,7 +156,7 @@ int vs_structure_step_ws(const vs_mission *m, const double *pose_world, const un
         devs[i] = mask[i] ? dist[i] : nan;
     }
     double pose_fit[3] = {fit.x, fit.y, fit.th};
-    int blocked = 0;
+    int blocked = 0, held = 0;
     double left_m = 0.0;
     vs_limits limits = m->limits;
     double plan[3 * VS_STEP_PATH_CAP];
@@ -165,6 +165,12 @@ int vs_structure_step_ws(const vs_mission *m, const double *pose_world, const un
         size_t n_way = 0;
         rc = vs_field_follow(field, pose_fit, VS_STEP_PATH_M, plan, VS_STEP_PATH_CAP, &n_way, &blocked, &left_m);
         if (rc != VS_OK) goto done;
+        if (blocked && field->provisional) {   /* a first plan with no way from here: hold, no verdict (vs_field.h) */
+            n_way = 1;
+            blocked = 0;
+            left_m = 0.0;
+            held = 1;
+        }
         goal.kind = VS_GOAL_PLAN;   /* turn in step with the move: keep to the plan in SE(2) */
         goal.poses = plan;
         goal.n_poses = n_way;
@@ -223,7 +229,7 @@ int vs_structure_step_ws(const vs_mission *m, const double *pose_world, const un
     out->goal_x = adv.x; out->goal_y = adv.y; out->goal_th = adv.th;
     out->vx_m_s = adv.vx_m_s; out->vy_m_s = adv.vy_m_s; out->w_rad_s = adv.w_rad_s;
     out->cost = fit.cost;
-    out->at_goal = adv.at_goal && !blocked;
+    out->at_goal = adv.at_goal && !blocked && !held;
     out->blocked = blocked;
     out->left_m = left_m;
     out->shape = shape;

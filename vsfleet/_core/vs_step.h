@@ -78,6 +78,8 @@ typedef struct {
  * shape the robots are in or clear of the comfort band (room to change shape); else the first open shape;
  * none open: the template (blocked).  Points, advance and deviations are then that shape's; out->shape says
  * which.  No state is kept: the shape is a function of the frame, so every agent switches at the same frame.
+ * A provisional field (vs_field_set_provisional: a first plan) with no way from the fitted pose is no verdict: the
+ * structure holds (the advance to the fitted pose itself), and neither blocked nor at_goal is set.
  * pose_world (n, 3) [m, m, rad; world], read on seen rows only; seen, excluded, judged_apart
  * (n) 0/1; elapsed_s [s] since the mission took effect; dt_s [s] > 0.  Outputs (n each, or
  * (n, 2)): used (seen & !excluded), points_now / points_next [m; world] (every robot's point
