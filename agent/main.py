@@ -248,15 +248,16 @@ class Agent:
         if len(missions) != 1:
             return False
         (mission,) = missions.values()
+        now = self.clock()   # one reading for the test below and the step
         thread = self._preparing.get(mission.version)
         if thread is not None and thread.is_alive():
             # its prepare thread still builds: a frame that may follow the room's own field goes the long way, which
             # waits for the build (await_prepared) instead of building the same field beside it
             first_built = getattr(thread, "first_built", None)
             if (first_built is None or not first_built.is_set()
-                    or not in_first_plan(mission, self.clock() + merger.max_future_s)):
+                    or not in_first_plan(mission, now + merger.max_future_s)):
                 return False
-        got = agent_payload_step(self.state, mission, payload, src, self.clock(), self.config, merger.done,
+        got = agent_payload_step(self.state, mission, payload, src, now, self.config, merger.done,
                                  merger.max_future_s, self.rejections.count, merger.max_age_s, others_t)
         if got is None:
             return False

@@ -146,13 +146,28 @@ def test_the_core_step_runs_when_it_can_and_the_glue_otherwise(monkeypatch):
 
 # ------------------------------------------------------------------ the agent's one pass, payload to payload
 
+def twin_agents(mission, keys, clock: list) -> tuple[dict, dict]:
+    """Two agents of the mission's first robot on one clock (clock[0]), holding the mission: ({True: the one that
+    runs frames in one pass when it can, False: the one that never does}, {the same: (commands, states, events)})."""
+    from vsfleet.agent.main import Agent
+    from vsfleet.wire import encode_mission
+
+    out = {True: ([], [], []), False: ([], [], [])}
+    agents = {}
+    for fast in (True, False):
+        cmds, states, events = out[fast]
+        agents[fast] = Agent(mission.robot_ids[0], keys, cmds.append, states.append, clock=lambda: clock[0],
+                             put_event=events.append)
+        agents[fast].on_mission(keys.mission, encode_mission(mission))
+    return agents, out
+
+
 def test_the_agents_one_pass_sends_the_bytes_of_the_long_way_through_a_stream_that_leaves_it_and_comes_back():
     """Two agents on the same payloads at the same clock: one runs frames in one pass when it can (fast_frame, as
     its zenoh callback does), the other always the long way (decode, merger, agent_step, wire.encode). The stream
     leaves the common case and comes back: the first frames, a frame without one robot, a stale frame, a frame
     from the future, a repeated frame, a hostile payload, a gap past ttl, a second tracker source for a while, and
     a mission update. Every command and state payload must be the same bytes, and so must the events."""
-    from vsfleet.agent.main import Agent
     from vsfleet.wire import FrameMsg, Keys, encode_frame, encode_mission
 
     keys = Keys("demo")
@@ -160,13 +175,7 @@ def test_the_agents_one_pass_sends_the_bytes_of_the_long_way_through_a_stream_th
     mission = dataclasses.replace(sc.mission, effective_t=0.0, version=1)
     ids = mission.robot_ids
     clock = [0.0]
-    out = {True: ([], [], []), False: ([], [], [])}
-    agents = {}
-    for fast in (True, False):
-        cmds, states, events = out[fast]
-        agents[fast] = Agent(ids[0], keys, cmds.append, states.append, clock=lambda: clock[0],
-                             put_event=events.append)
-        agents[fast].on_mission(keys.mission, encode_mission(mission))
+    agents, out = twin_agents(mission, keys, clock)
     rng = np.random.default_rng(9)
     base = np.array([mission.spec(r).p for r in ids])
     ran_fast = 0

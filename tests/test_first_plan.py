@@ -11,6 +11,7 @@ import math
 import threading
 
 import numpy as np
+import pytest
 
 import vsfleet.agentstate as agentstate
 from bench.plan_cost import room as plan_cost_room
@@ -31,7 +32,7 @@ from vsfleet.geometry import Pose2
 from vsfleet.step import PLAN_MARGIN_M, AgentState, StepConfig, agent_step
 from vsfleet.structure import FIRST_PLAN_S
 
-from test_core_agent_step import assert_same, both
+from test_core_agent_step import assert_same, both, twin_agents
 from test_core_step import TOLERANCE
 
 TOL = TOLERANCE["l2"]
@@ -162,21 +163,13 @@ def test_the_one_pass_and_the_long_way_send_the_same_bytes_across_the_first_plan
     """Two agents on the same payloads (tests/test_core_agent_step.py's way): frames from before the mission takes
     effect to past its first plan. The one pass runs the first plan's frames and the room's own, and leaves to the
     long way only the frames that may fall on either side of FIRST_PLAN_S."""
-    from vsfleet.agent.main import Agent
-    from vsfleet.wire import FrameMsg, Keys, encode_frame, encode_mission
+    from vsfleet.wire import FrameMsg, Keys, encode_frame
 
     keys = Keys("demo")
     sc, start = triangle_room(7, effective_t=10.0)
     mission = dataclasses.replace(sc.mission, version=1)
-    ids = mission.robot_ids
     clock = [0.0]
-    out = {True: ([], [], []), False: ([], [], [])}
-    agents = {}
-    for fast in (True, False):
-        cmds, states, events = out[fast]
-        agents[fast] = Agent(ids[0], keys, cmds.append, states.append, clock=lambda: clock[0],
-                             put_event=events.append)
-        agents[fast].on_mission(keys.mission, encode_mission(mission))
+    agents, out = twin_agents(mission, keys, clock)
     poses = robot_poses(mission, start)
     fast_t = []
     for k in range(75):
@@ -372,3 +365,28 @@ def test_the_reference_holds_where_the_core_does(monkeypatch):
     finally:
         structure._room_field.cache_clear()
         agentstate._FIRST.clear()
+
+
+@pytest.mark.parametrize("glue", [False, True], ids=["core", "glue"])
+def test_a_mission_that_follows_a_blocked_one_stays_blocked_through_its_provisional_first_plan(glue):
+    """bench/plan_cost.py's 30-robot room 0 (no way): v1 says blocked half a second in; v2 (the same room, another
+    speed) takes effect at 31.5 s, its first plan provisional. Its held frames give no verdict, so no `unblocked` and
+    no second `blocked`: one event in all, in the core's agent step and the numpy glue alike (a review found the
+    pair, 2026-12-07)."""
+    sc, start = thirty_room(0, effective_t=30.0)
+    v1 = dataclasses.replace(sc.mission, version=1)
+    v2 = dataclasses.replace(v1, version=2, effective_t=31.5, speed_max=0.5 * v1.speed_max)
+    assert first_plan(v2)
+    poses = robot_poses(v1, start)
+    config = StepConfig(shared_structures={}) if glue else StepConfig()
+    state, kinds, held = AgentState(robot=v1.robot_ids[0]), [], 0
+    for k in range(75):   # 2.5 s at 30 Hz
+        t = 30.0 + k / 30.0
+        mission = v2 if t >= v2.effective_t else v1
+        frame = Frame(seq=k + 1, t=t, poses=poses, complete=True, fresh=frozenset(poses))
+        state, out = agent_step(state, mission, frame, t + 0.001, config)
+        kinds += [(round(t, 3), e.kind) for e in out.events]
+        held += bool(glue and out.structure.held)
+        assert out.structure.blocked == (not in_first_plan(mission, t))
+    assert [kind for _t, kind in kinds] == ["blocked"] and kinds[0][0] == 30.5, kinds
+    assert held == (30 if glue else 0)   # v1's and v2's first half seconds held (the glue's structure says so)

@@ -150,11 +150,11 @@ def test_the_cores_structure_is_the_one_its_dataclasses_init_would_build(monkeyp
         n = len(pose)
         s = structure_step(arrays, MISSION.metric, pose, np.ones(n, bool), np.zeros(n, bool), np.zeros(n, bool),
                            0.1 * k, 1 / 30)
-        fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m, shape, cleared = results[-1]
+        fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m, shape, cleared, held = results[-1]
         built = Structure(fit_pose=Pose2(fx, fy, fth), goal_pose=Pose2(gx, gy, gth), twist=Twist2(vx, vy, w),
                           cost=cost, at_goal=at_goal, used=s.used, points_now=s.points_now,
                           points_next=s.points_next, deviations_m=s.deviations_m, blocked=blocked, left_m=left_m,
-                          shape=shape, cleared=cleared)
+                          shape=shape, cleared=cleared, held=held)
         for obj, ref in ((s, built), (s.fit_pose, built.fit_pose), (s.goal_pose, built.goal_pose),
                          (s.twist, built.twist)):
             assert list(vars(obj)) == [f.name for f in dataclasses.fields(ref)]

@@ -271,8 +271,9 @@ def _core_outcome(state: AgentState, mission: Mission, cm: CoreMission, ctrl, t:
             notes.append(Note("info", f"frame {seq}: the structure takes {shape_name(cm, shape)}"))
         notes.extend(Note("warning", f"frame {seq}: robot {d.robot} {d.kind} (deviation {d.deviation_m:.3f} m, "
                                      f"on_failure={mission.on_failure})") for d in decisions)
-    state = _evolve(state, last_frame_t=last_frame_t, ctrl=ctrl, health=health, last_seq=seq, blocked=bool(blocked),
-                    stall_since_t=sc[at["stall_since_t"]], stall_pose=stall_pose, stalled=bool(sc[at["stalled"]]),
+    # the state's verdict as the core kept it (vs_agent.c: a held frame keeps the one before), not the frame's own
+    state = _evolve(state, last_frame_t=last_frame_t, ctrl=ctrl, health=health, last_seq=seq,
+                    blocked=bool(sc[at["blocked"]]), stall_since_t=sc[at["stall_since_t"]], stall_pose=stall_pose, stalled=bool(sc[at["stalled"]]),
                     shape=int(shape), last_cmd_t=t, ticks=state.ticks + 1)
     return state, health_msg, events
 

@@ -218,7 +218,8 @@ class Field:
     def refine_now(self) -> bool:
         """Build the finer lattice now if there is one; whether it is built. The answers are the same whenever it is
         built. Not beside another thread that follows this field (the core's build writes into it unlocked): the agent
-        does not call it; its first frame with no way on the room's own lattice builds it."""
+        calls it only while it builds the field, before any frame follows it (vsfleet.structure, where the first plan
+        is provisional); elsewhere its first frame with no way on the room's own lattice builds it."""
         if self.refine is None:
             return False
         if self.handle is not None:

@@ -308,8 +308,12 @@ def decide_in_numpy(state: AgentState, mission: Mission, controller, frame: Fram
     events = tuple(EventMsg(t=d.t, seq=frame.seq, robot=d.robot, kind=d.kind, dev=d.deviation_m, by=state.robot)
                    for d in decisions)
     failed_any = arrays.field is not None and bool(np.count_nonzero(failure.failed))  # (stall_state's only use)
-    stall_since, stall_pose, stalled = stall_state(state, arrays, s, filtered or s.cleared, failed_any, frame.t)
-    was, now = state.blocked or state.stalled, s.blocked or stalled
+    # a held frame (a provisional first plan with no way: vs_step.h) gives no verdict: the blocked flag and the stall
+    # watch stay as they were, and no event is sent (as vs_agent.c)
+    blocked = state.blocked if s.held else s.blocked
+    stall_since, stall_pose, stalled = ((state.stall_since_t, state.stall_pose, state.stalled) if s.held else
+                                        stall_state(state, arrays, s, filtered or s.cleared, failed_any, frame.t))
+    was, now = state.blocked or state.stalled, blocked or stalled
     if now != was:  # the room: no path to the goal (stopping short) or stuck on the way, or going again
         short = s.left_m if s.blocked else _goal_distance(arrays, s.fit_pose)
         events += (EventMsg(t=frame.t, seq=frame.seq, robot=state.robot, kind="blocked" if now else "unblocked",
@@ -320,7 +324,7 @@ def decide_in_numpy(state: AgentState, mission: Mission, controller, frame: Fram
     notes.extend(Note("warning", f"frame {frame.seq}: robot {d.robot} {d.kind} (deviation {d.deviation_m:.3f} m, "
                                  f"on_failure={mission.on_failure})") for d in decisions)
     state = _evolve(state, wheels_m_s=wheels, ctrl=ctrl, failure=failure, health=health, last_seq=frame.seq,
-                    blocked=s.blocked, stall_since_t=stall_since, stall_pose=stall_pose, stalled=stalled,
+                    blocked=blocked, stall_since_t=stall_since, stall_pose=stall_pose, stalled=stalled,
                     shape=s.shape, last_cmd_t=frame.t, ticks=state.ticks + 1)
     return state, StepOutput(cmd=cmd, state=state_msg, health=health_msg, events=events, notes=tuple(notes),
                              structure=s, wheels_m_s=wheels)

@@ -72,8 +72,12 @@ def _room_field(tpl_bytes: bytes, rad_bytes: bytes, obs_bytes: bytes, target: tu
     fld = build(tpl, rad, PLAN_MARGIN_M, obs, Pose2(*target), **room_lattice(tpl, rad, PLAN_MARGIN_M, obs, target[:2]))
     if first_lat is not None and first_lat.get("provisional"):
         # its finer lattice now, with the field (on the agent's prepare thread, before any frame follows it): the
-        # provisional first plan left the verdict to it, and the frame that asks it must not build it
-        fld.refine_now()
+        # provisional first plan left the verdict to it, and the frame that asks it must not build it. Short of
+        # memory, the first frame that needs it tries again (as without a first plan)
+        try:
+            fld.refine_now()
+        except MemoryError:
+            pass
     return fld
 
 
@@ -111,6 +115,7 @@ class Structure:
     left_m: float = 0.0     # obstacles, blocked: how far [m] that pose is from the goal
     shape: int = 0          # reshape: the shape taken (0: the template; k: the mission's k-th, MissionArrays.shapes)
     cleared: bool = False   # obstacles: the clearance barrier (vsfleet.clear) changed the advance's twist
+    held: bool = False      # a provisional first plan with no way from here: the structure holds, no verdict (vs_step.h)
 
 
 
@@ -192,7 +197,7 @@ def structure_step_reference(arrays, metric: str, pose_world: np.ndarray, seen: 
     return Structure(fit_pose=fit.pose, goal_pose=adv.pose, twist=adv.twist, cost=float(fit.cost),
                      at_goal=adv.at_goal and not blocked and not held, used=used, points_now=now_pts,
                      points_next=adv.pose.apply(template), deviations_m=np.where(seen, dist, np.inf),
-                     blocked=blocked, left_m=left_m, shape=shape, cleared=cleared)
+                     blocked=blocked, left_m=left_m, shape=shape, cleared=cleared, held=held)
 
 
 
@@ -216,13 +221,13 @@ def structure_step_core(arrays, metric: str, pose_world: np.ndarray, seen: np.nd
                              used, now, nxt, dev, *c[_FRAME:])
     if r is None:
         return None
-    fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m, shape, cleared = r
+    fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m, shape, cleared, held = r
     return make_structure(fx, fy, wrap_angle(fth), gx, gy, wrap_angle(gth), vx, vy, w, cost, at_goal, used, now, nxt,
-                          dev, blocked, left_m, shape, cleared)
+                          dev, blocked, left_m, shape, cleared, held)
 
 
 def make_structure(fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, used, now, nxt, dev, blocked, left_m,
-                   shape, cleared=False) -> Structure:
+                   shape, cleared=False, held=False) -> Structure:
     """A Structure of the core's numbers, its headings fth and gth already wrapped (wrap_angle)."""
     # the frozen dataclasses filled without their __init__s (as advance._result and _evolve do), every field given
     # as __init__ would set it (Pose2: x and y as floats, th wrapped by wrap_angle): 2 Pose2, a Twist2 and the
@@ -233,7 +238,7 @@ def make_structure(fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, used, now
     _set(twist, "__dict__", {"vx_m_s": vx, "vy_m_s": vy, "w_rad_s": w})
     _set(out, "__dict__", {"fit_pose": fit, "goal_pose": goal, "twist": twist, "cost": cost, "at_goal": at_goal,
                            "used": used, "points_now": now, "points_next": nxt, "deviations_m": dev,
-                           "blocked": blocked, "left_m": left_m, "shape": shape, "cleared": cleared})
+                           "blocked": blocked, "left_m": left_m, "shape": shape, "cleared": cleared, "held": held})
     return out
 
 

@@ -16,7 +16,7 @@ const vs_field *vs_py_field(PyObject *obj);   /* py_field.c: NULL for None (or w
  * field: a capsule of field_build (the room's navigation function) or None.  shapes_xy: (k, n, 2) doubles (k = 0:
  * none), shape_fields: a tuple of k such capsules (reshape: vs_step.h).
  * -> None (no robot usable) or (fx, fy, fth, gx, gy, gth, vx, vy, w, cost, at_goal, blocked, left_m, shape,
- * cleared). */
+ * cleared, held). */
 /* A_TEMPLATE ... A_SHAPE_FIELDS, A_COUNT: py_util.h */
 typedef char step_args_check[A_COUNT == VS_PY_STRUCTURE_STEP_ARGS ? 1 : -1];
 /* the arguments by name (exported: STRUCTURE_STEP_ARGS); the mission's are the ones before pose_world and
@@ -112,10 +112,10 @@ static PyObject *py_structure_step(PyObject *mod, PyObject *const *a, Py_ssize_t
     Py_END_ALLOW_THREADS
     if (rc != VS_OK) { vs_py_error(rc, "structure_step refused its inputs"); goto out; }
     if (!s.any_used) { result = Py_NewRef(Py_None); goto out; }
-    result = Py_BuildValue("(ddddddddddOOdiO)", s.fit_x, s.fit_y, s.fit_th, s.goal_x, s.goal_y, s.goal_th, s.vx_m_s,
+    result = Py_BuildValue("(ddddddddddOOdiOO)", s.fit_x, s.fit_y, s.fit_th, s.goal_x, s.goal_y, s.goal_th, s.vx_m_s,
                            s.vy_m_s, s.w_rad_s, s.cost, s.at_goal ? Py_True : Py_False,
                            s.blocked ? Py_True : Py_False, s.left_m, s.shape,
-                           s.cleared ? Py_True : Py_False);
+                           s.cleared ? Py_True : Py_False, s.held ? Py_True : Py_False);
 out:
     for (int i = 0; i < got; i++) PyBuffer_Release(&b[i]);
     return result;

@@ -306,14 +306,17 @@ int vs_agent_step_ws(const vs_agent_config *cfg, vs_agent_state *st, const doubl
     if (m->field != NULL)
         for (size_t i = 0; i < n; i++) failed_any = failed_any || f->failed[i];
     int was = st->blocked || st->stalled;
-    stall_state(cfg, st, &s, used, dev, filtered || s.cleared, failed_any, t);
-    int is = s.blocked || st->stalled;
+    /* a held frame (a provisional first plan with no way: vs_step.h) gives no verdict: the blocked flag and the stall
+     * watch stay as they were, and no event is sent (a mission that follows a blocked one stays blocked through it) */
+    if (!s.held) stall_state(cfg, st, &s, used, dev, filtered || s.cleared, failed_any, t);
+    int blocked = s.held ? st->blocked : s.blocked;
+    int is = blocked || st->stalled;
     if (is != was) {
         out->event = is ? 1 : 2;
         out->event_dev_m = s.blocked ? s.left_m : goal_distance(&m->goal, s.fit_x, s.fit_y);
     }
     memcpy(st->wheels_m_s, wheels, sizeof(double) * 2 * n);
-    st->blocked = s.blocked;
+    st->blocked = blocked;
     st->shape = s.shape;
     st->last_cmd_t = t;
     return VS_OK;

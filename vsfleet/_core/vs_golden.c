@@ -129,6 +129,10 @@ static long structure_step_of(const double *in, long n_in, double *out, long cap
                        s.cost, (double)s.at_goal, (double)s.blocked, s.left_m};
     memcpy(out + 1, head, sizeof head);
     for (long i = 0; i < n; i++) out[14 + i] = used[i];
+    if (provisional) {   /* structure_step_held: then whether the structure held */
+        out[14 + 6 * n] = (double)s.held;
+        return 15 + 6 * n;
+    }
     if (!with_shapes) return 14 + 6 * n;
     out[14 + 6 * n] = (double)s.shape;
     return 15 + 6 * n;
@@ -140,7 +144,7 @@ static long g_structure_step(const double *in, long n_in, double *out, long cap)
 }
 
 /* structure_step_held: structure_step's inputs, its field provisional (vs_field_set_provisional: a first plan, held
- * where it has no way) -> structure_step's outputs */
+ * where it has no way) -> structure_step's outputs, then held */
 static long g_structure_step_held(const double *in, long n_in, double *out, long cap)
 {
     return structure_step_of(in, n_in, out, cap, 0, 1);

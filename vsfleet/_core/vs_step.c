@@ -234,6 +234,7 @@ int vs_structure_step_ws(const vs_mission *m, const double *pose_world, const un
     out->left_m = left_m;
     out->shape = shape;
     out->cleared = cleared;
+    out->held = held;
 done:
     free(own);
     return rc;

@@ -66,6 +66,8 @@ typedef struct {
     double left_m;                      /* obstacles: distance [m] from the plan's end to the goal */
     int shape;                          /* the shape taken: 0 the template, k >= 1 shapes_xy's row k - 1 */
     int cleared;                        /* the room's clearance barrier changed the advance's twist (vs_clear.h) */
+    int held;                           /* a provisional field with no way from here: the structure holds, and
+                                           this frame gives no verdict (blocked 0; vs_field_set_provisional) */
 } vs_structure;
 
 /* With a field (a room) and a pose or path goal, the advance follows the field's descent from the fitted
