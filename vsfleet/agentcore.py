@@ -273,8 +273,8 @@ def _core_outcome(state: AgentState, mission: Mission, cm: CoreMission, ctrl, t:
                                      f"on_failure={mission.on_failure})") for d in decisions)
     # the state's verdict as the core kept it (vs_agent.c: a held frame keeps the one before), not the frame's own
     state = _evolve(state, last_frame_t=last_frame_t, ctrl=ctrl, health=health, last_seq=seq,
-                    blocked=bool(sc[at["blocked"]]), stall_since_t=sc[at["stall_since_t"]], stall_pose=stall_pose, stalled=bool(sc[at["stalled"]]),
-                    shape=int(shape), last_cmd_t=t, ticks=state.ticks + 1)
+                    blocked=bool(sc[at["blocked"]]), stall_since_t=sc[at["stall_since_t"]], stall_pose=stall_pose,
+                    stalled=bool(sc[at["stalled"]]), shape=int(shape), last_cmd_t=t, ticks=state.ticks + 1)
     return state, health_msg, events
 
 

@@ -115,7 +115,7 @@ class Structure:
     left_m: float = 0.0     # obstacles, blocked: how far [m] that pose is from the goal
     shape: int = 0          # reshape: the shape taken (0: the template; k: the mission's k-th, MissionArrays.shapes)
     cleared: bool = False   # obstacles: the clearance barrier (vsfleet.clear) changed the advance's twist
-    held: bool = False      # a provisional first plan with no way from here: the structure holds, no verdict (vs_step.h)
+    held: bool = False      # a provisional first plan with no way here: the structure holds, no verdict (vs_step.h)
 
 
 
