@@ -8,11 +8,11 @@ bodies of 0.05-0.09 m) in a room of 12 m. For each room, on the compiled core:
 - ``plan``: what an agent does before its structure moves: the deferred build (vsfleet.field.build_field_deferred)
   of the field its first frames follow, and the first frame's descent from the start (which resolves the start's
   component when the goal cannot be reached from it, and asks a finer lattice where this one has one and no way).
-  That field is the first plan's (vsfleet.field.first_lattice: a coarse lattice, or the room's own lattice
-  provisional, without its finer one) where the room has one, else the room's own;
+  That field is the first plan's (vsfleet.field.first_lattice: a coarse lattice, or the room's own lattice without its
+  finer one; either provisional) where the room has one, else the room's own;
 - ``own``: the room's own field (vsfleet.field.room_lattice) as the agents build it meanwhile and follow it from the
-  mission's FIRST_PLAN_S on: its deferred build (with its finer lattice, where the first plan is provisional:
-  vsfleet.structure builds it with the field) and the descent from the start;
+  mission's FIRST_PLAN_S on: its deferred build (with its finer lattice, where the first plan is the room's own
+  lattice: vsfleet.structure builds it with the field) and the descent from the start;
 - ``whole``: the whole build (every component the goal cannot reach resolved up front), as before 2026-12-06;
 - ``follow``: one frame's descent (vsfleet.field.follow_field, 2 m of it), timed along the way from the start.
 
@@ -106,7 +106,7 @@ def way_m(way) -> float:
 def plan_room(tpl, rad, obs, start, goal, lattice: dict, refine_now: bool = False):
     """The room's plan as an agent makes it: (the deferred field, the first frame's descent from the start, which
     builds the finer lattice where the room's own has no way from there). refine_now: its finer lattice built with
-    it (the room's own field where the first plan is provisional)."""
+    it (the room's own field where the first plan is the room's own lattice)."""
     f = build_field(tpl, rad, PLAN_MARGIN_M, obs, Pose2(*goal), **lattice, deferred=True)
     if refine_now:
         f.refine_now()
@@ -126,7 +126,7 @@ def measure(n: int, seed: int) -> dict:
     first_lat = first_lattice(tpl, rad, PLAN_MARGIN_M, obs, goal[:2])
     heads = lattice["n_headings"]
     args = (tpl, rad, PLAN_MARGIN_M, obs, Pose2(*goal))
-    eager = first_lat is not None and bool(first_lat.get("provisional"))
+    eager = first_lat is not None and "max_states" not in first_lat   # the room's own lattice: its finer one now
     own_s, own_cpu_s, (fld, _) = best_of(lambda: plan_room(tpl, rad, obs, start, goal, lattice, eager))
     plan_s, plan_cpu_s, first_way = own_s, own_cpu_s, None
     if first_lat is not None:
@@ -144,7 +144,7 @@ def measure(n: int, seed: int) -> dict:
             "states": lat.nx * lat.ny * lat.n_headings, "way": not blocked, "plan_ms": 1e3 * plan_s,
             "plan_cpu_ms": 1e3 * plan_cpu_s, "first_ms": first_plan_ms(n, seed), "own_ms": 1e3 * own_s,
             "first_plan": first_lat is not None,
-            "first_kind": None if first_lat is None else "provisional" if eager else "coarse",
+            "first_kind": None if first_lat is None else "the room's own lattice" if eager else "coarse",
             # the first plan's way from the start against the room's own (its length, or None: no way, or none)
             "first_way_ratio": (way_m(first_way[0]) / way_m(way) if first_way is not None and not first_way[1]
                                 and not blocked else None),
@@ -193,7 +193,7 @@ def main(argv=None) -> int:
           "the plan, a fresh process's first field, median / max | "
           "the first plan's way / the room's own, median / max | "
           f"the room's own field (followed from {FIRST_PLAN_S} s on; with its finer lattice where the first plan "
-          "is provisional), median / max | "
+          "is the room's own lattice), median / max | "
           "whole build, median / max | follow a frame, median / max |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for n, (m, _side) in CASES.items():

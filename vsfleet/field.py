@@ -156,13 +156,18 @@ def first_lattice(template_xy, radius_m, margin_m: float, obstacles, goal_xy) ->
     - coarse: where the room's own lattice holds more than FIRST_GAIN times FIRST_MAX_STATES, a lattice of the same room
       of at most FIRST_MAX_STATES, at the first of FIRST_HEADING_CHOICES whose lattice inflates within HEADING_GAIN_M
       of the least, if it inflates at most FIRST_EXTRA_M more than the room's own (a large structure's coarse lattice
-      closes most ways). It asks the room's own lattice where it has no way (refine), and that one its finer lattice
-      (refine2): where the first plan says blocked, the room's own field does too. Why: the triangle's own lattice
-      among 64 pillars (1.7-1.9 million states) takes 30-37 ms to plan, this one 3-4 ms (bench/plan_cost.py);
-    - provisional: else, where the room's own lattice asks a finer one (field_refinement), the room's own lattice
-      without it, provisional: where it has no way, the structure holds (no verdict) until the room's own field, whose
-      finer lattice the agents build meanwhile, answers. Why: 30 robots among 256 pillars plan in 22-35 ms on their
-      own lattice, but 64-116 ms where it has no way and the finer lattice is built to find whether it has one."""
+      closes most ways). Why: the triangle's own lattice among 64 pillars (1.7-1.9 million states) takes 30-37 ms to
+      plan, this one 2-3 ms (bench/plan_cost.py);
+    - the room's own: else, where the room's own lattice asks a finer one (field_refinement), that lattice without
+      it (no max_states: the room's own). Why: 30 robots among 256 pillars plan in 22-35 ms on their own lattice, but
+      64-116 ms where it has no way and the finer lattice is built to find whether it has one.
+
+    Either is provisional (vs_field_set_provisional): where it has no way, the structure holds, with no verdict,
+    until the room's own field answers; so no frame of the first plan builds a field, and every verdict is the room's
+    own field's. (Until 2026-12-07 noon a coarse first plan asked the room's own lattice where it had no way
+    (vs_field_set_refine_chain), and the frame that asked built it: 30-40 ms, in 33 of bench/room.py's 102 coarse
+    rooms. Holding instead changed their times to the goal by 0.00 s on average, and none its verdict or its being
+    in time.)"""
     own = room_lattice(template_xy, radius_m, margin_m, obstacles, goal_xy)
     states = lattice_states(template_xy, radius_m, margin_m, obstacles, goal_xy, own["n_headings"])
     if states is not None and states > FIRST_GAIN * FIRST_MAX_STATES:
@@ -172,8 +177,7 @@ def first_lattice(template_xy, radius_m, margin_m: float, obstacles, goal_xy) ->
         if least <= lattice_inflation_m(template_xy, radius_m, margin_m, obstacles, goal_xy,
                                         own["n_headings"]) + FIRST_EXTRA_M:
             heads = next(k for k, i in zip(FIRST_HEADING_CHOICES, infl) if i <= least + HEADING_GAIN_M)
-            return {"n_headings": heads, "max_states": FIRST_MAX_STATES, "refine": (own["n_headings"], MAX_STATES),
-                    "refine2": own["refine"]}
+            return {"n_headings": heads, "max_states": FIRST_MAX_STATES, "provisional": True}
     if own["refine"] is not None:
         return {"n_headings": own["n_headings"], "provisional": True}
     return None
@@ -249,7 +253,7 @@ def build_field(template_xy, radius_m, margin_m: float, obstacles, goal: Pose2, 
     the goal cannot reach are resolved when a descent first needs one (vs_field_build_deferred): every descent the
     same, the build several times faster in rooms with walls. refine (n_headings, max_states): the finer lattice of
     the same room (at cell_m) asked where this one has no way from a pose (vs_field_set_refine; field_refinement);
-    refine2: that lattice's own finer one, asked where neither has a way (vs_field_set_refine_chain; first_lattice).
+    refine2: that lattice's own finer one, asked where neither has a way (vs_field_set_refine_chain; agents arm none).
     provisional: a first plan, which the step holds where it has no way (vs_field_set_provisional; first_lattice)."""
     handle = _core.field_build(f64(template_xy), f64(radius_m), float(margin_m), f64(obstacles), f64(goal.as_tuple()),
                                float(cell_m), int(n_headings), int(max_states), bool(deferred))

@@ -143,10 +143,10 @@ int vs_field_set_refine(vs_field *f, const double *template_xy, const double *ra
 
 /* vs_field_set_refine with a chain (since 2026-12-07): the finer lattice is itself armed, when it is built, with a
  * finer one still (n_headings2, max_states2; both 0: none), so that where neither f nor its finer lattice has a way,
- * the finest is asked, and the first of them with a way from the pose answers (else f's answer stands).  Why: a
- * first plan (vsfleet.field.first_lattice) is a coarse lattice armed with the room's own, which may itself ask a
- * finer one; its verdict must then be the room's own.  Arming the built finer field is part of its build: one that
- * fails (VS_ENOMEM) keeps nothing, as above. */
+ * the finest is asked, and the first of them with a way from the pose answers (else f's answer stands).  Made for a
+ * coarse first plan armed with the room's own lattice (vsfleet.field.first_lattice); since first plans are
+ * provisional (vs_field_set_provisional) the agents arm none, so that no frame builds a lattice.  Arming the built
+ * finer field is part of its build: one that fails (VS_ENOMEM) keeps nothing, as above. */
 int vs_field_set_refine_chain(vs_field *f, const double *template_xy, const double *radius_m, size_t n,
                               const double *obstacles, size_t n_obstacles, double cell_m, size_t n_headings,
                               size_t max_states, size_t n_headings2, size_t max_states2);
