@@ -61,7 +61,7 @@ def records() -> list[tuple[str, list[float]]]:
     from step_core_records import (agent_step_records, assembly_records, held_records,  # noqa: PLC0415 - (tests/)
                                    shape_records, step_records)
     return (trig_records() + step_records() + safety_records() + field_records() + shape_records()
-            + assembly_records() + agent_step_records() + refine_records() + refine2_records() + held_records())
+            + assembly_records() + agent_step_records() + refine_records() + held_records())
 
 
 def line(entry: str, inputs, outputs) -> str:
@@ -120,22 +120,6 @@ def refine_records(seed: int = 29, count: int = 16) -> list[tuple[str, list[floa
     return out
 
 
-def refine2_records(seed: int = 29, count: int = 16) -> list[tuple[str, list[float]]]:
-    """A field armed with a chain of finer lattices (vs_field_set_refine_chain), on refine_records' rooms: 1,024
-    states at 8 headings, asking 4,000 at 8, which asks 60,000 at 16. Two descents each from the wall's far side: 18 of
-    the 32 find no way on the first lattice and take the second's, 2 take the third's, 2 find none on any (recorded
-    2026-12-07)."""
-    rng = np.random.default_rng(seed)
-    out = []
-    for _ in range(count):
-        tpl, radii, obs, goal = gap_room(rng)
-        build = [float(len(tpl)), float(len(obs)), 0.02, 0.04, 8.0, 1024.0, *goal, *tpl.ravel(), *radii, *obs.ravel()]
-        for _ in range(2):
-            pose = [*far_side(rng), float(rng.choice([0.5, 2.0, 50.0]))]
-            out.append(("field_refine2", build + [8.0, 4000.0, 16.0, 60000.0] + pose))
-    return out
-
-
 def gap_room(rng) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[float]]:
     """refine_records' room: a line-like structure of 2-5 robots (template (n, 2), radii (n,)), a thin wall of discs
     across x = 0 with one gap about its width, 0-3 pillars (obstacles (m, 3)), and a goal (x, y, th) beyond the wall."""
@@ -162,8 +146,7 @@ def main(only: str | None = None) -> None:
             records()
     else:
         from step_core_records import agent_step_records, held_records  # noqa: PLC0415 - (tests/)
-        makers = {"agent_step": agent_step_records, "field_refine": refine_records, "field_refine2": refine2_records,
-                  "structure_step_held": held_records}
+        makers = {"agent_step": agent_step_records, "field_refine": refine_records, "structure_step_held": held_records}
         if only not in makers:
             raise SystemExit(f"--only: one of {sorted(makers)}")
         lines = [t for t in PATH.read_text().splitlines() if t.split(" ", 1)[0] != only]

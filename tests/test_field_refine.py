@@ -73,34 +73,6 @@ def test_the_core_and_the_reference_take_the_finer_lattices_way_where_the_coarse
     assert refined >= 3 and kept >= 2 and coarse_open >= 10, (refined, kept, coarse_open)
 
 
-def test_a_chain_takes_the_first_lattice_with_a_way_in_core_and_reference_alike_bit_for_bit():
-    """vs_field_set_refine_chain (vsfleet.field.first_lattice's fields): 1,024 states asking 4,000, which ask 60,000
-    (tests/golden_core.py's refine2_records). Each descent and shape test is the first lattice's with a way from the
-    pose, else the first's answer; the core and the reference agree, and an oracle built from the three plain
-    fields says the same."""
-    rng = np.random.default_rng(41)
-    levels = [dict(cell_m=0.04, n_headings=8, max_states=1024), dict(cell_m=0.04, n_headings=8, max_states=4000),
-              dict(cell_m=0.04, n_headings=16, max_states=60000)]
-    taken = [0, 0, 0, 0]   # the first, second, third lattice's way; none
-    for _ in range(12):
-        tpl, rad, obs, goal = gap_room(rng)
-        chain = dict(**levels[0], refine=(8, 4000), refine2=(16, 60000))
-        core = build_field(tpl, rad, MARGIN_M, obs, goal, deferred=True, **chain)
-        ref = build_field_reference(tpl, rad, MARGIN_M, obs, goal, **chain)
-        plain = [build_field(tpl, rad, MARGIN_M, obs, goal, deferred=True, **lv) for lv in levels]
-        for _ in range(4):
-            pose = far_side(rng)
-            got, want = follow_field(core, pose), follow_field_reference(ref, pose)
-            assert np.array_equal(got[0], want[0]) and got[1:] == want[1:], pose
-            assert _core.field_open(core.handle, np.array(pose.as_tuple())) == field_open_reference(ref, pose)
-            ways = [follow_field(f, pose) for f in plain]
-            k = next((j for j, w in enumerate(ways) if not w[1]), 3)
-            expected = ways[k if k < 3 else 0]
-            taken[k] += 1
-            assert np.array_equal(got[0], expected[0]) and got[1:] == expected[1:], (k, pose)
-    assert taken[0] >= 4 and taken[1] >= 8 and taken[2] >= 4 and taken[3] >= 2, taken
-
-
 def test_the_finer_lattice_is_built_only_when_a_pose_needs_it_and_early_or_late_the_answers_are_the_same():
     """Built by the first descent with no way on the room's own lattice (lazy), or ahead of any (eager,
     field_refine_now): every answer the same. A field no pose of which needs it never builds it."""

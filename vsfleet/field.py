@@ -164,10 +164,10 @@ def first_lattice(template_xy, radius_m, margin_m: float, obstacles, goal_xy) ->
 
     Either is provisional (vs_field_set_provisional): where it has no way, the structure holds, with no verdict,
     until the room's own field answers; so no frame of the first plan builds a field, and every verdict is the room's
-    own field's. (Until 2026-12-07 noon a coarse first plan asked the room's own lattice where it had no way
-    (vs_field_set_refine_chain), and the frame that asked built it: 30-40 ms, in 33 of bench/room.py's 102 coarse
-    rooms. Holding instead changed their times to the goal by 0.00 s on average, and none its verdict or its being
-    in time.)"""
+    own field's. (Until 2026-12-07 noon a coarse first plan asked the room's own lattice where it had no way (a
+    chain of finer lattices in the core, since removed), and the frame that asked built it: 30-40 ms, in 33 of
+    bench/room.py's 102 coarse rooms. Holding instead changed their times to the goal by 0.00 s on average, and none
+    its verdict or its being in time.)"""
     own = room_lattice(template_xy, radius_m, margin_m, obstacles, goal_xy)
     states = lattice_states(template_xy, radius_m, margin_m, obstacles, goal_xy, own["n_headings"])
     if states is not None and states > FIRST_GAIN * FIRST_MAX_STATES:
@@ -223,7 +223,7 @@ class Field:
         """Build the finer lattice now if there is one; whether it is built. The answers are the same whenever it is
         built. Not beside another thread that follows this field (the core's build writes into it unlocked): the agent
         calls it only while it builds the field, before any frame follows it (vsfleet.structure, where the first plan
-        is provisional); elsewhere its first frame with no way on the room's own lattice builds it."""
+        is the room's own lattice); elsewhere its first frame with no way on the room's own lattice builds it."""
         if self.refine is None:
             return False
         if self.handle is not None:
@@ -247,20 +247,17 @@ class Field:
 
 def build_field(template_xy, radius_m, margin_m: float, obstacles, goal: Pose2, cell_m: float = CELL_M,
                 n_headings: int = HEADINGS, max_states: int = MAX_STATES, deferred: bool = False,
-                refine: tuple[int, int] | None = None, refine2: tuple[int, int] | None = None,
-                provisional: bool = False) -> Field:
+                refine: tuple[int, int] | None = None, provisional: bool = False) -> Field:
     """The compiled core's field (vs_field_build); costs read back lazily by tests only. deferred: the components
     the goal cannot reach are resolved when a descent first needs one (vs_field_build_deferred): every descent the
     same, the build several times faster in rooms with walls. refine (n_headings, max_states): the finer lattice of
-    the same room (at cell_m) asked where this one has no way from a pose (vs_field_set_refine; field_refinement);
-    refine2: that lattice's own finer one, asked where neither has a way (vs_field_set_refine_chain; agents arm none).
+    the same room (at cell_m) asked where this one has no way from a pose (vs_field_set_refine; field_refinement).
     provisional: a first plan, which the step holds where it has no way (vs_field_set_provisional; first_lattice)."""
     handle = _core.field_build(f64(template_xy), f64(radius_m), float(margin_m), f64(obstacles), f64(goal.as_tuple()),
                                float(cell_m), int(n_headings), int(max_states), bool(deferred))
     if refine is not None:
-        chain = (0, 0) if refine2 is None else (int(refine2[0]), int(refine2[1]))
         _core.field_set_refine(handle, f64(template_xy), f64(radius_m), f64(obstacles), float(cell_m),
-                               int(refine[0]), int(refine[1]), *chain)
+                               int(refine[0]), int(refine[1]))
     if provisional:
         _core.field_set_provisional(handle)
     lat = Lattice(*_core.field_info(handle))
@@ -271,11 +268,10 @@ def build_field(template_xy, radius_m, margin_m: float, obstacles, goal: Pose2, 
 
 def build_field_deferred(template_xy, radius_m, margin_m: float, obstacles, goal: Pose2, cell_m: float = CELL_M,
                          n_headings: int = HEADINGS, max_states: int = MAX_STATES,
-                         refine: tuple[int, int] | None = None, refine2: tuple[int, int] | None = None,
-                         provisional: bool = False) -> Field:
+                         refine: tuple[int, int] | None = None, provisional: bool = False) -> Field:
     """build_field(deferred=True): the agent's build (vsfleet.agentstate)."""
     return build_field(template_xy, radius_m, margin_m, obstacles, goal, cell_m, n_headings, max_states, deferred=True,
-                       refine=refine, refine2=refine2, provisional=provisional)
+                       refine=refine, provisional=provisional)
 
 
 class _CoreCosts:
@@ -313,14 +309,13 @@ def _floor(v: float) -> int:
 
 def build_field_reference(template_xy, radius_m, margin_m: float, obstacles, goal: Pose2, cell_m: float = CELL_M,
                           n_headings: int = HEADINGS, max_states: int = MAX_STATES,
-                          refine: tuple[int, int] | None = None, refine2: tuple[int, int] | None = None,
-                          provisional: bool = False) -> Field:
-    """vs_field_build in numpy and scipy: the same lattice, the same raster, the same integer costs (refine, refine2:
-    as build_field's, each finer lattice built by the first descent or shape test that asks for it; provisional: as
+                          refine: tuple[int, int] | None = None, provisional: bool = False) -> Field:
+    """vs_field_build in numpy and scipy: the same lattice, the same raster, the same integer costs (refine: as
+    build_field's, its finer lattice built by the first descent or shape test that asks for it; provisional: as
     build_field's)."""
     if provisional:
         fld = build_field_reference(template_xy, radius_m, margin_m, obstacles, goal, cell_m, n_headings, max_states,
-                                    refine, refine2)
+                                    refine)
         fld.provisional = True
         return fld
     if refine is not None:
@@ -328,8 +323,7 @@ def build_field_reference(template_xy, radius_m, margin_m: float, obstacles, goa
         fld.refine = (int(refine[0]), int(refine[1]))
         # the inputs copied now, as the core's vs_field_set_refine copies them
         tpl, rad, obs = (np.array(a, dtype=float) for a in (template_xy, radius_m, obstacles))
-        fld._fine_build = lambda: build_field_reference(tpl, rad, margin_m, obs, goal, cell_m, *fld.refine,
-                                                        refine=refine2)
+        fld._fine_build = lambda: build_field_reference(tpl, rad, margin_m, obs, goal, cell_m, *fld.refine)
         return fld
     from scipy.sparse.csgraph import connected_components, dijkstra  # noqa: PLC0415 - the reference only
     if not (4 <= n_headings <= 1024 and 1024 <= max_states <= 1_000_000_000 and 9 * n_headings <= max_states):
@@ -548,14 +542,13 @@ def _cost_view(field: Field) -> memoryview:
 
 def field_open_reference(field: Field, pose: Pose2) -> tuple[bool, bool]:
     """vs_field_open in Python: (the descent from the pose starts on a free state the goal can be reached from,
-    that state lies in the comfort band); where it does not, the first finer lattice's answer that is open."""
+    that state lies in the comfort band); where it does not, the finer lattice's answer if that one is open."""
     answer = _open_one(field, pose)
     fine = field.fine() if not answer[0] else None
-    while fine is not None:   # in a chain, the first finer lattice with a way from the pose
+    if fine is not None:
         fine_answer = _open_one(fine, pose)
         if fine_answer[0]:
             return fine_answer
-        fine = fine.fine()
     return answer
 
 
@@ -570,13 +563,11 @@ def _open_one(field: Field, pose: Pose2) -> tuple[bool, bool]:
 
 def follow_field_reference(field: Field, pose: Pose2, path_m: float = PATH_M, cap: int = PATH_CAP):
     """vs_field_follow in Python: (waypoints (k, 3), blocked, left_m); where the goal cannot be reached from the
-    pose, the descent of the first finer lattice the goal can be reached from there (vs_field_set_refine_chain)."""
+    pose, the finer lattice's descent if the goal can be reached from it there (vs_field_set_refine)."""
     answer = _follow_one(field, pose, path_m, cap)
     fine = field.fine() if answer[1] else None
-    while fine is not None:   # in a chain, the first finer lattice with a way from the pose
-        if _open_one(fine, pose)[0]:
-            return _follow_one(fine, pose, path_m, cap)
-        fine = fine.fine()
+    if fine is not None and _open_one(fine, pose)[0]:
+        return _follow_one(fine, pose, path_m, cap)
     return answer
 
 

@@ -57,14 +57,9 @@ int __wrap_posix_memalign(void **p, size_t alignment, size_t size)
  * descent, with memory, answers as a field that never ran out, bit for bit; so does the shape test, which answers 0
  * (shut) while the build fails.  The room: the ring above
  * with one obstacle left out, two robots 0.3 m apart; its lattice grown to cells of 19 cm (8,000 states) closes the
- * gap, the finer one (40,000 states, cells of 7.8 cm) opens it.
- * chain: the same through a chain (vs_field_set_refine_chain): the field asks 9,000 states, as closed, which ask the
- * 40,000; every allocation of both builds (and of arming the second) fails in turn.  A failure in the third
- * lattice's build may leave the second built (it answers as before: closed), so only the answers are checked. */
-static int refine_nomem(int chain)
+ * gap, the finer one (40,000 states, cells of 7.8 cm) opens it. */
+static int refine_nomem(void)
 {
-    const char *what = chain ? "chain" : "refine";
-    const size_t mid = chain ? 9000 : 40000, heads2 = chain ? 16 : 0, states2 = chain ? 40000 : 0;
     const double tpl[4] = {0.15, 0.0, -0.15, 0.0}, rad[2] = {0.03, 0.03};
     double obs[3 * RING], goal[3] = {0.0, 0.0, 0.0}, pose[3] = {2.0, 0.4, 1.0};
     for (int i = 1; i < RING; i++) {
@@ -77,21 +72,11 @@ static int refine_nomem(int chain)
     size_t n_ref, n;
     int b_ref, b;
     vs_field ref;
-    if (chain) {   /* the second lattice closed as well: the way is the third's */
-        vs_field second;
-        int closed = vs_field_build_deferred(tpl, rad, 2, 0.02, obs, RING - 1, goal, 0.05, 16, mid, &second) == VS_OK &&
-                     vs_field_follow(&second, pose, 50.0, w_ref, CAP, &n_ref, &b_ref, &left_ref) == VS_OK && b_ref;
-        vs_field_free(&second);
-        if (!closed) {
-            printf("chain: the second lattice is not closed\n");
-            return 1;
-        }
-    }
     if (vs_field_build_deferred(tpl, rad, 2, 0.02, obs, RING - 1, goal, 0.05, 16, 8000, &ref) != VS_OK ||
         vs_field_follow(&ref, pose, 50.0, w_ref, CAP, &n_ref, &b_ref, &left_ref) != VS_OK || !b_ref ||
-        vs_field_set_refine_chain(&ref, tpl, rad, 2, obs, RING - 1, 0.05, 16, mid, heads2, states2) != VS_OK ||
+        vs_field_set_refine(&ref, tpl, rad, 2, obs, RING - 1, 0.05, 16, 40000) != VS_OK ||
         vs_field_follow(&ref, pose, 50.0, w_ref, CAP, &n_ref, &b_ref, &left_ref) != VS_OK || b_ref) {
-        printf("%s: the room is not closed on its lattice and open on the finer one\n", what);
+        printf("refine: the room is not closed on its lattice and open on the finer one\n");
         return 1;
     }
     long failed = 0;
@@ -99,8 +84,8 @@ static int refine_nomem(int chain)
         vs_field d;
         if (vs_field_build_deferred(tpl, rad, 2, 0.02, obs, RING - 1, goal, 0.05, 16, 8000, &d) != VS_OK ||
             vs_field_follow(&d, pose, 50.0, w, CAP, &n, &b, &left) != VS_OK ||   /* its own components resolved */
-            vs_field_set_refine_chain(&d, tpl, rad, 2, obs, RING - 1, 0.05, 16, mid, heads2, states2) != VS_OK) {
-            printf("%s: the field failed with memory\n", what);
+            vs_field_set_refine(&d, tpl, rad, 2, obs, RING - 1, 0.05, 16, 40000) != VS_OK) {
+            printf("refine: the field failed with memory\n");
             return 1;
         }
         armed = k;
@@ -109,38 +94,36 @@ static int refine_nomem(int chain)
         armed = -1;
         if (hit) {
             failed++;
-            if (rc != VS_ENOMEM || (!chain && vs_field_refined(&d))) {
-                printf("%s: allocation %ld failed: rc %d, a finer lattice %s\n", what, k, rc,
+            if (rc != VS_ENOMEM || vs_field_refined(&d)) {
+                printf("refine: allocation %ld failed: rc %d, a finer lattice %s\n", k, rc,
                        vs_field_refined(&d) ? "kept" : "not kept");
                 return 1;
             }
             int tight = 0;
             armed = k;   /* the shape test, failing the same allocation: shut, nothing kept */
             int open = vs_field_open(&d, pose, &tight);
-            int shape_hit = armed == 0;
             armed = -1;
-            if ((open && (shape_hit || !chain)) || (!chain && vs_field_refined(&d))) {
-                printf("%s: allocation %ld failed in the shape test: open %d\n", what, k, open);
+            if (open || vs_field_refined(&d)) {
+                printf("refine: allocation %ld failed in the shape test: open %d\n", k, open);
                 return 1;
             }
             rc = vs_field_follow(&d, pose, 50.0, w, CAP, &n, &b, &left);   /* again, with memory */
             if (rc == VS_OK && (!vs_field_open(&d, pose, &tight) || !vs_field_refined(&d))) {
-                printf("%s: allocation %ld: with memory, the shape test is not open\n", what, k);
+                printf("refine: allocation %ld: with memory, the shape test is not open\n", k);
                 return 1;
             }
         }
         if (rc != VS_OK || n != n_ref || b != b_ref || memcmp(&left, &left_ref, sizeof left) != 0 ||
             memcmp(w, w_ref, sizeof(double) * 3 * n) != 0) {
-            printf("%s: allocation %ld: the descent differs from the one that never ran out\n", what, k);
+            printf("refine: allocation %ld: the descent differs from the one that never ran out\n", k);
             return 1;
         }
         vs_field_free(&d);
         if (!hit) break;
     }
     vs_field_free(&ref);
-    printf("field_nomem: %s: %ld failed allocations, each VS_ENOMEM, then the same descent; ok\n", what, failed);
-    /* the finer build's scratch, its cost array and its Dijkstra's buckets at least (twice over, and the arming) */
-    return failed >= (chain ? 7 : 3) ? 0 : 1;
+    printf("field_nomem: refine: %ld failed allocations, each VS_ENOMEM, then the same descent; ok\n", failed);
+    return failed >= 3 ? 0 : 1;   /* the finer build's scratch, its cost array and its Dijkstra's buckets at least */
 }
 
 int main(void)
@@ -238,6 +221,5 @@ int main(void)
     printf("field_nomem: build: %ld failed allocations (%ld aligned), each VS_ENOMEM; ok\n", build_failed,
            aligned_failed);
     if (build_failed < 2) return 1;   /* the scratch and the cost array at least */
-    int rc = refine_nomem(0);
-    return rc != 0 ? rc : refine_nomem(1);
+    return refine_nomem();
 }

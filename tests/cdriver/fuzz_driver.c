@@ -866,10 +866,8 @@ static int fuzz_agent(long iters)
             have_field = vs_field_build(tpl, radii, n, 0.02, obs, m_obs, goal + 3 * (k_goal - 1), 0.1, 8, 20000,
                                         &field) == VS_OK;
             fields += have_field;
-            if (have_field && next() % 2) {   /* a finer lattice, asked where this one has no way (and its own) */
-                size_t heads2 = next() % 2 ? 16 : 0, states2 = next() % 2 ? 60000 : 0;   /* in this order */
-                (void)vs_field_set_refine_chain(&field, tpl, radii, n, obs, m_obs, 0.05, 12, 40000, heads2, states2);
-            }
+            if (have_field && next() % 2)   /* with a finer lattice, asked where this one has no way */
+                (void)vs_field_set_refine(&field, tpl, radii, n, obs, m_obs, 0.05, 12, 40000);
             if (have_field && next() % 4 == 0) vs_field_set_provisional(&field);   /* a first plan: holds */
         }
         vs_mission m = {n, tpl, wb, vmax, amax, metric, {kind, goal, k_goal}, lim, radii, obs, m_obs, 0.02,
@@ -1213,16 +1211,12 @@ int main(int argc, char **argv)
                     in[n] = v;
                 }
             }
-            int chain = strcmp(all[e].name, "field_refine2") == 0;
-            if ((chain || strcmp(all[e].name, "field_refine") == 0) && it % 10) {   /* a room, its finer lattice(s) */
+            if (strcmp(all[e].name, "field_refine") == 0 && it % 10) {   /* a room, its finer lattice, a pose */
                 n = field_build_input(in);
-                double v;
-                for (int level = 0; level <= chain; level++) {
-                    v = (next() % 8) ? (double)(4 + next() % 29) : hostile(in, n, in, n);
-                    in[n++] = v;
-                    v = (next() % 8) ? (double)(1024 + next() % 60000) : hostile(in, n, in, n);
-                    in[n++] = v;
-                }
+                double v = (next() % 8) ? (double)(4 + next() % 29) : hostile(in, n, in, n);
+                in[n++] = v;
+                v = (next() % 8) ? (double)(1024 + next() % 60000) : hostile(in, n, in, n);
+                in[n++] = v;
                 for (int j = 0; j < 4; j++, n++) {
                     v = (next() % 4) ? (j == 3 ? 3.0 * uniform() : 8.0 * (uniform() - 0.5)) : hostile(in, n, in, n);
                     in[n] = v;

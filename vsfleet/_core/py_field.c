@@ -84,24 +84,19 @@ static PyObject *py_field_resolve_all(PyObject *mod, PyObject *const *a, Py_ssiz
     Py_RETURN_NONE;
 }
 
-/* field_set_refine(field, template_xy, radius_m, obstacles, cell_m, n_headings, max_states[, n_headings2,
- * max_states2]) -> None: vs_field_set_refine_chain (the field's finer lattice, asked where it has no way; with the
- * last two, that lattice's own finer one; 0, 0 or left out: none) */
+/* field_set_refine(field, template_xy, radius_m, obstacles, cell_m, n_headings, max_states) -> None:
+ * vs_field_set_refine (the field's finer lattice, asked where it has no way) */
 static PyObject *py_field_set_refine(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
 {
     (void)mod;
-    if (nargs != 7 && nargs != 9) {
-        PyErr_SetString(PyExc_TypeError, "field_set_refine takes 7 or 9 arguments");
-        return NULL;
-    }
+    if (nargs != 7) { PyErr_SetString(PyExc_TypeError, "field_set_refine takes 7 arguments"); return NULL; }
     vs_field *f = a[0] == Py_None ? NULL : PyCapsule_GetPointer(a[0], FIELD_CAPSULE);
     if (f == NULL) { if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "not a field"); return NULL; }
     double cell = PyFloat_AsDouble(a[4]);
     long long heads = PyLong_AsLongLong(a[5]), max_states = PyLong_AsLongLong(a[6]);
-    long long heads2 = nargs == 9 ? PyLong_AsLongLong(a[7]) : 0, max_states2 = nargs == 9 ? PyLong_AsLongLong(a[8]) : 0;
     if (PyErr_Occurred()) return NULL;
-    if (heads < 1 || max_states < 1 || heads2 < 0 || max_states2 < 0) {
-        PyErr_SetString(vs_ValueError, "n_headings and max_states must be >= 1 (the chain's >= 0)");
+    if (heads < 1 || max_states < 1) {
+        PyErr_SetString(vs_ValueError, "n_headings and max_states must be >= 1");
         return NULL;
     }
     Py_buffer b[3];
@@ -116,8 +111,8 @@ static PyObject *py_field_set_refine(PyObject *mod, PyObject *const *a, Py_ssize
     if (vs_py_doubles(a[3], &b[got], -1, 0, "obstacles") < 0) goto out;
     got++;
     if ((b[2].len / 8) % 3) { PyErr_SetString(vs_ValueError, "obstacles must hold 3 k doubles"); goto out; }
-    int rc = vs_field_set_refine_chain(f, b[0].buf, b[1].buf, (size_t)(n2 / 2), b[2].buf, (size_t)(b[2].len / 24),
-                                       cell, (size_t)heads, (size_t)max_states, (size_t)heads2, (size_t)max_states2);
+    int rc = vs_field_set_refine(f, b[0].buf, b[1].buf, (size_t)(n2 / 2), b[2].buf, (size_t)(b[2].len / 24), cell,
+                                 (size_t)heads, (size_t)max_states);
     if (rc != VS_OK) { vs_py_error(rc, "field_set_refine refused its inputs"); goto out; }
     result = Py_None;
     Py_INCREF(result);
@@ -269,8 +264,7 @@ PyMethodDef vs_py_field_methods[] = {
     {"field_resolve_all", (PyCFunction)(void (*)(void))py_field_resolve_all, METH_FASTCALL,
      "field_resolve_all(field): resolve every component a deferred build left."},
     {"field_set_refine", (PyCFunction)(void (*)(void))py_field_set_refine, METH_FASTCALL,
-     "field_set_refine(field, template_xy, radius_m, obstacles, cell_m, n_headings, max_states[, n_headings2, "
-     "max_states2]): its finer lattice (and that one's)."},
+     "field_set_refine(field, template_xy, radius_m, obstacles, cell_m, n_headings, max_states): its finer lattice."},
     {"field_refine_now", (PyCFunction)(void (*)(void))py_field_refine_now, METH_FASTCALL,
      "field_refine_now(field) -> bool: build its finer lattice now; whether it has one built."},
     {"field_set_provisional", (PyCFunction)(void (*)(void))py_field_set_provisional, METH_FASTCALL,

@@ -55,7 +55,6 @@ static uint32_t *cost_alloc(size_t count)
 struct vs_field_refine {
     double *inputs;          /* one block: the template (2 n), the radii (n), the obstacles (3 m) */
     size_t n, n_obstacles, n_headings, max_states;
-    size_t n_headings2, max_states2;   /* the finer lattice's own finer lattice (vs_field_set_refine_chain; 0: none) */
     double cell_m;           /* the cell asked of the fine lattice [m] (it grows as the coarse one did) */
     int built;               /* 1: fine holds the finer lattice's field (deferred, as the agents build) */
     vs_field fine;
@@ -884,28 +883,13 @@ static int follow_one(const vs_field *f, const double pose[3], double path_m, do
 
 /* ------------------------------------------------------------------------------------------------ refinement */
 
-/* 1 when a lattice's heading count and state bound are in vs_field_build's ranges */
-static int lattice_sizes_ok(size_t n_headings, size_t max_states)
-{
-    return n_headings >= 4 && n_headings <= 1024 && max_states >= 1024 && max_states <= VS_FIELD_MAX_STATES &&
-           9 * n_headings <= max_states;
-}
-
 int vs_field_set_refine(vs_field *f, const double *template_xy, const double *radius_m, size_t n,
                         const double *obstacles, size_t n_obstacles, double cell_m, size_t n_headings,
                         size_t max_states)
 {
-    return vs_field_set_refine_chain(f, template_xy, radius_m, n, obstacles, n_obstacles, cell_m, n_headings,
-                                     max_states, 0, 0);
-}
-
-int vs_field_set_refine_chain(vs_field *f, const double *template_xy, const double *radius_m, size_t n,
-                              const double *obstacles, size_t n_obstacles, double cell_m, size_t n_headings,
-                              size_t max_states, size_t n_headings2, size_t max_states2)
-{
-    int chain = n_headings2 != 0 || max_states2 != 0;
     if (f == NULL || f->cost == NULL || f->refine != NULL || n == 0 || n_obstacles > VS_FIELD_MAX_OBSTACLES ||
-        !lattice_sizes_ok(n_headings, max_states) || (chain && !lattice_sizes_ok(n_headings2, max_states2)))
+        n_headings < 4 || n_headings > 1024 || max_states < 1024 || max_states > VS_FIELD_MAX_STATES ||
+        9 * n_headings > max_states)
         return VS_EVALUE;
     if (!finite3(template_xy, 2 * n) || !finite3(radius_m, n) || !finite3(obstacles, 3 * n_obstacles) ||
         !vs_isfinite(cell_m))
@@ -930,8 +914,6 @@ int vs_field_set_refine_chain(vs_field *f, const double *template_xy, const doub
     r->n_obstacles = n_obstacles;
     r->n_headings = n_headings;
     r->max_states = max_states;
-    r->n_headings2 = n_headings2;
-    r->max_states2 = max_states2;
     r->cell_m = cell_m;
     f->refine = r;
     return VS_OK;
@@ -949,14 +931,6 @@ static int refined(const vs_field *f, const vs_field **g)
         int rc = vs_field_build_deferred(in, in + 2 * r->n, r->n, f->margin_m, in + 3 * r->n, r->n_obstacles, goal,
                                          r->cell_m, r->n_headings, r->max_states, &r->fine);
         if (rc != VS_OK) return rc;
-        if (r->n_headings2 != 0) {   /* a chain: the finer field armed with its own finer lattice, as its build */
-            rc = vs_field_set_refine(&r->fine, in, in + 2 * r->n, r->n, in + 3 * r->n, r->n_obstacles, r->cell_m,
-                                     r->n_headings2, r->max_states2);
-            if (rc != VS_OK) {
-                vs_field_free(&r->fine);
-                return rc;
-            }
-        }
         r->built = 1;
     }
     *g = &r->fine;
@@ -983,14 +957,11 @@ int vs_field_refined(const vs_field *f)
 int vs_field_open(const vs_field *f, const double pose[3], int *tight)
 {
     if (open_one(f, pose, tight)) return 1;
-    /* the answer of the first finer lattice (in a chain: the finer lattice's own, and so on) with a way from the pose
-     * (a build that fails: not open, as a resolution that fails); their components the goal cannot reach are never
-     * resolved: a finer lattice's answer is taken only where it has a way */
-    for (const vs_field *g = f; g->refine != NULL;) {
-        if (refined(g, &g) != VS_OK) return 0;
-        if (reachable_near(g, pose)) return open_one(g, pose, tight);
-    }
-    return 0;
+    const vs_field *g;
+    /* the finer lattice's answer where it is open (a build that fails: not open, as a resolution that fails); its
+     * components the goal cannot reach are never resolved: its answer is taken only where it has a way */
+    if (f->refine == NULL || refined(f, &g) != VS_OK || !reachable_near(g, pose)) return 0;
+    return open_one(g, pose, tight);
 }
 
 int vs_field_follow(const vs_field *f, const double pose[3], double path_m, double *waypoints, size_t cap,
@@ -1001,12 +972,10 @@ int vs_field_follow(const vs_field *f, const double pose[3], double path_m, doub
     if (f->refine != NULL && !reachable_near(f, pose)) {
         /* no way on this lattice (its descent would say blocked): the finer one's, if it has one from here; else
          * this one's answer stands */
-        for (const vs_field *g = f; g->refine != NULL;) {   /* in a chain, the first finer lattice with a way */
-            int rc = refined(g, &g);
-            if (rc != VS_OK) return rc;
-            if (reachable_near(g, pose)) return follow_one(g, pose, path_m, waypoints, cap, n_waypoints, blocked,
-                                                           left_m);
-        }
+        const vs_field *g;
+        int rc = refined(f, &g);
+        if (rc != VS_OK) return rc;
+        if (reachable_near(g, pose)) return follow_one(g, pose, path_m, waypoints, cap, n_waypoints, blocked, left_m);
     }
     return follow_one(f, pose, path_m, waypoints, cap, n_waypoints, blocked, left_m);
 }

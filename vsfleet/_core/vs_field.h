@@ -141,21 +141,11 @@ int vs_field_set_refine(vs_field *f, const double *template_xy, const double *ra
                         const double *obstacles, size_t n_obstacles, double cell_m, size_t n_headings,
                         size_t max_states);
 
-/* vs_field_set_refine with a chain (since 2026-12-07): the finer lattice is itself armed, when it is built, with a
- * finer one still (n_headings2, max_states2; both 0: none), so that where neither f nor its finer lattice has a way,
- * the finest is asked, and the first of them with a way from the pose answers (else f's answer stands).  Made for a
- * coarse first plan armed with the room's own lattice (vsfleet.field.first_lattice); since first plans are
- * provisional (vs_field_set_provisional) the agents arm none, so that no frame builds a lattice.  Arming the built
- * finer field is part of its build: one that fails (VS_ENOMEM) keeps nothing, as above. */
-int vs_field_set_refine_chain(vs_field *f, const double *template_xy, const double *radius_m, size_t n,
-                              const double *obstacles, size_t n_obstacles, double cell_m, size_t n_headings,
-                              size_t max_states, size_t n_headings2, size_t max_states2);
-
 /* Mark f provisional (since 2026-12-07): a first plan whose "no way" is not a verdict.  vs_structure_step (vs_step.h)
  * holds the structure where f has no way from its pose (no move, not blocked, not at the goal) instead of heading
  * for the closest safe pose: the verdict is the room's own field's, which every agent follows from the mission's
- * FIRST_PLAN_S on (a large structure's first plan: the room's own lattice without the finer one it asks, which
- * the agents build meanwhile; vsfleet.field.first_lattice).  vs_field_follow and vs_field_open answer as before. */
+ * FIRST_PLAN_S on (vsfleet.field.first_lattice: a coarse lattice, or a large structure's own lattice without the
+ * finer one it asks).  vs_field_follow and vs_field_open answer as before. */
 void vs_field_set_provisional(vs_field *f);
 
 /* Build f's finer lattice now, if f has one and it is not built yet (VS_OK otherwise); one caller at a time on f. */

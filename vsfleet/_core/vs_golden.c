@@ -258,26 +258,23 @@ static long g_field_follow(const double *in, long n_in, double *out, long cap)
 
 /* field_refine: field_build's inputs, then the finer lattice's headings and max states, then pose 3 and path_m
  * -> open, tight (vs_field_open), built (whether the finer lattice was asked), n waypoints, blocked, left, 3n
- * waypoints (at most 64) of vs_field_follow: a deferred field armed with its finer lattice (vs_field_set_refine).
- * field_refine2: the same with a chain (vs_field_set_refine_chain): the finer lattice's headings and max states, then
- * its own finer lattice's, before the pose. */
-static long field_refine_at(const double *in, long n_in, double *out, long cap, int chain)
+ * waypoints (at most 64) of vs_field_follow: a deferred field armed with its finer lattice (vs_field_set_refine). */
+static long g_field_refine(const double *in, long n_in, double *out, long cap)
 {
     if (n_in < 15 || cap < 6 + 3 * 64) return -1;
     long n = count_of(in[0], 1, 4096), m = count_of(in[1], 0, 4096), heads = count_of(in[4], 4, 1024),
          max_states = count_of(in[5], 1024, 100000000);
-    if (n < 0 || m < 0 || heads < 0 || max_states < 0 || n_in != 9 + 2 * n + n + 3 * m + 6 + 2 * chain) return -1;
+    if (n < 0 || m < 0 || heads < 0 || max_states < 0 || n_in != 9 + 2 * n + n + 3 * m + 6) return -1;
     const double *goal = in + 6, *tpl = in + 9, *radii = tpl + 2 * n, *obs = radii + n, *fine = obs + 3 * m;
-    const double *pose = fine + 2 + 2 * chain;
+    const double *pose = fine + 2;
     long fine_heads = count_of(fine[0], 4, 1024), fine_states = count_of(fine[1], 1024, 100000000);
-    long heads2 = chain ? count_of(fine[2], 4, 1024) : 0, states2 = chain ? count_of(fine[3], 1024, 100000000) : 0;
-    if (fine_heads < 0 || fine_states < 0 || heads2 < 0 || states2 < 0) return -1;
+    if (fine_heads < 0 || fine_states < 0) return -1;
     vs_field f;
     if (vs_field_build_deferred(tpl, radii, (size_t)n, in[2], obs, (size_t)m, goal, in[3], (size_t)heads,
                                 (size_t)max_states, &f) != VS_OK)
         return -1;
-    if (vs_field_set_refine_chain(&f, tpl, radii, (size_t)n, obs, (size_t)m, in[3], (size_t)fine_heads,
-                                  (size_t)fine_states, (size_t)heads2, (size_t)states2) != VS_OK) {
+    if (vs_field_set_refine(&f, tpl, radii, (size_t)n, obs, (size_t)m, in[3], (size_t)fine_heads,
+                            (size_t)fine_states) != VS_OK) {
         vs_field_free(&f);
         return -1;
     }
@@ -296,16 +293,6 @@ static long field_refine_at(const double *in, long n_in, double *out, long cap, 
     out[4] = (double)blocked;
     out[5] = left;
     return 6 + 3 * (long)nw;
-}
-
-static long g_field_refine(const double *in, long n_in, double *out, long cap)
-{
-    return field_refine_at(in, n_in, out, cap, 0);
-}
-
-static long g_field_refine2(const double *in, long n_in, double *out, long cap)
-{
-    return field_refine_at(in, n_in, out, cap, 1);
 }
 
 /* assembly_targets: n, margin, n radii, 3n poses, n seen, 2n points now, 2n points next
@@ -567,7 +554,6 @@ static const golden_entry entries[] = {
     {"field_build", g_field_build},
     {"field_follow", g_field_follow},
     {"field_refine", g_field_refine},
-    {"field_refine2", g_field_refine2},
     {"safety_filter", g_safety_filter},
     {"structure_step", g_structure_step},
     {"structure_step_shapes", g_structure_step_shapes},
