@@ -145,8 +145,9 @@ def main(only: str | None = None) -> None:
         lines, todo = ["# golden vectors of vsfleet's compiled core: tests/golden_core.py (entry n_in in... n_out out...)"], \
             records()
     else:
-        from step_core_records import agent_step_records, held_records  # noqa: PLC0415 - (tests/)
-        makers = {"agent_step": agent_step_records, "field_refine": refine_records, "structure_step_held": held_records}
+        from step_core_records import agent_step_records, assembly_records, held_records  # noqa: PLC0415 - (tests/)
+        makers = {"agent_step": agent_step_records, "field_refine": refine_records, "structure_step_held": held_records,
+                  "assembly_targets": assembly_records}
         if only not in makers:
             raise SystemExit(f"--only: one of {sorted(makers)}")
         lines = [t for t in PATH.read_text().splitlines() if t.split(" ", 1)[0] != only]

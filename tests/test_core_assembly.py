@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from vsfleet import _core
-from vsfleet.assembly import assembly_targets, assembly_targets_reference
-from vsfleet.coreconst import ASSEMBLING_M, DETOUR_CLEAR_M, ESCAPE_M, PRESSED_M
+from vsfleet.assembly import assembly_targets, assembly_targets_reference, priority_draw, rank
+from vsfleet.coreconst import ASSEMBLING_M, DETOUR_CLEAR_M, ESCAPE_M, PRESSED_M, PRIORITY_S
 from vsfleet.errors import NonFiniteError, ShapeError, VsfleetValueError
 from vsfleet.frames import Frame
 from vsfleet.impl import core as core_impl, reference as reference_impl
@@ -25,10 +25,13 @@ from vsfleet.wire import Mission, RobotSpec
 
 MARGIN = 0.015
 KINDS = ("block", "row", "dyadic", "head_on", "scatter")
+#: the mission's age [s]: the rows' own order (draw 0, negative ages too), draws 1 (at its first instant), 2 and 6,
+#: and the saturated draw 2^32 - 1
+ELAPSED = (0.0, -3.0, 9.5, PRIORITY_S, 27.3, 61.0, 5e10)
 
 
 def crowd(rng: np.random.Generator, kind: str):
-    """(radii, pose (n, 3), seen, points_now, points_next, margin) of one random crowd of the given kind."""
+    """(radii, pose (n, 3), seen, points_now, points_next, margin, elapsed_s) of one random crowd of the given kind."""
     n = int(rng.integers(2, 41))
     radius = 0.05 if rng.random() < 0.6 else float(rng.uniform(0.0, 0.08))
     radii = np.full(n, radius) if rng.random() < 0.7 else rng.uniform(0.0, 0.08, n)
@@ -61,7 +64,8 @@ def crowd(rng: np.random.Generator, kind: str):
     seen = rng.random(n) < (1.0 if rng.random() < 0.3 else 0.85)
     nxt = points + (0.0 if rng.random() < 0.3 else rng.normal(0.0, 0.005, (n, 2)))
     margin = MARGIN if rng.random() < 0.6 else float(rng.choice([0.0, rng.uniform(0.0, 0.03)]))
-    return radii, pose, seen, points, nxt, margin
+    elapsed = float(rng.choice(ELAPSED))
+    return radii, pose, seen, points, nxt, margin, elapsed
 
 
 def test_the_core_reproduces_the_reference_bit_for_bit_on_random_crowds():
@@ -81,13 +85,13 @@ def test_the_core_reproduces_the_reference_bit_for_bit_on_random_crowds():
 def test_unseen_rows_are_not_read_and_their_points_pass_through_as_they_are():
     rng = np.random.default_rng(7)
     for k in range(100):
-        radii, pose, seen, now, nxt, margin = crowd(rng, KINDS[k % len(KINDS)])
+        radii, pose, seen, now, nxt, margin, elapsed = crowd(rng, KINDS[k % len(KINDS)])
         seen[0] = False
         pose[~seen, :2] = np.nan                      # as frame_arrays leaves them
         radii[~seen] = -1.0
         now[~seen] = np.inf
-        got, want = assembly_targets(radii, pose, seen, now, nxt, margin), \
-            assembly_targets_reference(radii, pose, seen, now, nxt, margin)
+        got, want = assembly_targets(radii, pose, seen, now, nxt, margin, elapsed), \
+            assembly_targets_reference(radii, pose, seen, now, nxt, margin, elapsed)
         for g, w in zip(got, want):
             assert np.array_equal(g, w, equal_nan=True), k
         assert not got[2][~seen].any() and np.array_equal(got[0][~seen], now[~seen])
@@ -97,15 +101,15 @@ def _head_on():
     radii = np.array([0.05, 0.05])
     pose = np.array([[0.0, 0.0, 0.0], [0.12, 0.0, math.pi]])    # face to face, 2 cm apart
     points = np.array([[0.5, 0.0], [-0.4, 0.0]])                 # each one's point behind the other
-    return radii, pose, np.ones(2, bool), points, points + 0.01, MARGIN
+    return radii, pose, np.ones(2, bool), points, points + 0.01, MARGIN, 0.0
 
 
 @pytest.mark.parametrize("fn", [assembly_targets, assembly_targets_reference], ids=["core", "reference"])
 def test_of_a_head_on_pair_the_higher_row_passes_the_other_on_its_right_at_the_documented_waypoint(fn):
     """Docstring's rule: the later row gives way; its waypoint lies c = (r_i + r_j + margin) + DETOUR_CLEAR_M to
     its right of the line to the other and c short of it; the other keeps both its points."""
-    radii, pose, seen, points, nxt, margin = _head_on()
-    now, next_, detoured = fn(radii, pose, seen, points, nxt, margin)
+    radii, pose, seen, points, nxt, margin, elapsed = _head_on()
+    now, next_, detoured = fn(radii, pose, seen, points, nxt, margin, elapsed)
     assert detoured.tolist() == [False, True]
     assert now[0].tolist() == points[0].tolist() and next_[0].tolist() == nxt[0].tolist()
     assert now[1].tolist() == next_[1].tolist()
@@ -115,7 +119,7 @@ def test_of_a_head_on_pair_the_higher_row_passes_the_other_on_its_right_at_the_d
     assert w @ u == pytest.approx(0.12 - c, abs=1e-15)          # c short of r1 along the line
     assert u[0] * w[1] - u[1] * w[0] == pytest.approx(-c, abs=1e-15)   # c to the right of it (r2 heads -x: +y)
     # the rows decide, not the poses: swapped, the other robot gives way, to its own right
-    now_s, _, detoured_s = fn(radii, pose[::-1].copy(), seen, points[::-1].copy(), nxt[::-1].copy(), margin)
+    now_s, _, detoured_s = fn(radii, pose[::-1].copy(), seen, points[::-1].copy(), nxt[::-1].copy(), margin, elapsed)
     assert detoured_s.tolist() == [False, True] and now_s[1, 1] < -0.1
 
 
@@ -127,8 +131,8 @@ def test_a_robot_barred_head_on_by_a_lower_and_a_higher_row_keeps_no_way(fn):
     pose = np.array([[0.5, 0.05, math.pi], [0.0, 0.0, 0.0], [0.25, 0.0, math.pi]])
     points = np.array([[-1.0, 0.05], [1.0, 0.0], [-1.0, 0.0]])
     seen = np.ones(3, bool)
-    assert not fn(radii[1:], pose[1:], seen[1:], points[1:], points[1:], MARGIN)[2][0]   # without robot 0: keeps
-    now, nxt, detoured = fn(radii, pose, seen, points, points, MARGIN)
+    assert not fn(radii[1:], pose[1:], seen[1:], points[1:], points[1:], MARGIN, 0.0)[2][0]   # without robot 0: keeps
+    now, nxt, detoured = fn(radii, pose, seen, points, points, MARGIN, 0.0)
     assert detoured[1]
     c = (0.05 + 0.05 + MARGIN) + DETOUR_CLEAR_M          # not pressed (0.25 - width > PRESSED_M): the plain detour
     assert now[1].tolist() == nxt[1].tolist() == pytest.approx([0.25 - c, -c], abs=1e-15)
@@ -140,8 +144,8 @@ def test_of_two_robots_that_bar_each_other_never_both_keep_their_way():
     rng = np.random.default_rng(28)
     pairs = 0
     for k in range(400):
-        radii, pose, seen, points, nxt, margin = crowd(rng, KINDS[k % len(KINDS)])
-        detoured = assembly_targets(radii, pose, seen, points, nxt, margin)[2]
+        radii, pose, seen, points, nxt, margin, elapsed = crowd(rng, KINDS[k % len(KINDS)])
+        detoured = assembly_targets(radii, pose, seen, points, nxt, margin, elapsed)[2]
         to = points - pose[:, :2]
         dist = np.sqrt(to[:, 0] * to[:, 0] + to[:, 1] * to[:, 1])
         n = len(radii)
@@ -169,7 +173,7 @@ def test_of_blockers_tied_in_along_the_lower_row_is_the_one_gone_round():
     pose = np.array([[0.0, 0.0, 0.0], [0.25, 0.03125, 0.0], [0.25, -0.03125, 0.0]])
     points = np.array([[1.0, 0.0], [0.25, 0.03125], [0.25, -0.03125]])   # r2, r3 on their points
     for order in ([0, 1, 2], [0, 2, 1]):
-        args = (radii, pose[order], np.ones(3, bool), points[order], points[order], MARGIN)
+        args = (radii, pose[order], np.ones(3, bool), points[order], points[order], MARGIN, 0.0)
         now, _, detoured = assembly_targets(*args)
         want = assembly_targets_reference(*args)
         assert all(np.array_equal(g, w) for g, w in zip((now, _, detoured), want))
@@ -190,8 +194,8 @@ def _boxed_in(extra=()):
 
 
 def _both(radii, pose, seen, points):
-    got = assembly_targets(radii, pose, seen, points, points, MARGIN)
-    want = assembly_targets_reference(radii, pose, seen, points, points, MARGIN)
+    got = assembly_targets(radii, pose, seen, points, points, MARGIN, 0.0)
+    want = assembly_targets_reference(radii, pose, seen, points, points, MARGIN, 0.0)
     assert all(np.array_equal(g, w) for g, w in zip(got, want))
     return got
 
@@ -199,7 +203,7 @@ def _both(radii, pose, seen, points):
 def test_a_boxed_in_robot_backs_away_from_its_blocker():
     radii, pose, seen, points = _boxed_in()
     detour = (-0.025, -0.145)   # c = 0.145 to the right of the line to robot 1, and c short of it
-    assert assembly_targets(radii[:2], pose[:2], seen[:2], points[:2], points[:2], MARGIN)[0][0] == \
+    assert assembly_targets(radii[:2], pose[:2], seen[:2], points[:2], points[:2], MARGIN, 0.0)[0][0] == \
         pytest.approx(detour, abs=1e-12)    # without robot 2: the plain detour
     now, nxt, detoured = _both(radii, pose, seen, points)
     assert detoured.tolist() == [True, False, False]
@@ -249,37 +253,114 @@ def test_a_robot_that_keeps_its_way_into_a_robot_that_waits_gives_way_in_turn():
     assert detoured.tolist() == [False, True, False] and now[1].tolist() == [-ESCAPE_M, 0.0]
 
 
+def test_a_boxed_in_robot_whose_ways_back_and_out_are_barred_heads_off_back_by_45_then_90_degrees():
+    """Robot 0 boxed in against robot 1 (robot 2 bars its detour on the right, -y): its ways straight back and out of
+    the crowd are barred too. It takes the first free way of the fan: 45 degrees off back towards its passing side
+    (-y, barred by robot 2), then towards the other (+y); with that one barred too, 90 degrees off back towards its
+    passing side (barred), then the other."""
+    h = math.sqrt(0.5)
+    radii, pose, seen, points = _boxed_in([(-0.2, 0.02), (0.22, 0.2)])
+    now, nxt, detoured = _both(radii, pose, seen, points)
+    assert detoured.tolist() == [True] + [False] * 4
+    assert now[0].tolist() == nxt[0].tolist() == [h * (-0.0 - 1.0) * ESCAPE_M, h * (1.0 - 0.0) * ESCAPE_M]
+    radii, pose, seen, points = _boxed_in([(-0.12, 0.0), (0.27, 0.2)])
+    now, _, detoured = _both(radii, pose, seen, points)
+    assert detoured[0] and now[0].tolist() == [0.0, ESCAPE_M]
+
+
+def test_two_robots_pressed_together_whose_targets_cross_the_later_escapes():
+    """Robot 1 goes round robot 3 (its first blocker, on its point) and robot 0 heads for its point past robot 2:
+    neither bars the other's way to its *point*, but they stand pressed together and each bars the other's way
+    to its target. Robot 1, the later row, escapes from robot 0: ESCAPE_M straight back from it (free). In the
+    draw where robot 1 comes first (the mission's 10th second: rank 1133855410 against 1179680230), robot 0
+    is the one that would escape, but the first robot on its way is robot 2: robot 1 keeps its detour."""
+    xy = np.array([[0.14, 0.11], [0.04, 0.05], [0.16, -0.03], [-0.1, 0.11]])
+    points = np.array([[-0.2, -0.3], [-0.3, 0.7], [0.2, 0.9], [-0.1, 0.11]])
+    radii, pose, seen = np.full(4, 0.05), np.c_[xy, np.zeros(4)], np.ones(4, bool)
+    rel = xy[0] - xy[1]
+    u = rel / math.sqrt(rel[0] * rel[0] + rel[1] * rel[1])
+    assert math.hypot(*rel) - (0.1 + MARGIN) < PRESSED_M                    # pressed together
+    for elapsed, want in ((0.0, [xy[1, 0] - u[0] * ESCAPE_M, xy[1, 1] - u[1] * ESCAPE_M]), (PRIORITY_S, None)):
+        args = (radii, pose, seen, points, points, MARGIN, elapsed)
+        got, ref = assembly_targets(*args), assembly_targets_reference(*args)
+        assert all(np.array_equal(g, w) for g, w in zip(got, ref))
+        now, _, detoured = got
+        assert detoured.tolist() == [False, True, True, False] and now[0].tolist() == points[0].tolist()
+        if want is not None:
+            assert now[1].tolist() == want
+        else:    # robot 1's plain detour round robot 3: c aside of the line to it (its own side) and c short
+            assert rank(1, 1) < rank(0, 1) and priority_draw(PRIORITY_S) == 1
+            to, d = xy[3] - xy[1], points[1] - xy[1]
+            gap, c = math.hypot(*to), (0.1 + MARGIN) + DETOUR_CLEAR_M
+            left = 1.0 if d[0] * to[1] - d[1] * to[0] < 0.0 else -1.0
+            w = to / gap
+            assert now[1] == pytest.approx(xy[1] + np.array([-w[1], w[0]]) * left * c + w * (gap - c), abs=1e-15)
+
+
+def test_the_priorities_are_the_rows_order_in_the_first_period_then_drawn_afresh_each_period():
+    """priority_draw: 0 before PRIORITY_S (negative ages too), then whole periods, saturated at 2^32 - 1; rank: the
+    row in draw 0, else the documented 32-bit mix. Of a head-on pair, the robot of the lower rank keeps its way, in
+    the core and the reference alike; over 64 draws each robot keeps it in some of them."""
+    assert [priority_draw(t) for t in (-5.0, 0.0, PRIORITY_S * 0.999, PRIORITY_S, 2.5 * PRIORITY_S)] == [0, 0, 0, 1, 2]
+    assert priority_draw(1e300) == 0xFFFFFFFF and priority_draw(math.nan) == 0
+    assert [rank(i, 0) for i in range(5)] == list(range(5))
+    h = (3 * 0x9E3779B1 & 0xFFFFFFFF) ^ (7 * 0x85EBCA77 & 0xFFFFFFFF)
+    for shift, mul in ((15, 0x2C1B3C6D), (12, 0x297A2D39), (15, None)):
+        h ^= h >> shift
+        h = h * mul & 0xFFFFFFFF if mul else h
+    assert rank(3, 7) == h
+    radii, pose, seen, points, nxt, margin, _ = _head_on()
+    keeps = []
+    for draw in range(64):
+        elapsed = draw * PRIORITY_S + 0.5
+        outs = [fn(radii, pose, seen, points, nxt, margin, elapsed) for fn in (assembly_targets,
+                                                                              assembly_targets_reference)]
+        assert all(np.array_equal(g, w) for g, w in zip(*outs))
+        detoured = outs[0][2]
+        assert detoured.sum() == 1
+        keeper = int(np.flatnonzero(~detoured)[0])
+        assert keeper == (0 if (rank(0, draw), 0) < (rank(1, draw), 1) else 1)
+        keeps.append(keeper)
+    assert keeps[0] == 0 and 16 < sum(keeps) < 48, sum(keeps)
+
+
 def test_robots_near_their_points_a_single_robot_and_no_robots_keep_their_targets():
-    radii, pose, seen, points, nxt, margin = _head_on()
+    radii, pose, seen, points, nxt, margin, elapsed = _head_on()
     near = pose[:, :2] + np.array([[ASSEMBLING_M, 0.0], [-ASSEMBLING_M, 0.0]])   # exactly ASSEMBLING_M: not on its way
-    for args in ((radii, pose, seen, near, nxt, margin), (radii[:1], pose[:1], seen[:1], points[:1], nxt[:1], margin),
-                 (np.zeros(0), np.zeros((0, 3)), np.zeros(0, bool), np.zeros((0, 2)), np.zeros((0, 2)), margin)):
+    for args in ((radii, pose, seen, near, nxt, margin, elapsed),
+                 (radii[:1], pose[:1], seen[:1], points[:1], nxt[:1], margin, elapsed),
+                 (np.zeros(0), np.zeros((0, 3)), np.zeros(0, bool), np.zeros((0, 2)), np.zeros((0, 2)), margin, 0.0)):
         now, next_, detoured = assembly_targets(*args)
         assert not detoured.any() and np.array_equal(now, args[3]) and np.array_equal(next_, args[4])
 
 
 def test_the_core_refuses_what_it_cannot_read():
-    radii, pose, seen, points, nxt, margin = _head_on()
+    radii, pose, seen, points, nxt, margin, elapsed = _head_on()
     for bad in ("pose", "points", "next", "radius"):
         a = [radii.copy(), pose.copy(), seen, points.copy(), nxt.copy()]
         {"pose": lambda: a[1].__setitem__((1, 1), np.nan), "points": lambda: a[3].__setitem__((0, 0), np.inf),
          "next": lambda: a[4].__setitem__((1, 0), np.nan), "radius": lambda: a[0].__setitem__(0, np.inf)}[bad]()
         with pytest.raises(NonFiniteError):
-            assembly_targets(*a, margin)
-    with pytest.raises(NonFiniteError):
-        assembly_targets(radii, pose, seen, points, nxt, math.nan)
+            assembly_targets(*a, margin, elapsed)
+    for bad_margin, bad_elapsed in ((math.nan, 0.0), (margin, math.nan), (margin, math.inf)):
+        with pytest.raises(NonFiniteError):
+            assembly_targets(radii, pose, seen, points, nxt, bad_margin, bad_elapsed)
     with pytest.raises(VsfleetValueError):
-        assembly_targets(radii, pose, seen, points, nxt, -0.01)
+        assembly_targets(radii, pose, seen, points, nxt, -0.01, elapsed)
     with pytest.raises(VsfleetValueError):
-        assembly_targets(np.array([0.05, -0.05]), pose, seen, points, nxt, margin)
+        assembly_targets(np.array([0.05, -0.05]), pose, seen, points, nxt, margin, elapsed)
     with pytest.raises(ShapeError):
-        assembly_targets(radii, pose[:, :2], seen, points, nxt, margin)
+        assembly_targets(radii, pose[:, :2], seen, points, nxt, margin, elapsed)
     out = np.empty((2, 2))
     with pytest.raises(VsfleetValueError, match="shares memory"):   # the binding: outputs apart from the inputs
-        _core.assembly_targets(radii, pose, seen, points, nxt, margin, points, out, np.empty(2, bool))
+        _core.assembly_targets(radii, pose, seen, points, nxt, margin, elapsed, points, out, np.empty(2, bool))
     with pytest.raises(ValueError):
-        _core.assembly_targets(radii, pose, seen, points, nxt, margin, out, np.empty((3, 2)), np.empty(2, bool))
-    count = _core.assembly_targets(radii, pose, seen, points, nxt, margin, out, np.empty((2, 2)), np.empty(2, bool))
+        _core.assembly_targets(radii, pose, seen, points, nxt, margin, elapsed, out, np.empty((3, 2)),
+                               np.empty(2, bool))
+    with pytest.raises(TypeError):
+        _core.assembly_targets(radii, pose, seen, points, nxt, margin, out, np.empty((2, 2)), np.empty(2, bool))
+    count = _core.assembly_targets(radii, pose, seen, points, nxt, margin, elapsed, out, np.empty((2, 2)),
+                                   np.empty(2, bool))
     assert count == 1
 
 
@@ -350,10 +431,10 @@ def test_the_numpy_reference_reproduces_the_cores_golden_records():
     for inputs, want in records:
         n = int(inputs[0])
         a = np.asarray(inputs)
-        radii, pose = a[2:2 + n], a[2 + n:2 + 4 * n].reshape(n, 3)
-        seen, now = a[2 + 4 * n:2 + 5 * n] != 0.0, a[2 + 5 * n:2 + 7 * n].reshape(n, 2)
-        nxt = a[2 + 7 * n:2 + 9 * n].reshape(n, 2)
-        got_now, got_next, got_det = assembly_targets_reference(radii, pose, seen, now, nxt, float(a[1]))
+        radii, pose = a[3:3 + n], a[3 + n:3 + 4 * n].reshape(n, 3)
+        seen, now = a[3 + 4 * n:3 + 5 * n] != 0.0, a[3 + 5 * n:3 + 7 * n].reshape(n, 2)
+        nxt = a[3 + 7 * n:3 + 9 * n].reshape(n, 2)
+        got_now, got_next, got_det = assembly_targets_reference(radii, pose, seen, now, nxt, float(a[1]), float(a[2]))
         got = [*got_now.ravel(), *got_next.ravel(), *got_det.astype(float), float(got_det.sum())]
         assert [v.hex() for v in got] == [v.hex() for v in want]
         detoured += int(got_det.sum())

@@ -272,13 +272,13 @@ def test_of_two_robots_head_on_the_later_id_goes_round_on_its_right_and_the_othe
     radii = np.array([0.05, 0.05])
     pose = np.array([[0.0, 0.0, 0.0], [0.12, 0.0, math.pi]])     # face to face, 2 cm apart
     points = np.array([[0.5, 0.0], [-0.4, 0.0]])                  # each one's point behind the other
-    now, nxt, detoured = assembly_targets(radii, pose, np.ones(2, bool), points, points, 0.015)
+    now, nxt, detoured = assembly_targets(radii, pose, np.ones(2, bool), points, points, 0.015, 0.0)
     assert detoured.tolist() == [False, True]
     assert now[0].tolist() == [0.5, 0.0] and np.array_equal(nxt, now)
     # r2 heads -x: its right is +y; its waypoint does not bring it closer to r1 (they touch within the margin)
     assert now[1, 1] > 0.1 and now[1, 0] >= 0.12 - 1e-12
     # the rows, not the poses, decide: swapped, the other robot gives way
-    now_s, _, detoured_s = assembly_targets(radii, pose[::-1], np.ones(2, bool), points[::-1], points[::-1], 0.015)
+    now_s, _, detoured_s = assembly_targets(radii, pose[::-1], np.ones(2, bool), points[::-1], points[::-1], 0.015, 0.0)
     assert detoured_s.tolist() == [False, True]
 
 
@@ -287,7 +287,7 @@ def test_a_robot_barred_by_one_on_its_point_goes_round_it_on_the_side_it_is_on()
     radii = np.full(2, 0.05)
     pose = np.array([[0.0, 0.0, 0.0], [0.2, -0.03, 0.0]])          # r2 on its point, a little right of r1's way
     points = np.array([[0.6, 0.0], [0.2, -0.03]])
-    now, _, detoured = assembly_targets(radii, pose, np.ones(2, bool), points, points, 0.015)
+    now, _, detoured = assembly_targets(radii, pose, np.ones(2, bool), points, points, 0.015, 0.0)
     assert detoured.tolist() == [True, False]
     assert now[0, 1] > 0.1                                          # round it on the left, the side r1 is on
     assert now[1].tolist() == [0.2, -0.03]
@@ -298,7 +298,7 @@ def test_robots_near_their_points_or_with_a_free_way_keep_their_targets():
     radii = np.full(3, 0.05)
     pose = np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0], [1.0, 1.0, 0.0]])
     points = np.array([[0.02, 0.0], [0.3, 0.3], [1.0, 1.5]])   # near it; a free way; a free way
-    now, nxt, detoured = assembly_targets(radii, pose, np.ones(3, bool), points, points + 0.001, 0.015)
+    now, nxt, detoured = assembly_targets(radii, pose, np.ones(3, bool), points, points + 0.001, 0.015, 0.0)
     assert not detoured.any() and np.array_equal(now, points) and np.array_equal(nxt, points + 0.001)
 
 

@@ -11,18 +11,20 @@ import math
 
 from .lazy import lazy_numpy
 from . import _core
-from .coreconst import ASSEMBLING_M, DETOUR_CLEAR_M, ESCAPE_M, PRESSED_M
+from .coreconst import ASSEMBLING_M, DETOUR_CLEAR_M, ESCAPE_M, PRESSED_M, PRIORITY_S
 from .errors import ShapeError
 
 np = lazy_numpy(globals())   # numpy on first use: the agent process never loads it (vsfleet.lazy)
 
 
 def assembly_targets(radii_m: np.ndarray, pose_world: np.ndarray, seen: np.ndarray, points_now: np.ndarray,
-                     points_next: np.ndarray, margin_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                     points_next: np.ndarray, margin_m: float,
+                     elapsed_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The assembly tie-break in the compiled core: (points_now, points_next, detoured (n,) bool), new arrays.
 
     The same arguments and the same bits as :func:`assembly_targets_reference`. Only seen rows are read:
-    their radius, x, y and points must be finite (NonFiniteError), radii and margin_m >= 0 (VsfleetValueError).
+    their radius, x, y and points must be finite, and margin_m and elapsed_s (NonFiniteError); radii and
+    margin_m >= 0 (VsfleetValueError).
     """
     radii = np.ascontiguousarray(radii_m, dtype=float)
     pose = np.ascontiguousarray(pose_world, dtype=float)
@@ -35,31 +37,69 @@ def assembly_targets(radii_m: np.ndarray, pose_world: np.ndarray, seen: np.ndarr
         raise ShapeError(f"assembly_targets: radii (n,), pose_world (n, 3), seen (n,), points_now and points_next "
                          f"(n, 2), got {radii.shape}, {pose.shape}, {flags.shape}, {now_in.shape}, {next_in.shape}")
     now, nxt, detoured = np.empty((n, 2)), np.empty((n, 2)), np.empty(n, dtype=bool)
-    _core.assembly_targets(radii, pose, flags, now_in, next_in, float(margin_m), now, nxt, detoured)
+    _core.assembly_targets(radii, pose, flags, now_in, next_in, float(margin_m), float(elapsed_s), now, nxt, detoured)
     return now, nxt, detoured
 
 
+_M32 = 0xFFFFFFFF
+
+
+def priority_draw(elapsed_s: float) -> int:
+    """The priorities' draw for a mission elapsed_s [s] old: 0 for its first PRIORITY_S seconds (and before them),
+    then the count of whole periods, saturated at 2^32 - 1 (vs_assembly.h)."""
+    q = elapsed_s / PRIORITY_S
+    if not q >= 1.0:
+        return 0
+    return int(q) if q < 4294967296.0 else _M32
+
+
+def rank(i: int, draw: int) -> int:
+    """Robot (row) i's rank in a draw: i itself in draw 0, else a 32-bit mix of i and the draw (vs_assembly.h)."""
+    if draw == 0:
+        return i
+    h = ((i * 0x9E3779B1) & _M32) ^ ((draw * 0x85EBCA77) & _M32)
+    h ^= h >> 15
+    h = (h * 0x2C1B3C6D) & _M32
+    h ^= h >> 12
+    h = (h * 0x297A2D39) & _M32
+    h ^= h >> 15
+    return h
+
+
+def _before(a: int, b: int, draw: int) -> bool:
+    """Does robot a come before robot b in the draw (the lower rank; equal ranks: the lower row)?"""
+    ra, rb = rank(a, draw), rank(b, draw)
+    return ra < rb or (ra == rb and a < b)
+
+
 def assembly_targets_reference(radii_m: np.ndarray, pose_world: np.ndarray, seen: np.ndarray, points_now: np.ndarray,
-                               points_next: np.ndarray, margin_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                               points_next: np.ndarray, margin_m: float,
+                               elapsed_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The assembly tie-break: (points_now, points_next, detoured (n,) bool), every robot's target.
 
     Robot i, seen and more than ASSEMBLING_M from its point, is barred by robot j (seen) when j's centre lies
     ahead on i's straight way to its point (0 < along < distance + width) within width = r_i + r_j + margin
-    of that line; its first blocker is the nearest such j. Two robots that bar each other (head on): the one
-    of the higher row (the later id) gives way and passes the other on its right; the other keeps its way,
-    unless a robot of a lower row than its own bars it head on too (then it too passes its first blocker on
-    its right: two robots never both keep their way into each other). A
+    of that line; its first blocker is the nearest such j (ties: the lower row). Which of two robots *comes
+    first* is drawn afresh every PRIORITY_S seconds of the mission (elapsed_s: the frame's time less the
+    mission's effective time): :func:`rank` in draw :func:`priority_draw`, the rows' own order in the first
+    period. Two robots that bar each other (head on): the one that comes later gives way and passes the other
+    on its right; the other keeps its way, unless a robot that comes before it bars it head on too (then it
+    too passes its first blocker on its right: two robots never both keep their way into each other). A
     robot barred by one that does not bar it passes it on the side it is already on (on the right when dead
     ahead). Passing j means heading for the waypoint c = width + DETOUR_CLEAR_M to that side of the line from
     i to j and c short of j along it: never towards j while they touch, and round j as i goes. A robot sent
-    round j (either way above) that is boxed in (gap - width < PRESSED_M, and its way to that
-    waypoint barred by a third robot) heads instead ESCAPE_M straight back from j if no robot bars that
-    way, else ESCAPE_M straight out of the crowd (away from the centroid of the seen robots, summed in row
-    order) if no robot bars that way, else waits where it stands (its target is its position). Then a robot
-    that kept its way (head on) into a first blocker that waits gives way in turn: it goes round that blocker
-    on its right, as above (boxed in or not); each row reads these first targets. Every
-    agent computes the same targets from the same frame (a pure function of it, in + - * / and sqrt, which
-    IEEE 754 rounds alike everywhere: no libm function whose last bit could differ between hosts)."""
+    round j (either way above) that is boxed in (gap - width < PRESSED_M, and its way to that waypoint
+    barred by a third robot) escapes (:func:`_way_out`): ESCAPE_M straight back from j, else straight out of
+    the crowd (away from the centroid of the seen robots, summed in row order), else 45 degrees off back
+    towards its passing side, then the other, then 90 degrees off the same way, the first way no robot bars;
+    else it waits where it stands (its target is its position). Then a robot that kept its way (head on)
+    into a first blocker that waits gives way in turn: it goes round that blocker on its right, as above
+    (boxed in or not); each row reads these first targets. Then a robot on its way pressed against the first
+    robot k on its way to its target, k coming first and barring k's way to k's target in turn (their
+    targets cross), escapes from k as above, passing on its right; each row reads the second pass's targets.
+    Every agent computes the same targets from the same frame (a pure function of it, in + - * / and sqrt,
+    which IEEE 754 rounds alike everywhere, and 32-bit integer arithmetic: no libm function whose last bit
+    could differ between hosts)."""
     n = len(pose_world)
     xy = pose_world[:, :2]
     to = points_now - xy
@@ -84,11 +124,13 @@ def assembly_targets_reference(radii_m: np.ndarray, pose_world: np.ndarray, seen
             cx, cy, count = cx + float(xy[k, 0]), cy + float(xy[k, 1]), count + 1.0
     if count > 0.0:
         cx, cy = cx / count, cy / count
+    draw = priority_draw(elapsed_s)
     for i in rows:
         j = int(first[i])
         mutual = bool(bars[j, i])
-        if mutual and j > i and not (bars[i, :i] & bars[:i, i]).any():
-            continue     # head on, i has the lower row, and no lower row bars it head on: i keeps its way
+        if mutual and _before(i, j, draw) and not any(bars[i, k] and bars[k, i] and _before(k, i, draw)
+                                                      for k in range(n)):
+            continue     # head on, i comes first, and no robot before it bars it head on: i keeps its way
         left = 1.0 if (not mutual and lateral[i, j] < 0.0) else -1.0     # j on i's right: pass on its left
         now[i] = nxt[i] = _round(radii_m, xy, seen, margin_m, i, j, left, width[i, j], (cx, cy))
         detoured[i] = True
@@ -101,7 +143,49 @@ def assembly_targets_reference(radii_m: np.ndarray, pose_world: np.ndarray, seen
         if kept[i] and waits[j]:
             now[i] = nxt[i] = _round(radii_m, xy, seen, margin_m, i, j, -1.0, width[i, j], (cx, cy))
             detoured[i] = True
+    # two robots pressed together, each barring the other's way to its target (their targets cross): the one that
+    # comes later escapes, passing on its right; each row reads the second pass's targets
+    crossing = []
+    for i in range(n):
+        if not on_way[i]:
+            continue
+        k = _first_on_target(radii_m, xy, seen, margin_m, now, i)
+        if k < 0 or not _before(k, i, draw):
+            continue
+        rx, ry = float(xy[k, 0]) - float(xy[i, 0]), float(xy[k, 1]) - float(xy[i, 1])
+        gap = math.sqrt(rx * rx + ry * ry)
+        if not gap - ((float(radii_m[i]) + float(radii_m[k])) + margin_m) < PRESSED_M:
+            continue
+        if _first_on_target(radii_m, xy, seen, margin_m, now, k, only=i) == i:
+            crossing.append((i, k))
+    for i, k in crossing:
+        rel = xy[k] - xy[i]
+        u = rel / math.sqrt(rel[0] * rel[0] + rel[1] * rel[1])
+        now[i] = nxt[i] = _way_out(radii_m, xy, seen, margin_m, i, (cx, cy), u, np.array([u[1], -u[0]]))
+        detoured[i] = True
     return now, nxt, detoured
+
+
+def _first_on_target(radii_m: np.ndarray, xy: np.ndarray, seen: np.ndarray, margin_m: float, targets: np.ndarray,
+                     i: int, only: int = -1) -> int:
+    """The first robot (the least along; ties: the lower row) that bars robot i's straight way to its target
+    ``targets[i]``, as a blocker bars a way to a point; -1 if none or the target is i's position. only >= 0: that
+    robot if it bars the way (whether first or not), else -1."""
+    tx, ty = float(targets[i, 0]) - float(xy[i, 0]), float(targets[i, 1]) - float(xy[i, 1])
+    length = math.sqrt(tx * tx + ty * ty)
+    if not length > 0.0:
+        return -1
+    dx, dy = tx / length, ty / length
+    best, first = 0.0, -1
+    for k in (range(len(xy)) if only < 0 else (only,)):
+        if k == i or not seen[k]:
+            continue
+        rx, ry = float(xy[k, 0]) - float(xy[i, 0]), float(xy[k, 1]) - float(xy[i, 1])
+        along, lateral = rx * dx + ry * dy, dx * ry - dy * rx
+        width = (float(radii_m[i]) + float(radii_m[k])) + margin_m
+        if along > 0.0 and along < length + width and abs(lateral) < width and (first < 0 or along < best):
+            best, first = along, k
+    return first
 
 
 def _round(radii_m: np.ndarray, xy: np.ndarray, seen: np.ndarray, margin_m: float, i: int, j: int, left: float,
@@ -115,7 +199,7 @@ def _round(radii_m: np.ndarray, xy: np.ndarray, seen: np.ndarray, margin_m: floa
     clear = width + DETOUR_CLEAR_M          # round j: as far beside the line to j, and that much short of j
     way = xy[i] + normal * clear + u * (gap - clear)
     if gap - width < PRESSED_M and _way_barred(radii_m, xy, seen, margin_m, i, j, way):
-        way = _way_out(radii_m, xy, seen, margin_m, i, centroid, u)   # boxed in
+        way = _way_out(radii_m, xy, seen, margin_m, i, centroid, u, normal)   # boxed in
     return way
 
 
@@ -140,9 +224,11 @@ def _way_barred(radii_m: np.ndarray, xy: np.ndarray, seen: np.ndarray, margin_m:
 
 
 def _way_out(radii_m: np.ndarray, xy: np.ndarray, seen: np.ndarray, margin_m: float, i: int,
-             centroid: tuple[float, float], u: np.ndarray) -> np.ndarray:
-    """A boxed-in robot's target: ESCAPE_M back from its blocker (``u`` points at it) if that way is free, else
-    ESCAPE_M out of the crowd (away from ``centroid``) if that way is free, else its own position."""
+             centroid: tuple[float, float], u: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """A robot's escape from the robot ``u`` points at, ``normal`` the unit normal to its passing side: ESCAPE_M back
+    from it if that way is free, else ESCAPE_M out of the crowd (away from ``centroid``) if that way is free, else
+    ESCAPE_M 45 degrees off back towards the passing side, then the other, then 90 degrees off the same way, the
+    first way that is free; else its own position."""
     x, y = float(xy[i, 0]), float(xy[i, 1])
     way = np.array([x - float(u[0]) * ESCAPE_M, y - float(u[1]) * ESCAPE_M])
     if not _way_barred(radii_m, xy, seen, margin_m, i, -1, way):
@@ -151,6 +237,11 @@ def _way_out(radii_m: np.ndarray, xy: np.ndarray, seen: np.ndarray, margin_m: fl
     out = math.sqrt(ox * ox + oy * oy)
     if out > 0.0:
         way = np.array([x + (ox / out) * ESCAPE_M, y + (oy / out) * ESCAPE_M])
+        if not _way_barred(radii_m, xy, seen, margin_m, i, -1, way):
+            return way
+    ux, uy, nx, ny, h = float(u[0]), float(u[1]), float(normal[0]), float(normal[1]), math.sqrt(0.5)
+    for fx, fy in ((h * (nx - ux), h * (ny - uy)), (h * (-nx - ux), h * (-ny - uy)), (nx, ny), (-nx, -ny)):
+        way = np.array([x + fx * ESCAPE_M, y + fy * ESCAPE_M])
         if not _way_barred(radii_m, xy, seen, margin_m, i, -1, way):
             return way
     return np.array([x, y])

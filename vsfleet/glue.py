@@ -268,7 +268,8 @@ def decide_in_numpy(state: AgentState, mission: Mission, controller, frame: Fram
     points_now, points_next, detoured = s.points_now, s.points_next, None
     if arrays.radii.any():   # bodies: the assembly tie-break (robots barred on their way go round)
         points_now, points_next, detoured = config.impl.assembly_targets(
-            arrays.radii, pose_seen, seen & active, s.points_now, s.points_next, safety_params(config.dt_s).margin_m)
+            arrays.radii, pose_seen, seen & active, s.points_now, s.points_next, safety_params(config.dt_s).margin_m,
+            frame.t - mission.effective_t)
     ctrl, wheels = config.impl.control(controller, ctrl, ControlInput(
         pose_world=pose_seen, point_now_world=points_now,
         point_next_world=points_next, wheels_prev_m_s=wheels_prev, dt_s=config.dt_s, age_s=config.age_s,

@@ -37,7 +37,7 @@ class Impl:
     build_field: Callable         # vsfleet.field
     follow_field: Callable        # vsfleet.field
     decode_frame: Callable        # (payload, src the key names) -> FrameMsg: vsfleet.wire
-    assembly_targets: Callable    # (radii_m, pose_world, seen, points_now, points_next, margin_m)
+    assembly_targets: Callable    # (radii_m, pose_world, seen, points_now, points_next, margin_m, elapsed_s)
                                   # -> (points_now, points_next, detoured): vsfleet.assembly
 
 

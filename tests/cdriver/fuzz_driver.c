@@ -179,6 +179,8 @@ static long assembly_targets_input(double *in)
     in[len++] = (double)n;
     v = (next() % 8) ? 0.015 : hostile(in, len, in, len);                                            /* margin */
     in[len++] = v;
+    v = (next() % 8) ? 40.0 * uniform() : hostile(in, len, in, len);                              /* elapsed_s */
+    in[len++] = v;
     for (long i = 0; i < n; i++, len++) in[len] = (next() % 8) ? 0.05 : hostile(in, len, in, len);     /* radii */
     for (long i = 0; i < 3 * n; i++, len++)                                                            /* poses */
         in[len] = (next() % 8) ? pitch * (double)((i % 3 == 0) ? (i / 3) % 5 : (i / 3) / 5) : hostile(in, len, in, len);
@@ -193,7 +195,7 @@ static long assembly_targets_input(double *in)
 static int assembly_kept(const double *in, const double *out, long got)
 {
     long n = (long)in[0], count = 0;
-    const double *pose = in + 2 + n, *seen = pose + 3 * n, *now = seen + n, *next = now + 2 * n;
+    const double *pose = in + 3 + n, *seen = pose + 3 * n, *now = seen + n, *next = now + 2 * n;
     if (got != 5 * n + 1) return 0;
     for (long i = 0; i < n; i++) {
         double det = out[4 * n + i];

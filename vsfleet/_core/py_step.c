@@ -122,17 +122,20 @@ out:
 }
 
 /* assembly_targets(radius_m (n), pose_world (n*3), seen (n bool/uint8), points_now (n*2), points_next (n*2),
- *                  margin_m, now_out (n*2, written), next_out (n*2, written), detoured_out (n bool/uint8, written))
+ *                  margin_m, elapsed_s, now_out (n*2, written), next_out (n*2, written),
+ *                  detoured_out (n bool/uint8, written))
  * -> the count of robots detoured.  n is len(radius_m).  The outputs must not share memory with the inputs. */
 static PyObject *py_assembly_targets(PyObject *mod, PyObject *const *a, Py_ssize_t nargs)
 {
     (void)mod;
-    if (nargs != 9) {
-        PyErr_Format(PyExc_TypeError, "assembly_targets expects 9 arguments, got %zd", nargs);
+    if (nargs != 10) {
+        PyErr_Format(PyExc_TypeError, "assembly_targets expects 10 arguments, got %zd", nargs);
         return NULL;
     }
     double margin = PyFloat_AsDouble(a[5]);
     if (margin == -1.0 && PyErr_Occurred()) return NULL;
+    double elapsed = PyFloat_AsDouble(a[6]);
+    if (elapsed == -1.0 && PyErr_Occurred()) return NULL;
     Py_buffer b[8];
     int got = 0;
     PyObject *result = NULL;
@@ -142,7 +145,7 @@ static PyObject *py_assembly_targets(PyObject *mod, PyObject *const *a, Py_ssize
     /* arg, count per row, flags (1) or doubles (0), writable, name */
     static const struct { int arg, per, flags, writable; const char *name; } spec[] = {
         {1, 3, 0, 0, "pose_world"}, {2, 1, 1, 0, "seen"}, {3, 2, 0, 0, "points_now"}, {4, 2, 0, 0, "points_next"},
-        {6, 2, 0, 1, "now_out"}, {7, 2, 0, 1, "next_out"}, {8, 1, 1, 1, "detoured_out"},
+        {7, 2, 0, 1, "now_out"}, {8, 2, 0, 1, "next_out"}, {9, 1, 1, 1, "detoured_out"},
     };
     for (int k = 0; k < 7; k++, got++) {
         int (*take)(PyObject *, Py_buffer *, Py_ssize_t, int, const char *) = spec[k].flags ? vs_py_flags
@@ -162,12 +165,12 @@ static PyObject *py_assembly_targets(PyObject *mod, PyObject *const *a, Py_ssize
     size_t count = 0;
     int rc;
     Py_BEGIN_ALLOW_THREADS
-    rc = vs_assembly_targets((size_t)n, b[0].buf, b[1].buf, b[2].buf, b[3].buf, b[4].buf, margin, b[5].buf,
-                             b[6].buf, b[7].buf, &count);
+    rc = vs_assembly_targets((size_t)n, b[0].buf, b[1].buf, b[2].buf, b[3].buf, b[4].buf, margin, elapsed,
+                             b[5].buf, b[6].buf, b[7].buf, &count);
     Py_END_ALLOW_THREADS
     if (rc != VS_OK) {
-        vs_py_error(rc, rc == VS_ENONFINITE ? "assembly_targets: a seen robot's radius, position or points, or the "
-                                              "margin, is not finite"
+        vs_py_error(rc, rc == VS_ENONFINITE ? "assembly_targets: a seen robot's radius, position or points, the "
+                                              "margin or elapsed_s, is not finite"
                                             : "assembly_targets: a negative radius or margin");
         goto out;
     }
@@ -181,7 +184,7 @@ PyMethodDef vs_py_step_methods[] = {
     {"structure_step", (PyCFunction)(void (*)(void))py_structure_step, METH_FASTCALL,
      "structure_step(...): fit, advance and judged fit of one frame (vsfleet/_core/vs_step.h)."},
     {"assembly_targets", (PyCFunction)(void (*)(void))py_assembly_targets, METH_FASTCALL,
-     "assembly_targets(radius_m, pose_world, seen, points_now, points_next, margin_m, now_out, next_out, "
-     "detoured_out) -> the count detoured: the assembly tie-break (vsfleet/_core/vs_assembly.h)."},
+     "assembly_targets(radius_m, pose_world, seen, points_now, points_next, margin_m, elapsed_s, now_out, "
+     "next_out, detoured_out) -> the count detoured: the assembly tie-break (vsfleet/_core/vs_assembly.h)."},
     {NULL, NULL, 0, NULL},
 };

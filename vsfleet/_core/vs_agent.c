@@ -216,8 +216,8 @@ int vs_agent_step_ws(const vs_agent_config *cfg, vs_agent_state *st, const doubl
     const double *point_now = now, *point_next = next;
     if (cfg->bodies) {   /* the assembly tie-break: robots barred on their way go round */
         for (size_t i = 0; i < n; i++) seen_active[i] = seen[i] && active[i];
-        rc = vs_assembly_targets(n, m->radius_m, pose_seen, seen_active, now, next, cfg->safety.margin_m, tgt_now,
-                                 tgt_next, detoured, NULL);
+        rc = vs_assembly_targets(n, m->radius_m, pose_seen, seen_active, now, next, cfg->safety.margin_m,
+                                 t - cfg->effective_t, tgt_now, tgt_next, detoured, NULL);
         if (rc != VS_OK) return rc;
         point_now = tgt_now;
         point_next = tgt_next;

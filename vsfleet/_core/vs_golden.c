@@ -295,18 +295,18 @@ static long g_field_refine(const double *in, long n_in, double *out, long cap)
     return 6 + 3 * (long)nw;
 }
 
-/* assembly_targets: n, margin, n radii, 3n poses, n seen, 2n points now, 2n points next
+/* assembly_targets: n, margin, elapsed, n radii, 3n poses, n seen, 2n points now, 2n points next
  * -> 2n points now, 2n points next, n detoured, the count detoured */
 static long g_assembly_targets(const double *in, long n_in, double *out, long cap)
 {
-    if (n_in < 2) return -1;
+    if (n_in < 3) return -1;
     long n = count_of(in[0], 0, 4096);
-    if (n < 0 || n_in != 2 + n + 3 * n + n + 2 * n + 2 * n || cap < 5 * n + 1) return -1;
-    const double *radii = in + 2, *pose = radii + n, *flags = pose + 3 * n, *now = flags + n, *next = now + 2 * n;
+    if (n < 0 || n_in != 3 + n + 3 * n + n + 2 * n + 2 * n || cap < 5 * n + 1) return -1;
+    const double *radii = in + 3, *pose = radii + n, *flags = pose + 3 * n, *now = flags + n, *next = now + 2 * n;
     unsigned char seen[4096] = {0}, detoured[4096];
     for (long i = 0; i < n; i++) seen[i] = flags[i] != 0.0;
     size_t count = 0;
-    if (vs_assembly_targets((size_t)n, radii, pose, seen, now, next, in[1], out, out + 2 * n, detoured, &count)
+    if (vs_assembly_targets((size_t)n, radii, pose, seen, now, next, in[1], in[2], out, out + 2 * n, detoured, &count)
         != VS_OK)
         return -1;
     for (long i = 0; i < n; i++) out[4 * n + i] = detoured[i];
