@@ -145,7 +145,7 @@ def assembly_records(seed: int = 29, count: int = 150) -> list[tuple[str, list[f
         nxt = points + (0.0 if k % 3 == 0 else rng.normal(0.0, 0.005, (n, 2)))
         margin = 0.015 if k % 4 else float(rng.uniform(0.0, 0.03))
         radii = np.full(n, radius) if k % 7 else rng.uniform(0.0, 0.08, n)
-        elapsed = [0.0, 9.99, 10.0, 37.2, 123.4, -3.0, 5e10][k % 7]   # the priorities' draws (vs_assembly.h)
+        elapsed = [0.0, 9.99, 10.0, 37.2, 123.4, -3.0, 5e10][(k // 7) % 7]   # the priorities' draws (vs_assembly.h)
         out.append(("assembly_targets", [float(n), margin, elapsed, *radii, *pose.ravel(), *seen.astype(float),
                                          *points.ravel(), *nxt.ravel()]))
     return out

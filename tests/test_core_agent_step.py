@@ -95,6 +95,28 @@ def test_a_shuffled_crowd_goes_round_itself():
     assert_same(glue, core)
 
 
+def test_a_shuffled_crowd_past_its_first_priority_draws_in_core_and_glue_alike(monkeypatch):
+    """10 robots, seed 6, for 25 s: the tie-break's priorities are drawn afresh at 10 s and 20 s of the mission, in
+    the core's step (vs_agent.c) and the glue alike. The draws decide here: a glue that passed every frame's draw as 0
+    (the mission's age lost) runs otherwise."""
+    from bench.crowd import crowd_doc
+    from vsfleet import _core
+    from vsfleet.scenario import scenario_from_dict
+
+    sc = scenario_from_dict(crowd_doc(10, 6, 25.0), name="crowd-10-seed-6")
+    glue, core = both(sc, 25.0, seed=6, stop_at_goal=False)
+    assert_same(glue, core)
+    real = _core.assembly_targets
+
+    def ageless(*a):
+        return real(*a[:6], 0.0, *a[7:])
+
+    monkeypatch.setattr(_core, "assembly_targets", ageless)
+    lost = run_offline(sc, 25.0, share_structures=True, seed=6, stop_at_goal=False)
+    assert np.array_equal(lost.positions_m[:299], core.positions_m[:299])    # the same for the first 10 s
+    assert not np.array_equal(lost.positions_m, core.positions_m)
+
+
 def test_a_column_switch():
     sc = load_scenario(ROOT / "scenarios" / "room-column-switch.toml")
     glue, core = both(sc, 12.0, seed=1, stop_at_goal=False)

@@ -55,6 +55,7 @@ def priority_draw(elapsed_s: float) -> int:
 
 def rank(i: int, draw: int) -> int:
     """Robot (row) i's rank in a draw: i itself in draw 0, else a 32-bit mix of i and the draw (vs_assembly.h)."""
+    i = int(i)
     if draw == 0:
         return i
     h = ((i * 0x9E3779B1) & _M32) ^ ((draw * 0x85EBCA77) & _M32)
@@ -91,7 +92,7 @@ def assembly_targets_reference(radii_m: np.ndarray, pose_world: np.ndarray, seen
     round j (either way above) that is boxed in (gap - width < PRESSED_M, and its way to that waypoint
     barred by a third robot) escapes (:func:`_way_out`): ESCAPE_M straight back from j, else straight out of
     the crowd (away from the centroid of the seen robots, summed in row order), else 45 degrees off back
-    towards its passing side, then the other, then 90 degrees off the same way, the first way no robot bars;
+    towards its passing side, then the other, then 90 degrees off the same two ways, the first way no robot bars;
     else it waits where it stands (its target is its position). Then a robot that kept its way (head on)
     into a first blocker that waits gives way in turn: it goes round that blocker on its right, as above
     (boxed in or not); each row reads these first targets. Then a robot on its way pressed against the first
@@ -143,8 +144,9 @@ def assembly_targets_reference(radii_m: np.ndarray, pose_world: np.ndarray, seen
         if kept[i] and waits[j]:
             now[i] = nxt[i] = _round(radii_m, xy, seen, margin_m, i, j, -1.0, width[i, j], (cx, cy))
             detoured[i] = True
-    # two robots pressed together, each barring the other's way to its target (their targets cross): the one that
-    # comes later escapes, passing on its right; each row reads the second pass's targets
+    # a robot pressed against the first robot on its way to its target, which comes first and bars its way to its own
+    # target in turn (their targets cross): the robot escapes, passing on its right; each row reads the second pass's
+    # targets
     crossing = []
     for i in range(n):
         if not on_way[i]:
@@ -154,7 +156,7 @@ def assembly_targets_reference(radii_m: np.ndarray, pose_world: np.ndarray, seen
             continue
         rx, ry = float(xy[k, 0]) - float(xy[i, 0]), float(xy[k, 1]) - float(xy[i, 1])
         gap = math.sqrt(rx * rx + ry * ry)
-        if not gap - ((float(radii_m[i]) + float(radii_m[k])) + margin_m) < PRESSED_M:
+        if not gap > 0.0 or not gap - ((float(radii_m[i]) + float(radii_m[k])) + margin_m) < PRESSED_M:
             continue
         if _first_on_target(radii_m, xy, seen, margin_m, now, k, only=i) == i:
             crossing.append((i, k))
@@ -227,7 +229,7 @@ def _way_out(radii_m: np.ndarray, xy: np.ndarray, seen: np.ndarray, margin_m: fl
              centroid: tuple[float, float], u: np.ndarray, normal: np.ndarray) -> np.ndarray:
     """A robot's escape from the robot ``u`` points at, ``normal`` the unit normal to its passing side: ESCAPE_M back
     from it if that way is free, else ESCAPE_M out of the crowd (away from ``centroid``) if that way is free, else
-    ESCAPE_M 45 degrees off back towards the passing side, then the other, then 90 degrees off the same way, the
+    ESCAPE_M 45 degrees off back towards the passing side, then the other, then 90 degrees off the same two ways, the
     first way that is free; else its own position."""
     x, y = float(xy[i, 0]), float(xy[i, 1])
     way = np.array([x - float(u[0]) * ESCAPE_M, y - float(u[1]) * ESCAPE_M])

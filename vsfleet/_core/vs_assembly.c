@@ -1,7 +1,7 @@
 /* vs_assembly.c - the assembly tie-break (see vs_assembly.h).
  *
  * The numpy reference (vsfleet/assembly.py) computes (n, n) tables of along, lateral and bars and
- * then walks the barred rows in order, twice (the second pass below); here the same numbers are
+ * then walks the rows in order, in three passes (as below); here the same numbers are
  * computed where they are needed, with no table: robot i's row of the tables in one pass over j, and
  * bars[j][i] (head on or not) again from robot j's own way.  Every number is the reference's expression, in its order:
  *     to = point - xy, dist = sqrt(to.x to.x + to.y to.y), d = to / dist,
@@ -10,7 +10,9 @@
  *     way = (xy_i + normal clear) + u (gap - clear),
  * and the first blocker is numpy's argmin: the least along, the first (lowest row) of equal ones.  So
  * the outputs are the reference's bits for every finite input (-ffp-contract=off: no fused
- * multiply-add); finite inputs so large that a square overflows give inf or NaN in both alike. */
+ * multiply-add); finite inputs so large that a square overflows give inf or NaN in both alike, and so do
+ * two robots whose offset underflows to a gap of 0 where round_blocker() divides by it (a third-pass escape
+ * skips such a pair). */
 #include <math.h>   /* sqrt only */
 #include <stdint.h>
 
@@ -116,8 +118,8 @@ static size_t first_blocker(size_t n, const double *radius_m, const double *pose
 
 /* A robot i that gives way to j (its centre at gap [m] along (ux, uy) from i's; (nx, ny) the unit normal to the side
  * i passes on) and cannot go round: VS_ESCAPE_M straight back from j, else out of the crowd (away from (cx, cy)),
- * else 45 degrees off back towards the passing side, then the other, then 90 degrees off back the same way, the
- * first way no robot bars; else its own position (it waits). */
+ * else 45 degrees off back towards the passing side, then the other, then 90 degrees off back towards the passing
+ * side, then the other, the first way no robot bars; else its own position (it waits). */
 static void escape(size_t n, const double *radius_m, const double *pose_world, const unsigned char *seen,
                    double margin_m, size_t i, double ux, double uy, double nx, double ny, double cx, double cy,
                    double *wx_out, double *wy_out)
@@ -273,7 +275,7 @@ int vs_assembly_targets(size_t n, const double *radius_m, const double *pose_wor
         if (k == n || !before(k, i, e)) continue;
         double rx = pose_world[3 * k] - pose_world[3 * i], ry = pose_world[3 * k + 1] - pose_world[3 * i + 1];
         double gap = sqrt(rx * rx + ry * ry);
-        if (!(gap - width_k < VS_PRESSED_M)) continue;
+        if (!(gap > 0.0) || !(gap - width_k < VS_PRESSED_M)) continue;
         double tx = now_out[2 * k] - pose_world[3 * k], ty = now_out[2 * k + 1] - pose_world[3 * k + 1];
         double tk = sqrt(tx * tx + ty * ty), along_ki, lat_ki, width_ki;
         if (!(tk > 0.0)
@@ -285,6 +287,7 @@ int vs_assembly_targets(size_t n, const double *radius_m, const double *pose_wor
         double lat_k = 0.0, width_k = 0.0;
         if (detoured_out[i] != 3) continue;
         size_t k = first_on_target(n, radius_m, pose_world, seen, margin_m, now_out, i, &lat_k, &width_k);
+        if (k == n) continue;   /* (never: the same k as decided, row i's target unchanged since) */
         double rx = pose_world[3 * k] - pose_world[3 * i], ry = pose_world[3 * k + 1] - pose_world[3 * i + 1];
         double gap = sqrt(rx * rx + ry * ry);
         double ux = rx / gap, uy = ry / gap;

@@ -29,8 +29,9 @@
  * its own position).  Then, in a second pass that reads these targets, a robot that kept its way head on
  * into a first blocker that waits goes round that blocker on its right in turn, boxed in or not as above.
  * Then, in a third pass that reads the second's targets, a robot on its way whose first robot on its way
- * to its target (as a first blocker, on that way) is k, pressed against k, k coming first, and barring
- * k's way to k's target in turn (their targets cross), escapes from k as above, passing on its right.
+ * to its target (as a first blocker, on that way) is k, pressed against k (at a gap above 0), k coming
+ * first, and barring k's way to k's target in turn (their targets cross), escapes from k as above,
+ * passing on its right.
  * Every agent computes the same targets from the same frame.
  */
 #ifndef VS_ASSEMBLY_H
