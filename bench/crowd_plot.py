@@ -2,10 +2,11 @@
 
 Reads the JSON lines ``bench.crowd --json`` prints (one record per crowd) from one or more files and draws one panel
 per fleet size: the time to assemble against the seed, the crowds that did not assemble within their run marked at
-its end in red, with the count assembled and the smallest gap in the panel's title.
+its end in red, with the count assembled and the smallest gap in the panel's title. It writes crowds.png under
+runs/bench/crowd/, or --out DIR, or --docs (docs/bench/crowd, the tracked copy; bench.outputs).
 
     PYTHONPATH=. .venv/bin/python -m bench.crowd --n 10 --seeds 1,2,3 --duration 90 --json > /tmp/c10.jsonl
-    PYTHONPATH=. .venv/bin/python -m bench.crowd_plot /tmp/c10.jsonl --out docs/bench/crowd/crowds.png
+    PYTHONPATH=. .venv/bin/python -m bench.crowd_plot /tmp/c10.jsonl --docs
 """
 
 from __future__ import annotations
@@ -14,6 +15,8 @@ import argparse
 import json
 import sys
 from pathlib import Path
+
+from .outputs import DOCS, add_output_flags
 
 
 def load(paths: list[str]) -> list[dict]:
@@ -61,16 +64,17 @@ def plot(records: list[dict], out: Path, title: str) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("records", nargs="+", help="files of bench.crowd --json records")
-    ap.add_argument("--out", default="docs/bench/crowd/crowds.png")
+    ap.add_argument("records", nargs="*", help="files of bench.crowd --json records")
+    add_output_flags(ap, "crowd", DOCS / "bench" / "crowd", "crowds.png")
     ap.add_argument("--title", default="Shuffled crowds packed 2 cm apart (bench/crowd.py)")
     a = ap.parse_args(argv)
     records = load(a.records)
     if not records:
         print("no records", file=sys.stderr)
         return 1
-    plot(records, Path(a.out), a.title)
-    print(f"written: {a.out}", file=sys.stderr)
+    out = Path(a.out) / "crowds.png"
+    plot(records, out, a.title)
+    print(f"written: {out}", file=sys.stderr)
     return 0
 
 

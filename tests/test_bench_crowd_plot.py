@@ -14,10 +14,9 @@ def test_the_records_of_two_files_load_in_order_and_draw_a_png(tmp_path):
     a.write_text(json.dumps(rec) + "\n\n")
     b.write_text(json.dumps({**rec, "n": 20, "seed": 4, "t_assembled_s": None}) + "\n")
     assert [(r["n"], r["seed"]) for r in load([str(a), str(b)])] == [(10, 1), (20, 4)]
-    out = tmp_path / "crowds.png"
-    assert main([str(a), str(b), "--out", str(out)]) == 0
-    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert main([str(a), str(b), "--out", str(tmp_path / "fig")]) == 0
+    assert (tmp_path / "fig" / "crowds.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     empty = tmp_path / "empty.jsonl"
     empty.write_text("")
-    assert main([str(empty), "--out", str(tmp_path / "none.png")]) == 1
-    assert not (tmp_path / "none.png").exists()
+    assert main([str(empty), "--out", str(tmp_path / "none")]) == 1
+    assert not (tmp_path / "none").exists()

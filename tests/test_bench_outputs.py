@@ -17,7 +17,8 @@ DOCS = ROOT / "docs"
 # every bench that writes files -> where --docs puts them
 WRITERS = {"bench.faults": DOCS / "img", "bench.precision": DOCS / "img", "bench.loop": DOCS / "bench",
            "bench.run_all": DOCS, "bench.engine": DOCS / "bench" / "sections", "bench.room": DOCS / "bench" / "room",
-           "bench.soak": DOCS / "bench" / "sections", "bench.decode": DOCS / "bench" / "sections"}
+           "bench.soak": DOCS / "bench" / "sections", "bench.decode": DOCS / "bench" / "sections",
+           "bench.crowd_plot": DOCS / "bench" / "crowd"}
 # benches that write only where they are told
 WHERE_TOLD = {
     "bench.report": "run_all's plots and sections, into the directory run_all was given",
