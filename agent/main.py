@@ -113,8 +113,12 @@ class Agent:
                  put_event: Callable[[bytes], None] = discard,
                  controller: Controller | None = None, command_age_s: float | None = None,
                  shared_structures: dict | None = None, reference: bool = False,
-                 prepare: Callable[[Mission], threading.Thread | None] | None = None) -> None:
+                 prepare: Callable[[Mission], threading.Thread | None] | None = None,
+                 log_notes: bool = True) -> None:
         self.robot = check_name(robot, "robot")
+        # log_notes: its frames' notes (decisions, blocked, shape) go to the log; the offline runner, which runs a
+        # whole fleet of copies in one process, logs one copy's, since every copy computes the same
+        self.log_notes = log_notes
         # prepare(mission): called with every new mission before it takes effect (run_agent: its arrays and its
         # room's field built on a thread of their own, so a plan never stalls the frames; None: at its first frame).
         # The thread it returns is kept until a frame first runs that mission (await_prepared)
@@ -444,7 +448,7 @@ class Agent:
 
     def emit(self, notes, events, health) -> None:
         """A frame's log lines, its events (published, and the newest kept), and the health answer from now on."""
-        for note in notes:
+        for note in notes if self.log_notes else ():
             log.log(logging.WARNING if note.level == "warning" else logging.INFO, "%s", note.text)
         if health is not None:
             self._health_msg = health  # encoded only when a peer asks (health_payload)

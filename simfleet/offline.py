@@ -147,7 +147,8 @@ def run_offline(scenario: Scenario, duration_s: float, controller: str | None = 
                           put_state=lambda b, r=r: _note_shape(shapes[r], b),
                           put_event=lambda b, r=r: _take_event(decisions[r], events[r], b),
                           dt_s=dt, clock=lambda: t - tracker_clock_ahead_s, controller=ctrl,
-                          command_age_s=latency_frames * dt, shared_structures=shared, reference=reference)
+                          command_age_s=latency_frames * dt, shared_structures=shared, reference=reference,
+                          log_notes=r == ids[0])   # one copy's log: every copy decides the same (decisions holds all)
         agents[r].on_mission(keys.mission, encode_mission(mission))
     for k in range(int(round(duration_s / dt))):
         poses = {r: (s.pose.x + rng.normal(0.0, nxy), s.pose.y + rng.normal(0.0, nxy),

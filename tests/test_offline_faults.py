@@ -6,6 +6,7 @@ every agent makes on the same frame, and a robot whose commands stop halting ttl
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 from pathlib import Path
 
@@ -43,14 +44,17 @@ def test_a_skewed_tracker_clock_outside_the_window_moves_no_robot_on_any_frame(s
 
 
 @pytest.mark.parametrize("latency", [1, 2, 3])  # one run each (20 s offline): the workers share them out
-def test_a_stopped_robot_is_dropped_by_every_agent_on_the_same_frame_whatever_the_command_latency(latency):
+def test_a_stopped_robot_is_dropped_by_every_agent_on_the_same_frame_whatever_the_command_latency(latency, caplog):
     sc = dataclasses.replace(FAILURE, mission=dataclasses.replace(FAILURE.mission, on_failure="drop"),
                              faults=(FaultEvent("r2", 8.0, "stop", 0.0, 0.0),))
     frame_s = 1.0 / sc.tracker.rate_hz
-    run = run_offline(sc, 20.0, seed=2, latency_frames=latency, stop_at_goal=False)
+    with caplog.at_level(logging.WARNING, logger="vsfleet.agent"):
+        run = run_offline(sc, 20.0, seed=2, latency_frames=latency, stop_at_goal=False)
     made = run.decisions["r1"]
-    assert all(v == made for v in run.decisions.values())  # same decisions, same frames
+    assert len(run.decisions) == 3 and all(v == made for v in run.decisions.values())  # same decisions, same frames
     assert [(d.robot, d.kind) for d in made] == [("r2", "fail"), ("r2", "drop")]
+    # the run logs one copy's decisions, not one line per agent copy (issue 28: 2,066 recover lines for 12 rooms)
+    assert len([r for r in caplog.records if r.name == "vsfleet.agent" and r.levelno == logging.WARNING]) == 2
     fail, drop = made
     # within 3 s of the stop, dropped on the very frame it failed (on_failure = drop), a frame time
     assert 8.0 < fail.t < 8.0 + 3.0
