@@ -15,6 +15,9 @@ of agent r01 (every agent decides the same); the largest deviation at the end an
 within ASSEMBLED_M of their points then.
 
     PYTHONPATH=. .venv/bin/python -m bench.crowd --n 10 --seeds 1,2,3 --duration 60
+
+``--tiebreak-cost 10,30,100`` measures instead what the tie-break costs per frame at a crowd's first frame
+(:func:`tiebreak_cost_us`).
 """
 
 from __future__ import annotations
@@ -94,6 +97,42 @@ def measure(n: int, seed: int, duration_s: float, goal=GOAL) -> dict:
             "failed_at_end": still, "decisions": decisions, "wall_s": round(wall, 1)}
 
 
+def tiebreak_cost_us(n: int, seed: int = 1, repeats: int = 200) -> dict:
+    """The assembly tie-break's cost per frame [us] at a crowd's first frame: n robots packed in crowd_doc's block,
+    their points the shuffled grid round the block's centre, so that nearly every robot is on its way and barred.
+    ``core_us``: the compiled vs_assembly_targets, the call as the step makes it (outputs allocated once; the
+    agent's step calls it in C, so this includes one Python call's overhead); ``reference_us``: the numpy
+    reference; ``assembled_core_us``: the core once every robot stands on its point. Medians over ``repeats``
+    calls (the reference: a tenth as many, at least 5)."""
+    from vsfleet import _core  # noqa: PLC0415 - only this mode
+    from vsfleet.assembly import assembly_targets_reference  # noqa: PLC0415
+    doc = crowd_doc(n, seed, 1.0)
+    ids = sorted(doc["robots"])
+    pose = np.array([doc["robots"][r]["start"] for r in ids], dtype=float)
+    points = np.array([doc["robots"][r]["p"] for r in ids], dtype=float)
+    radii, seen = np.full(n, RADIUS_M), np.ones(n, dtype=bool)
+    now, nxt, det = np.empty((n, 2)), np.empty((n, 2)), np.empty(n, dtype=bool)
+    args = (radii, pose, seen, points, points, 0.015, 0.0, now, nxt, det)
+
+    def median_us(fn, count: int) -> float:
+        times = []
+        for _ in range(count):
+            t0 = time.perf_counter()
+            fn()
+            times.append(time.perf_counter() - t0)
+        return float(np.median(times)) * 1e6
+
+    core = median_us(lambda: _core.assembly_targets(*args), repeats)
+    detoured = int(det.sum())
+    ref = median_us(lambda: assembly_targets_reference(radii, pose, seen, points, points, 0.015, 0.0),
+                    max(5, repeats // 10))
+    placed = np.ascontiguousarray(pose[:, :2])          # every robot on its point: the frames after assembly
+    assembled = median_us(lambda: _core.assembly_targets(radii, pose, seen, placed, placed, 0.015, 0.0, now, nxt, det),
+                          repeats)
+    return {"n": n, "detoured": detoured, "core_us": round(core, 1), "reference_us": round(ref, 1),
+            "assembled_core_us": round(assembled, 1)}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=10)
@@ -101,7 +140,17 @@ def main(argv=None) -> int:
     ap.add_argument("--duration", type=float, default=60.0)
     ap.add_argument("--goal", default="1.5,0.5,0", help="the mission's goal x,y,th [m, m, rad]")
     ap.add_argument("--json", action="store_true", help="one JSON record per seed (with every decision)")
+    ap.add_argument("--tiebreak-cost", metavar="SIZES",
+                    help="instead: the tie-break's cost per frame at these crowd sizes (e.g. 10,30,100)")
     a = ap.parse_args(argv)
+    if a.tiebreak_cost:
+        for n in (int(v) for v in a.tiebreak_cost.split(",")):
+            rec = tiebreak_cost_us(n)
+            print(json.dumps(rec) if a.json else
+                  f"n={n}: tie-break {rec['core_us']} us per frame in the core, {rec['reference_us']} us in the "
+                  f"numpy reference ({rec['detoured']} robots sent round); {rec['assembled_core_us']} us once "
+                  f"assembled", flush=True)
+        return 0
     for seed in (int(s) for s in a.seeds.split(",")):
         rec = measure(a.n, seed, a.duration, tuple(float(v) for v in a.goal.split(",")))
         if a.json:

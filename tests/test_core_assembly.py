@@ -70,7 +70,8 @@ def crowd(rng: np.random.Generator, kind: str):
 
 def test_the_core_reproduces_the_reference_bit_for_bit_on_random_crowds(monkeypatch):
     """800 random crowds (draws 0, 1, 2, 6 and the saturated one among them); the reference counts, as it runs, the
-    escapes that took a way of the fan and the robots the third pass sent off (crossing targets): both rules ran."""
+    escapes that took a way of the fan and the robots the third pass sent off (crossing targets), and the placed
+    robots sent aside are counted from the outputs: every rule ran."""
     import vsfleet.assembly as assembly
     fan = crossing = 0
     way_out, first_on_target = assembly._way_out, assembly._first_on_target
@@ -94,7 +95,7 @@ def test_the_core_reproduces_the_reference_bit_for_bit_on_random_crowds(monkeypa
     monkeypatch.setattr(assembly, "_way_out", counted_way_out)
     monkeypatch.setattr(assembly, "_first_on_target", counted_first_on_target)
     rng = np.random.default_rng(29)
-    detoured = cases = 0
+    detoured = cases = aside = 0
     for k in range(800):
         args = crowd(rng, KINDS[k % len(KINDS)])
         got, want = assembly_targets(*args), assembly.assembly_targets_reference(*args)
@@ -103,8 +104,11 @@ def test_the_core_reproduces_the_reference_bit_for_bit_on_random_crowds(monkeypa
             assert g.dtype == w.dtype and g.shape == w.shape
         detoured += int(want[2].sum())
         cases += bool(want[2].any())
+        _, pose, seen, points = args[:4]
+        placed = seen & (np.hypot(points[:, 0] - pose[:, 0], points[:, 1] - pose[:, 1]) <= ASSEMBLING_M)
+        aside += int((want[2] & placed).sum())     # sent round while on its point: stepped aside
     assert cases > 300 and detoured > 1500, (cases, detoured)   # the tie-break did work in most crowds
-    assert fan > 100 and crossing > 2, (fan, crossing)   # 589 and 6 as written (seed 29)
+    assert fan > 100 and crossing > 2 and aside > 50, (fan, crossing, aside)   # 589, 6 and 159 as written (seed 29)
 
 
 def test_unseen_rows_are_not_read_and_their_points_pass_through_as_they_are():
@@ -225,25 +229,52 @@ def _both(radii, pose, seen, points):
     return got
 
 
-def test_a_boxed_in_robot_backs_away_from_its_blocker():
+def _aside(pose, k, i):
+    """Where placed robot k steps aside to from boxed-in robot i: ESCAPE_M straight away from i (the rule's bits)."""
+    rx, ry = float(pose[k, 0]) - float(pose[i, 0]), float(pose[k, 1]) - float(pose[i, 1])
+    g = math.sqrt(rx * rx + ry * ry)
+    return [float(pose[k, 0]) + rx / g * ESCAPE_M, float(pose[k, 1]) + ry / g * ESCAPE_M]
+
+
+def test_a_boxed_in_robot_backs_away_from_its_blocker_and_the_placed_robot_on_its_way_round_steps_aside():
     radii, pose, seen, points = _boxed_in()
     detour = (-0.025, -0.145)   # c = 0.145 to the right of the line to robot 1, and c short of it
     assert assembly_targets(radii[:2], pose[:2], seen[:2], points[:2], points[:2], MARGIN, 0.0)[0][0] == \
         pytest.approx(detour, abs=1e-12)    # without robot 2: the plain detour
     now, nxt, detoured = _both(radii, pose, seen, points)
-    assert detoured.tolist() == [True, False, False]
+    assert detoured.tolist() == [True, False, True]
     assert now[0].tolist() == nxt[0].tolist() == [0.0 - 1.0 * ESCAPE_M, 0.0 - 0.0 * ESCAPE_M]
+    # robot 2, on its point, bars robot 0's way to that detour: it steps aside, straight away from robot 0 (-y)
+    assert now[2].tolist() == nxt[2].tolist() == _aside(pose, 2, 0) == pytest.approx([0.0, -0.13 - ESCAPE_M])
     pressed = (0.05 + 0.05 + MARGIN) + PRESSED_M + 1e-3   # robot 1 farther: not pressed, the plain detour
     radii, pose, seen, points = _boxed_in()
     pose[1, 0] = points[1, 0] = pressed
-    assert _both(radii, pose, seen, points)[0][0][1] < -0.1
+    now, _, detoured = _both(radii, pose, seen, points)
+    assert now[0][1] < -0.1 and detoured.tolist() == [True, False, False]   # not boxed in: nobody steps aside
+
+
+def test_a_placed_robot_steps_aside_only_from_a_boxed_in_robot_and_only_on_a_free_way():
+    """Robot 2 steps aside from robot 0 (above) only while it is on its point, and only if no robot bars its way
+    away from robot 0; robot 1, the blocker robot 0 would go round, never does (it does not bar that way)."""
+    radii, pose, seen, points = _boxed_in()
+    points[2] = (0.0, -0.13 - 0.06)     # robot 2 6 cm from its point: on its way, not placed (and not barred)
+    now, _, detoured = _both(radii, pose, seen, points)
+    assert detoured.tolist() == [True, False, False] and now[2].tolist() == points[2].tolist()
+    radii, pose, seen, points = _boxed_in([(0.0, -0.3)])   # a robot on its point bars robot 2's way aside
+    now, _, detoured = _both(radii, pose, seen, points)
+    assert detoured.tolist() == [True, False, False, False] and now[2].tolist() == [0.0, -0.13]
+    radii, pose, seen, points = _boxed_in([(0.03, -0.14)])   # robot 3, on its point, bars that way too
+    seen[2] = False                     # unseen: not in the tie-break at all (its point passes through)
+    now, _, detoured = _both(radii, pose, seen, points)
+    assert detoured.tolist() == [True, False, False, True] and now[2].tolist() == points[2].tolist()
+    assert now[3].tolist() == _aside(pose, 3, 0)    # robot 0 still boxed in (by robot 3): robot 3 steps aside
 
 
 def test_a_boxed_in_robot_whose_way_back_is_barred_heads_out_of_the_crowd_away_from_the_centroid():
     extra = [(-0.2, 0.0)] + [(0.45, -1.5)] * 4   # one robot behind; four far down on the right pull the centroid
     radii, pose, seen, points = _boxed_in(extra)
     now, nxt, detoured = _both(radii, pose, seen, points)
-    assert detoured.tolist() == [True] + [False] * 7
+    assert detoured.tolist() == [True, False, True] + [False] * 5    # robot 2 steps aside, as above
     cx = cy = 0.0
     for x, y, _ in pose:          # in row order, as the rule sums
         cx, cy = cx + x, cy + y
@@ -275,7 +306,8 @@ def test_a_robot_that_keeps_its_way_into_a_robot_that_waits_gives_way_in_turn():
     assert detoured[0] and now[0].tolist() == nxt[0].tolist() == pytest.approx([0.12 - (0.12 - c), c], abs=1e-15)
     # without the four robots behind robot 1, it backs away (boxed in, not waiting): robot 0 keeps its way
     now, _, detoured = _both(radii[:3], pose[:3], seen[:3], points[:3])
-    assert detoured.tolist() == [False, True, False] and now[1].tolist() == [-ESCAPE_M, 0.0]
+    assert detoured.tolist() == [False, True, True] and now[1].tolist() == [-ESCAPE_M, 0.0]
+    assert now[2].tolist() == _aside(pose, 2, 1)    # robot 2, on robot 1's way round robot 0, steps aside
 
 
 def test_a_boxed_in_robot_whose_ways_back_and_out_are_barred_heads_off_back_by_45_then_90_degrees():
@@ -286,7 +318,7 @@ def test_a_boxed_in_robot_whose_ways_back_and_out_are_barred_heads_off_back_by_4
     h = math.sqrt(0.5)
     radii, pose, seen, points = _boxed_in([(-0.2, 0.02), (0.22, 0.2)])
     now, nxt, detoured = _both(radii, pose, seen, points)
-    assert detoured.tolist() == [True] + [False] * 4
+    assert detoured.tolist() == [True, False, True, False, False]   # robot 2 steps aside (-y, free)
     assert now[0].tolist() == nxt[0].tolist() == [h * (-0.0 - 1.0) * ESCAPE_M, h * (1.0 - 0.0) * ESCAPE_M]
     radii, pose, seen, points = _boxed_in([(-0.12, 0.0), (0.27, 0.2)])
     now, _, detoured = _both(radii, pose, seen, points)

@@ -98,6 +98,9 @@ def assembly_targets_reference(radii_m: np.ndarray, pose_world: np.ndarray, seen
     (boxed in or not); each row reads these first targets. Then a robot on its way pressed against the first
     robot k on its way to its target, k coming first and barring k's way to k's target in turn (their
     targets cross), escapes from k as above, passing on its right; each row reads the second pass's targets.
+    Last, a placed robot (seen, not on its way) that bars the way of a robot boxed in by the first or second pass
+    (and not sent off by the third) to the waypoint it could not take steps aside: ESCAPE_M straight away from that
+    robot (the lowest such row), if no robot bars that way.
     Every agent computes the same targets from the same frame (a pure function of it, in + - * / and sqrt,
     which IEEE 754 rounds alike everywhere, and 32-bit integer arithmetic: no libm function whose last bit
     could differ between hosts)."""
@@ -126,6 +129,7 @@ def assembly_targets_reference(radii_m: np.ndarray, pose_world: np.ndarray, seen
     if count > 0.0:
         cx, cy = cx / count, cy / count
     draw = priority_draw(elapsed_s)
+    boxed = {}      # a row boxed in (its target an escape) -> the waypoint round its blocker it could not take
     for i in rows:
         j = int(first[i])
         mutual = bool(bars[j, i])
@@ -133,7 +137,7 @@ def assembly_targets_reference(radii_m: np.ndarray, pose_world: np.ndarray, seen
                                                       for k in range(n)):
             continue     # head on, i comes first, and no robot before it bars it head on: i keeps its way
         left = 1.0 if (not mutual and lateral[i, j] < 0.0) else -1.0     # j on i's right: pass on its left
-        now[i] = nxt[i] = _round(radii_m, xy, seen, margin_m, i, j, left, width[i, j], (cx, cy))
+        now[i] = nxt[i] = _round(radii_m, xy, seen, margin_m, i, j, left, width[i, j], (cx, cy), boxed)
         detoured[i] = True
     # a robot that kept its way into a first blocker that waits (sent round, its target its own position)
     # gives way in turn, round it on its right; each row reads the first pass's targets
@@ -142,7 +146,7 @@ def assembly_targets_reference(radii_m: np.ndarray, pose_world: np.ndarray, seen
     for i in rows:
         j = int(first[i])
         if kept[i] and waits[j]:
-            now[i] = nxt[i] = _round(radii_m, xy, seen, margin_m, i, j, -1.0, width[i, j], (cx, cy))
+            now[i] = nxt[i] = _round(radii_m, xy, seen, margin_m, i, j, -1.0, width[i, j], (cx, cy), boxed)
             detoured[i] = True
     # a robot pressed against the first robot on its way to its target, which comes first and bars its way to its own
     # target in turn (their targets cross): the robot escapes, passing on its right; each row reads the second pass's
@@ -165,6 +169,24 @@ def assembly_targets_reference(radii_m: np.ndarray, pose_world: np.ndarray, seen
         u = rel / math.sqrt(rel[0] * rel[0] + rel[1] * rel[1])
         now[i] = nxt[i] = _way_out(radii_m, xy, seen, margin_m, i, (cx, cy), u, np.array([u[1], -u[0]]))
         detoured[i] = True
+        boxed.pop(i, None)          # its target is now this escape
+    # a placed robot (seen, not on its way) that bars the way of a boxed-in robot i (the lowest such row) to the
+    # waypoint it could not take steps aside: ESCAPE_M straight away from i, if no robot bars that way; each row reads
+    # the passes' targets above
+    for k in range(n):
+        if not seen[k] or on_way[k] or detoured[k]:
+            continue
+        for i in sorted(boxed):
+            if not _bars_way(radii_m, xy, margin_m, i, boxed[i], k):
+                continue
+            rx, ry = float(xy[k, 0]) - float(xy[i, 0]), float(xy[k, 1]) - float(xy[i, 1])
+            g = math.sqrt(rx * rx + ry * ry)
+            if g > 0.0:
+                way = np.array([float(xy[k, 0]) + rx / g * ESCAPE_M, float(xy[k, 1]) + ry / g * ESCAPE_M])
+                if not _way_barred(radii_m, xy, seen, margin_m, k, -1, way):
+                    now[k] = nxt[k] = way
+                    detoured[k] = True
+            break
     return now, nxt, detoured
 
 
@@ -191,18 +213,34 @@ def _first_on_target(radii_m: np.ndarray, xy: np.ndarray, seen: np.ndarray, marg
 
 
 def _round(radii_m: np.ndarray, xy: np.ndarray, seen: np.ndarray, margin_m: float, i: int, j: int, left: float,
-           width: float, centroid: tuple[float, float]) -> np.ndarray:
+           width: float, centroid: tuple[float, float], boxed: dict) -> np.ndarray:
     """Robot i's target round its blocker j on the side ``left`` (1.0: pass on j's left), ``width`` = r_i + r_j +
-    margin: the detour's waypoint, or, boxed in, :func:`_way_out`."""
+    margin: the detour's waypoint, or, boxed in, :func:`_way_out` (then ``boxed[i]`` is the waypoint)."""
     rel = xy[j] - xy[i]
     gap = math.sqrt(rel[0] * rel[0] + rel[1] * rel[1])
     u = rel / gap                                                    # towards j
     normal = np.array([-u[1], u[0]]) * left
     clear = width + DETOUR_CLEAR_M          # round j: as far beside the line to j, and that much short of j
     way = xy[i] + normal * clear + u * (gap - clear)
+    boxed.pop(i, None)
     if gap - width < PRESSED_M and _way_barred(radii_m, xy, seen, margin_m, i, j, way):
+        boxed[i] = way
         way = _way_out(radii_m, xy, seen, margin_m, i, centroid, u, normal)   # boxed in
     return way
+
+
+def _bars_way(radii_m: np.ndarray, xy: np.ndarray, margin_m: float, i: int, way: np.ndarray, k: int) -> bool:
+    """Does robot k bar robot i's straight way to ``way``, as a blocker bars a way to a point? A way of length 0 is
+    not barred."""
+    tx, ty = float(way[0]) - float(xy[i, 0]), float(way[1]) - float(xy[i, 1])
+    length = math.sqrt(tx * tx + ty * ty)
+    if not length > 0.0:
+        return False
+    dx, dy = tx / length, ty / length
+    rx, ry = float(xy[k, 0]) - float(xy[i, 0]), float(xy[k, 1]) - float(xy[i, 1])
+    along, lateral = rx * dx + ry * dy, dx * ry - dy * rx
+    width = (float(radii_m[i]) + float(radii_m[k])) + margin_m
+    return along > 0.0 and along < length + width and abs(lateral) < width
 
 
 def _way_barred(radii_m: np.ndarray, xy: np.ndarray, seen: np.ndarray, margin_m: float, i: int, skip: int,

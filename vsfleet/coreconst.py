@@ -72,7 +72,8 @@ CLEAR_ROWS: int = _core.CLEAR_ROWS
 #: to it; a detour's waypoint lies DETOUR_CLEAR_M [m] beyond touching + margin beside the blocker, as far short of it
 ASSEMBLING_M: float = _core.ASSEMBLING_M
 DETOUR_CLEAR_M: float = _core.DETOUR_CLEAR_M
-#: a boxed-in robot heads ESCAPE_M [m] back from its blocker, or out of the crowd, or off back (vs_assembly.h)
+#: a boxed-in robot heads ESCAPE_M [m] back from its blocker, or out of the crowd, or off back; a placed robot that bars
+#: a boxed-in robot's way round its blocker steps ESCAPE_M aside (vs_assembly.h)
 ESCAPE_M: float = _core.ESCAPE_M
 #: which of two robots comes first is drawn afresh every PRIORITY_S [s] of the mission (vs_assembly.h)
 PRIORITY_S: float = _core.PRIORITY_S

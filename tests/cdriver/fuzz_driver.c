@@ -7,7 +7,8 @@
  * either refuse (-1) or return outputs; the sanitizers abort on any out-of-bounds access,
  * use of uninitialised memory they can see, overflow or leak.  Deterministic (own PRNG).
  * assembly_targets' accepted calls must also keep its promises (assembly_kept: untouched rows
- * copied bit for bit, one waypoint per detoured robot, never an unseen robot or one at its point).
+ * copied bit for bit, one waypoint per detoured robot, never an unseen robot, and one at its point only sent
+ * VS_ESCAPE_M aside).
  *
  * Then the failure rule (vs_failure.h) on random states and frames: n robots, W ring slots, a
  * policy (sometimes hostile), a random state (heads, flags, timers), frames of hostile or
@@ -186,12 +187,31 @@ static long assembly_targets_input(double *in)
         in[len] = (next() % 8) ? pitch * (double)((i % 3 == 0) ? (i / 3) % 5 : (i / 3) / 5) : hostile(in, len, in, len);
     for (long i = 0; i < n; i++, len++) in[len] = (next() % 16) ? (double)(next() & 1) : hostile(in, len, in, len);
     for (long i = 0; i < 4 * n; i++, len++) in[len] = (next() % 8) ? uniform() - 0.5 : hostile(in, len, in, len);
+    double *pose = in + 3 + n, *now = in + 3 + 5 * n;
+    for (long i = 0; i < n; i++)     /* a third of the robots on their points (placed: they may step aside) */
+        if (next() % 3 == 0) {
+            now[2 * i] = pose[3 * i];
+            now[2 * i + 1] = pose[3 * i + 1];
+        }
     return len;
 }
 
+/* The robots an accepted assembly_targets call sent aside: detoured while within VS_ASSEMBLING_M of their points. */
+static long assembly_aside(const double *in, const double *out, long got)
+{
+    long n = (long)in[0], aside = 0;
+    const double *pose = in + 3 + n, *now = pose + 3 * n + n;
+    for (long i = 0; i < n && got == 5 * n + 1; i++) {
+        double tx = now[2 * i] - pose[3 * i], ty = now[2 * i + 1] - pose[3 * i + 1];
+        aside += out[4 * n + i] == 1.0 && !(tx * tx + ty * ty > VS_ASSEMBLING_M * VS_ASSEMBLING_M);
+    }
+    return aside;
+}
+
 /* assembly_targets' promises on an accepted call: 5 n + 1 outputs; a robot not detoured keeps its points bit for
- * bit, a detoured one gets one waypoint for both; the flags are 0/1 and the count is theirs; unseen robots and
- * robots within VS_ASSEMBLING_M of their points are never detoured. */
+ * bit, a detoured one gets one waypoint for both; the flags are 0/1 and the count is theirs; unseen robots are
+ * never detoured, and a robot within VS_ASSEMBLING_M of its point only to step aside: VS_ESCAPE_M from where it
+ * stands (checked where its coordinates are small enough for that distance to survive the rounding). */
 static int assembly_kept(const double *in, const double *out, long got)
 {
     long n = (long)in[0], count = 0;
@@ -208,7 +228,12 @@ static int assembly_kept(const double *in, const double *out, long got)
         }
         if (det == 1.0) {
             double tx = now[2 * i] - pose[3 * i], ty = now[2 * i + 1] - pose[3 * i + 1];
-            if (seen[i] == 0.0 || !(tx * tx + ty * ty > VS_ASSEMBLING_M * VS_ASSEMBLING_M * 0.999)) return 0;
+            if (seen[i] == 0.0) return 0;
+            if (!(tx * tx + ty * ty > VS_ASSEMBLING_M * VS_ASSEMBLING_M * 0.999) && fabs(pose[3 * i]) < 1e3
+                && fabs(pose[3 * i + 1]) < 1e3) {   /* placed: stepped aside */
+                double ax = out[2 * i] - pose[3 * i], ay = out[2 * i + 1] - pose[3 * i + 1];
+                if (!(fabs(sqrt(ax * ax + ay * ay) - VS_ESCAPE_M) < 1e-9)) return 0;
+            }
         }
     }
     return out[5 * n] == (double)count;
@@ -1184,7 +1209,7 @@ int main(int argc, char **argv)
     double *in = malloc(sizeof(double) * CAP), *out = malloc(sizeof(double) * CAP);
     if (!in || !out) return 2;
     for (size_t e = 0; e < count; e++) {
-        long refused = 0, ran = 0, detoured = 0;
+        long refused = 0, ran = 0, detoured = 0, aside = 0;
         if (strcmp(all[e].name, "agent_step") == 0) continue;   /* fuzz_agent, last (the figures above stay) */
         for (long it = 0; it < iters; it++) {
             long n = (long)(next() % 301);
@@ -1230,12 +1255,19 @@ int main(int argc, char **argv)
                 fprintf(stderr, "fuzz assembly_targets: broken promise at iteration %ld\n", it);
                 return 1;
             }
-            if (got >= 0 && strcmp(all[e].name, "assembly_targets") == 0) detoured += (long)out[got - 1];
+            if (got >= 0 && strcmp(all[e].name, "assembly_targets") == 0) {
+                detoured += (long)out[got - 1];
+                aside += assembly_aside(in, out, got);
+            }
         }
-        if (strcmp(all[e].name, "assembly_targets") == 0)
-            printf("fuzz %-14s %ld calls: %ld ran (%ld robots detoured), %ld refused\n", all[e].name, iters, ran,
-                   detoured, refused);
-        else
+        if (strcmp(all[e].name, "assembly_targets") == 0) {
+            printf("fuzz %-14s %ld calls: %ld ran (%ld robots detoured, %ld of them placed robots sent aside), "
+                   "%ld refused\n", all[e].name, iters, ran, detoured, aside, refused);
+            if (iters >= 1000 && aside == 0) {   /* the promise on robots sent aside was never put to the test */
+                fprintf(stderr, "fuzz assembly_targets: no placed robot stepped aside in %ld calls\n", iters);
+                return 1;
+            }
+        } else
             printf("fuzz %-14s %ld calls: %ld ran, %ld refused\n", all[e].name, iters, ran, refused);
     }
     free(in); free(out);

@@ -1,7 +1,7 @@
 /* vs_assembly.c - the assembly tie-break (see vs_assembly.h).
  *
  * The numpy reference (vsfleet/assembly.py) computes (n, n) tables of along, lateral and bars and
- * then walks the rows in order, in three passes (as below); here the same numbers are
+ * then walks the rows in order, in four passes (as below); here the same numbers are
  * computed where they are needed, with no table: robot i's row of the tables in one pass over j, and
  * bars[j][i] (head on or not) again from robot j's own way.  Every number is the reference's expression, in its order:
  *     to = point - xy, dist = sqrt(to.x to.x + to.y to.y), d = to / dist,
@@ -18,6 +18,12 @@
 
 #include "vscore.h"
 #include "vs_assembly.h"
+
+/* detoured_out's marks while the passes run (vs_assembly_targets): the pass that sent a row round (1, 2, 3),
+ * BOXED if it was boxed in, STEPS_ASIDE for a placed robot that steps aside; all 1 in the end */
+#define MARK(d) ((d) & 0x0F)
+#define BOXED 0x10
+#define STEPS_ASIDE 4
 
 /* The priorities' draw for a mission elapsed_s [s] old (finite): 0 for its first VS_PRIORITY_S seconds (and before
  * them), then the count of whole periods, saturated at UINT32_MAX. */
@@ -150,10 +156,11 @@ static void escape(size_t n, const double *radius_m, const double *pose_world, c
 }
 
 /* Robot i's target round its blocker j, on the side left (1: j on i's right, pass on its left; -1: on its
- * right), width_j = r_i + r_j + margin: the detour's waypoint, or, boxed in, escape(). */
-static void round_blocker(size_t n, const double *radius_m, const double *pose_world, const unsigned char *seen,
-                          double margin_m, size_t i, size_t j, double left, double width_j, double cx, double cy,
-                          double *wx_out, double *wy_out)
+ * right), width_j = r_i + r_j + margin: the detour's waypoint, or, boxed in, escape() (then 1 is returned and
+ * the waypoint it could not take is in (*way_x, *way_y); else 0). */
+static int round_blocker(size_t n, const double *radius_m, const double *pose_world, const unsigned char *seen,
+                         double margin_m, size_t i, size_t j, double left, double width_j, double cx, double cy,
+                         double *wx_out, double *wy_out, double *way_x, double *way_y)
 {
     double rx = pose_world[3 * j] - pose_world[3 * i], ry = pose_world[3 * j + 1] - pose_world[3 * i + 1];
     double gap = sqrt(rx * rx + ry * ry);
@@ -162,10 +169,24 @@ static void round_blocker(size_t n, const double *radius_m, const double *pose_w
     double clear = width_j + VS_DETOUR_CLEAR_M;   /* round j: as far beside the line to j, that much short */
     double wx = (pose_world[3 * i] + nx * clear) + ux * (gap - clear);
     double wy = (pose_world[3 * i + 1] + ny * clear) + uy * (gap - clear);
-    if (gap - width_j < VS_PRESSED_M && way_barred(n, radius_m, pose_world, seen, margin_m, i, j, wx, wy))
-        escape(n, radius_m, pose_world, seen, margin_m, i, ux, uy, nx, ny, cx, cy, &wx, &wy);   /* boxed in */
+    *way_x = wx;
+    *way_y = wy;
+    int boxed = gap - width_j < VS_PRESSED_M && way_barred(n, radius_m, pose_world, seen, margin_m, i, j, wx, wy);
+    if (boxed) escape(n, radius_m, pose_world, seen, margin_m, i, ux, uy, nx, ny, cx, cy, &wx, &wy);
     *wx_out = wx;
     *wy_out = wy;
+    return boxed;
+}
+
+/* Robot i (sent round, its target in now_out): the same in next_out, marked detoured (mark: the pass's mark);
+ * boxed in (boxed): marked BOXED too, with the waypoint it could not take, (way_x, way_y), kept in next_out
+ * until the last pass (placed robots step aside) has read it. */
+static void send_round_boxed(size_t i, const double *now_out, double *next_out, unsigned char *detoured_out,
+                             unsigned char mark, int boxed, double way_x, double way_y)
+{
+    next_out[2 * i] = boxed ? way_x : now_out[2 * i];
+    next_out[2 * i + 1] = boxed ? way_y : now_out[2 * i + 1];
+    detoured_out[i] = (unsigned char)(boxed ? mark | BOXED : mark);
 }
 
 /* Robot i, its waypoint already in now_out: the same in next_out, marked detoured (mark: the pass's mark). */
@@ -246,24 +267,26 @@ int vs_assembly_targets(size_t n, const double *radius_m, const double *pose_wor
             if (!yields) continue;
         }
         double left = (!mutual && lat_j < 0.0) ? 1.0 : -1.0;   /* j on i's right: pass on its left */
-        round_blocker(n, radius_m, pose_world, seen, margin_m, i, j, left, width_j, cx, cy, &now_out[2 * i],
-                      &now_out[2 * i + 1]);
-        send_round(i, now_out, next_out, detoured_out, 1);
+        double way_x, way_y;
+        int boxed = round_blocker(n, radius_m, pose_world, seen, margin_m, i, j, left, width_j, cx, cy,
+                                  &now_out[2 * i], &now_out[2 * i + 1], &way_x, &way_y);
+        send_round_boxed(i, now_out, next_out, detoured_out, 1, boxed, way_x, way_y);
     }
     /* a robot that kept its way (barred, not sent round: head on, coming first) into a first blocker that waits
      * (sent round, its target its own position) gives way in turn: round it on its right.  Each row reads the
      * first pass's targets: the rows this pass sends round are marked 2, and a first blocker counts only if
-     * marked 1; a row's own outputs are written only at that row. */
+     * marked 1 (MARK: BOXED or not); a row's own outputs are written only at that row. */
     for (size_t i = 0; i < n && n >= 2; i++) {
         double dist, dx, dy, lat_j = 0.0, width_j = 0.0;
         if (detoured_out[i] || !on_way(pose_world, seen, points_now, i, &dist, &dx, &dy)) continue;
         size_t j = first_blocker(n, radius_m, pose_world, seen, margin_m, i, dist, dx, dy, &lat_j, &width_j);
-        if (j == n || detoured_out[j] != 1 || now_out[2 * j] != pose_world[3 * j]
+        if (j == n || MARK(detoured_out[j]) != 1 || now_out[2 * j] != pose_world[3 * j]
             || now_out[2 * j + 1] != pose_world[3 * j + 1])
             continue;
-        round_blocker(n, radius_m, pose_world, seen, margin_m, i, j, -1.0, width_j, cx, cy, &now_out[2 * i],
-                      &now_out[2 * i + 1]);
-        send_round(i, now_out, next_out, detoured_out, 2);
+        double way_x, way_y;
+        int boxed = round_blocker(n, radius_m, pose_world, seen, margin_m, i, j, -1.0, width_j, cx, cy,
+                                  &now_out[2 * i], &now_out[2 * i + 1], &way_x, &way_y);
+        send_round_boxed(i, now_out, next_out, detoured_out, 2, boxed, way_x, way_y);
     }
     /* a robot on its way pressed against the first robot k on its way to its target, k before it, and barring k's
      * way to k's target in turn (their targets cross): it escapes from k, as if boxed in, passing on its right.
@@ -295,8 +318,42 @@ int vs_assembly_targets(size_t n, const double *radius_m, const double *pose_wor
                &now_out[2 * i + 1]);
         send_round(i, now_out, next_out, detoured_out, 1);
     }
+    /* a placed robot (seen, not on its way) that bars the way of a boxed-in robot i (the lowest such row whose
+     * target is still its escape) to the waypoint it could not take steps aside: VS_ESCAPE_M straight away from i,
+     * if no robot bars that way.  It reads the marks and waypoints of the passes above, and writes only its own
+     * row, marked STEPS_ASIDE (never BOXED). */
+    int any_boxed = 0;
+    for (size_t i = 0; i < n; i++) any_boxed |= detoured_out[i] & BOXED;
+    for (size_t k = 0; k < n && any_boxed; k++) {
+        double dist_k, dx_k, dy_k;
+        if (!seen[k] || detoured_out[k] || on_way(pose_world, seen, points_now, k, &dist_k, &dx_k, &dy_k)) continue;
+        for (size_t i = 0; i < n; i++) {
+            double along, lateral, width;
+            if (!(detoured_out[i] & BOXED)) continue;
+            double tx = next_out[2 * i] - pose_world[3 * i], ty = next_out[2 * i + 1] - pose_world[3 * i + 1];
+            double wd = sqrt(tx * tx + ty * ty);
+            if (!(wd > 0.0)
+                || !bars(radius_m, pose_world, margin_m, i, wd, tx / wd, ty / wd, k, &along, &lateral, &width))
+                continue;
+            double rx = pose_world[3 * k] - pose_world[3 * i], ry = pose_world[3 * k + 1] - pose_world[3 * i + 1];
+            double g = sqrt(rx * rx + ry * ry);
+            if (g > 0.0) {
+                double ax = pose_world[3 * k] + rx / g * VS_ESCAPE_M, ay = pose_world[3 * k + 1] + ry / g * VS_ESCAPE_M;
+                if (!way_barred(n, radius_m, pose_world, seen, margin_m, k, n, ax, ay)) {
+                    now_out[2 * k] = ax;
+                    now_out[2 * k + 1] = ay;
+                    send_round(k, now_out, next_out, detoured_out, STEPS_ASIDE);
+                }
+            }
+            break;
+        }
+    }
     size_t count = 0;
     for (size_t i = 0; i < n; i++) {
+        if (detoured_out[i] & BOXED) {   /* its waypoint read: its target in next_out too */
+            next_out[2 * i] = now_out[2 * i];
+            next_out[2 * i + 1] = now_out[2 * i + 1];
+        }
         if (detoured_out[i]) detoured_out[i] = 1;
         count += detoured_out[i];
     }

@@ -32,6 +32,11 @@
  * to its target (as a first blocker, on that way) is k, pressed against k (at a gap above 0), k coming
  * first, and barring k's way to k's target in turn (their targets cross), escapes from k as above,
  * passing on its right.
+ * Last, a placed robot k (seen, not on its way) that bars the way of a robot i boxed in by the first or second
+ * pass (and not sent off by the third) to the waypoint i could not take steps aside: its target is VS_ESCAPE_M
+ * straight away from i (of such robots i, the lowest row), if no robot bars that way; else it keeps its point.
+ * As k leaves its point by more than VS_ASSEMBLING_M it is on its way again, so a step aside is a few
+ * centimetres: enough to open a channel between placed robots for two robots to pass each other.
  * Every agent computes the same targets from the same frame.
  */
 #ifndef VS_ASSEMBLY_H
@@ -42,7 +47,8 @@
 #define VS_ASSEMBLING_M 0.05   /* [m] a seen robot farther than this from its point is on its way to it */
 #define VS_DETOUR_CLEAR_M 0.03 /* [m] a detour's waypoint lies this far beyond touching + margin_m, beside
                                   the line to the blocker and as far short of it */
-#define VS_ESCAPE_M 0.15       /* [m] a boxed-in robot's way back from its blocker, or out of the crowd */
+#define VS_ESCAPE_M 0.15       /* [m] a boxed-in robot's way back from its blocker, or out of the crowd; a
+                                  placed robot's way aside */
 #define VS_PRIORITY_S 10.0     /* [s] the priorities are drawn afresh every this long of the mission */
 #define VS_PRESSED_M 0.03      /* [m] a robot whose centre is less than this beyond width from its blocker's
                                   (gap - width < VS_PRESSED_M) is pressed against it */
