@@ -99,8 +99,9 @@ def assembly_targets_reference(radii_m: np.ndarray, pose_world: np.ndarray, seen
     robot k on its way to its target, k coming first and barring k's way to k's target in turn (their
     targets cross), escapes from k as above, passing on its right; each row reads the second pass's targets.
     Last, a placed robot (seen, not on its way) that bars the way of a robot boxed in by the first or second pass
-    (and not sent off by the third) to the waypoint it could not take steps aside: ESCAPE_M straight away from that
-    robot (the lowest such row), if no robot bars that way.
+    (and not sent off by the third) to the waypoint it could not take steps aside (the lowest such row): ESCAPE_M
+    straight away from that robot, else 45 degrees off that to its left, then its right, then 90 degrees the same,
+    the first way no robot bars.
     Every agent computes the same targets from the same frame (a pure function of it, in + - * / and sqrt,
     which IEEE 754 rounds alike everywhere, and 32-bit integer arithmetic: no libm function whose last bit
     could differ between hosts)."""
@@ -181,11 +182,15 @@ def assembly_targets_reference(radii_m: np.ndarray, pose_world: np.ndarray, seen
                 continue
             rx, ry = float(xy[k, 0]) - float(xy[i, 0]), float(xy[k, 1]) - float(xy[i, 1])
             g = math.sqrt(rx * rx + ry * ry)
-            if g > 0.0:
-                way = np.array([float(xy[k, 0]) + rx / g * ESCAPE_M, float(xy[k, 1]) + ry / g * ESCAPE_M])
-                if not _way_barred(radii_m, xy, seen, margin_m, k, -1, way):
-                    now[k] = nxt[k] = way
-                    detoured[k] = True
+            if g > 0.0:     # away from i, then 45 degrees off it to the left and the right, then 90
+                ux, uy, h = rx / g, ry / g, math.sqrt(0.5)
+                for fx, fy in ((ux, uy), (h * (ux - uy), h * (uy + ux)), (h * (ux + uy), h * (uy - ux)), (-uy, ux),
+                               (uy, -ux)):
+                    way = np.array([float(xy[k, 0]) + fx * ESCAPE_M, float(xy[k, 1]) + fy * ESCAPE_M])
+                    if not _way_barred(radii_m, xy, seen, margin_m, k, -1, way):
+                        now[k] = nxt[k] = way
+                        detoured[k] = True
+                        break
             break
     return now, nxt, detoured
 

@@ -320,8 +320,8 @@ int vs_assembly_targets(size_t n, const double *radius_m, const double *pose_wor
     }
     /* a placed robot (seen, not on its way) that bars the way of a boxed-in robot i (the lowest such row whose
      * target is still its escape) to the waypoint it could not take steps aside: VS_ESCAPE_M straight away from i,
-     * if no robot bars that way.  It reads the marks and waypoints of the passes above, and writes only its own
-     * row, marked STEPS_ASIDE (never BOXED). */
+     * else 45 then 90 degrees off that (left first), the first way no robot bars.  It reads the marks and waypoints
+     * of the passes above, and writes only its own row, marked STEPS_ASIDE (never BOXED). */
     int any_boxed = 0;
     for (size_t i = 0; i < n; i++) any_boxed |= detoured_out[i] & BOXED;
     for (size_t k = 0; k < n && any_boxed; k++) {
@@ -337,12 +337,18 @@ int vs_assembly_targets(size_t n, const double *radius_m, const double *pose_wor
                 continue;
             double rx = pose_world[3 * k] - pose_world[3 * i], ry = pose_world[3 * k + 1] - pose_world[3 * i + 1];
             double g = sqrt(rx * rx + ry * ry);
-            if (g > 0.0) {
-                double ax = pose_world[3 * k] + rx / g * VS_ESCAPE_M, ay = pose_world[3 * k + 1] + ry / g * VS_ESCAPE_M;
-                if (!way_barred(n, radius_m, pose_world, seen, margin_m, k, n, ax, ay)) {
+            if (g > 0.0) {   /* away from i, then 45 degrees off it to the left and the right, then 90 */
+                double ux = rx / g, uy = ry / g, h = sqrt(0.5);
+                double fan[5][2] = {{ux, uy}, {h * (ux - uy), h * (uy + ux)}, {h * (ux + uy), h * (uy - ux)},
+                                    {-uy, ux}, {uy, -ux}};
+                for (int q = 0; q < 5; q++) {
+                    double ax = pose_world[3 * k] + fan[q][0] * VS_ESCAPE_M;
+                    double ay = pose_world[3 * k + 1] + fan[q][1] * VS_ESCAPE_M;
+                    if (way_barred(n, radius_m, pose_world, seen, margin_m, k, n, ax, ay)) continue;
                     now_out[2 * k] = ax;
                     now_out[2 * k + 1] = ay;
                     send_round(k, now_out, next_out, detoured_out, STEPS_ASIDE);
+                    break;
                 }
             }
             break;

@@ -33,8 +33,9 @@
  * first, and barring k's way to k's target in turn (their targets cross), escapes from k as above,
  * passing on its right.
  * Last, a placed robot k (seen, not on its way) that bars the way of a robot i boxed in by the first or second
- * pass (and not sent off by the third) to the waypoint i could not take steps aside: its target is VS_ESCAPE_M
- * straight away from i (of such robots i, the lowest row), if no robot bars that way; else it keeps its point.
+ * pass (and not sent off by the third) to the waypoint i could not take steps aside (of such robots i, the
+ * lowest row): its target is VS_ESCAPE_M straight away from i, else 45 degrees off that to k's left, then its
+ * right, then 90 degrees off it the same, the first of these ways no robot bars; else it keeps its point.
  * As k leaves its point by more than VS_ASSEMBLING_M it is on its way again, so a step aside is a few
  * centimetres: enough to open a channel between placed robots for two robots to pass each other.
  * Every agent computes the same targets from the same frame.
