@@ -178,7 +178,7 @@ def assembly_targets_reference(radii_m: np.ndarray, pose_world: np.ndarray, seen
         if not seen[k] or on_way[k] or detoured[k]:
             continue
         for i in sorted(boxed):
-            if not _bars_way(radii_m, xy, margin_m, i, boxed[i], k):
+            if not any(True for _ in _barring(radii_m, xy, seen, margin_m, i, boxed[i], (k,))):
                 continue
             rx, ry = float(xy[k, 0]) - float(xy[i, 0]), float(xy[k, 1]) - float(xy[i, 1])
             g = math.sqrt(rx * rx + ry * ry)
@@ -195,24 +195,32 @@ def assembly_targets_reference(radii_m: np.ndarray, pose_world: np.ndarray, seen
     return now, nxt, detoured
 
 
-def _first_on_target(radii_m: np.ndarray, xy: np.ndarray, seen: np.ndarray, margin_m: float, targets: np.ndarray,
-                     i: int, only: int = -1) -> int:
-    """The first robot (the least along; ties: the lower row) that bars robot i's straight way to its target
-    ``targets[i]``, as a blocker bars a way to a point; -1 if none or the target is i's position. only >= 0: that
-    robot if it bars the way (whether first or not), else -1."""
-    tx, ty = float(targets[i, 0]) - float(xy[i, 0]), float(targets[i, 1]) - float(xy[i, 1])
+def _barring(radii_m: np.ndarray, xy: np.ndarray, seen: np.ndarray, margin_m: float, i: int, way: np.ndarray, ks):
+    """The robots of ``ks`` (seen, not i) that bar robot i's straight way to ``way``, as a blocker bars a way to its
+    point, each as (along [m], row), in the order of ks; none where the way has length 0."""
+    tx, ty = float(way[0]) - float(xy[i, 0]), float(way[1]) - float(xy[i, 1])
     length = math.sqrt(tx * tx + ty * ty)
     if not length > 0.0:
-        return -1
+        return
     dx, dy = tx / length, ty / length
-    best, first = 0.0, -1
-    for k in (range(len(xy)) if only < 0 else (only,)):
+    for k in ks:
         if k == i or not seen[k]:
             continue
         rx, ry = float(xy[k, 0]) - float(xy[i, 0]), float(xy[k, 1]) - float(xy[i, 1])
         along, lateral = rx * dx + ry * dy, dx * ry - dy * rx
         width = (float(radii_m[i]) + float(radii_m[k])) + margin_m
-        if along > 0.0 and along < length + width and abs(lateral) < width and (first < 0 or along < best):
+        if along > 0.0 and along < length + width and abs(lateral) < width:
+            yield along, k
+
+
+def _first_on_target(radii_m: np.ndarray, xy: np.ndarray, seen: np.ndarray, margin_m: float, targets: np.ndarray,
+                     i: int, only: int = -1) -> int:
+    """The first robot (the least along; ties: the lower row) that bars robot i's straight way to its target
+    ``targets[i]``, as a blocker bars a way to a point; -1 if none or the target is i's position. only >= 0: that
+    robot if it bars the way (whether first or not), else -1."""
+    best, first = 0.0, -1
+    for along, k in _barring(radii_m, xy, seen, margin_m, i, targets[i], range(len(xy)) if only < 0 else (only,)):
+        if first < 0 or along < best:
             best, first = along, k
     return first
 
@@ -234,38 +242,12 @@ def _round(radii_m: np.ndarray, xy: np.ndarray, seen: np.ndarray, margin_m: floa
     return way
 
 
-def _bars_way(radii_m: np.ndarray, xy: np.ndarray, margin_m: float, i: int, way: np.ndarray, k: int) -> bool:
-    """Does robot k bar robot i's straight way to ``way``, as a blocker bars a way to a point? A way of length 0 is
-    not barred."""
-    tx, ty = float(way[0]) - float(xy[i, 0]), float(way[1]) - float(xy[i, 1])
-    length = math.sqrt(tx * tx + ty * ty)
-    if not length > 0.0:
-        return False
-    dx, dy = tx / length, ty / length
-    rx, ry = float(xy[k, 0]) - float(xy[i, 0]), float(xy[k, 1]) - float(xy[i, 1])
-    along, lateral = rx * dx + ry * dy, dx * ry - dy * rx
-    width = (float(radii_m[i]) + float(radii_m[k])) + margin_m
-    return along > 0.0 and along < length + width and abs(lateral) < width
-
-
 def _way_barred(radii_m: np.ndarray, xy: np.ndarray, seen: np.ndarray, margin_m: float, i: int, skip: int,
                 way: np.ndarray) -> bool:
     """Is robot i's straight way to ``way`` barred, as on the way to its point, by a seen robot other than i
     and ``skip`` (-1: none)? A way of length 0 is not."""
-    tx, ty = float(way[0]) - float(xy[i, 0]), float(way[1]) - float(xy[i, 1])
-    length = math.sqrt(tx * tx + ty * ty)
-    if not length > 0.0:
-        return False
-    dx, dy = tx / length, ty / length
-    for k in range(len(xy)):
-        if k == i or k == skip or not seen[k]:
-            continue
-        rx, ry = float(xy[k, 0]) - float(xy[i, 0]), float(xy[k, 1]) - float(xy[i, 1])
-        along, lateral = rx * dx + ry * dy, dx * ry - dy * rx
-        width = (float(radii_m[i]) + float(radii_m[k])) + margin_m
-        if along > 0.0 and along < length + width and abs(lateral) < width:
-            return True
-    return False
+    return any(True for _ in _barring(radii_m, xy, seen, margin_m, i, way,
+                                      (k for k in range(len(xy)) if k != skip)))
 
 
 def _way_out(radii_m: np.ndarray, xy: np.ndarray, seen: np.ndarray, margin_m: float, i: int,
